@@ -1,0 +1,49 @@
+"""``nhstab bench``: benchmarks that write JSON."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+
+def _emit(result: dict, out: Path):
+    from pipeline.records import to_jsonable, write_json
+
+    write_json(out, result)
+    click.echo(json.dumps(to_jsonable(result), indent=2))
+    click.echo(f"wrote {out}", err=True)
+
+
+@click.group(invoke_without_command=True)
+@click.option("--out-dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results/bench"),
+              show_default=True, help="Folder for bench.json and summary.md (when run without a subcommand).")
+@click.pass_context
+def bench(ctx, out_dir):
+    """Run every benchmark (no subcommand) or one of them. Writes JSON."""
+    if ctx.invoked_subcommand is not None:
+        return 0
+    from pipeline.bench import BENCHMARKS, summary_markdown
+    from pipeline.records import write_json, write_text
+
+    results = {}
+    for name, fn in BENCHMARKS.items():
+        click.echo(f"running {name} ...", err=True)
+        results[name] = fn()
+        write_json(out_dir / "bench.json", results)      # keep what is done if a later one fails
+    write_text(out_dir / "summary.md", summary_markdown(results))
+    click.echo(summary_markdown(results))
+    click.echo(f"wrote {out_dir / 'bench.json'} and {out_dir / 'summary.md'}", err=True)
+    return 0
+
+
+@bench.command("gains")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=Path("results/bench/gains.json"),
+              show_default=True)
+def bench_gains_cmd(out):
+    """Gain schedule: N = 1e3, 1e4, 1e5 on the Hilare sinusoid, and the naive method at N = 1e3."""
+    from pipeline.bench import bench_gains
+
+    _emit(bench_gains(), out)
+    return 0

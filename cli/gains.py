@@ -1,0 +1,58 @@
+"""``nhstab gains``: the gain schedule along a nominal trajectory read from a file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from .options import stabilizer_options
+
+
+def _parse_params(items) -> dict:
+    from pipeline.errors import InputError
+
+    params = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise InputError("--param", "KEY=VALUE", item)
+        try:
+            params[key.strip()] = float(value)
+        except ValueError:
+            raise InputError(f"--param {key}", "a number", value) from None
+    return params
+
+
+@click.command()
+@click.argument("trajectory", type=click.Path(path_type=Path))
+@click.option("--model", "model_name", required=True, help="Robot model: heisenberg, unicycle, fwd_car, rwd_car.")
+@click.option("--param", "params", multiple=True, metavar="KEY=VALUE", help="Model parameter, e.g. wheelbase=2.5.")
+@stabilizer_options()
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Folder for gains.npz and gains.json.")
+def gains(trajectory, model_name, params, alpha, delta, gamma, window, end_strategy, out_dir):
+    """Compute the gramian gain schedule along the nominal in TRAJECTORY (CSV or NPZ).
+
+    Writes gains.npz (t, P, K, H eigenvalues, gamma, x0, u0) and gains.json (options and diagnostics:
+    p_m, p_M, the guaranteed rate 2 alpha p_m / p_M, the smallest eigenvalue of H and where).
+    """
+    from pipeline.control import StabilizerOptions, compute_schedule
+    from pipeline.models import make_model
+    from pipeline.records import write_json, write_npz
+    from pipeline.trajectory_io import read_trajectory
+
+    model = make_model(model_name, **_parse_params(params))
+    opts = StabilizerOptions(alpha=alpha, delta=delta, gamma=gamma, window=window, end_strategy=end_strategy).validated()
+    nominal = read_trajectory(trajectory, model)
+    schedule = compute_schedule(nominal, opts)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_npz(out_dir / "gains.npz", t=schedule.t, P=schedule.P, K=schedule.K, H_eigenvalues=schedule.H_eigenvalues,
+              gamma=schedule.gamma, x0=schedule.nominal.x, u0=schedule.nominal.u)
+    write_json(out_dir / "gains.json", {"trajectory": str(trajectory), **model.describe(), **schedule.diagnostics})
+    d = schedule.diagnostics
+    click.echo(f"p_m = {d['p_m']:.4g}, p_M = {d['p_M']:.4g}, rate bound = {d['rate_bound']:.4g} 1/s, "
+               f"min eig H = {d['h_min_eigenvalue']:.4g} at t = {d['h_min_eigenvalue_time_s']:.4g} s, "
+               f"max ||K|| = {d['max_gain_norm']:.4g}")
+    click.echo(f"wrote {out_dir / 'gains.npz'} and {out_dir / 'gains.json'}")
+    return 0

@@ -1,0 +1,74 @@
+"""Entry point: the ``nhstab`` group, and turning errors into one-line messages."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from pipeline import __version__
+from pipeline.errors import InputError, PipelineError, SingularGramianError
+
+#: exit code for bad input (arguments, options, files, unusable trajectories)
+EXIT_INPUT = 2
+#: exit code for a numerical failure in a computation
+EXIT_FAILURE = 1
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+class NhstabGroup(click.Group):
+    """A click group whose errors are one line on stderr with a non-zero exit code, no traceback."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        try:
+            rv = super().main(args=args, prog_name=prog_name or "nhstab", complete_var=complete_var,
+                              standalone_mode=False, **extra)
+        except click.exceptions.UsageError as exc:
+            ctx = exc.ctx
+            where = f" ({ctx.command_path})" if ctx is not None else ""
+            click.echo(f"nhstab: error{where}: {_one_line(exc.format_message())}", err=True)
+            sys.exit(EXIT_INPUT)
+        except (InputError, SingularGramianError) as exc:
+            click.echo(f"nhstab: error: {_one_line(exc)}", err=True)
+            sys.exit(EXIT_INPUT)
+        except PipelineError as exc:
+            click.echo(f"nhstab: failed: {_one_line(exc)}", err=True)
+            sys.exit(EXIT_FAILURE)
+        except click.exceptions.Abort:
+            click.echo("nhstab: aborted", err=True)
+            sys.exit(130)
+        except click.ClickException as exc:
+            click.echo(f"nhstab: error: {_one_line(exc.format_message())}", err=True)
+            sys.exit(exc.exit_code)
+        except OSError as exc:
+            click.echo(f"nhstab: error: {_one_line(exc)}", err=True)
+            sys.exit(EXIT_INPUT)
+        sys.exit(rv if isinstance(rv, int) else 0)
+
+
+@click.group(cls=NhstabGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="nhstab")
+def cli():
+    """Plan, stabilize and stress-test nonholonomic robots (Walsh et al. 1992 composite controller)."""
+
+
+def _register():
+    from . import bench, gains, paper
+
+    cli.add_command(paper.paper)
+    cli.add_command(gains.gains)
+    cli.add_command(bench.bench)
+
+
+_register()
+
+
+def main():  # console script
+    cli.main()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

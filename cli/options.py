@@ -1,0 +1,29 @@
+"""Options shared by several commands."""
+
+from __future__ import annotations
+
+import click
+
+from pipeline.control import END_STRATEGIES, WINDOWS
+
+
+def stabilizer_options(defaults: bool = True):
+    """--alpha, --delta, --gamma, --window, --end-strategy. With ``defaults=False`` they default to
+    None (meaning: keep the case's own value)."""
+
+    def deco(f):
+        f = click.option("--end-strategy", type=click.Choice(END_STRATEGIES), default="frozen" if defaults else None,
+                         help="What P is where the window runs off the trajectory (see README).")(f)
+        f = click.option("--window", type=click.Choice(WINDOWS), default="future" if defaults else None,
+                         help="future: P_c = H_c(t, t+delta)^-1 (Proposition 1); past: P_r (Remark 2).")(f)
+        f = click.option("--gamma", type=float, default=1.0 if defaults else None, help="Gain factor, >= 1/2.")(f)
+        f = click.option("--delta", type=float, default=1.0 if defaults else None, help="Window length [s], > 0.")(f)
+        f = click.option("--alpha", type=float, default=0.1 if defaults else None, help="Rate parameter, > 0.")(f)
+        return f
+
+    return deco
+
+
+def collect(**values) -> dict:
+    """Drop the options left at None."""
+    return {k: v for k, v in values.items() if v is not None}

@@ -1,0 +1,94 @@
+"""Per-interval pieces of the gramian, integrated to high order.
+
+For an interval [s, s + l] of the nominal, :func:`interval_segments` returns, anchored at s,
+
+    P = Phi(s, s + l)                         (transition matrix, backwards across the interval)
+    W = int_s^{s+l} exp(c (s - tau)) Phi(s, tau) B(tau) B(tau)^T Phi(s, tau)^T dtau
+
+by integrating X(tau) = Phi(s, tau), X' = -X A(tau), X(s) = I, together with W' = exp(c (s - tau))
+X B B^T X^T, with one fixed step (or a few substeps) of the 8th-order Dormand-Prince tableau (the
+coefficients of scipy's DOP853), vectorised over all intervals at once. A and B come from the model's
+Jacobians along the nominal, evaluated at the stage times.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.integrate import DOP853
+
+from ..nominal import Nominal
+from .windows import Segments
+
+_A = np.asarray(DOP853.A, dtype=float)[: DOP853.n_stages, : DOP853.n_stages]
+_B = np.asarray(DOP853.B, dtype=float)
+_C = np.asarray(DOP853.C, dtype=float)[: DOP853.n_stages]
+_STAGES = DOP853.n_stages
+# the strictly lower triangle of the tableau, row by row: row i holds a_i0 .. a_i(i-1)
+_A_LOWER = np.concatenate([_A[i, :i] for i in range(_STAGES)])
+_PAIR_START = np.concatenate([[0], np.cumsum(np.arange(_STAGES))]).astype(int)
+#: intervals integrated at once (bounds the memory of the stage arrays)
+CHUNK = 8192
+
+
+def interval_segments(nominal: Nominal, starts: np.ndarray, length: float | np.ndarray,
+                      c: float, substeps: int = 1) -> Segments:
+    """Start-anchored segments for the intervals [starts[k], starts[k] + length[k]]."""
+    starts = np.asarray(starts, dtype=float)
+    lengths = np.broadcast_to(np.asarray(length, dtype=float), starts.shape)
+    n = nominal.model.n
+    K = starts.shape[0]
+    P = np.empty((K, n, n))
+    W = np.empty((K, n, n))
+    for lo in range(0, K, CHUNK):
+        hi = min(K, lo + CHUNK)
+        P[lo:hi], W[lo:hi] = _integrate(nominal, starts[lo:hi], lengths[lo:hi], c, substeps)
+    return Segments(P, W, lengths.copy())
+
+
+def _integrate(nominal: Nominal, s0: np.ndarray, lengths: np.ndarray, c: float, substeps: int):
+    model = nominal.model
+    n = model.n
+    K = s0.shape[0]
+    X = np.broadcast_to(np.eye(n), (K, n, n)).copy()
+    W = np.zeros((K, n, n))
+    h = lengths / substeps
+    # all stage times of all substeps, evaluated in one call to the model, in increasing time order
+    offsets = (np.arange(substeps)[:, None] + _C[None, :]).reshape(-1)          # (substeps * stages,)
+    order = np.argsort(offsets, kind="stable")
+    taus = s0[:, None] + h[:, None] * offsets[order][None, :]                     # (K, S), sorted
+    x0, u0 = nominal.at(taus)
+    A_sorted, B_sorted = model.linearize(x0, u0)
+    A_all = np.empty_like(A_sorted)
+    B_all = np.empty_like(B_sorted)
+    A_all[:, order], B_all[:, order] = A_sorted, B_sorted                         # back to stage order
+    weights = np.empty_like(taus)
+    weights[:, order] = np.exp(c * (s0[:, None] - taus))
+    hA = h[:, None] * _A_LOWER[None, :]                                          # (K, pairs)
+    kX = np.empty((_STAGES, K, n, n))
+    for j in range(substeps):
+        dW = np.zeros((K, n, n))
+        for i in range(_STAGES):
+            if i:
+                # X_i = X + h sum_q a_iq k_q, all q at once
+                coef = hA[:, _PAIR_START[i]:_PAIR_START[i] + i]                   # (K, i)
+                Xi = X + np.einsum("kq,qkab->kab", coef, kX[:i])
+            else:
+                Xi = X
+            col = j * _STAGES + i
+            kX[i] = -(Xi @ A_all[:, col])
+            if _B[i] != 0.0:
+                XB = Xi @ B_all[:, col]
+                dW += (_B[i] * weights[:, col])[:, None, None] * (XB @ np.swapaxes(XB, -1, -2))
+        X = X + h[:, None, None] * np.tensordot(_B, kX, axes=1)
+        W = W + h[:, None, None] * dW
+    W = 0.5 * (W + np.swapaxes(W, -1, -2))
+    return X, W
+
+
+def to_end_anchored(seg: Segments, c: float) -> Segments:
+    """Convert start-anchored segments (weight exp(c (s - tau))) into end-anchored ones:
+    P = Phi(end, start) and W with weight exp(c (end - tau)). Used for past windows."""
+    F = np.linalg.inv(seg.P)
+    scale = np.exp(c * seg.d)[:, None, None]
+    W = scale * (F @ seg.W @ np.swapaxes(F, -1, -2))
+    return Segments(F, 0.5 * (W + np.swapaxes(W, -1, -2)), seg.d.copy())

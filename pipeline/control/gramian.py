@@ -1,0 +1,364 @@
+"""The gain schedule of Proposition 1 (future window) and Remark 2 (past window).
+
+Convention (NOTES.md item 1, the 6-alpha weighting; the constant ``weight`` = 6 is a parameter):
+
+    H_c(t, t + delta) = int_t^{t+delta} exp(w alpha (t - tau)) Phi(t, tau) B B^T Phi(t, tau)^T dtau
+    P_c(t) = H_c(t, t + delta)^-1,        u = u0 - gamma(t) B(t)^T P_c(t) (x - x0)
+
+``window="past"`` uses the window [t - delta, t] with the same weighting exp(w alpha (t - tau)):
+P_r(t) = [int_{t-delta}^t exp(w alpha (t - tau)) Phi(t, tau) B B^T Phi(t, tau)^T dtau]^-1. (The paper
+writes H_c(t, t - delta); read literally, with the limits reversed, that integral is negative
+definite. We use the positive definite matrix the control law needs.)
+
+The ends of a finite trajectory. A future window needs t + delta <= T and a past one t - delta >= t0.
+Where a window would run off the trajectory the default ``end_strategy="frozen"`` stops sliding it at
+the boundary time s (s = T - delta for the future window, s = t0 + delta for the past one) and carries
+that last whole window's gramian along the nominal's linearised flow:
+
+    H(t) = Phi(t, s) H(s) Phi(t, s)^T,   so   dP/dt = -P A - A^T P   there.
+
+P is continuous at s, as far from singular as the last whole window (Phi spans at most delta), and
+along the linearised closed loop V = e^T P e obeys dV/dt = -2 gamma |B^T P e|^2 <= 0: the error keeps
+being driven down wherever the remaining motion can act on it. (Carrying the exponential weighting on
+past s would make P, and with it the gains, shrink by up to exp(w alpha delta) by the end.)
+``end_strategy="switch"`` instead uses the other window there (P_r at the end of a future-window
+schedule, P_c at the start of a past-window one), as Remark 2 suggests; it needs a trajectory of at
+least 2 delta, and the gains jump where it switches.
+
+Computation: per-interval pieces are integrated to 8th order (``elements``), then every window is an
+associative combination of pieces (``windows``): linear in the number of grid points, with no
+subtraction and nothing spanning more than one window, so long trajectories lose no accuracy.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError, NumericalError, SingularGramianError
+from ..nominal import Nominal
+from .elements import interval_segments, to_end_anchored
+from .windows import Segments, combine, exclusive_prefix, scan, sliding
+
+WINDOWS = ("future", "past")
+END_STRATEGIES = ("frozen", "switch")
+
+
+def _positive(name: str, value) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InputError(name, "a positive finite number", value) from None
+    if not math.isfinite(v) or v <= 0:
+        raise InputError(name, "a positive finite number", value)
+    return v
+
+
+@dataclass(frozen=True)
+class StabilizerOptions:
+    """Parameters of the gramian stabilizer.
+
+    alpha: the rate parameter (> 0); delta: window length in s (> 0); gamma: gain factor, a number or
+    a function of time (array in, array out), >= 1/2 everywhere; weight: the weighting constant w of
+    exp(w alpha (t - tau)) (6 in the paper's Proposition 1); window: "future" (P_c) or "past" (P_r);
+    end_strategy: "frozen" or "switch" (see the module docstring); singular_rtol / singular_atol:
+    H(t) counts as singular where its smallest eigenvalue is <= max(atol, rtol * lambda_max(H(t))),
+    i.e. where it cannot be told from singular in double precision.
+    """
+
+    alpha: float = 0.1
+    delta: float = 1.0
+    gamma: float | Callable[[np.ndarray], np.ndarray] = 1.0
+    weight: float = 6.0
+    window: str = "future"
+    end_strategy: str = "frozen"
+    singular_rtol: float = 1e-11
+    singular_atol: float = 1e-300
+    max_substep_fraction: float = 1.0 / 16.0
+
+    def validated(self) -> "StabilizerOptions":
+        _positive("alpha", self.alpha)
+        _positive("delta", self.delta)
+        _positive("weight", self.weight)
+        _positive("singular_rtol", self.singular_rtol)
+        _positive("max_substep_fraction", self.max_substep_fraction)
+        if self.window not in WINDOWS:
+            raise InputError("window", "one of " + ", ".join(WINDOWS), self.window)
+        if self.end_strategy not in END_STRATEGIES:
+            raise InputError("end_strategy", "one of " + ", ".join(END_STRATEGIES), self.end_strategy)
+        if not callable(self.gamma):
+            try:
+                g = float(self.gamma)
+            except (TypeError, ValueError):
+                raise InputError("gamma", "a number >= 1/2 or a function of time", self.gamma) from None
+            if not math.isfinite(g) or g < 0.5:
+                raise InputError("gamma", "a finite number >= 1/2 (Proposition 1)", self.gamma)
+        return self
+
+    def gamma_on(self, t: np.ndarray) -> np.ndarray:
+        if callable(self.gamma):
+            try:
+                g = np.broadcast_to(np.asarray(self.gamma(t), dtype=float), t.shape).copy()
+            except (TypeError, ValueError) as exc:
+                raise InputError("gamma", "a function returning one number per time", str(exc)) from None
+            if not np.all(np.isfinite(g)):
+                raise InputError("gamma", "finite and bounded at every time", "NaN or inf")
+            if g.min() < 0.5:
+                k = int(np.argmin(g))
+                raise InputError("gamma", "a function >= 1/2 at every time (Proposition 1)",
+                                 f"{g[k]:.6g} at t = {t[k]:.6g} s")
+            return g
+        return np.full(t.shape, float(self.gamma))
+
+    def describe(self) -> dict:
+        return {"alpha": float(self.alpha), "delta": float(self.delta),
+                "gamma": "function" if callable(self.gamma) else float(self.gamma),
+                "weight": float(self.weight), "window": self.window, "end_strategy": self.end_strategy,
+                "weighting": f"exp({self.weight:g} alpha (t - tau))"}
+
+
+@dataclass
+class GainSchedule:
+    """P(t), K(t) = gamma(t) B(t)^T P(t) on a uniform grid, with diagnostics. Linear in between."""
+
+    t: np.ndarray                 # (N,)
+    H: np.ndarray                 # (N, n, n) the window gramian H(t) (future: H_c(t, t + delta))
+    P: np.ndarray                 # (N, n, n) P = H^-1
+    K: np.ndarray                 # (N, m, n)
+    H_eigenvalues: np.ndarray     # (N, n), ascending, eigenvalues of the window gramian H(t)
+    gamma: np.ndarray             # (N,)
+    options: StabilizerOptions
+    nominal: Nominal
+    diagnostics: dict = field(default_factory=dict)
+
+    @property
+    def h(self) -> float:
+        return float(self.t[1] - self.t[0])
+
+    def _locate(self, tau):
+        s = np.clip((np.asarray(tau, dtype=float) - self.t[0]) / self.h, 0.0, len(self.t) - 1.0)
+        k = np.minimum(np.floor(s).astype(int), len(self.t) - 2)
+        return k, s - k
+
+    def gain_at(self, tau):
+        """K(tau), linearly interpolated between grid points; shape (..., m, n)."""
+        k, frac = self._locate(tau)
+        frac = np.asarray(frac)[..., None, None]
+        return (1.0 - frac) * self.K[k] + frac * self.K[k + 1]
+
+    def P_at(self, tau):
+        k, frac = self._locate(tau)
+        frac = np.asarray(frac)[..., None, None]
+        return (1.0 - frac) * self.P[k] + frac * self.P[k + 1]
+
+    def diagnose(self, t_from: float | None = None, t_to: float | None = None) -> dict:
+        """Diagnostics over the grid points in [t_from, t_to] (default: the whole schedule).
+
+        p_m, p_M: extreme eigenvalues of P; rate_bound = 2 alpha p_m / p_M (Proposition 1's
+        guaranteed rate); the smallest eigenvalue of H and its time; the largest gain norm.
+        """
+        lo = -np.inf if t_from is None else t_from - 1e-9 * self.h
+        hi = np.inf if t_to is None else t_to + 1e-9 * self.h
+        sel = np.flatnonzero((self.t >= lo) & (self.t <= hi))
+        if sel.size == 0:
+            raise InputError("t_from/t_to", f"a span containing grid points of [{self.t[0]:.6g}, {self.t[-1]:.6g}] s",
+                             (t_from, t_to))
+        lam = self.H_eigenvalues[sel]
+        p_m = float(np.min(1.0 / lam[:, -1]))
+        p_M = float(np.max(1.0 / lam[:, 0]))
+        k_min = int(np.argmin(lam[:, 0]))
+        gain_norms = np.linalg.norm(self.K[sel], ord=2, axis=(1, 2))
+        k_gain = int(np.argmax(gain_norms))
+        return {
+            "p_m": p_m, "p_M": p_M,
+            "rate_bound": 2.0 * float(self.options.alpha) * p_m / p_M,
+            "h_min_eigenvalue": float(lam[k_min, 0]), "h_min_eigenvalue_time_s": float(self.t[sel][k_min]),
+            "h_max_eigenvalue": float(lam[:, -1].max()),
+            "max_gain_norm": float(gain_norms[k_gain]), "max_gain_norm_time_s": float(self.t[sel][k_gain]),
+        }
+
+    def evaluator(self) -> "ScheduleEvaluator":
+        """A fast scalar-time evaluator of (x0, u0, K) for closed-loop integration."""
+        return ScheduleEvaluator(self)
+
+    def control(self, tau: float, x: np.ndarray) -> np.ndarray:
+        """u = u0(tau) - K(tau) e, e = x - x0(tau) (angles wrapped)."""
+        x0, u0 = self.nominal.at(tau)
+        e = self.nominal.model.state_error(x, x0)
+        return u0 - self.gain_at(tau) @ e
+
+
+class ScheduleEvaluator:
+    """(x0(t), u0(t), K(t)) at one time, fast: O(1) index arithmetic on the uniform grid.
+
+    x0 is the cubic Hermite interpolant through the grid samples with the model's own slopes
+    f(x0) + g(x0) u0 (4th-order accurate: well below 1e-10 on the grids used here); u0 comes from the
+    nominal itself (its closed form, or its defining interpolant); K is linear between grid points.
+    """
+
+    def __init__(self, schedule: GainSchedule):
+        nom = schedule.nominal
+        self.model = nom.model
+        self.t0 = float(schedule.t[0])
+        self.h = schedule.h
+        self.last = len(schedule.t) - 2
+        self.x = nom.x
+        self.xd = nom.model.rhs(nom.x, nom.u) * self.h
+        self.K = schedule.K
+        self._u = nom._u_func
+        self.t_end = float(schedule.t[-1])
+
+    def __call__(self, tau: float):
+        tau = min(max(float(tau), self.t0), self.t_end)
+        s = (tau - self.t0) / self.h
+        k = min(int(s), self.last)
+        a = s - k
+        a2, a3 = a * a, a * a * a
+        h00, h10, h01, h11 = 2 * a3 - 3 * a2 + 1, a3 - 2 * a2 + a, -2 * a3 + 3 * a2, a3 - a2
+        x0 = h00 * self.x[k] + h10 * self.xd[k] + h01 * self.x[k + 1] + h11 * self.xd[k + 1]
+        u0 = np.asarray(self._u(np.array([tau])), dtype=float)[0]
+        K = (1.0 - a) * self.K[k] + a * self.K[k + 1]
+        return x0, u0, K
+
+
+def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None, **overrides) -> GainSchedule:
+    """Gain schedule of the gramian stabilizer along ``nominal``.
+
+    Raises :class:`SingularGramianError` (naming the time and the smallest eigenvalue) where the
+    window gramian is singular, and :class:`InputError` for bad options or a trajectory shorter
+    than delta.
+    """
+    if options is None:
+        options = StabilizerOptions()
+    if overrides:
+        options = StabilizerOptions(**{**options.__dict__, **overrides})
+    opts = options.validated()
+    nom = nominal if nominal.is_uniform() else nominal.resampled(len(nominal.t))
+    model = nom.model
+    n = model.n
+    t = nom.t
+    N = len(t)
+    T = nom.duration
+    h = T / (N - 1)
+    delta = float(opts.delta)
+    if delta > T * (1.0 + 1e-12):
+        raise InputError("delta", f"at most the trajectory duration {T:.6g} s", delta)
+    delta = min(delta, T)
+    cw = float(opts.weight) * float(opts.alpha)
+    w = int(math.floor(delta / h + 1e-9))
+    phi = delta - w * h
+    if phi <= 1e-9 * h:
+        phi = 0.0
+    n_full = min(N, int(math.floor((T - delta) / h + 1e-9)) + 1)   # points with t + delta <= T
+    i_min = N - n_full                                              # first point with t - delta >= t0
+    substeps = max(1, int(math.ceil(h / (opts.max_substep_fraction * delta) - 1e-9)))
+
+    E = interval_segments(nom, t[:-1], h, cw, substeps)             # K = N - 1 start-anchored pieces
+    H = np.empty((N, n, n))
+    future = opts.window == "future"
+    if opts.end_strategy == "switch" and 2 * n_full < N:
+        raise InputError("end_strategy", f"'frozen' for a trajectory shorter than 2 delta = {2 * delta:.6g} s",
+                         opts.end_strategy)
+    if future:
+        H[:n_full] = _future_windows(nom, E, w, phi, n_full, cw, substeps).W
+        if n_full < N:
+            if opts.end_strategy == "frozen":
+                H[n_full:] = _frozen_end(nom, E, n_full, delta, cw, substeps)
+            else:
+                H[n_full:] = _past_windows(nom, E, w, phi, n_full, cw, substeps).W[: N - n_full][::-1]
+    else:
+        # past windows for i = i_min .. N-1, computed in reversed order
+        H[i_min:] = _past_windows(nom, E, w, phi, n_full, cw, substeps).W[::-1]
+        if i_min > 0:
+            if opts.end_strategy == "frozen":
+                H[:i_min] = _frozen_start(nom, E, w, phi, i_min, cw, substeps)
+            else:
+                H[:i_min] = _future_windows(nom, E, w, phi, i_min, cw, substeps).W
+
+    H = 0.5 * (H + np.swapaxes(H, -1, -2))
+    if not np.all(np.isfinite(H)):
+        k = int(np.argmax(~np.all(np.isfinite(H), axis=(1, 2))))
+        raise NumericalError(f"the window gramian is not finite at t = {t[k]:.6g} s")
+    lam, V = np.linalg.eigh(H)
+    thresholds = np.maximum(float(opts.singular_atol), float(opts.singular_rtol) * np.abs(lam[:, -1]))
+    bad = lam[:, 0] <= thresholds
+    if bad.any():
+        k = int(np.argmax(bad))
+        rank = int(np.sum(lam[k] > thresholds[k]))
+        raise SingularGramianError(t[k], lam[k, 0], rank, n, thresholds[k], opts.window)
+    P = (V / lam[:, None, :]) @ np.swapaxes(V, -1, -2)
+    P = 0.5 * (P + np.swapaxes(P, -1, -2))
+    gamma = opts.gamma_on(t)
+    B = model.g(nom.x)
+    K = gamma[:, None, None] * (np.swapaxes(B, -1, -2) @ P)
+
+    schedule = GainSchedule(t=t.copy(), H=H, P=P, K=K, H_eigenvalues=lam, gamma=gamma, options=opts, nominal=nom)
+    schedule.diagnostics = {
+        **opts.describe(),
+        "model": model.name,
+        "grid_points": N, "grid_step_s": h, "duration_s": T,
+        "window_intervals": w, "window_fraction_s": phi, "substeps": substeps,
+        "sliding_window_until_s": float(t[n_full - 1]) if future else None,
+        "sliding_window_from_s": float(t[i_min]) if not future else None,
+        **schedule.diagnose(),
+    }
+    return schedule
+
+
+# ---- the window families -------------------------------------------------------------------------
+
+def _future_windows(nom: Nominal, E: Segments, w: int, phi: float, count: int, cw: float, substeps: int) -> Segments:
+    """Start-anchored windows [t_i, t_i + delta] for i = 0..count-1."""
+    R = sliding(E, w, -cw)[:count]
+    if phi > 0.0:
+        frac = interval_segments(nom, nom.t[w:w + count], phi, cw, substeps)
+        R = combine(R, frac, -cw)
+    return R
+
+
+def _past_windows(nom: Nominal, E: Segments, w: int, phi: float, count: int, cw: float, substeps: int) -> Segments:
+    """End-anchored windows [t_i - delta, t_i] for i = N-1, N-2, ..., N-count (reversed order)."""
+    N = len(nom.t)
+    Er = to_end_anchored(E, cw)[::-1]
+    R = sliding(Er, w, cw)[:count]                   # R[k] is the window ending at t_{N-1-k}
+    if phi > 0.0:
+        ends = nom.t[N - 1 - np.arange(count) - w]   # t_{i-w}
+        frac = to_end_anchored(interval_segments(nom, ends - phi, phi, cw, substeps), cw)
+        R = combine(R, frac, cw)
+    return R
+
+
+def _carry(G: np.ndarray, Phi_back: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """Carry a gramian G given at time a along the linearised flow to times t:
+    scale * Phi(t, a) G Phi(t, a)^T, given Phi_back = Phi(a, t)."""
+    F = np.linalg.inv(Phi_back)
+    return scale * (F @ G @ np.swapaxes(F, -1, -2))
+
+
+def _frozen_end(nom: Nominal, E: Segments, n_full: int, delta: float, cw: float, substeps: int) -> np.ndarray:
+    """H_c(s, T), s = T - delta, carried to each t_i > s (i = n_full .. N-1)."""
+    t = nom.t
+    a = t[-1] - delta
+    j0 = n_full - 1                                   # t_j0 <= a < t_{j0+1}
+    piece = interval_segments(nom, np.array([a]), np.array([t[j0 + 1] - a]), cw, substeps)
+    chain = Segments(np.concatenate([piece.P, E.P[j0 + 1:]]), np.concatenate([piece.W, E.W[j0 + 1:]]),
+                     np.concatenate([piece.d, E.d[j0 + 1:]]))
+    pref = scan(chain, -cw)                            # pref[q]: from a to t_{j0+1+q}
+    return _carry(pref.W[-1], pref.P)
+
+
+def _frozen_start(nom: Nominal, E: Segments, w: int, phi: float, i_min: int, cw: float, substeps: int) -> np.ndarray:
+    """The past window at s = t0 + delta carried back to each t_i < s (i = 0 .. i_min-1).
+
+    H_r(s) = exp(cw delta) Phi(s, t0) H_c(t0, s) Phi(s, t0)^T, so H(t) = exp(cw delta) Phi(t, t0) H_c(t0, s) Phi(t, t0)^T.
+    """
+    G = _future_windows(nom, E, w, phi, 1, cw, substeps).W[0]
+    pre = exclusive_prefix(E[:i_min - 1] if i_min > 1 else E[:0], -cw) if i_min > 1 else None
+    if pre is None:
+        Phi_back = np.eye(E.n)[None]
+    else:
+        Phi_back = pre.P                               # Phi(t0, t_i), i = 0 .. i_min-1
+    return _carry(G, Phi_back, math.exp(cw * (w * (nom.t[1] - nom.t[0]) + phi)))

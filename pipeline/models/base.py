@@ -1,0 +1,105 @@
+"""The interface every robot model implements.
+
+A model is a control-affine system x' = f(x) + g(x) u. It names its states and inputs, gives f, g
+and the two Jacobians the stabilizer needs (df/dx and d(g(x) u)/dx), its parameters and limits.
+Every method is vectorised over leading axes: ``x`` has shape (..., n), ``u`` (..., m), ``g(x)``
+(..., n, m), the Jacobians (..., n, n).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+from ..geometry import wrap_angle
+
+
+@dataclass(frozen=True)
+class Model:
+    """Base class. Subclasses set the class attributes and implement ``g`` and ``dgu_dx``."""
+
+    name: str = field(default="", init=False)
+    state_names: tuple[str, ...] = field(default=(), init=False)
+    input_names: tuple[str, ...] = field(default=(), init=False)
+    #: indices of states that are angles (errors in them are wrapped to [-pi, pi))
+    angle_states: tuple[int, ...] = field(default=(), init=False)
+    #: units of states and inputs, for file headers
+    state_units: tuple[str, ...] = field(default=(), init=False)
+    input_units: tuple[str, ...] = field(default=(), init=False)
+
+    # ---- sizes -----------------------------------------------------------------------------
+    @property
+    def n(self) -> int:
+        return len(self.state_names)
+
+    @property
+    def m(self) -> int:
+        return len(self.input_names)
+
+    # ---- dynamics --------------------------------------------------------------------------
+    def f(self, x):
+        """Drift vector field, shape (..., n). All built-in models are drift-free."""
+        x = np.asarray(x, dtype=float)
+        return np.zeros_like(x)
+
+    def dfdx(self, x):
+        """Jacobian of the drift, shape (..., n, n)."""
+        x = np.asarray(x, dtype=float)
+        return np.zeros(x.shape + (self.n,))
+
+    def g(self, x):  # pragma: no cover - abstract
+        """Input vector fields as columns, shape (..., n, m)."""
+        raise NotImplementedError
+
+    def dgu_dx(self, x, u):  # pragma: no cover - abstract
+        """Jacobian of g(x) u with respect to x at fixed u, shape (..., n, n)."""
+        raise NotImplementedError
+
+    def rhs(self, x, u):
+        """x' = f(x) + g(x) u, shape (..., n)."""
+        x = np.asarray(x, dtype=float)
+        u = np.asarray(u, dtype=float)
+        return self.f(x) + np.einsum("...ij,...j->...i", self.g(x), u)
+
+    def linearize(self, x0, u0):
+        """A = df/dx(x0) + d(g u0)/dx(x0) and B = g(x0) (Proposition 1)."""
+        return self.dfdx(x0) + self.dgu_dx(x0, u0), self.g(x0)
+
+    # ---- parameters and limits ---------------------------------------------------------------
+    def params(self) -> dict:
+        """Physical parameters and limits as a plain dict (recorded with every result)."""
+        return {}
+
+    def input_limits(self) -> np.ndarray:
+        """(m, 2) array of [low, high] per input; +-inf where unlimited."""
+        return np.tile([-np.inf, np.inf], (self.m, 1))
+
+    def state_limits(self) -> np.ndarray:
+        """(n, 2) array of [low, high] per state; +-inf where unlimited."""
+        return np.tile([-np.inf, np.inf], (self.n, 1))
+
+    def state_error(self, x, x_ref):
+        """e = x - x_ref with angle states wrapped to [-pi, pi)."""
+        e = np.asarray(x, dtype=float) - np.asarray(x_ref, dtype=float)
+        if self.angle_states:
+            idx = list(self.angle_states)
+            e[..., idx] = wrap_angle(e[..., idx])
+        return e
+
+    def describe(self) -> dict:
+        return {"model": self.name, "state_names": list(self.state_names),
+                "input_names": list(self.input_names), **self.params()}
+
+
+def positive_param(name: str, value, model: str) -> float:
+    """Validate a strictly positive finite model parameter."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{model}.{name}", "a positive number", value) from None
+    if not math.isfinite(v) or v <= 0:
+        raise InputError(f"{model}.{name}", "a positive finite number", value)
+    return v

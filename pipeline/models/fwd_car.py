@@ -1,0 +1,68 @@
+"""Front-wheel-drive car of the paper, equation (12).
+
+States (x1, x2, x3 = steering angle phi, x4 = heading theta); inputs (u1 = driving speed of the front
+wheels, u2 = steering rate):
+    x1' = cos(x3) cos(x4) u1,  x2' = cos(x3) sin(x4) u1,  x3' = u2,  x4' = sin(x3) u1 / L.
+The Jacobian d(g u)/dx is the corrected one of NOTES.md item 3 (the printed A(t) has slips).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .base import Model, positive_param
+
+
+@dataclass(frozen=True)
+class FwdCar(Model):
+    wheelbase: float = 1.0          # m, L
+    max_speed: float = 1.0          # m/s, |u1|
+    max_steer: float = 0.6          # rad, |x3|
+    max_steer_rate: float = 1.0     # rad/s, |u2|
+
+    def __post_init__(self):
+        for key in ("wheelbase", "max_speed", "max_steer", "max_steer_rate"):
+            positive_param(key, getattr(self, key), "fwd_car")
+        object.__setattr__(self, "name", "fwd_car")
+        object.__setattr__(self, "state_names", ("x", "y", "phi", "theta"))
+        object.__setattr__(self, "input_names", ("v", "omega_s"))
+        object.__setattr__(self, "angle_states", (2, 3))
+        object.__setattr__(self, "state_units", ("m", "m", "rad", "rad"))
+        object.__setattr__(self, "input_units", ("m/s", "rad/s"))
+
+    def g(self, x):
+        x = np.asarray(x, dtype=float)
+        phi, th = x[..., 2], x[..., 3]
+        out = np.zeros(x.shape[:-1] + (4, 2))
+        out[..., 0, 0] = np.cos(phi) * np.cos(th)
+        out[..., 1, 0] = np.cos(phi) * np.sin(th)
+        out[..., 3, 0] = np.sin(phi) / self.wheelbase
+        out[..., 2, 1] = 1.0
+        return out
+
+    def dgu_dx(self, x, u):
+        x = np.asarray(x, dtype=float)
+        u = np.asarray(u, dtype=float)
+        phi, th, u1 = x[..., 2], x[..., 3], u[..., 0]
+        shape = np.broadcast_shapes(x.shape[:-1], u.shape[:-1])
+        out = np.zeros(shape + (4, 4))
+        out[..., 0, 2] = -np.sin(phi) * np.cos(th) * u1
+        out[..., 0, 3] = -np.cos(phi) * np.sin(th) * u1
+        out[..., 1, 2] = -np.sin(phi) * np.sin(th) * u1
+        out[..., 1, 3] = np.cos(phi) * np.cos(th) * u1
+        out[..., 3, 2] = np.cos(phi) * u1 / self.wheelbase
+        return out
+
+    def params(self) -> dict:
+        return {"wheelbase": self.wheelbase, "max_speed": self.max_speed,
+                "max_steer": self.max_steer, "max_steer_rate": self.max_steer_rate}
+
+    def input_limits(self) -> np.ndarray:
+        return np.array([[-self.max_speed, self.max_speed], [-self.max_steer_rate, self.max_steer_rate]])
+
+    def state_limits(self) -> np.ndarray:
+        lim = np.tile([-np.inf, np.inf], (4, 1))
+        lim[2] = [-self.max_steer, self.max_steer]
+        return lim

@@ -1,0 +1,71 @@
+"""Kinematic (rear-axle referenced) car with the steering angle as a state.
+
+States (x, y, theta, phi); inputs (v = rear-axle speed, omega_s = steering rate):
+    x' = cos(theta) v,  y' = sin(theta) v,  theta' = tan(phi) v / L,  phi' = omega_s.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from .base import Model, positive_param
+
+
+@dataclass(frozen=True)
+class RwdCar(Model):
+    wheelbase: float = 2.5          # m, L
+    max_speed: float = 1.5          # m/s, |v|
+    max_steer: float = 0.6          # rad, |phi| (< pi/2)
+    max_steer_rate: float = 1.0     # rad/s, |omega_s|
+
+    def __post_init__(self):
+        for key in ("wheelbase", "max_speed", "max_steer", "max_steer_rate"):
+            positive_param(key, getattr(self, key), "rwd_car")
+        if self.max_steer >= np.pi / 2:
+            raise InputError("rwd_car.max_steer", "below pi/2 rad", self.max_steer)
+        object.__setattr__(self, "name", "rwd_car")
+        object.__setattr__(self, "state_names", ("x", "y", "theta", "phi"))
+        object.__setattr__(self, "input_names", ("v", "omega_s"))
+        object.__setattr__(self, "angle_states", (2, 3))
+        object.__setattr__(self, "state_units", ("m", "m", "rad", "rad"))
+        object.__setattr__(self, "input_units", ("m/s", "rad/s"))
+
+    @property
+    def min_turning_radius(self) -> float:
+        return self.wheelbase / np.tan(self.max_steer)
+
+    def g(self, x):
+        x = np.asarray(x, dtype=float)
+        th, phi = x[..., 2], x[..., 3]
+        out = np.zeros(x.shape[:-1] + (4, 2))
+        out[..., 0, 0] = np.cos(th)
+        out[..., 1, 0] = np.sin(th)
+        out[..., 2, 0] = np.tan(phi) / self.wheelbase
+        out[..., 3, 1] = 1.0
+        return out
+
+    def dgu_dx(self, x, u):
+        x = np.asarray(x, dtype=float)
+        u = np.asarray(u, dtype=float)
+        th, phi, v = x[..., 2], x[..., 3], u[..., 0]
+        shape = np.broadcast_shapes(x.shape[:-1], u.shape[:-1])
+        out = np.zeros(shape + (4, 4))
+        out[..., 0, 2] = -np.sin(th) * v
+        out[..., 1, 2] = np.cos(th) * v
+        out[..., 2, 3] = v / (self.wheelbase * np.cos(phi) ** 2)
+        return out
+
+    def params(self) -> dict:
+        return {"wheelbase": self.wheelbase, "max_speed": self.max_speed,
+                "max_steer": self.max_steer, "max_steer_rate": self.max_steer_rate}
+
+    def input_limits(self) -> np.ndarray:
+        return np.array([[-self.max_speed, self.max_speed], [-self.max_steer_rate, self.max_steer_rate]])
+
+    def state_limits(self) -> np.ndarray:
+        lim = np.tile([-np.inf, np.inf], (4, 1))
+        lim[3] = [-self.max_steer, self.max_steer]
+        return lim

@@ -1,0 +1,179 @@
+"""Nominal trajectories x0(t), u0(t): sampled on a time grid, evaluable at any time in the span.
+
+A :class:`Nominal` always carries samples on a strictly increasing grid (``t``, ``x``, ``u``,
+time-major). Between samples it is evaluated either from the functions it was built from (closed
+forms, or the dense output of an accurate integration) or, for sampled data, by a cubic Hermite
+interpolant of x0 whose node slopes are the model's own x' = f(x0) + g(x0) u0, and linear
+interpolation of u0.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from scipy.integrate import solve_ivp
+from scipy.interpolate import CubicHermiteSpline
+
+from .errors import InputError, NumericalError, TrajectoryError
+from .models import Model
+
+ArrayFn = Callable[[np.ndarray], np.ndarray]
+
+
+def _as_float_array(name: str, value, ndim: int) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise TrajectoryError(name, f"a numeric array with {ndim} dimension(s)", type(value).__name__) from None
+    if arr.ndim != ndim:
+        raise TrajectoryError(name, f"an array with {ndim} dimension(s)", f"shape {arr.shape}")
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        where = np.argwhere(bad)[0]
+        raise TrajectoryError(name, "finite everywhere", f"{arr[tuple(where)]} at index {tuple(int(i) for i in where)}")
+    return arr
+
+
+class Nominal:
+    """A nominal trajectory of a model. Build it with one of the ``from_*`` constructors."""
+
+    def __init__(self, model: Model, t: np.ndarray, x: np.ndarray, u: np.ndarray,
+                 x_func: ArrayFn | None = None, u_func: ArrayFn | None = None, source: str = "samples"):
+        self.model = model
+        self.t = t
+        self.x = x
+        self.u = u
+        self.source = source
+        if x_func is None:
+            x_func = CubicHermiteSpline(t, x, model.rhs(x, u), axis=0)
+        if u_func is None:
+            u_func = _LinearInterpolant(t, u)
+        self._x_func = x_func
+        self._u_func = u_func
+
+    # ---- constructors --------------------------------------------------------------------------
+    @classmethod
+    def from_samples(cls, model: Model, t, x, u) -> "Nominal":
+        """Validated samples: ``t`` (N,), ``x`` (N, n), ``u`` (N, m), finite, t strictly increasing.
+
+        Angle states are unwrapped so the nominal is continuous.
+        """
+        t = _as_float_array("t", t, 1)
+        x = _as_float_array("x", x, 2)
+        u = _as_float_array("u", u, 2)
+        N = t.shape[0]
+        if N < 2:
+            raise TrajectoryError("t", "at least 2 samples", N)
+        if x.shape != (N, model.n):
+            raise TrajectoryError("x", f"shape ({N}, {model.n}) to match t and the {model.name} state", f"shape {x.shape}")
+        if u.shape != (N, model.m):
+            raise TrajectoryError("u", f"shape ({N}, {model.m}) to match t and the {model.name} inputs", f"shape {u.shape}")
+        dt = np.diff(t)
+        if np.any(dt <= 0):
+            k = int(np.argmax(dt <= 0))
+            raise TrajectoryError("t", "strictly increasing", f"t[{k}] = {t[k]} then t[{k + 1}] = {t[k + 1]}")
+        if model.angle_states:
+            x = x.copy()
+            idx = list(model.angle_states)
+            x[:, idx] = np.unwrap(x[:, idx], axis=0)
+        return cls(model, t, x, u, source="samples")
+
+    @classmethod
+    def from_functions(cls, model: Model, x_func: ArrayFn, u_func: ArrayFn, t) -> "Nominal":
+        """A nominal given in closed form: ``x_func(t)`` -> (len(t), n), ``u_func(t)`` -> (len(t), m)."""
+        t = _as_float_array("t", t, 1)
+        nom = cls.from_samples(model, t, _call("x_func", x_func, t, model.n), _call("u_func", u_func, t, model.m))
+        nom._x_func, nom._u_func, nom.source = x_func, u_func, "functions"
+        return nom
+
+    @classmethod
+    def from_inputs(cls, model: Model, u_func: ArrayFn, x_init, t, rtol: float = 1e-12, atol: float = 1e-13) -> "Nominal":
+        """Integrate the model from ``x_init`` under the open-loop input ``u_func``.
+
+        DOP853 with tight tolerances; between samples x0 comes from the integrator's dense output, so
+        integrating the model along the nominal reproduces it to about ``rtol``.
+        """
+        t = _as_float_array("t", t, 1)
+        x_init = _as_float_array("x_init", x_init, 1)
+        if x_init.shape != (model.n,):
+            raise TrajectoryError("x_init", f"a vector of length {model.n}", f"shape {x_init.shape}")
+        _call("u_func", u_func, t[:2], model.m)
+
+        def rhs(tt, xx):
+            return model.rhs(xx, u_func(np.array([tt]))[0])
+
+        sol = solve_ivp(rhs, (t[0], t[-1]), x_init, method="DOP853", t_eval=t, dense_output=True,
+                        rtol=rtol, atol=atol)
+        if not sol.success:
+            raise NumericalError(f"integrating the nominal failed: {sol.message}")
+        dense = sol.sol
+
+        def x_func(tau):
+            return np.asarray(dense(np.asarray(tau, dtype=float))).T
+
+        nom = cls.from_samples(model, t, sol.y.T, _call("u_func", u_func, t, model.m))
+        nom._x_func, nom._u_func, nom.source = x_func, u_func, "integrated"
+        return nom
+
+    # ---- evaluation -----------------------------------------------------------------------------
+    @property
+    def t0(self) -> float:
+        return float(self.t[0])
+
+    @property
+    def t_end(self) -> float:
+        return float(self.t[-1])
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0])
+
+    def at(self, tau) -> tuple[np.ndarray, np.ndarray]:
+        """(x0(tau), u0(tau)) for times ``tau`` (any shape, clipped to the span)."""
+        tau = np.clip(np.asarray(tau, dtype=float), self.t[0], self.t[-1])
+        flat = tau.reshape(-1)
+        x = np.asarray(self._x_func(flat), dtype=float).reshape(flat.shape + (self.model.n,))
+        u = np.asarray(self._u_func(flat), dtype=float).reshape(flat.shape + (self.model.m,))
+        return x.reshape(tau.shape + (self.model.n,)), u.reshape(tau.shape + (self.model.m,))
+
+    def is_uniform(self, rtol: float = 1e-9) -> bool:
+        dt = np.diff(self.t)
+        return bool(np.all(np.abs(dt - dt.mean()) <= rtol * max(dt.mean(), 1e-300) + 1e-12 * abs(self.t[-1])))
+
+    def resampled(self, n_points: int) -> "Nominal":
+        """The same nominal on a uniform grid of ``n_points`` over the same span."""
+        t = np.linspace(self.t[0], self.t[-1], int(n_points))
+        x, u = self.at(t)
+        # keep evaluating the original functions or interpolants, not a re-interpolation of them
+        return Nominal(self.model, t, x, u, x_func=self._x_func, u_func=self._u_func, source=self.source)
+
+    def feasibility_residual(self, rtol: float = 1e-10, atol: float = 1e-12) -> float:
+        """max |x(t) - x0(t)| over the grid when the model is integrated from x0(t0) under u0."""
+        def rhs(tt, xx):
+            return self.model.rhs(xx, self.at(np.array([tt]))[1][0])
+        sol = solve_ivp(rhs, (self.t[0], self.t[-1]), self.x[0], method="DOP853", t_eval=self.t, rtol=rtol, atol=atol)
+        return float(np.max(np.abs(sol.y.T - self.x)))
+
+
+class _LinearInterpolant:
+    """Piecewise-linear u0(t) through the samples (no overshoot between samples)."""
+
+    def __init__(self, t: np.ndarray, u: np.ndarray):
+        self.t = t.copy()
+        self.u = u.copy()
+
+    def __call__(self, tau) -> np.ndarray:
+        tau = np.asarray(tau, dtype=float)
+        return np.stack([np.interp(tau, self.t, self.u[:, j]) for j in range(self.u.shape[1])], axis=-1)
+
+
+def _call(name: str, fn, t: np.ndarray, width: int) -> np.ndarray:
+    if not callable(fn):
+        raise InputError(name, "a callable of time", type(fn).__name__)
+    out = np.asarray(fn(t), dtype=float)
+    if out.shape != (t.shape[0], width):
+        raise TrajectoryError(name, f"to return shape ({t.shape[0]}, {width}) for {t.shape[0]} times", f"shape {out.shape}")
+    if not np.all(np.isfinite(out)):
+        raise TrajectoryError(name, "to return finite values", "NaN or inf")
+    return out

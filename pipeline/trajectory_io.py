@@ -1,0 +1,95 @@
+"""Reading and writing nominal trajectories: CSV (header names columns and units) and NPZ.
+
+CSV: one header line, then one row per time. Columns are ``t [s]``, then the model's states and
+inputs by name with their units in brackets, e.g. for the unicycle::
+
+    t [s],x [m],y [m],theta [rad],v [m/s],omega [rad/s]
+
+Units in brackets are optional when reading; column order is free; every column must be present
+and no other. NPZ: arrays ``t`` (N,), ``x`` (N, n), ``u`` (N, m).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import re
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError, TrajectoryError
+from .models import Model
+from .nominal import Nominal
+from .records import write_npz, write_text
+
+_UNIT = re.compile(r"\s*\[[^\]]*\]\s*$")
+
+
+def column_names(model: Model) -> list[str]:
+    names = ["t [s]"]
+    names += [f"{n} [{u}]" if u else n for n, u in zip(model.state_names, model.state_units or [""] * model.n)]
+    names += [f"{n} [{u}]" if u else n for n, u in zip(model.input_names, model.input_units or [""] * model.m)]
+    return names
+
+
+def read_trajectory(path, model: Model) -> Nominal:
+    path = Path(path)
+    if not path.exists():
+        raise InputError("trajectory", "an existing CSV or NPZ file", str(path))
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                missing = [k for k in ("t", "x", "u") if k not in data.files]
+                if missing:
+                    raise TrajectoryError(f"{path.name}", "an NPZ file with arrays t, x, u", f"missing {missing}")
+                return Nominal.from_samples(model, data["t"], data["x"], data["u"])
+        except (OSError, ValueError, zipfile.BadZipFile) as exc:
+            if isinstance(exc, InputError):
+                raise
+            raise InputError(path.name, "a readable NPZ file", type(exc).__name__, detail=str(exc)) from None
+    if suffix == ".csv":
+        return _read_csv(path, model)
+    raise InputError("trajectory", "a .csv or .npz file", path.name)
+
+
+def _read_csv(path: Path, model: Model) -> Nominal:
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path.name, "a readable UTF-8 CSV file", type(exc).__name__) from None
+    rows = list(csv.reader(io.StringIO(text)))
+    rows = [r for r in rows if r and not (len(r) == 1 and not r[0].strip())]
+    if len(rows) < 3:
+        raise TrajectoryError(path.name, "a header line and at least 2 rows", f"{len(rows)} line(s)")
+    header = [_UNIT.sub("", h).strip() for h in rows[0]]
+    wanted = ["t", *model.state_names, *model.input_names]
+    unknown = [h for h in header if h not in wanted]
+    missing = [w for w in wanted if w not in header]
+    if unknown or missing:
+        raise TrajectoryError(f"{path.name} header", "the columns " + ",".join(wanted) + f" for model {model.name}",
+                              ",".join(header), detail=("missing " + ",".join(missing) if missing else "unknown " + ",".join(unknown)))
+    try:
+        data = np.array([[float(v) for v in r] for r in rows[1:]])
+    except ValueError as exc:
+        raise TrajectoryError(path.name, "numbers in every data row", str(exc)) from None
+    if data.ndim != 2 or data.shape[1] != len(header):
+        raise TrajectoryError(path.name, f"{len(header)} values per row", "rows of different lengths")
+    col = {h: data[:, i] for i, h in enumerate(header)}
+    x = np.stack([col[s] for s in model.state_names], axis=1)
+    u = np.stack([col[s] for s in model.input_names], axis=1)
+    return Nominal.from_samples(model, col["t"], x, u)
+
+
+def write_trajectory(path, nominal: Nominal) -> Path:
+    path = Path(path)
+    if path.suffix.lower() == ".npz":
+        return write_npz(path, t=nominal.t, x=nominal.x, u=nominal.u)
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(column_names(nominal.model))
+    for row in np.column_stack([nominal.t, nominal.x, nominal.u]):
+        w.writerow([repr(float(v)) for v in row])
+    return write_text(path, buf.getvalue())

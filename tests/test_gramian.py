@@ -1,0 +1,257 @@
+"""The gain schedule against closed forms, identities and a brute-force reference."""
+
+import numpy as np
+import pytest
+from conftest import fwd_car_parking, heisenberg_line, hilare_sinusoid
+from reference import reference_H, transition, window_gramian
+
+from pipeline.control import StabilizerOptions, compute_schedule
+from pipeline.errors import InputError, PipelineError, SingularGramianError, TrajectoryError
+from pipeline.models import make_model
+from pipeline.nominal import Nominal
+
+
+def heisenberg_line_H(t, alpha, delta, weight=6.0):
+    """Closed form of H_c(t, t+delta) on x0 = (0, t, 0), u0 = (0, 1) (NOTES.md item 5).
+
+    A = 0, Phi = I, B(tau) = [[1,0],[0,1],[tau,0]]; with c = w alpha and s = tau - t:
+    I_k = int_0^delta s^k exp(-c s) ds, H11 = H22 = I0, H13 = t I0 + I1, H33 = t^2 I0 + 2 t I1 + I2,
+    det H = I0 (I0 I2 - I1^2), independent of t.
+    """
+    c = weight * alpha
+    E = np.exp(-c * delta)
+    I0 = (1 - E) / c
+    I1 = (1 - E * (1 + c * delta)) / c**2
+    I2 = (2 - E * (c**2 * delta**2 + 2 * c * delta + 2)) / c**3
+    t = np.asarray(t, dtype=float)
+    H = np.zeros(t.shape + (3, 3))
+    H[..., 0, 0] = H[..., 1, 1] = I0
+    H[..., 0, 2] = H[..., 2, 0] = t * I0 + I1
+    H[..., 2, 2] = t**2 * I0 + 2 * t * I1 + I2
+    return H, I0 * (I0 * I2 - I1**2)
+
+
+def rel(a, b):
+    return np.linalg.norm(a - b, axis=(-2, -1)) / np.linalg.norm(b, axis=(-2, -1))
+
+
+@pytest.mark.parametrize("alpha,delta", [(1.0, 1.0), (0.3, 0.7), (2.0, 1.37)])
+def test_heisenberg_line_closed_form(alpha, delta):
+    nom = heisenberg_line(10.0, hz=200.0)
+    s = compute_schedule(nom, StabilizerOptions(alpha=alpha, delta=delta))
+    interior = s.t <= 10.0 - delta
+    Hc, det = heisenberg_line_H(s.t[interior], alpha, delta)
+    # tolerance 1e-8 relative (measured ~1e-12): entrywise on the nonzero entries, and in norm
+    assert rel(s.H[interior], Hc).max() < 1e-8
+    nz = np.abs(Hc) > 0
+    assert np.max(np.abs(s.H[interior][nz] - Hc[nz]) / np.abs(Hc[nz])) < 1e-8
+    assert np.max(np.abs(s.H[interior][~nz])) < 1e-12
+    # det H_c(t, t + delta) is the same at every t and equals the closed form
+    dets = np.linalg.det(s.H[interior])
+    assert np.max(np.abs(dets / det - 1)) < 1e-8
+
+
+def test_long_trajectory_keeps_accuracy():
+    """2000 s Heisenberg line: H33 ~ t^2 ~ 4e6, nothing re-anchored by hand; still 1e-8 relative.
+    (Its H has condition number ~t^4, past what double precision can invert meaningfully, so this
+    test checks H and switches the singularity check off.)"""
+    nom = heisenberg_line(2000.0, hz=20.0)
+    s = compute_schedule(nom, StabilizerOptions(alpha=1.0, delta=1.0, singular_rtol=1e-300))
+    interior = s.t <= 1999.0
+    Hc, det = heisenberg_line_H(s.t[interior], 1.0, 1.0)
+    assert rel(s.H[interior], Hc).max() < 1e-8
+    late = s.t[interior] > 1900
+    assert np.max(np.abs(np.linalg.det(s.H[interior][late]) / det - 1)) < 1e-6   # det of a matrix with entries ~4e6
+    assert np.all(np.isfinite(s.K)) and np.all(np.isfinite(s.P))
+
+
+def test_circle_gramian_spectrum_is_time_invariant_over_1200_s():
+    """On the circle u0 = (1, 1) the linearisation is the same in the body frame at every t, so the
+    eigenvalues of H_c(t, t+delta) are constant: a check at t = 0 and t ~ 1200 s."""
+    model = make_model("unicycle")
+    T = 1201.0
+    t = np.linspace(0.0, T, int(T * 50) + 1)
+    nom = Nominal.from_functions(model, lambda s: np.stack([np.sin(s), 1 - np.cos(s), s], -1),
+                                 lambda s: np.stack([1 + 0 * s, 1 + 0 * s], -1), t)
+    s = compute_schedule(nom, StabilizerOptions(alpha=0.1, delta=1.0))
+    interior = s.t <= T - 1.0
+    lam = s.H_eigenvalues[interior]
+    assert np.max(np.abs(lam / lam[0] - 1)) < 1e-9
+    # and against the brute-force reference at a late time
+    k = int(np.flatnonzero(interior)[-1]) - 7
+    H_ref = window_gramian(nom, s.t[k], s.t[k], s.t[k] + 1.0, 0.6)
+    assert rel(s.H[k], H_ref) < 1e-9
+
+
+def _fd(P, h):
+    """4th-order central difference of P along axis 0, for interior indices 2..N-3."""
+    return (-P[4:] + 8 * P[3:-1] - 8 * P[1:-3] + P[:-4]) / (12 * h)
+
+
+def _lyap_terms(nom, s, idx, cw):
+    A, B = nom.model.linearize(nom.x[idx], nom.u[idx])
+    P = s.P[idx]
+    return P, A, B, -cw * P - P @ A - np.swapaxes(A, -1, -2) @ P
+
+
+def test_corrected_dPc_identity_hilare_sinusoid():
+    """NOTES.md item 1: dP_c/dt = -6a P - P A - A^T P + P [B B^T - e^{-6 a d} Phi B_d B_d^T Phi^T] P,
+    with Phi = Phi(t, t+delta), B_d = B(t+delta); against finite differences of P_c (rel < 1e-5)."""
+    alpha, delta = 0.1, 1.0
+    nom = hilare_sinusoid(2 * np.pi + delta, hz=1000.0)
+    s = compute_schedule(nom, StabilizerOptions(alpha=alpha, delta=delta))
+    h = s.h
+    dP = _fd(s.P, h)
+    cw = 6 * alpha
+    worst_corrected, worst_printed = 0.0, np.inf
+    last = int(np.flatnonzero(s.t <= s.t[-1] - delta)[-1])
+    for i in np.linspace(3, last - 3, 15).astype(int):
+        P, A, B, lin = _lyap_terms(nom, s, i, cw)
+        t_end = s.t[i] + delta
+        Phi = transition(nom, s.t[i], t_end)                # Phi(t, t + delta), independent
+        Bd = nom.model.g(nom.at(t_end)[0])
+        BB = Phi @ Bd @ Bd.T @ Phi.T
+        corrected = lin + P @ (B @ B.T - np.exp(-cw * delta) * BB) @ P
+        printed = lin + P @ (B @ B.T - np.exp(-4 * alpha * delta) * BB) @ P   # the paper's exp(-4 alpha delta)
+        worst_corrected = max(worst_corrected, rel(dP[i - 2], corrected))
+        worst_printed = min(worst_printed, rel(dP[i - 2], printed))
+    assert worst_corrected < 1e-5
+    assert worst_printed > 1e-3     # the printed constant is visibly wrong
+
+
+def test_past_window_identity_and_frozen_end_identity():
+    """Past window: dP_r/dt = -6a P - PA - A^T P - P [B B^T - e^{6 a d} Phi(t,t-d) B B^T Phi^T] P.
+    Frozen end (H(s) carried along the flow past s = T - delta): dP/dt = -PA - A^T P exactly."""
+    alpha, delta = 0.1, 1.0
+    nom = hilare_sinusoid(2 * np.pi, hz=1000.0)
+    cw = 6 * alpha
+    past = compute_schedule(nom, StabilizerOptions(alpha=alpha, delta=delta, window="past"))
+    dP = _fd(past.P, past.h)
+    first = int(np.flatnonzero(past.t >= delta)[0])
+    for i in np.linspace(first + 3, len(nom.t) - 4, 8).astype(int):
+        P, A, B, lin = _lyap_terms(nom, past, i, cw)
+        t_start = nom.t[i] - delta
+        Phi = transition(nom, nom.t[i], t_start)
+        Bd = nom.model.g(nom.at(t_start)[0])
+        expected = lin - P @ (B @ B.T - np.exp(cw * delta) * Phi @ Bd @ Bd.T @ Phi.T) @ P
+        assert rel(dP[i - 2], expected) < 1e-5
+    fut = compute_schedule(nom, StabilizerOptions(alpha=alpha, delta=delta))
+    dP = _fd(fut.P, fut.h)
+    boundary = int(np.flatnonzero(fut.t <= fut.t[-1] - delta)[-1])
+    for i in np.linspace(boundary + 4, len(nom.t) - 4, 6).astype(int):
+        P, A, B, lin = _lyap_terms(nom, fut, i, 0.0)
+        assert rel(dP[i - 2], lin) < 1e-5
+
+
+@pytest.mark.parametrize("make", [hilare_sinusoid, fwd_car_parking], ids=["unicycle", "fwd_car"])
+def test_fast_schedule_matches_brute_force_on_whole_grid(make):
+    nom = make(2 * np.pi, hz=40.0)             # 252 points, the reference integrates each window
+    opts = StabilizerOptions(alpha=0.1, delta=1.0)
+    s = compute_schedule(nom, opts)
+    P_ref = np.linalg.inv(reference_H(nom, s.t, opts))
+    assert rel(s.P, P_ref).max() < 1e-6
+
+
+@pytest.mark.parametrize("window,end", [("future", "switch"), ("past", "frozen"), ("past", "switch")])
+def test_other_window_modes_match_brute_force(window, end):
+    nom = fwd_car_parking(2 * np.pi, hz=100.0)
+    opts = StabilizerOptions(alpha=0.1, delta=1.0, window=window, end_strategy=end)
+    s = compute_schedule(nom, opts)
+    idx = np.r_[0:len(s.t):29, len(s.t) - 1, 99, 100, 101, len(s.t) - 101]
+    P_ref = np.linalg.inv(reference_H(nom, s.t[idx], opts))
+    assert rel(s.P[idx], P_ref).max() < 1e-6
+
+
+def test_grid_not_commensurate_with_delta():
+    """delta / h not an integer: the window's fractional last piece is integrated too."""
+    nom = hilare_sinusoid(2 * np.pi, hz=37.3)
+    opts = StabilizerOptions(alpha=0.2, delta=0.8137)
+    s = compute_schedule(nom, opts)
+    assert s.diagnostics["window_fraction_s"] > 0
+    idx = np.r_[0:len(s.t):11, len(s.t) - 1]
+    assert rel(s.P[idx], np.linalg.inv(reference_H(nom, s.t[idx], opts))).max() < 1e-6
+
+
+@pytest.mark.parametrize("end", ["frozen", "switch"])
+def test_end_of_trajectory_gains_finite_and_bounded(end):
+    nom = hilare_sinusoid(2 * np.pi, hz=500.0)
+    s = compute_schedule(nom, StabilizerOptions(alpha=0.1, delta=1.0, end_strategy=end))
+    assert np.all(np.isfinite(s.K))
+    interior = s.t <= s.t[-1] - 1.0
+    norms = np.linalg.norm(s.K, ord=2, axis=(1, 2))
+    # the end region's gains stay within a small factor of the interior's
+    assert norms[~interior].max() < 3 * norms[interior].max()
+    if end == "frozen":
+        # continuous where the window stops sliding: the step there is like any other step
+        k = int(np.flatnonzero(interior)[-1])
+        steps = np.linalg.norm(np.diff(s.P, axis=0), axis=(1, 2))
+        assert steps[k] < 3 * np.median(steps[k - 20:k])
+
+
+def test_point_trajectory_is_refused_with_time_and_rank():
+    model = make_model("heisenberg")
+    t = np.linspace(0, 8, 801)
+    nom = Nominal.from_samples(model, t, np.zeros((801, 3)), np.zeros((801, 2)))
+    with pytest.raises(SingularGramianError) as exc:
+        compute_schedule(nom, StabilizerOptions(alpha=1.0, delta=1.0))
+    assert exc.value.rank == 2 and exc.value.n == 3
+    assert exc.value.time == 0.0 and abs(exc.value.min_eigenvalue) < 1e-12
+    assert "t = 0 s" in str(exc.value) and "rank 2 of 3" in str(exc.value)
+
+
+def test_robot_that_stops_is_refused_at_the_stop():
+    """A unicycle that drives, stops for 3 s (> delta), then drives: singular inside the stop."""
+    model = make_model("unicycle")
+    t = np.linspace(0, 10, 1001)
+    v = np.where((t > 4) & (t < 7), 0.0, 1.0)
+    x = np.stack([np.cumsum(v) * 0.01, 0 * t, 0 * t], -1)
+    u = np.stack([v, 0 * t], -1)
+    with pytest.raises(SingularGramianError) as exc:
+        compute_schedule(Nominal.from_samples(model, t, x, u), StabilizerOptions(alpha=0.1, delta=1.0))
+    assert 3.9 < exc.value.time < 7.0
+    assert exc.value.rank < 3
+
+
+@pytest.mark.parametrize("kwargs,argument", [
+    ({"gamma": 0.49}, "gamma"), ({"gamma": float("nan")}, "gamma"), ({"gamma": lambda t: 0.4 + 0 * t}, "gamma"),
+    ({"alpha": 0.0}, "alpha"), ({"alpha": -1.0}, "alpha"), ({"delta": 0.0}, "delta"), ({"delta": -2.0}, "delta"),
+    ({"delta": 100.0}, "delta"), ({"window": "sideways"}, "window"), ({"end_strategy": "extrapolate"}, "end_strategy"),
+    ({"alpha": "fast"}, "alpha"),
+])
+def test_bad_options_name_the_argument(kwargs, argument):
+    nom = hilare_sinusoid(2 * np.pi, hz=50.0)
+    with pytest.raises(InputError) as exc:
+        compute_schedule(nom, StabilizerOptions(**kwargs))
+    assert isinstance(exc.value, PipelineError) and isinstance(exc.value, ValueError)
+    assert exc.value.argument == argument and f"'{argument}'" in str(exc.value)
+
+
+def test_gamma_function_is_applied():
+    nom = hilare_sinusoid(2 * np.pi, hz=50.0)
+    s1 = compute_schedule(nom, StabilizerOptions())
+    s2 = compute_schedule(nom, StabilizerOptions(gamma=lambda t: 1.0 + 0.5 * np.sin(t) ** 2))
+    np.testing.assert_allclose(s2.K, (1.0 + 0.5 * np.sin(s1.t) ** 2)[:, None, None] * s1.K, rtol=1e-12)
+
+
+@pytest.mark.parametrize("field,value,argument", [
+    ("x", np.nan, "x"), ("u", np.inf, "u"), ("t", np.nan, "t"),
+])
+def test_non_finite_trajectory_refused(field, value, argument):
+    model = make_model("unicycle")
+    data = {"t": np.linspace(0, 5, 51), "x": np.zeros((51, 3)), "u": np.ones((51, 2))}
+    data[field] = data[field].copy()
+    data[field][17] = value
+    with pytest.raises(TrajectoryError) as exc:
+        Nominal.from_samples(model, data["t"], data["x"], data["u"])
+    assert exc.value.argument == argument and "index" in str(exc.value)
+
+
+def test_mismatched_shapes_refused():
+    model = make_model("unicycle")
+    t = np.linspace(0, 5, 51)
+    with pytest.raises(TrajectoryError, match="'x' must be shape \\(51, 3\\)"):
+        Nominal.from_samples(model, t, np.zeros((51, 4)), np.zeros((51, 2)))
+    with pytest.raises(TrajectoryError, match="'u' must be shape"):
+        Nominal.from_samples(model, t, np.zeros((51, 3)), np.zeros((50, 2)))
+    with pytest.raises(TrajectoryError, match="'t' must be strictly increasing"):
+        Nominal.from_samples(model, t[::-1], np.zeros((51, 3)), np.zeros((51, 2)))
