@@ -148,7 +148,8 @@ def _figures(summary: dict, out: Path) -> list[str]:
     schedule = summary["_run"]["schedule"]
     model = schedule.nominal.model
     name = summary["case"]
-    tag = f"{summary['title']} (alpha={summary['alpha']:g}, delta={summary['delta']:g}, gamma={summary['gamma']:g})"
+    tag = (f"{summary['title']}\nalpha = {summary['alpha']:g}, delta = {summary['delta']:g}, "
+           f"gamma = {summary['gamma']:g}, {summary['window']} window: {summary['status']}")
     files = []
     figs = {
         "errors": errors_figure(run.t, run.e, model.state_names, title=tag),
@@ -218,15 +219,27 @@ def run_paper(out_dir, case_names: list[str] | None = None, overrides: dict | No
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     summaries = []
+    norms = {}
     for name in names:
         if progress:
             progress(name)
         s = run_case(CASES[name], overrides)
         if "_run" in s:
             s["figures"] = _figures(s, out)
-            s.pop("_run")
+            run = s.pop("_run")["run"]
+            norms[name] = (f"{name}, gamma = {s['gamma']:g}", run.t, run.error_norm, s["status"])
         summaries.append(s)
         # write after every case, so nothing computed is lost if a later case fails
+        write_json(out / "summary.json", {"generator": "nhstab paper", "cases": summaries})
+    pair = [norms[k] for k in ("fwd-car-parking", "fwd-car-parking-gamma1") if k in norms]
+    if len(pair) == 2:
+        from .report.tracking import error_norm_comparison_figure
+
+        fig = error_norm_comparison_figure(pair, title="FWD car parallel parking: ||e(t)|| for gamma = 1/2 and 1")
+        save_figure(fig, out / "fwd-car-gamma-comparison.png")
+        for s in summaries:
+            if s["case"] in ("fwd-car-parking", "fwd-car-parking-gamma1"):
+                s["figures"].append("fwd-car-gamma-comparison.png")
         write_json(out / "summary.json", {"generator": "nhstab paper", "cases": summaries})
     write_text(out / "summary.md", summary_markdown(summaries))
     return summaries

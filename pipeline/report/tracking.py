@@ -8,7 +8,7 @@ import numpy as np
 
 def _title(ax, title: str | None):
     if title:
-        ax.set_title(title, fontsize=10)
+        ax.set_title(title, fontsize=9)
 
 
 def errors_figure(t, e, state_names, title=None):
@@ -61,8 +61,10 @@ def gramian_figure(t, h_min_eig, gain_norm, t_span=None, title=None):
     ax2 = ax.twinx()
     ax2.semilogy(t, gain_norm, color="tab:orange", label="||K||")
     ax2.set_ylabel("||K(t)||_2", color="tab:orange")
-    if t_span is not None:
+    if t_span is not None and t[-1] > t_span[1]:
         ax.axvspan(t_span[1], t[-1], color="0.9", zorder=0)
+        ax.text(0.5 * (t_span[1] + t[-1]), 0.03, "beyond T:\nnot simulated", transform=ax.get_xaxis_transform(),
+                ha="center", va="bottom", fontsize=7, color="0.35")
     _title(ax, title)
     return fig
 

@@ -1,0 +1,75 @@
+"""Nominal trajectories and their files."""
+
+import numpy as np
+import pytest
+from conftest import hilare_sinusoid
+
+from pipeline.errors import InputError, TrajectoryError
+from pipeline.models import make_model
+from pipeline.nominal import Nominal
+from pipeline.trajectory_io import column_names, read_trajectory, write_trajectory
+
+
+def test_integrated_nominal_is_feasible():
+    nom = hilare_sinusoid(2 * np.pi, hz=100)
+    assert nom.feasibility_residual() < 1e-9
+
+
+def test_sampled_nominal_interpolates_between_samples():
+    """Cubic Hermite with the model's slopes: 4th order, so a 100 Hz circle is exact to ~1e-9."""
+    model = make_model("unicycle")
+    t = np.linspace(0, 6, 601)
+    x = np.stack([np.sin(t), 1 - np.cos(t), t], -1)
+    nom = Nominal.from_samples(model, t, x, np.ones((601, 2)))
+    tau = np.linspace(0, 6, 1777)
+    x_mid, u_mid = nom.at(tau)
+    np.testing.assert_allclose(x_mid, np.stack([np.sin(tau), 1 - np.cos(tau), tau], -1), atol=1e-9)
+    np.testing.assert_allclose(u_mid, 1.0)
+
+
+def test_wrapped_angles_are_unwrapped():
+    model = make_model("unicycle")
+    t = np.linspace(0, 10, 101)
+    theta = np.mod(t, 2 * np.pi) - np.pi
+    nom = Nominal.from_samples(model, t, np.stack([0 * t, 0 * t, theta], -1), np.stack([0 * t, 1 + 0 * t], -1))
+    assert np.all(np.diff(nom.x[:, 2]) > 0)
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_round_trip(tmp_path, suffix):
+    nom = hilare_sinusoid(2 * np.pi, hz=20)
+    path = write_trajectory(tmp_path / f"traj{suffix}", nom)
+    back = read_trajectory(path, nom.model)
+    np.testing.assert_array_equal(back.t, nom.t)
+    np.testing.assert_array_equal(back.x, nom.x)
+    np.testing.assert_array_equal(back.u, nom.u)
+    if suffix == ".csv":
+        assert path.read_text().splitlines()[0] == ",".join(column_names(nom.model))
+        assert column_names(nom.model) == ["t [s]", "x [m]", "y [m]", "theta [rad]", "v [m/s]", "omega [rad/s]"]
+
+
+def test_bad_files(tmp_path):
+    model = make_model("unicycle")
+    with pytest.raises(InputError, match="existing"):
+        read_trajectory(tmp_path / "missing.csv", model)
+    p = tmp_path / "bad.csv"
+    p.write_text("t,x,y,theta,v\n0,0,0,0,1\n1,1,0,0,1\n")
+    with pytest.raises(TrajectoryError, match="missing omega"):
+        read_trajectory(p, model)
+    p.write_text("t,x,y,theta,v,omega,extra\n0,0,0,0,1,0,0\n1,1,0,0,1,0,0\n")
+    with pytest.raises(TrajectoryError, match="unknown extra"):
+        read_trajectory(p, model)
+    p.write_text("t,x,y,theta,v,omega\n0,0,0,0,1,0\n1,nan,0,0,1,0\n")
+    with pytest.raises(TrajectoryError, match="'x' must be finite"):
+        read_trajectory(p, model)
+    p.write_text("t,x,y,theta,v,omega\n0,0,0,0,1,0\n1,oops,0,0,1,0\n")
+    with pytest.raises(TrajectoryError, match="numbers"):
+        read_trajectory(p, model)
+    q = tmp_path / "bad.npz"
+    np.savez(q, t=np.arange(5.0), x=np.zeros((5, 4)), u=np.zeros((5, 2)))
+    with pytest.raises(TrajectoryError, match="'x' must be shape \\(5, 3\\)"):
+        read_trajectory(q, model)
+    r = tmp_path / "junk.npz"
+    r.write_bytes(b"not a zip")
+    with pytest.raises(InputError, match="readable NPZ"):
+        read_trajectory(r, model)
