@@ -1,10 +1,181 @@
-"""SE(2) helpers: angle wrapping. (Footprints arrive with the maps issue.)"""
+"""SE(2) helpers, polygons and robot footprints.
+
+A footprint is given in the robot frame, with the reference point of the model's (x, y) at the
+origin and the heading along +x: the rear-axle midpoint for cars, the wheel-axis midpoint for the
+unicycle.
+"""
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 import numpy as np
+
+from .errors import InputError
 
 
 def wrap_angle(angle):
     """Wrap angles to [-pi, pi). Works elementwise on arrays."""
     return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def rotation(theta: float) -> np.ndarray:
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
+def transform_points(points: np.ndarray, pose) -> np.ndarray:
+    """Points (k, 2) in the robot frame to the world frame at pose (x, y, theta)."""
+    x, y, th = float(pose[0]), float(pose[1]), float(pose[2])
+    return np.asarray(points, dtype=float) @ rotation(th).T + [x, y]
+
+
+def polygon_area(v: np.ndarray) -> float:
+    """Signed area (positive for counter-clockwise)."""
+    x, y = v[:, 0], v[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def is_convex(v: np.ndarray, tol: float = 1e-12) -> bool:
+    """True if the counter-clockwise polygon v is convex (collinear vertices allowed)."""
+    d1 = np.roll(v, -1, axis=0) - v
+    d2 = np.roll(d1, -1, axis=0)
+    cross = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+    return bool(np.all(cross >= -tol * max(1.0, float(np.abs(v).max()) ** 2)))
+
+
+def triangulate(v: np.ndarray) -> list[np.ndarray]:
+    """Ear-clipping triangulation of a simple counter-clockwise polygon into (3, 2) triangles."""
+    pts = [np.asarray(p, dtype=float) for p in v]
+    idx = list(range(len(pts)))
+    tris: list[np.ndarray] = []
+
+    def cross(o, a, b):
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    guard = 0
+    while len(idx) > 3 and guard < 10 * len(pts) ** 2:
+        guard += 1
+        for k in range(len(idx)):
+            i0, i1, i2 = idx[k - 1], idx[k], idx[(k + 1) % len(idx)]
+            a, b, c = pts[i0], pts[i1], pts[i2]
+            if cross(a, b, c) <= 1e-15:
+                continue        # reflex or degenerate corner
+            inside = False
+            for j in idx:
+                if j in (i0, i1, i2):
+                    continue
+                p = pts[j]
+                if cross(a, b, p) >= 0 and cross(b, c, p) >= 0 and cross(c, a, p) >= 0:
+                    inside = True
+                    break
+            if not inside:
+                tris.append(np.array([a, b, c]))
+                idx.pop(k)
+                break
+        else:
+            raise InputError("polygon", "a simple (non-self-intersecting) polygon", f"{len(pts)} vertices")
+    if len(idx) == 3:
+        tris.append(np.array([pts[i] for i in idx]))
+    return tris
+
+
+def convex_parts(v: np.ndarray) -> list[np.ndarray]:
+    """The polygon itself if convex, else its triangles."""
+    v = np.asarray(v, dtype=float)
+    if polygon_area(v) < 0:
+        v = v[::-1]
+    return [v] if is_convex(v) else triangulate(v)
+
+
+def point_polygon_distance(p, v: np.ndarray) -> float:
+    """Euclidean distance from point p to the closed polygon v (0 inside or on it)."""
+    p = np.asarray(p, dtype=float)
+    a = np.asarray(v, dtype=float)
+    b = np.roll(a, -1, axis=0)
+    ab = b - a
+    t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300), 0.0, 1.0)
+    d = float(np.min(np.hypot(*(a + t[:, None] * ab - p).T)))
+    # inside test (even-odd ray casting)
+    x, y = p
+    crosses = ((a[:, 1] > y) != (b[:, 1] > y)) & (x < a[:, 0] + (y - a[:, 1]) * ab[:, 0] / np.where(ab[:, 1] == 0, 1e-300, ab[:, 1]))
+    return 0.0 if np.count_nonzero(crosses) % 2 == 1 else d
+
+
+@dataclass(frozen=True)
+class Footprint:
+    """A robot's shape in its own frame: a disc (``radius``) or a polygon (``vertices``, (k, 2))."""
+
+    radius: float | None = None
+    vertices: np.ndarray | None = None
+    label: str = ""
+
+    def __post_init__(self):
+        if (self.radius is None) == (self.vertices is None):
+            raise InputError("footprint", "either a radius or polygon vertices", (self.radius, self.vertices))
+        if self.radius is not None and not (math.isfinite(self.radius) and self.radius > 0):
+            raise InputError("footprint.radius", "a positive finite number", self.radius)
+        if self.vertices is not None:
+            v = np.asarray(self.vertices, dtype=float)
+            if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3 or not np.all(np.isfinite(v)):
+                raise InputError("footprint.vertices", "at least 3 finite (x, y) points", f"shape {v.shape}")
+            if polygon_area(v) < 0:
+                v = v[::-1]
+            object.__setattr__(self, "vertices", v)
+
+    @classmethod
+    def disc(cls, radius: float) -> "Footprint":
+        return cls(radius=float(radius), label=f"disc r={radius:g} m")
+
+    @classmethod
+    def rectangle(cls, length: float, width: float, rear_overhang: float | None = None) -> "Footprint":
+        """A rectangle ``length`` x ``width``. With ``rear_overhang`` the reference point (the rear
+        axle) lies that far ahead of the rear edge (cars); without, the rectangle is centred."""
+        if not (length > 0 and width > 0):
+            raise InputError("footprint", "positive length and width", (length, width))
+        back = length / 2 if rear_overhang is None else float(rear_overhang)
+        if not (0 <= back <= length):
+            raise InputError("footprint.rear_overhang", f"in [0, length = {length:g}]", rear_overhang)
+        v = np.array([[-back, -width / 2], [length - back, -width / 2], [length - back, width / 2], [-back, width / 2]])
+        label = f"rectangle {length:g} x {width:g} m" + ("" if rear_overhang is None else f", rear overhang {back:g} m")
+        return cls(vertices=v, label=label)
+
+    @classmethod
+    def polygon(cls, vertices) -> "Footprint":
+        return cls(vertices=np.asarray(vertices, dtype=float), label="polygon")
+
+    @property
+    def bounding_radius(self) -> float:
+        """Distance from the reference point to the farthest point of the footprint."""
+        if self.radius is not None:
+            return self.radius
+        return float(np.max(np.hypot(self.vertices[:, 0], self.vertices[:, 1])))
+
+    def outline_at(self, pose, n_circle: int = 48) -> np.ndarray:
+        """World outline (k, 2) at a pose (discs as an n-gon, for drawing)."""
+        if self.radius is not None:
+            a = np.linspace(0, 2 * np.pi, n_circle, endpoint=False)
+            return np.stack([pose[0] + self.radius * np.cos(a), pose[1] + self.radius * np.sin(a)], axis=1)
+        return transform_points(self.vertices, pose)
+
+    def describe(self) -> dict:
+        if self.radius is not None:
+            return {"type": "disc", "radius": self.radius}
+        return {"type": "polygon", "vertices": self.vertices.tolist(), "label": self.label}
+
+
+#: default footprints per robot model (reference point as documented above)
+DEFAULT_FOOTPRINTS = {
+    "unicycle": lambda: Footprint.disc(0.3),
+    "heisenberg": lambda: Footprint.disc(0.1),
+    "rwd_car": lambda: Footprint.rectangle(4.2, 1.8, rear_overhang=0.9),    # wheelbase 2.5 m
+    "fwd_car": lambda: Footprint.rectangle(1.6, 0.8, rear_overhang=0.3),    # wheelbase 1 m
+}
+
+
+def default_footprint(model_name: str) -> Footprint:
+    try:
+        return DEFAULT_FOOTPRINTS[model_name]()
+    except KeyError:
+        raise InputError("model", "one of " + ", ".join(sorted(DEFAULT_FOOTPRINTS)), model_name) from None

@@ -1,0 +1,294 @@
+"""FCL collision worlds built from a :class:`~pipeline.maps.base.Map` (the only module importing fcl).
+
+The 2-D world is modelled as prisms of equal height in 3-D, so that FCL's 3-D distances between
+them are the 2-D distances of their cross-sections: polygons become convex prisms (non-convex ones
+are triangulated first), circles cylinders, occupied grid cells boxes (runs of cells merged into few
+rectangles), and by default the map's bounds four walls just outside them. A DynamicAABBTree
+broad-phase manager holds them.
+
+Queries take a pose (x, y, theta) and a :class:`~pipeline.geometry.Footprint`:
+
+- ``is_free(pose, fp, margin)``: no obstacle within ``margin`` of the footprint (the footprint
+  against obstacles inflated by ``margin``, exactly: a Minkowski sum with a disc);
+- ``clearance(pose, fp)``: signed distance from the footprint to the nearest obstacle, negative
+  (minus the deepest penetration depth found) when they overlap. Between polygons FCL's distance is
+  exact; GJK on curved shapes (discs, circles) stops at a tolerance of about 1e-5 m, so a nearest pair
+  that involves a disc or circle is re-measured with exact plane geometry;
+- ``check_path(poses, fp, margin, resolution)``: a whole path in one call, interpolated at the
+  resolution, with the first conflict and the minimum clearance and where they occur.
+
+``CollisionWorld.from_map(m, obstacles="known")`` uses the obstacles known a priori;
+``obstacles="all"`` adds the map's unknown obstacles (the real world); ``with_obstacles(shapes)``
+adds discovered ones.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import fcl
+import numpy as np
+
+from .errors import InputError
+from .geometry import Footprint, convex_parts, point_polygon_distance, transform_points, wrap_angle
+from .maps.base import Circle, Map, OccupancyGrid, Polygon
+
+_Z = 1.0                 # prisms span z in [-_Z, _Z]
+_WALL = 1.0              # thickness of the boundary walls [m]
+
+
+def _prism(v2: np.ndarray) -> fcl.Convex:
+    k = len(v2)
+    verts = np.vstack([np.column_stack([v2, np.full(k, -_Z)]), np.column_stack([v2, np.full(k, _Z)])])
+    faces = [k, *range(k - 1, -1, -1), k, *range(k, 2 * k)]
+    for i in range(k):
+        j = (i + 1) % k
+        faces += [4, i, j, k + j, k + i]
+    return fcl.Convex(verts, k + 2, np.asarray(faces, dtype=np.int64))
+
+
+def _object(geom, x: float = 0.0, y: float = 0.0, yaw: float = 0.0) -> fcl.CollisionObject:
+    c, s = math.cos(yaw), math.sin(yaw)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return fcl.CollisionObject(geom, fcl.Transform(R, np.array([x, y, 0.0])))
+
+
+def grid_rectangles(occupied: np.ndarray) -> list[tuple[int, int, int, int]]:
+    """Cover the occupied cells exactly with few axis-aligned rectangles (i0, j0, i1, j1), half-open.
+
+    Each row's runs of occupied cells are found with numpy; a run identical to one in the row below
+    extends that rectangle upwards. Exact (every occupied cell covered once, no free cell covered).
+    """
+    occ = np.asarray(occupied, dtype=bool)
+    H, W = occ.shape
+    open_rects: dict[tuple[int, int], int] = {}      # (j0, j1) -> i0 of a rectangle still growing
+    rects: list[tuple[int, int, int, int]] = []
+    padded = np.zeros((H, W + 2), dtype=np.int8)
+    padded[:, 1:-1] = occ
+    edges = np.diff(padded, axis=1)
+    for i in range(H):
+        starts = np.flatnonzero(edges[i] == 1)
+        ends = np.flatnonzero(edges[i] == -1)
+        runs = set(zip(starts.tolist(), ends.tolist()))
+        for run in list(open_rects):
+            if run not in runs:
+                rects.append((open_rects.pop(run), run[0], i, run[1]))
+        for run in runs:
+            open_rects.setdefault(run, i)
+    for (j0, j1), i0 in open_rects.items():
+        rects.append((i0, j0, H, j1))
+    return rects
+
+
+@dataclass
+class PathCheck:
+    """Result of :meth:`CollisionWorld.check_path` (indices refer to the interpolated samples)."""
+
+    clear: bool                       # no sample within ``margin`` of an obstacle
+    margin: float
+    samples: int
+    first_conflict_index: int | None
+    first_conflict_pose: np.ndarray | None
+    first_conflict_segment: int | None      # index i of the input segment (pose i to i + 1)
+    min_clearance: float
+    min_clearance_index: int
+    min_clearance_pose: np.ndarray
+    poses: np.ndarray = field(repr=False)   # (samples, 3) the interpolated poses
+    clearances: np.ndarray = field(repr=False)
+
+
+class CollisionWorld:
+    """An FCL broad-phase world of the obstacles of a map (see the module docstring)."""
+
+    def __init__(self, shapes=(), grids: tuple[OccupancyGrid, ...] = (), bounds=None, walls: bool = True):
+        started = time.perf_counter()
+        self.shapes = tuple(shapes)
+        self.grids = tuple(grids)
+        self.bounds = None if bounds is None else tuple(float(b) for b in bounds)
+        self.walls = walls
+        self._outline: dict[int, tuple] = {}     # id(geometry) -> ("poly", vertices) | ("circle", centre, r)
+        self._geoms: list = []                   # keeps the geometries (and so their ids) alive
+        objects: list[fcl.CollisionObject] = []
+        for shape in self.shapes:
+            if isinstance(shape, Polygon):
+                for part in convex_parts(shape.vertices):
+                    objects.append(self._add(_prism(part), ("poly", part)))
+            elif isinstance(shape, Circle):
+                objects.append(self._add(fcl.Cylinder(shape.radius, 2 * _Z), ("circle", shape.center, shape.radius),
+                                         *shape.center))
+            else:
+                raise InputError("obstacle", "a Polygon or a Circle", type(shape).__name__)
+        self.n_grid_boxes = 0
+        for grid in self.grids:
+            ox, oy, yaw = grid.origin
+            r = grid.resolution
+            c, s = math.cos(yaw), math.sin(yaw)
+            for i0, j0, i1, j1 in grid_rectangles(grid.occupied):
+                u, v = (j0 + j1) / 2 * r, (i0 + i1) / 2 * r          # centre in the grid frame
+                lx, ly = (j1 - j0) * r, (i1 - i0) * r
+                cx, cy = ox + c * u - s * v, oy + s * u + c * v
+                objects.append(self._add(fcl.Box(lx, ly, 2 * _Z), ("poly", _box(cx, cy, lx, ly, yaw)), cx, cy, yaw))
+                self.n_grid_boxes += 1
+        if walls and self.bounds is not None:
+            xmin, ymin, xmax, ymax = self.bounds
+            w, h = xmax - xmin, ymax - ymin
+            for cx, cy, lx, ly in [((xmin + xmax) / 2, ymin - _WALL / 2, w + 2 * _WALL, _WALL),
+                                   ((xmin + xmax) / 2, ymax + _WALL / 2, w + 2 * _WALL, _WALL),
+                                   (xmin - _WALL / 2, (ymin + ymax) / 2, _WALL, h),
+                                   (xmax + _WALL / 2, (ymin + ymax) / 2, _WALL, h)]:
+                objects.append(self._add(fcl.Box(lx, ly, 2 * _Z), ("poly", _box(cx, cy, lx, ly, 0.0)), cx, cy))
+        self._objects = objects
+        self.manager = fcl.DynamicAABBTreeCollisionManager()
+        if objects:
+            self.manager.registerObjects(objects)
+        self.manager.setup()
+        self._robot_key = None
+        self._robot_objs: list = []
+        self.build_time_s = time.perf_counter() - started
+
+    def _add(self, geom, outline, x=0.0, y=0.0, yaw=0.0) -> fcl.CollisionObject:
+        self._geoms.append(geom)
+        self._outline[id(geom)] = outline
+        return _object(geom, x, y, yaw)
+
+    # ---- construction ------------------------------------------------------------------------------
+    @classmethod
+    def from_map(cls, m: Map, obstacles: str = "known", walls: bool = True) -> "CollisionWorld":
+        """``obstacles``: "known" (a priori), "unknown" (only those missing from the map) or "all"."""
+        if obstacles not in ("known", "unknown", "all"):
+            raise InputError("obstacles", "one of known, unknown, all", obstacles)
+        shapes = () if obstacles == "unknown" else tuple(m.obstacles)
+        if obstacles in ("unknown", "all"):
+            shapes = shapes + tuple(m.unknown_obstacles)
+        grids = () if obstacles == "unknown" else m.grids
+        return cls(shapes, grids, m.bounds, walls)
+
+    def with_obstacles(self, shapes) -> "CollisionWorld":
+        """A new world with ``shapes`` (e.g. discovered obstacles) added."""
+        return CollisionWorld(self.shapes + tuple(shapes), self.grids, self.bounds, self.walls)
+
+    @property
+    def n_objects(self) -> int:
+        return len(self._objects)
+
+    # ---- robot -------------------------------------------------------------------------------------
+    def _robot(self, fp: Footprint, pose) -> list[fcl.CollisionObject]:
+        if self._robot_key is not fp:
+            if fp.radius is not None:
+                self._robot_objs = [_object(fcl.Cylinder(fp.radius, 2 * _Z))]
+            else:
+                self._robot_objs = [_object(_prism(part)) for part in convex_parts(fp.vertices)]
+            self._robot_key = fp
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        tf = fcl.Transform(np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), np.array([pose[0], pose[1], 0.0]))
+        for o in self._robot_objs:
+            o.setTransform(tf)
+        return self._robot_objs
+
+    # ---- queries -----------------------------------------------------------------------------------
+    def in_collision(self, pose, fp: Footprint) -> bool:
+        for o in self._robot(fp, pose):
+            data = fcl.CollisionData()
+            self.manager.collide(o, data, fcl.defaultCollisionCallback)
+            if data.result.is_collision:
+                return True
+        return False
+
+    def distance(self, pose, fp: Footprint) -> float:
+        """Unsigned distance to the nearest obstacle (0 when touching or overlapping)."""
+        best = math.inf
+        for o in self._robot(fp, pose):
+            data = fcl.DistanceData()
+            self.manager.distance(o, data, fcl.defaultDistanceCallback)
+            d = float(data.result.min_distance)
+            outline = self._outline.get(id(data.result.o1))
+            if d > 0 and outline is not None and (fp.radius is not None or outline[0] == "circle"):
+                d = _exact_distance(fp, pose, outline)
+            best = min(best, max(0.0, d))
+        return best
+
+    def clearance(self, pose, fp: Footprint) -> float:
+        """Signed clearance: the distance to the nearest obstacle, or minus the deepest penetration."""
+        if not self.in_collision(pose, fp):
+            return self.distance(pose, fp)
+        deepest = 0.0
+        for o in self._robot(fp, pose):
+            data = fcl.CollisionData(request=fcl.CollisionRequest(num_max_contacts=100_000, enable_contact=True))
+            self.manager.collide(o, data, fcl.defaultCollisionCallback)
+            for contact in data.result.contacts:
+                deepest = max(deepest, float(contact.penetration_depth))
+        return -deepest
+
+    def is_free(self, pose, fp: Footprint, margin: float = 0.0) -> bool:
+        """No obstacle within ``margin`` of the footprint (margin 0: no overlap)."""
+        if self.in_collision(pose, fp):
+            return False
+        return margin <= 0.0 or self.distance(pose, fp) > margin
+
+    def free_many(self, poses, fp: Footprint, margin: float = 0.0) -> np.ndarray:
+        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        return np.array([self.is_free(p, fp, margin) for p in poses], dtype=bool)
+
+    def clearance_many(self, poses, fp: Footprint) -> np.ndarray:
+        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        return np.array([self.clearance(p, fp) for p in poses])
+
+    def check_path(self, poses, fp: Footprint, margin: float = 0.0, resolution: float = 0.05,
+                   angular_resolution: float = 0.05) -> PathCheck:
+        """Check a path of poses (N, 3), interpolated so that consecutive samples are at most
+        ``resolution`` m and ``angular_resolution`` rad apart (linear in x, y; shortest turn in theta)."""
+        poses = np.asarray(poses, dtype=float)
+        if poses.ndim != 2 or poses.shape[1] != 3 or len(poses) < 1 or not np.all(np.isfinite(poses)):
+            raise InputError("poses", "a finite (N, 3) array of (x, y, theta)", f"shape {poses.shape}")
+        if not (resolution > 0 and angular_resolution > 0):
+            raise InputError("resolution", "positive", (resolution, angular_resolution))
+        samples, segment = interpolate_poses(poses, resolution, angular_resolution)
+        clear = self.clearance_many(samples, fp)
+        bad = clear <= margin if margin > 0 else clear < 0
+        k_min = int(np.argmin(clear))
+        first = int(np.argmax(bad)) if bad.any() else None
+        return PathCheck(
+            clear=first is None, margin=margin, samples=len(samples),
+            first_conflict_index=first, first_conflict_pose=None if first is None else samples[first],
+            first_conflict_segment=None if first is None else int(segment[first]),
+            min_clearance=float(clear[k_min]), min_clearance_index=k_min, min_clearance_pose=samples[k_min],
+            poses=samples, clearances=clear)
+
+
+def _box(cx, cy, lx, ly, yaw) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    half = np.array([[-lx, -ly], [lx, -ly], [lx, ly], [-lx, ly]]) / 2
+    return half @ np.array([[c, -s], [s, c]]).T + [cx, cy]
+
+
+def _exact_distance(fp: Footprint, pose, outline) -> float:
+    """Exact plane distance between the footprint at pose and one obstacle outline, used where a disc
+    or circle is involved (GJK's tolerance on curved shapes is ~1e-5 m)."""
+    if fp.radius is not None:
+        centre = np.asarray(pose[:2], dtype=float)
+        if outline[0] == "circle":
+            return float(np.hypot(*(centre - outline[1])) - outline[2] - fp.radius)
+        return point_polygon_distance(centre, outline[1]) - fp.radius
+    # polygon footprint, circle obstacle
+    return point_polygon_distance(outline[1], transform_points(fp.vertices, pose)) - outline[2]
+
+
+def interpolate_poses(poses: np.ndarray, resolution: float, angular_resolution: float):
+    """Samples along the polyline of poses; returns (samples (M, 3), segment index of each sample)."""
+    if len(poses) == 1:
+        return poses.copy(), np.zeros(1, dtype=int)
+    d = np.diff(poses, axis=0)
+    dth = wrap_angle(d[:, 2])
+    steps = np.maximum(1, np.ceil(np.maximum(np.hypot(d[:, 0], d[:, 1]) / resolution,
+                                            np.abs(dth) / angular_resolution))).astype(int)
+    out, seg = [], []
+    for i, n in enumerate(steps):
+        a = np.arange(n)[:, None] / n
+        p = poses[i] + a * np.array([d[i, 0], d[i, 1], dth[i]])
+        out.append(p)
+        seg.append(np.full(n, i))
+    out.append(poses[-1:])
+    seg.append(np.array([len(poses) - 2]))
+    return np.vstack(out), np.concatenate(seg)

@@ -1,0 +1,149 @@
+"""FCL collision worlds against independent geometry (shapely) and constructed cases."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+from shapely.geometry import Point, box
+from shapely.geometry import Polygon as SPolygon
+from shapely.ops import unary_union
+
+from pipeline.collision import CollisionWorld, grid_rectangles
+from pipeline.geometry import Footprint
+from pipeline.maps.base import Circle, Map, OccupancyGrid, Polygon, box_polygon
+
+L_SHAPE = Polygon(np.array([[2, 2], [6, 2], [6, 3], [3, 3], [3, 6], [2, 6]], float))
+POLY_MAP = Map("poly", (0, 0, 10, 10), obstacles=(L_SHAPE, Circle((7, 7), 1.0), box_polygon(8, 2, 1.5, 0.8, 0.6)))
+
+
+def _reference_clearance(m: Map, fp: Footprint, pose) -> float:
+    """Unsigned clearance by shapely: footprint vs obstacles and the bounds' walls (0 if overlapping)."""
+    x, y = pose[0], pose[1]
+    geoms = [SPolygon(o.vertices) for o in m.obstacles if isinstance(o, Polygon)]
+    circles = [o for o in m.obstacles if isinstance(o, Circle)]
+    xmin, ymin, xmax, ymax = m.bounds
+    if fp.radius is not None:
+        d = [Point(x, y).distance(g) - fp.radius for g in geoms]
+        d += [np.hypot(x - c.center[0], y - c.center[1]) - c.radius - fp.radius for c in circles]
+        d += [x - fp.radius - xmin, y - fp.radius - ymin, xmax - x - fp.radius, ymax - y - fp.radius]
+    else:
+        shape = SPolygon(fp.outline_at(pose))
+        d = [shape.distance(g) for g in geoms]
+        d += [shape.distance(Point(*c.center)) - c.radius for c in circles]
+        bx = shape.bounds
+        d += [bx[0] - xmin, bx[1] - ymin, xmax - bx[2], ymax - bx[3]]
+    return max(0.0, min(d))
+
+
+@pytest.mark.parametrize("fp", [Footprint.rectangle(1.2, 0.6, rear_overhang=0.3), Footprint.disc(0.35),
+                                Footprint.polygon([[0, 0], [1, 0], [1, 0.2], [0.2, 0.2], [0.2, 0.8], [0, 0.8]])],
+                         ids=["car-rectangle", "disc", "non-convex"])
+def test_clearance_matches_shapely_on_polygon_map(fp, rng):
+    world = CollisionWorld.from_map(POLY_MAP)
+    checked = 0
+    for _ in range(300):
+        pose = np.array([rng.uniform(0, 10), rng.uniform(0, 10), rng.uniform(-np.pi, np.pi)])
+        ref = _reference_clearance(POLY_MAP, fp, pose)
+        c = world.clearance(pose, fp)
+        if ref > 1e-9:
+            assert abs(c - ref) < 1e-6, (pose, c, ref)
+            assert world.is_free(pose, fp)
+            checked += 1
+        else:
+            assert c <= 1e-9 and not world.is_free(pose, fp)
+    assert checked > 100
+
+
+def test_clearance_on_grid_matches_union_of_cells(rng):
+    occ = np.zeros((40, 60), dtype=bool)
+    occ[10:14, 5:50] = True
+    occ[20:35, 30:33] = True
+    occ[rng.integers(0, 40, 30), rng.integers(0, 60, 30)] = True
+    grid = OccupancyGrid(occ, resolution=0.25, origin=(-3.0, 1.0, 0.0))
+    m = Map("grid", grid.bounds(), grids=(grid,))
+    world = CollisionWorld.from_map(m)
+    cells = unary_union([box(*grid.cell_to_world(i, j), *grid.cell_to_world(i, j)).buffer(0.125, cap_style=3)
+                         for i, j in zip(*np.nonzero(occ))])
+    fp = Footprint.rectangle(0.8, 0.4, rear_overhang=0.2)
+    xmin, ymin, xmax, ymax = m.bounds
+    for _ in range(150):
+        pose = np.array([rng.uniform(xmin, xmax), rng.uniform(ymin, ymax), rng.uniform(-3, 3)])
+        shape = SPolygon(fp.outline_at(pose))
+        b = shape.bounds
+        ref = max(0.0, min(shape.distance(cells), b[0] - xmin, b[1] - ymin, xmax - b[2], ymax - b[3]))
+        # exact against the cell geometry (well inside the one-cell-size tolerance of the issue)
+        assert abs(world.clearance(pose, fp) - ref) < 1e-6 if ref > 1e-9 else world.clearance(pose, fp) <= 1e-9
+
+
+def test_rotated_grid_is_placed_by_its_origin_yaw():
+    occ = np.zeros((4, 4), dtype=bool)
+    occ[0, 3] = True            # lower-right cell in the grid frame
+    grid = OccupancyGrid(occ, resolution=1.0, origin=(10.0, 0.0, np.pi / 2))
+    world = CollisionWorld([], (grid,), bounds=None)
+    # the cell's centre (3.5, 0.5) in the grid frame is at (10 - 0.5, 3.5) in the world
+    dot = Footprint.disc(0.05)
+    assert world.in_collision((9.5, 3.5, 0.0), dot)
+    assert not world.in_collision((9.5, 0.5, 0.0), dot)
+
+
+@settings(max_examples=60, deadline=None)
+@given(occ=arrays(bool, st.tuples(st.integers(1, 25), st.integers(1, 25))))
+def test_grid_rectangles_cover_exactly(occ):
+    covered = np.zeros(occ.shape, dtype=int)
+    for i0, j0, i1, j1 in grid_rectangles(occ):
+        covered[i0:i1, j0:j1] += 1
+    np.testing.assert_array_equal(covered, occ.astype(int))
+
+
+def test_grid_merging_keeps_boxes_few():
+    occ = np.zeros((512, 512), dtype=bool)
+    occ[::64, :] = True
+    occ[:, ::64] = True
+    assert len(grid_rectangles(occ)) < 600         # 262144 cells, 64512 occupied
+
+
+def test_path_check_finds_conflict_between_samples():
+    wall = box_polygon(5.0, 5.0, 0.1, 3.0)           # a 10 cm thick wall across the path at x = 5
+    m = Map("wall", (0, 0, 10, 10), obstacles=(wall,))
+    world = CollisionWorld.from_map(m)
+    fp = Footprint.disc(0.05)
+    path = np.array([[1.0, 5.0, 0.0], [9.0, 5.0, 0.0]])     # the two given samples are both free
+    assert world.is_free(path[0], fp) and world.is_free(path[1], fp)
+    coarse = world.check_path(path, fp, resolution=8.0)
+    assert coarse.clear                                      # too coarse to see it: only the end points
+    fine = world.check_path(path, fp, resolution=0.05)
+    assert not fine.clear and fine.first_conflict_segment == 0
+    assert 4.8 <= fine.first_conflict_pose[0] <= 5.0
+    assert fine.min_clearance < 0
+
+
+def test_path_clear_by_margin():
+    m = Map("corridor", (0, 0, 20, 4), obstacles=(box_polygon(10, 3.5, 20, 1.0), box_polygon(10, 0.5, 20, 1.0)))
+    world = CollisionWorld.from_map(m)
+    fp = Footprint.rectangle(1.0, 0.6, rear_overhang=0.2)
+    path = np.array([[1.0, 2.0, 0.0], [10.0, 2.0, 0.0], [18.0, 2.0, 0.0]])
+    res = world.check_path(path, fp, margin=0.5, resolution=0.1)
+    # the footprint is 0.3 m from y = 2 on each side; the walls are at y = 1 and y = 3: clearance 0.7
+    assert res.clear and abs(res.min_clearance - 0.7) < 1e-9
+    assert not world.check_path(path, fp, margin=0.75, resolution=0.1).clear
+    assert world.is_free(path[1], fp, margin=0.69) and not world.is_free(path[1], fp, margin=0.71)
+
+
+def test_known_unknown_and_discovered_obstacles():
+    hidden = box_polygon(5, 5, 1, 1)
+    m = Map("m", (0, 0, 10, 10), obstacles=(Circle((2, 2), 0.5),), unknown_obstacles=(hidden,))
+    fp = Footprint.disc(0.2)
+    known = CollisionWorld.from_map(m, "known")
+    real = CollisionWorld.from_map(m, "all")
+    assert known.is_free((5, 5, 0), fp) and not real.is_free((5, 5, 0), fp)
+    assert not known.with_obstacles([hidden]).is_free((5, 5, 0), fp)
+    assert not known.is_free((2, 2, 0), fp) and CollisionWorld.from_map(m, "unknown").is_free((2, 2, 0), fp)
+
+
+def test_penetration_depth_is_negative_clearance():
+    m = Map("m", (0, 0, 10, 10), obstacles=(box_polygon(5, 5, 2, 2),))
+    world = CollisionWorld.from_map(m)
+    fp = Footprint.disc(0.5)
+    # disc centre 0.3 m inside the box's left face: overlap depth 0.8 m
+    assert world.clearance((4.3, 5.0, 0.0), fp) == pytest.approx(-0.8, abs=1e-4)
