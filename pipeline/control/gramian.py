@@ -356,9 +356,8 @@ def _frozen_start(nom: Nominal, E: Segments, w: int, phi: float, i_min: int, cw:
     H_r(s) = exp(cw delta) Phi(s, t0) H_c(t0, s) Phi(s, t0)^T, so H(t) = exp(cw delta) Phi(t, t0) H_c(t0, s) Phi(t, t0)^T.
     """
     G = _future_windows(nom, E, w, phi, 1, cw, substeps).W[0]
-    pre = exclusive_prefix(E[:i_min - 1] if i_min > 1 else E[:0], -cw) if i_min > 1 else None
-    if pre is None:
-        Phi_back = np.eye(E.n)[None]
+    if i_min > 1:
+        Phi_back = exclusive_prefix(E[: i_min - 1], -cw).P     # Phi(t0, t_i), i = 0 .. i_min-1
     else:
-        Phi_back = pre.P                               # Phi(t0, t_i), i = 0 .. i_min-1
+        Phi_back = np.eye(E.n)[None]
     return _carry(G, Phi_back, math.exp(cw * (w * (nom.t[1] - nom.t[0]) + phi)))
