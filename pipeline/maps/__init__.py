@@ -1,0 +1,128 @@
+"""Maps: one :class:`Map` value loaded from any supported file by :func:`load_map`.
+
+Formats (dispatch on the file name):
+
+* ``.svg`` -- a Bench-MR polygon world (:func:`pipeline.maps.svg.load_benchmr_svg`);
+* ``.map`` -- a Moving AI grid map (:func:`pipeline.maps.movingai.load_movingai_map`);
+* ``.yaml`` / ``.yml`` -- a ROS map_server map if the top-level mapping has an ``image`` key
+  (:func:`pipeline.maps.ros.load_ros_map`), otherwise nhstab's own YAML map format
+  (:func:`pipeline.maps.yaml_format.load_yaml_map`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ..errors import InputError
+from .base import Circle, Map, MapError, OccupancyGrid, Polygon, Pose, Problem, box_polygon
+from .yaml_format import _one_line, is_file
+
+__all__ = ["Map", "Pose", "Polygon", "Circle", "OccupancyGrid", "Problem", "MapError", "box_polygon", "load_map"]
+
+_OPTIONS = {
+    "svg": ("convex_hull", "scenarios"),
+    "map": ("cell_size", "scenarios"),
+    "ros": ("unknown",),
+    "yaml": (),
+}
+BENCHMR_SCENARIO_FILE = "polygon_scenarios.csv"
+
+
+def load_map(path: str | Path, **options: Any) -> Map:
+    """Load a map file of any supported format (see the module docstring).
+
+    Options, by format (any other option raises :class:`InputError`):
+
+    * ``.svg``: ``convex_hull=False`` (replace polygons by their hulls, as Bench-MR did);
+      ``scenarios=True``: attach the start/goal pairs of ``polygon_scenarios.csv`` in the same folder
+      (rows whose ``environment`` is the file stem) as ``Map.problems`` if that file exists
+      (``False``: none; a path: that CSV file); the footprint named in its ``robot_shape`` column
+      goes to ``meta["robot_shape"]``;
+    * ``.map``: ``cell_size=1.0`` (metres per cell); ``scenarios=True``: attach ``<file>.scen``
+      (Moving AI naming, e.g. ``Berlin_0_256.map.scen``) if it exists (``False``: none; a path: that file);
+    * ROS ``.yaml``: ``unknown="occupied"`` (how unknown cells count);
+    * nhstab ``.yaml``: no options.
+
+    A missing file or an unsupported extension raises :class:`MapError` naming the file.
+    """
+    path = Path(path)
+    if not is_file(path):
+        raise MapError(str(path), "an existing map file", "no such file or not a file")
+    suffix = path.suffix.lower()
+    if suffix == ".svg":
+        _check_options(path, "svg", options)
+        return _load_svg(path, **options)
+    if suffix == ".map":
+        _check_options(path, "map", options)
+        return _load_movingai(path, **options)
+    if suffix in (".yaml", ".yml"):
+        if _is_ros_yaml(path):
+            _check_options(path, "ros", options)
+            from .ros import load_ros_map
+            return load_ros_map(path, **options)
+        _check_options(path, "yaml", options)
+        from .yaml_format import load_yaml_map
+        return load_yaml_map(path)
+    raise MapError(str(path), "a map file ending in .svg, .map, .yaml or .yml", path.suffix or "no extension")
+
+
+def _check_options(path: Path, kind: str, options: dict) -> None:
+    allowed = _OPTIONS[kind]
+    for key in options:
+        if key not in allowed:
+            expected = f"one of {', '.join(allowed)}" if allowed else "absent (this format takes no options)"
+            raise InputError(f"load_map option {key!r} for {path.name}", expected, options[key])
+
+
+def _scenario_path(value: Any, default: Path) -> Path | None:
+    if value is False or value is None:
+        return None
+    if value is True:
+        return default if default.is_file() else None
+    if isinstance(value, (str, Path)):
+        return Path(value)
+    raise InputError("scenarios", "True, False or a path", value)
+
+
+def _load_svg(path: Path, convex_hull: bool = False, scenarios: Any = True) -> Map:
+    from .svg import benchmr_robot_shapes, load_benchmr_scenarios, load_benchmr_svg
+    if not isinstance(convex_hull, bool):
+        raise InputError("convex_hull", "True or False", convex_hull)
+    m = load_benchmr_svg(path, convex_hull=convex_hull)
+    csv_path = _scenario_path(scenarios, path.parent / BENCHMR_SCENARIO_FILE)
+    if csv_path is None:
+        return m
+    problems = load_benchmr_scenarios(csv_path).get(m.name, ())
+    meta = dict(m.meta, scenarios=str(csv_path))
+    shape = benchmr_robot_shapes(csv_path).get(m.name)
+    if shape:
+        meta["robot_shape"] = shape
+    return replace(m, problems=tuple(problems), meta=meta)
+
+
+def _load_movingai(path: Path, cell_size: float = 1.0, scenarios: Any = True) -> Map:
+    from .movingai import load_movingai_map, load_movingai_scenarios
+    m = load_movingai_map(path, cell_size=cell_size)
+    scen = _scenario_path(scenarios, path.with_name(path.name + ".scen"))
+    if scen is None or m.problems:
+        return m
+    height = m.grids[0].shape[0] if m.grids else None
+    problems = load_movingai_scenarios(scen, cell_size=cell_size, map_height=height)
+    return replace(m, problems=tuple(problems), meta=dict(m.meta, scenarios=str(scen)))
+
+
+def _is_ros_yaml(path: Path) -> bool:
+    """Whether a YAML file's top level is a mapping with an ``image`` key (ROS map_server metadata)."""
+    try:
+        doc = yaml.safe_load(path.read_bytes().decode("utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MapError(str(path), "a readable UTF-8 YAML file", detail=_one_line(exc)) from None
+    except yaml.YAMLError as exc:
+        raise MapError(str(path), "valid YAML", detail=_one_line(exc)) from None
+    except RecursionError:
+        raise MapError(str(path), "valid YAML", detail="nesting too deep") from None
+    return isinstance(doc, dict) and "image" in doc

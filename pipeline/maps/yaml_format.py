@@ -1,0 +1,447 @@
+# ---------------------------------------------------------------------------------------------
+# The nhstab YAML map format (pipeline.maps.yaml_format.load_yaml_map; load_map picks it for a
+# .yaml/.yml file whose top level has no `image` key).
+#
+# Units are metres and radians; world frame x right, y up; a pose is [x, y, theta].
+#
+#   name: parking-lot                   # optional non-empty string; default: the file stem
+#   bounds: [xmin, ymin, xmax, ymax]    # required unless `base` gives them; replaces the base's
+#   base:                               # optional: start from a map in another format
+#     format: ros                       #   ros | movingai | benchmr_svg
+#     path: ../nav2/depot.yaml          #   relative to this YAML file (or absolute)
+#     unknown: occupied                 #   ros only: how unknown cells count (occupied | free)
+#     cell_size: 0.5                    #   movingai only: metres per cell (default 1.0)
+#     convex_hull: false                #   benchmr_svg only: replace polygons by their hulls
+#     scenarios: Berlin_0_256.map.scen  #   movingai / benchmr_svg only, optional: a .scen file or
+#                                       #   polygon_scenarios.csv whose start/goal pairs become
+#                                       #   the map's problems (relative to this YAML file)
+#   obstacles:                          # known a priori (in the robot's map)
+#     - polygon: [[x, y], [x, y], [x, y], ...]     # simple (convex or not), >= 3 distinct points,
+#                                                  # either orientation; a repeated closing point
+#                                                  # is dropped
+#     - circle: {center: [x, y], radius: r}        # r > 0
+#     - box: {center: [x, y], size: [length, width], yaw: 0.0}
+#                                                  # length along yaw (radians, optional, default 0)
+#   unknown_obstacles: [...]            # same shapes: present in the world, not in the robot's map
+#   start: [x, y, theta]                # optional; exactly three numbers
+#   goal: [x, y, theta]                 # optional; exactly three numbers
+#   robot: {model: rwd_car, wheelbase: 2.5}   # optional default robot, kept as a dict: `model` (a
+#                                       # string) is required; other keys are the model's business
+#                                       # (string keys, finite numbers, nested lists/mappings)
+#
+# A base map contributes its occupancy grids, obstacles, unknown obstacles, bounds and problems,
+# and its start, goal and robot where the YAML gives none; the YAML's obstacles are appended and
+# its `bounds` replace the base's.
+#
+# Validation is strict. Each failure raises one MapError (an InputError, a ValueError) on one line
+# that names the file and the key path (e.g. "parking_lot.yaml: obstacles[3].polygon"), what was
+# expected and what was given:
+#   * unknown keys at any level (except inside `robot`), missing required keys;
+#   * wrong types (booleans and quoted numbers are not numbers), NaN or infinite numbers, numbers
+#     of magnitude above 1e9;
+#   * a polygon with fewer than 3 distinct points, a self-intersecting, self-touching or
+#     folded-back polygon, or one of zero area; a non-positive radius or box size;
+#   * bounds not ordered (xmin < xmax and ymin < ymax);
+#   * start or goal outside the bounds, or its reference point (x, y) inside or on the boundary of a
+#     known polygon or circle, or in an occupied cell of a known grid (pure geometry; unknown
+#     obstacles may cover them, which is a legitimate experiment);
+#   * a base file that is missing or fails to load (the error names both files);
+#   * YAML syntax errors, an empty document, a file that is not UTF-8.
+# ---------------------------------------------------------------------------------------------
+"""nhstab's own YAML map format: :func:`load_yaml_map` (strict; every error names the file and key).
+
+The format is documented in the comment block above (kept as comments so that it can be copied
+verbatim into the README).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from ..errors import PipelineError
+from .base import Circle, Map, MapError, OccupancyGrid, Polygon, Pose, Problem, Shape, box_polygon, signed_area
+
+_TOP_KEYS = ("name", "bounds", "base", "obstacles", "unknown_obstacles", "start", "goal", "robot")
+_BASE_KEYS = {
+    "ros": ("format", "path", "unknown"),
+    "movingai": ("format", "path", "cell_size", "scenarios"),
+    "benchmr_svg": ("format", "path", "convex_hull", "scenarios"),
+}
+_MAX_DEPTH = 64
+MAX_ABS = 1e9
+"""Largest magnitude accepted for any number in a YAML map (keeps products of coordinates finite)."""
+
+
+def load_yaml_map(path: str | Path) -> Map:
+    """Load a map in nhstab's YAML format (see the module docstring) with strict validation."""
+    path = Path(path)
+    if not is_file(path):
+        raise MapError(str(path), "an existing YAML map file", "no such file")
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MapError(str(path), "a readable UTF-8 YAML file", detail=_one_line(exc)) from None
+    return parse_yaml_map(text, path)
+
+
+def parse_yaml_map(text: str, path: str | Path) -> Map:
+    """Build a :class:`Map` from YAML ``text``; ``path`` names it in errors and anchors relative paths."""
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise MapError(str(path), "valid YAML", detail=_one_line(exc)) from None
+    except RecursionError:
+        raise MapError(str(path), "valid YAML", detail="nesting too deep") from None
+    return _Reader(path).map(doc)
+
+
+def is_file(path: Path) -> bool:
+    """``path.is_file()``, False instead of an exception for unrepresentable or over-long names."""
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return False
+
+
+def point_in_shape(x: float, y: float, shape: Shape) -> bool:
+    """Whether (x, y) lies inside or on the boundary of a polygon or circle (pure geometry)."""
+    if isinstance(shape, Circle):
+        (cx, cy), r = shape.center, shape.radius
+        return math.hypot(x - cx, y - cy) <= r
+    return point_in_polygon(x, y, shape.vertices)
+
+
+def point_in_polygon(x: float, y: float, v: np.ndarray) -> bool:
+    """Even-odd ray casting, with points on an edge (to 1e-12 relative) counted as inside."""
+    a, b = v, np.roll(v, -1, axis=0)
+    d = b - a
+    p = np.array([x, y], dtype=float)
+    # on an edge?
+    t = np.clip(np.einsum("ij,ij->i", p - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300), 0.0, 1.0)
+    dist = np.hypot(*(a + t[:, None] * d - p).T)
+    scale = max(1.0, float(np.abs(v).max()))
+    if dist.min() <= 1e-12 * scale:
+        return True
+    crosses = (a[:, 1] > y) != (b[:, 1] > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xi = a[:, 0] + (y - a[:, 1]) * d[:, 0] / d[:, 1]
+    return bool(np.count_nonzero(crosses & (x < xi)) % 2)
+
+
+def point_in_grid(x: float, y: float, grid: OccupancyGrid) -> bool:
+    """Whether (x, y) lies in an occupied cell of ``grid`` (points outside the grid are not)."""
+    i, j = grid.world_to_cell(x, y)
+    i, j = int(i), int(j)
+    h, w = grid.shape
+    return 0 <= i < h and 0 <= j < w and bool(grid.occupied[i, j])
+
+
+def is_simple_polygon(v: np.ndarray) -> bool:
+    """True if the closed ring ``v`` (k, 2) has no self-intersection, touching or folded-back edges."""
+    k = len(v)
+    a, b = v, np.roll(v, -1, axis=0)
+    d = b - a
+    if k < 3 or np.any(np.all(d == 0, axis=1)):
+        return False
+    # adjacent edges must not fold back onto each other
+    dn = np.roll(d, -1, axis=0)
+    cross_adj = d[:, 0] * dn[:, 1] - d[:, 1] * dn[:, 0]
+    if np.any((cross_adj == 0) & (np.einsum("ij,ij->i", d, dn) < 0)):
+        return False
+    if k == 3:
+        return True
+
+    def orient(p, q, r):  # sign of (q - p) x (r - p), broadcast over edge pairs
+        return np.sign((q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1])
+                       - (q[..., 1] - p[..., 1]) * (r[..., 0] - p[..., 0]))
+
+    def on_segment(p, q, r):  # r collinear with p-q: inside its bounding box?
+        return ((np.minimum(p[..., 0], q[..., 0]) <= r[..., 0]) & (r[..., 0] <= np.maximum(p[..., 0], q[..., 0]))
+                & (np.minimum(p[..., 1], q[..., 1]) <= r[..., 1]) & (r[..., 1] <= np.maximum(p[..., 1], q[..., 1])))
+
+    p1, p2 = a[:, None, :], b[:, None, :]
+    p3, p4 = a[None, :, :], b[None, :, :]
+    o1, o2 = orient(p1, p2, p3), orient(p1, p2, p4)
+    o3, o4 = orient(p3, p4, p1), orient(p3, p4, p2)
+    hit = (o1 * o2 < 0) & (o3 * o4 < 0)
+    hit |= (o1 == 0) & on_segment(p1, p2, p3)
+    hit |= (o2 == 0) & on_segment(p1, p2, p4)
+    hit |= (o3 == 0) & on_segment(p3, p4, p1)
+    hit |= (o4 == 0) & on_segment(p3, p4, p2)
+    idx = np.arange(k)
+    gap = (idx[None, :] - idx[:, None]) % k
+    relevant = (gap > 1) & (gap < k - 1)          # non-adjacent, distinct edges
+    return not bool(np.any(hit & relevant))
+
+
+class _Reader:
+    """Validates one parsed YAML document; ``self.file`` prefixes every error's argument."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.file = str(path)
+
+    # -- errors and primitive checks -------------------------------------------------------------
+    def err(self, key: str, expected: str, got: object = None, detail: str = "") -> MapError:
+        where = f"{self.file}: {key}" if key else self.file
+        return MapError(where, expected, got, detail=detail)
+
+    def mapping(self, value: Any, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> dict:
+        label = key or "top level"
+        if not isinstance(value, dict):
+            raise self.err(key, f"a mapping with keys {', '.join(allowed)}", _type_name(value),
+                           detail=f"at {label}")
+        for k in value:
+            if not isinstance(k, str) or k not in allowed:
+                raise self.err(_join(key, str(k)), f"one of the keys {', '.join(allowed)}", f"unknown key {k!r}")
+        for k in required:
+            if k not in value:
+                raise self.err(_join(key, k), "present", "missing", detail=f"required in {label}")
+        return value
+
+    def number(self, value: Any, key: str) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.err(key, "a number", _type_name(value) if not isinstance(value, str) else value)
+        try:
+            x = float(value)
+        except OverflowError:
+            x = math.inf
+        if not math.isfinite(x):
+            raise self.err(key, "a finite number", value)
+        if abs(x) > MAX_ABS:
+            raise self.err(key, f"a number of magnitude at most {MAX_ABS:g}", value)
+        return x
+
+    def positive(self, value: Any, key: str) -> float:
+        x = self.number(value, key)
+        if x <= 0:
+            raise self.err(key, "a positive number", value)
+        return x
+
+    def numbers(self, value: Any, key: str, n: int, what: str) -> tuple[float, ...]:
+        if not isinstance(value, list) or len(value) != n:
+            got = f"a list of {len(value)}" if isinstance(value, list) else _type_name(value)
+            raise self.err(key, f"a list of {n} numbers {what}", got)
+        return tuple(self.number(x, f"{key}[{i}]") for i, x in enumerate(value))
+
+    def string(self, value: Any, key: str) -> str:
+        if not isinstance(value, str) or not value.strip():
+            raise self.err(key, "a non-empty string", _type_name(value) if not isinstance(value, str) else value)
+        return value
+
+    def boolean(self, value: Any, key: str) -> bool:
+        if not isinstance(value, bool):
+            raise self.err(key, "true or false", value)
+        return value
+
+    # -- shapes ------------------------------------------------------------------------------------
+    def shape(self, item: Any, key: str) -> Shape:
+        kinds = ("polygon", "circle", "box")
+        if not isinstance(item, dict) or len(item) != 1:
+            raise self.err(key, "a mapping with exactly one of the keys polygon, circle, box",
+                           _type_name(item) if not isinstance(item, dict) else sorted(map(str, item)))
+        self.mapping(item, key, kinds)
+        (kind, spec), = item.items()
+        sub = f"{key}.{kind}"
+        if kind == "polygon":
+            return self.polygon(spec, sub)
+        if kind == "circle":
+            spec = self.mapping(spec, sub, ("center", "radius"), ("center", "radius"))
+            center = self.numbers(spec["center"], f"{sub}.center", 2, "[x, y]")
+            return Circle(center, self.positive(spec["radius"], f"{sub}.radius"))
+        spec = self.mapping(spec, sub, ("center", "size", "yaw"), ("center", "size"))
+        cx, cy = self.numbers(spec["center"], f"{sub}.center", 2, "[x, y]")
+        length, width = self.numbers(spec["size"], f"{sub}.size", 2, "[length, width]")
+        if length <= 0 or width <= 0:
+            raise self.err(f"{sub}.size", "a positive [length, width]", spec["size"])
+        yaw = self.number(spec.get("yaw", 0.0), f"{sub}.yaw")
+        return box_polygon(cx, cy, length, width, yaw)
+
+    def polygon(self, spec: Any, key: str) -> Polygon:
+        if not isinstance(spec, list) or len(spec) < 3:
+            got = f"{len(spec)} points" if isinstance(spec, list) else _type_name(spec)
+            raise self.err(key, "a list of at least 3 [x, y] points", got)
+        v = np.array([self.numbers(p, f"{key}[{i}]", 2, "[x, y]") for i, p in enumerate(spec)], dtype=float)
+        if len(v) > 3 and np.array_equal(v[0], v[-1]):
+            v = v[:-1]
+        if len(np.unique(v, axis=0)) < 3:
+            raise self.err(key, "at least 3 distinct [x, y] points", f"{len(np.unique(v, axis=0))} distinct")
+        if not is_simple_polygon(v):
+            raise self.err(key, "a simple polygon (no self-intersection, repeated or folded-back points)", spec)
+        scale = max(1.0, float(np.abs(v).max()))
+        if abs(signed_area(v)) <= 1e-12 * scale * scale:
+            raise self.err(key, "a polygon with non-zero area", spec)
+        return Polygon(v)
+
+    def shapes(self, value: Any, key: str) -> tuple[Shape, ...]:
+        if value is None:
+            return ()
+        if not isinstance(value, list):
+            raise self.err(key, "a list of shapes (polygon, circle or box)", _type_name(value))
+        return tuple(self.shape(item, f"{key}[{i}]") for i, item in enumerate(value))
+
+    # -- other keys --------------------------------------------------------------------------------
+    def pose(self, value: Any, key: str) -> Pose:
+        return Pose(*self.numbers(value, key, 3, "[x, y, theta]"))
+
+    def robot(self, value: Any) -> dict:
+        spec = value if isinstance(value, dict) else None
+        if spec is None:
+            raise self.err("robot", "a mapping with at least the key model", _type_name(value))
+        if "model" not in spec:
+            raise self.err("robot.model", "present", "missing", detail="required in robot")
+        self.string(spec["model"], "robot.model")
+        self.plain_data(spec, "robot", 0)
+        return _deep_copy(spec)
+
+    def plain_data(self, value: Any, key: str, depth: int) -> None:
+        """Robot parameters: string keys, finite numbers, nested lists/mappings of bounded depth."""
+        if depth > _MAX_DEPTH:
+            raise self.err(key, f"data nested at most {_MAX_DEPTH} levels deep", "deeper (recursive alias?)")
+        if isinstance(value, dict):
+            for k, x in value.items():
+                if not isinstance(k, str):
+                    raise self.err(key, "string keys", k)
+                self.plain_data(x, _join(key, k), depth + 1)
+        elif isinstance(value, list):
+            for i, x in enumerate(value):
+                self.plain_data(x, f"{key}[{i}]", depth + 1)
+        elif isinstance(value, float) and not math.isfinite(value):
+            raise self.err(key, "a finite number", value)
+        elif not (value is None or isinstance(value, (str, int, float, bool))):
+            raise self.err(key, "a string, number, boolean, list or mapping", _type_name(value))
+
+    def existing_file(self, rel: str, key: str, expected: str) -> Path:
+        """``rel`` resolved against the YAML file's folder; MapError unless it is an existing file."""
+        try:
+            target = (self.path.parent / rel).resolve()
+            ok = target.is_file()
+        except (OSError, ValueError) as exc:
+            raise self.err(key, expected, rel, detail=_one_line(exc)) from None
+        if not ok:
+            raise self.err(key, expected, f"{rel} (resolved {target})", detail="no such file")
+        return target
+
+    def base(self, value: Any) -> tuple[Map, dict]:
+        if not isinstance(value, dict):
+            raise self.err("base", "a mapping with keys format, path, ...", _type_name(value))
+        if "format" not in value:
+            raise self.err("base.format", "present", "missing", detail="required in base")
+        fmt = value["format"]
+        if not isinstance(fmt, str) or fmt not in _BASE_KEYS:
+            raise self.err("base.format", f"one of {', '.join(_BASE_KEYS)}", fmt)
+        spec = self.mapping(value, "base", _BASE_KEYS[fmt], ("format", "path"))
+        rel = self.string(spec["path"], "base.path")
+        scen_rel = self.string(spec["scenarios"], "base.scenarios") if "scenarios" in spec else None
+        unknown = spec.get("unknown", "occupied")
+        if unknown not in ("occupied", "free"):
+            raise self.err("base.unknown", "occupied or free (how unknown cells count)", unknown)
+        cell = self.positive(spec["cell_size"], "base.cell_size") if "cell_size" in spec else 1.0
+        hull = self.boolean(spec["convex_hull"], "base.convex_hull") if "convex_hull" in spec else False
+        target = self.existing_file(rel, "base.path", f"an existing {fmt} map file")
+        scen = None if scen_rel is None else self.existing_file(scen_rel, "base.scenarios", "an existing scenario file")
+        try:
+            if fmt == "ros":
+                from .ros import load_ros_map
+                base = load_ros_map(target, unknown=unknown)
+            elif fmt == "movingai":
+                from .movingai import load_movingai_map, load_movingai_scenarios
+                base = load_movingai_map(target, cell_size=cell)
+                if scen is not None:
+                    height = base.grids[0].shape[0] if base.grids else None
+                    base = replace(base, problems=tuple(
+                        load_movingai_scenarios(scen, cell_size=cell, map_height=height)))
+            else:
+                from .svg import load_benchmr_scenarios, load_benchmr_svg
+                base = load_benchmr_svg(target, convex_hull=hull)
+                if scen is not None:
+                    base = replace(base, problems=load_benchmr_scenarios(scen).get(base.name, ()))
+        except (PipelineError, OSError, ValueError, ImportError) as exc:
+            raise self.err("base.path", f"a loadable {fmt} map", f"{rel} (resolved {target})",
+                           detail=f"{type(exc).__name__}: {_one_line(exc)}") from None
+        meta = {"format": fmt, "path": str(target), **({"scenarios": str(scen)} if scen else {})}
+        return base, meta
+
+    # -- the document ------------------------------------------------------------------------------
+    def map(self, doc: Any) -> Map:
+        if doc is None:
+            raise self.err("", "a YAML mapping with at least bounds", "an empty document")
+        doc = self.mapping(doc, "", _TOP_KEYS)
+        name = self.string(doc["name"], "name") if "name" in doc else self.path.stem
+        base, base_meta = self.base(doc["base"]) if "base" in doc else (None, None)
+        if "bounds" in doc:
+            bounds = self.numbers(doc["bounds"], "bounds", 4, "[xmin, ymin, xmax, ymax]")
+            if not (bounds[0] < bounds[2] and bounds[1] < bounds[3]):
+                raise self.err("bounds", "[xmin, ymin, xmax, ymax] with xmin < xmax and ymin < ymax", doc["bounds"])
+        elif base is not None:
+            bounds = base.bounds
+        else:
+            raise self.err("bounds", "present (no base map gives them)", "missing")
+        obstacles = self.shapes(doc.get("obstacles"), "obstacles")
+        unknown = self.shapes(doc.get("unknown_obstacles"), "unknown_obstacles")
+        robot = self.robot(doc["robot"]) if "robot" in doc else None
+        start = self.pose(doc["start"], "start") if "start" in doc else None
+        goal = self.pose(doc["goal"], "goal") if "goal" in doc else None
+
+        grids: tuple[OccupancyGrid, ...] = ()
+        problems: tuple[Problem, ...] = ()
+        if base is not None:
+            obstacles = tuple(base.obstacles) + obstacles
+            unknown = tuple(base.unknown_obstacles) + unknown
+            grids, problems = tuple(base.grids), tuple(base.problems)
+            start = start if start is not None else base.start
+            goal = goal if goal is not None else base.goal
+            robot = robot if robot is not None else base.robot
+
+        m = Map(name=name, bounds=bounds, obstacles=obstacles, grids=grids, unknown_obstacles=unknown,
+                start=start, goal=goal, robot=robot, problems=problems, source=str(self.path),
+                meta={"format": "nhstab_yaml", "base": base_meta,
+                      "own_obstacles": len(doc.get("obstacles") or ()),
+                      "own_unknown_obstacles": len(doc.get("unknown_obstacles") or ())})
+        for key, pose in (("start", start), ("goal", goal)):
+            if pose is not None:
+                self.check_free(m, pose, key)
+        return m
+
+    def check_free(self, m: Map, pose: Pose, key: str) -> None:
+        if not m.contains(pose.x, pose.y):
+            raise self.err(key, f"a position inside the bounds {list(m.bounds)}", [pose.x, pose.y])
+        for i, shape in enumerate(m.obstacles):
+            if point_in_shape(pose.x, pose.y, shape):
+                raise self.err(key, "a reference point outside every known obstacle", [pose.x, pose.y],
+                               detail=f"inside known obstacle #{i} ({type(shape).__name__.lower()})")
+        for i, grid in enumerate(m.grids):
+            if point_in_grid(pose.x, pose.y, grid):
+                raise self.err(key, "a reference point outside every known obstacle", [pose.x, pose.y],
+                               detail=f"in an occupied cell of grid #{i}")
+
+
+def _join(prefix: str, key: str) -> str:
+    return f"{prefix}.{key}" if prefix else key
+
+
+def _type_name(value: Any) -> str:
+    if value is None:
+        return "nothing (null)"
+    return {dict: "a mapping", list: "a list", str: "a string", bool: "a boolean",
+            int: "an integer", float: "a number"}.get(type(value), type(value).__name__)
+
+
+def _one_line(exc: BaseException) -> str:
+    """An exception's message on one line (PyYAML's multi-line marks collapsed)."""
+    return " ".join(str(exc).replace(' in "<unicode string>",', " at").split())
+
+
+def _deep_copy(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _deep_copy(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_deep_copy(v) for v in value]
+    return value
