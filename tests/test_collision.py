@@ -147,3 +147,44 @@ def test_penetration_depth_is_negative_clearance():
     fp = Footprint.disc(0.5)
     # disc centre 0.3 m inside the box's left face: overlap depth 0.8 m
     assert world.clearance((4.3, 5.0, 0.0), fp) == pytest.approx(-0.8, abs=1e-4)
+
+
+REAL_MAPS = [("movingai/64room_000.map", {"cell_size": 0.5}), ("nav2/depot.yaml", {}),
+             ("nav2/tb3_sandbox.yaml", {}), ("bench-mr/polygon_mazes/parking2.svg", {}),
+             ("ours/cluttered_room.yaml", {}), ("ours/parking_lot.yaml", {})]
+
+
+@pytest.mark.parametrize("path,options", REAL_MAPS, ids=[p for p, _ in REAL_MAPS])
+def test_batched_checks_equal_single_checks_on_real_maps(path, options, rng):
+    """The distance-field prefilter of free_many only ever decides what FCL would."""
+    from pathlib import Path
+
+    from pipeline.geometry import default_footprint
+    from pipeline.maps import load_map
+
+    m = load_map(Path(__file__).parent.parent / "maps" / path, **options)
+    world = CollisionWorld.from_map(m)
+    xmin, ymin, xmax, ymax = m.bounds
+    poses = np.column_stack([rng.uniform(xmin, xmax, 1500), rng.uniform(ymin, ymax, 1500), rng.uniform(-4, 4, 1500)])
+    for fp in (default_footprint("rwd_car"), Footprint.disc(0.3)):
+        for margin in (0.0, 0.2):
+            single = np.array([world.is_free(p, fp, margin) for p in poses])
+            np.testing.assert_array_equal(world.free_many(poses, fp, margin), single)
+
+
+@pytest.mark.parametrize("path,options", REAL_MAPS[:3], ids=[p for p, _ in REAL_MAPS[:3]])
+def test_clearance_field_is_a_lower_bound(path, options, rng):
+    from pathlib import Path
+
+    from pipeline.maps import load_map
+
+    m = load_map(Path(__file__).parent.parent / "maps" / path, **options)
+    world = CollisionWorld.from_map(m)
+    field = world.clearance_field()
+    dot = Footprint.disc(1e-4)
+    xmin, ymin, xmax, ymax = m.bounds
+    pts = np.column_stack([rng.uniform(xmin, xmax, 400), rng.uniform(ymin, ymax, 400)])
+    lower = field.at(pts[:, 0], pts[:, 1])
+    for (x, y), lb in zip(pts, lower):
+        true = world.distance((x, y, 0.0), dot) + 1e-4
+        assert lb <= true + 1e-9
