@@ -57,7 +57,9 @@ def cli():
 
 def _register():
     from . import bench, gains, paper
+    from .map import map_group
 
+    cli.add_command(map_group)
     cli.add_command(paper.paper)
     cli.add_command(gains.gains)
     cli.add_command(bench.bench)

@@ -111,3 +111,10 @@ def test_version_and_help(runner):
     assert runner.invoke(cli, ["--version"]).exit_code == 0
     res = runner.invoke(cli, ["--help"])
     assert res.exit_code == 0 and "paper" in res.output and "gains" in res.output and "bench" in res.output
+
+
+def test_every_benchmark_has_a_subcommand():
+    from cli.bench import SUBCOMMANDS
+    from pipeline.bench import BENCHMARKS
+
+    assert set(SUBCOMMANDS) == set(BENCHMARKS)

@@ -1,0 +1,181 @@
+"""``nhstab map show|info``: look at a map file."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+
+def parse_pose(name: str, text: str | None):
+    from pipeline.errors import InputError
+
+    if text is None:
+        return None
+    parts = text.replace(" ", "").split(",")
+    try:
+        values = [float(v) for v in parts]
+    except ValueError:
+        raise InputError(name, "x,y,theta (metres, metres, radians)", text) from None
+    if len(values) == 2:
+        values.append(0.0)
+    if len(values) != 3 or not all(abs(v) < float("inf") for v in values):
+        raise InputError(name, "x,y,theta (metres, metres, radians), finite", text)
+    return tuple(values)
+
+
+def map_options(f):
+    f = click.option("--unknown", type=click.Choice(["occupied", "free"]), default=None,
+                     help="ROS maps: how unknown cells count (default occupied).")(f)
+    f = click.option("--cell-size", type=float, default=None, help="Moving AI maps: metres per cell (default 1).")(f)
+    return f
+
+
+def load(path, cell_size, unknown):
+    from pipeline.maps import load_map
+
+    options = {}
+    if cell_size is not None:
+        options["cell_size"] = cell_size
+    if unknown is not None:
+        options["unknown"] = unknown
+    return load_map(path, **options)
+
+
+def map_summary(m, fp=None) -> dict:
+    from pipeline.collision import check_poses, grid_rectangles
+    from pipeline.maps.raster import free_fraction
+
+    frac, cell = free_fraction(m)
+    grids = []
+    for g in m.grids:
+        unknown = int(g.unknown.sum()) if g.unknown is not None else 0
+        grids.append({"cells": list(g.shape), "resolution_m": g.resolution, "origin": list(g.origin),
+                      "occupied_cells": int(g.occupied.sum()), "unknown_cells": unknown,
+                      "merged_boxes": len(grid_rectangles(g.occupied))})
+    info = {
+        "name": m.name, "source": m.source, "bounds": list(m.bounds), "size_m": list(m.size),
+        "known_obstacles": len(m.obstacles), "unknown_obstacles": len(m.unknown_obstacles),
+        "grids": grids, "free_fraction": frac, "free_fraction_cell_m": cell,
+        "problems": len(m.problems),
+        "start": None if m.start is None else list(m.start.as_array()),
+        "goal": None if m.goal is None else list(m.goal.as_array()),
+        "robot": m.robot,
+    }
+    if fp is not None and (m.start is not None or m.goal is not None):
+        clear = check_poses(m, fp, {"start": _arr(m.start), "goal": _arr(m.goal)})
+        info.update({f"{k}_clearance_m": v for k, v in clear.items()})
+    return info
+
+
+def _arr(p):
+    return None if p is None else p.as_array()
+
+
+def _footprint(m, robot):
+    from pipeline.geometry import default_footprint
+
+    model = robot or (m.robot or {}).get("model") or "unicycle"
+    return default_footprint(model)
+
+
+@click.group("map")
+def map_group():
+    """Look at map files: ROS map_server YAML, Moving AI .map, Bench-MR .svg, nhstab YAML."""
+
+
+@map_group.command("info")
+@click.argument("map_file", metavar="MAP", type=click.Path(path_type=Path))
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@click.option("--robot", default=None, help="Robot whose footprint checks the start/goal (default: the map's).")
+@map_options
+def info(map_file, as_json, robot, cell_size, unknown):
+    """Size, resolution, obstacle counts and free fraction of MAP."""
+    m = load(map_file, cell_size, unknown)
+    summary = map_summary(m, _footprint(m, robot))
+    if as_json:
+        from pipeline.records import to_jsonable
+
+        click.echo(json.dumps(to_jsonable(summary), indent=2))
+        return 0
+    w, h = summary["size_m"]
+    click.echo(f"{m.name}  ({m.source})")
+    click.echo(f"  bounds      x [{m.bounds[0]:.3f}, {m.bounds[2]:.3f}]  y [{m.bounds[1]:.3f}, {m.bounds[3]:.3f}]  "
+               f"({w:.2f} x {h:.2f} m)")
+    for g in summary["grids"]:
+        click.echo(f"  grid        {g['cells'][1]} x {g['cells'][0]} cells at {g['resolution_m']:g} m, "
+                   f"{g['occupied_cells']} occupied, {g['unknown_cells']} unknown, {g['merged_boxes']} merged boxes")
+    click.echo(f"  obstacles   {summary['known_obstacles']} known shapes, {summary['unknown_obstacles']} unknown")
+    click.echo(f"  free        {100 * summary['free_fraction']:.1f} % of the bounds "
+               f"(measured on {summary['free_fraction_cell_m']:.3g} m cells)")
+    if summary["problems"]:
+        click.echo(f"  problems    {summary['problems']} start/goal pairs")
+    for key in ("start", "goal"):
+        if summary[key] is not None:
+            x, y, th = summary[key]
+            click.echo(f"  {key:11s} ({x:.3f}, {y:.3f}, {th:.3f} rad), clearance {summary[key + '_clearance_m']:.3f} m")
+    return 0
+
+
+@map_group.command("show")
+@click.argument("map_file", metavar="MAP", type=click.Path(path_type=Path))
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="PNG to write (default: MAP's name with .png in the current folder).")
+@click.option("--start", default=None, help="Start pose x,y,theta (default: the map's).")
+@click.option("--goal", default=None, help="Goal pose x,y,theta (default: the map's).")
+@click.option("--robot", default=None, help="Robot whose footprint is drawn (default: the map's, else unicycle).")
+@click.option("--problems", default=0, show_default=True, help="Also draw this many of the map's start/goal problems.")
+@map_options
+def show(map_file, out, start, goal, robot, problems, cell_size, unknown):
+    """Draw MAP: known obstacles solid, unknown dashed, bounds, start and goal with the footprint."""
+    from pipeline.collision import check_poses
+    from pipeline.records import save_figure
+    from pipeline.report.maps import map_figure
+
+    m = load(map_file, cell_size, unknown)
+    fp = _footprint(m, robot)
+    s = parse_pose("--start", start) or _arr(m.start)
+    g = parse_pose("--goal", goal) or _arr(m.goal)
+    clear = check_poses(m, fp, {"start": s, "goal": g})
+    out = out or Path(f"{m.name}.png")
+    fig = map_figure(m, start=s, goal=g, footprint=fp, problems=problems,
+                     title=f"{m.name}: {fp.label}" + "".join(f", {k} clearance {v:.2f} m" for k, v in clear.items()))
+    save_figure(fig, out)
+    click.echo(f"wrote {out}")
+    return 0
+
+
+#: the bundled maps drawn by ``nhstab map gallery``: (path under maps/, loader options, drawing options)
+GALLERY = [
+    ("ours/parking_lot.yaml", {}, {}),
+    ("ours/warehouse_corridor.yaml", {}, {}),
+    ("ours/cluttered_room.yaml", {}, {}),
+    ("nav2/depot.yaml", {}, {}),
+    ("bench-mr/polygon_mazes/parking3.svg", {}, {"problems": 5, "robot": "rwd_car"}),
+    ("movingai/64room_000.map", {"cell_size": 0.5}, {"problems": 20}),
+]
+
+
+@map_group.command("gallery")
+@click.option("--maps", "maps_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("maps"),
+              show_default=True, help="The bundled maps folder.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results/maps"),
+              show_default=True)
+def gallery(maps_dir, out_dir):
+    """Draw a selection of the bundled maps into OUT (the committed results/maps)."""
+    from pipeline.errors import InputError
+    from pipeline.maps import load_map
+    from pipeline.records import save_figure
+    from pipeline.report.maps import map_figure
+
+    if not maps_dir.is_dir():
+        raise InputError("--maps", "the bundled maps folder (run from the root of a source checkout)", str(maps_dir))
+    for rel, load_opts, draw in GALLERY:
+        m = load_map(maps_dir / rel, **load_opts)
+        fp = _footprint(m, draw.get("robot"))
+        out = out_dir / f"{Path(rel).stem}.png"
+        save_figure(map_figure(m, start=_arr(m.start), goal=_arr(m.goal), footprint=fp,
+                               problems=draw.get("problems", 0), title=f"{m.name}: {fp.label}"), out)
+        click.echo(f"wrote {out}")
+    return 0

@@ -1,0 +1,76 @@
+"""Drawing maps: known obstacles solid, unknown dashed, bounds, poses with the robot footprint."""
+
+from __future__ import annotations
+
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib import patches
+from matplotlib.transforms import Affine2D
+
+from ..maps.base import Circle, Map, Polygon
+
+KNOWN = "#4a4a4a"
+UNKNOWN = "#c0392b"
+
+
+def _draw_shape(ax, s, known: bool):
+    style = dict(facecolor=KNOWN, edgecolor=KNOWN, lw=0.8) if known else \
+        dict(facecolor="none", edgecolor=UNKNOWN, lw=1.3, ls="--")
+    if isinstance(s, Polygon):
+        ax.add_patch(patches.Polygon(s.vertices, closed=True, **style))
+    elif isinstance(s, Circle):
+        ax.add_patch(patches.Circle(s.center, s.radius, **style))
+
+
+def draw_pose(ax, pose, footprint=None, color="tab:blue", label=None):
+    x, y, th = pose
+    if footprint is not None:
+        ax.add_patch(patches.Polygon(footprint.outline_at(pose), closed=True, facecolor=color, alpha=0.25,
+                                     edgecolor=color, lw=1.2))
+    size = 0.6 * (footprint.bounding_radius if footprint is not None else 0.05 * max(ax.get_xlim()[1] - ax.get_xlim()[0], 1))
+    ax.annotate("", xy=(x + size * np.cos(th), y + size * np.sin(th)), xytext=(x, y),
+                arrowprops=dict(arrowstyle="-|>", color=color, lw=1.5))
+    ax.plot([x], [y], "o", color=color, ms=4, label=label)
+
+
+def map_figure(m: Map, start=None, goal=None, footprint=None, title: str | None = None, problems: int = 0):
+    """The map: grids as images, known obstacles solid, unknown dashed, bounds, start/goal with the
+    footprint drawn at each. ``problems``: also mark that many start/goal problems of the map."""
+    xmin, ymin, xmax, ymax = m.bounds
+    w, h = xmax - xmin, ymax - ymin
+    scale = 7.5 / max(w, h)
+    fig, ax = plt.subplots(figsize=(max(3.5, w * scale) + 0.6, max(3.0, h * scale) + 0.6), layout="constrained")
+    ax.set_xlim(xmin - 0.02 * w, xmax + 0.02 * w)
+    ax.set_ylim(ymin - 0.02 * h, ymax + 0.02 * h)
+    for g in m.grids:
+        img = np.where(g.occupied, 0.29, 1.0)
+        if g.unknown is not None:
+            img = np.where(g.unknown & ~g.occupied, 0.85, img)
+            img = np.where(g.unknown & g.occupied, 0.55, img)
+        H, W = g.shape
+        ox, oy, yaw = g.origin
+        im = ax.imshow(img, cmap="gray", vmin=0, vmax=1, origin="lower", interpolation="nearest",
+                       extent=(0, W * g.resolution, 0, H * g.resolution))
+        im.set_transform(Affine2D().rotate(yaw).translate(ox, oy) + ax.transData)
+    for s in m.obstacles:
+        _draw_shape(ax, s, known=True)
+    for s in m.unknown_obstacles:
+        _draw_shape(ax, s, known=False)
+    ax.add_patch(patches.Rectangle((xmin, ymin), w, h, fill=False, edgecolor="k", lw=1.0))
+    for k, prob in enumerate(m.problems[:problems]):
+        ax.plot([prob.start.x, prob.goal.x], [prob.start.y, prob.goal.y], color="tab:purple", lw=0.6, alpha=0.6,
+                label="problems" if k == 0 else None)
+    if start is not None:
+        draw_pose(ax, start, footprint, "tab:green", "start")
+    if goal is not None:
+        draw_pose(ax, goal, footprint, "tab:blue", "goal")
+    handles = [patches.Patch(facecolor=KNOWN, label="known obstacle")]
+    if m.unknown_obstacles:
+        handles.append(patches.Patch(facecolor="none", edgecolor=UNKNOWN, ls="--", label="unknown obstacle"))
+    h_, l_ = ax.get_legend_handles_labels()
+    ax.legend(handles=handles + h_, fontsize=7, loc="upper right", framealpha=0.85)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(title or m.name, fontsize=9)
+    return fig
