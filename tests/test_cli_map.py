@@ -94,3 +94,26 @@ def test_every_bundled_map_loads_builds_and_draws(tmp_path):
         assert world.n_objects >= 4, path            # at least the four boundary walls
         res = CliRunner().invoke(cli, ["map", "info", str(path), "--json"])
         assert res.exit_code == 0, (path, res.output)
+
+
+ROS_OK = "image: m.pgm\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.2\n"
+
+
+@pytest.mark.parametrize("files,needles", [
+    ({"m.yaml": ROS_OK, "m.pgm": b"P5\n4 4\n255\n\x00\x00"}, ["m.pgm"]),                          # truncated image
+    ({"m.yaml": ROS_OK, "m.pgm": b"GIF89a not an image"}, ["m.pgm"]),                              # unreadable image
+    ({"m.yaml": ROS_OK + "colour: red\n", "m.pgm": b"P5\n1 1\n255\n\xff"}, ["m.yaml", "colour"]),  # unknown key
+    ({"m.yaml": "bounds: [0, 0, 10, .nan]\n"}, ["m.yaml", "bounds"]),                             # NaN
+    ({"m.yaml": "bounds: [0, 0, 10, 10]\nstart: [12, 5, 0]\n"}, ["m.yaml", "start"]),              # start outside
+    ({"m.yaml": "bounds: [0, 0, 10, 10]\nobstacles:\n  - box: {center: [5, 5], size: [2, 2]}\n"
+                "goal: [5, 5, 0]\n"}, ["m.yaml", "goal"]),                                         # goal inside
+    ({"m.yaml": "bounds: [0, 0, 10, 10]\nobstacles:\n  - box: {center: [5, 5], size: [2, 2]}\n"
+                "start: [3.8, 5, 0]\nrobot: {model: unicycle}\n"}, ["start", "overlaps"]),         # footprint hits
+])
+def test_bad_maps_one_line_exit_2(runner, tmp_path, files, needles):
+    for name, content in files.items():
+        (tmp_path / name).write_bytes(content if isinstance(content, bytes) else content.encode())
+    for cmd in (["map", "info", str(tmp_path / "m.yaml")], ["map", "show", str(tmp_path / "m.yaml"),
+                                                           "--out", str(tmp_path / "m.png")]):
+        _one_line(runner.invoke(cli, cmd), *needles)
+    assert not (tmp_path / "m.png").exists()
