@@ -228,6 +228,35 @@ class CollisionWorld:
             return False
         return margin <= 0.0 or self.distance(pose, fp) > margin
 
+    def state_checker(self, fp: Footprint, margin: float = 0.0):
+        """A fast scalar ``check(x, y, theta) -> bool`` equal to ``is_free`` (for planners that call
+        Python once per state): the distance-field prefilter in plain Python, then FCL."""
+        field = self.clearance_field()
+        if field is None:
+            return lambda x, y, th: self.is_free((x, y, th), fp, margin)
+        centres, radii = _disc_cover(fp)
+        discs = [(u, v, rad + margin) for (u, v), rad in zip(centres, radii)]
+        pts = [tuple(p) for p in _footprint_points(fp, None)]
+        lower, inside = field.lower_bound, field.inside
+        rows, cols = lower.shape
+        x0, y0, r = field.x0, field.y0, field.r
+
+        def check(x: float, y: float, th: float) -> bool:
+            c, s = math.cos(th), math.sin(th)
+            for u, v in pts:                       # a footprint point certainly inside an obstacle
+                j = int((x + c * u - s * v - x0) // r)
+                i = int((y + s * u + c * v - y0) // r)
+                if 0 <= i < rows and 0 <= j < cols and inside[i, j]:
+                    return False
+            for u, v, need in discs:               # every covering disc provably clear
+                j = int((x + c * u - s * v - x0) // r)
+                i = int((y + s * u + c * v - y0) // r)
+                if not (0 <= i < rows and 0 <= j < cols) or lower[i, j] <= need:
+                    return self.is_free((x, y, th), fp, margin)
+            return True
+
+        return check
+
     def free_many(self, poses, fp: Footprint, margin: float = 0.0) -> np.ndarray:
         """``is_free`` for many poses (N, 3), with the same answers, faster.
 

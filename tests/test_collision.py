@@ -170,6 +170,8 @@ def test_batched_checks_equal_single_checks_on_real_maps(path, options, rng):
         for margin in (0.0, 0.2):
             single = np.array([world.is_free(p, fp, margin) for p in poses])
             np.testing.assert_array_equal(world.free_many(poses, fp, margin), single)
+            check = world.state_checker(fp, margin)        # the planner's scalar checker
+            np.testing.assert_array_equal(np.array([check(*p) for p in poses]), single)
 
 
 @pytest.mark.parametrize("path,options", REAL_MAPS[:3], ids=[p for p, _ in REAL_MAPS[:3]])

@@ -1,0 +1,250 @@
+"""Geometric planning in OMPL's Reeds-Shepp and Dubins state spaces, with FCL as validity checker.
+
+The only module that imports ``ompl``. OMPL's RNG is process-wide and can be seeded only before the
+first random number generator exists in the process. So that every planning call is reproducible
+from its own seed, whatever ran before it, :func:`plan_path` runs the search in a forked child
+process (which inherits the collision world) that seeds a fresh RNG, plans, and sends the path back;
+``isolate=False`` plans in-process (then only the first call of a process is seeded). The child
+exits without running interpreter finalisers, so nanobind's exit-time "leaked instances" report
+never reaches users. OMPL's log output is limited to warnings.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..collision import CollisionWorld
+from ..errors import InputError
+from ..geometry import Footprint, wrap_angle
+
+PLANNERS = ("rrtconnect", "rrt", "rrtstar", "informedrrtstar", "bitstar", "prmstar", "prm", "kpiece", "fmt")
+SPACES = ("reeds_shepp", "dubins")
+
+
+@dataclass(frozen=True)
+class PathOptions:
+    """Options of the geometric planning stage.
+
+    space: "reeds_shepp" (forward and reverse) or "dubins" (forward only); turning_radius [m] > 0;
+    planner: one of PLANNERS (default rrtconnect: fast first solution); time_limit_s > 0;
+    seed: OMPL's RNG seed; margin [m]: obstacles inflated by it; resolution [m]: validity checking
+    step along motions; simplify: OMPL's path simplification (shortcutting) after solving.
+    """
+
+    space: str = "reeds_shepp"
+    turning_radius: float = 1.0
+    planner: str = "rrtconnect"
+    time_limit_s: float = 1.0
+    seed: int = 0
+    margin: float = 0.1
+    resolution: float = 0.05
+    simplify: bool = True
+
+    def validated(self) -> "PathOptions":
+        if self.space not in SPACES:
+            raise InputError("space", "one of " + ", ".join(SPACES), self.space)
+        if self.planner not in PLANNERS:
+            raise InputError("planner", "one of " + ", ".join(PLANNERS), self.planner)
+        for key in ("turning_radius", "time_limit_s", "resolution"):
+            v = getattr(self, key)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InputError(key, "a positive finite number", v)
+        if not (math.isfinite(self.margin) and self.margin >= 0):
+            raise InputError("margin", "a finite number >= 0", self.margin)
+        if not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise InputError("seed", "a non-negative integer", self.seed)
+        return self
+
+
+@dataclass
+class GeometricPath:
+    """A planned SE(2) path: OMPL's waypoints, and the path sampled densely along its local paths."""
+
+    status: str                    # "exact" | "approximate" | "failed"
+    planner_status: str            # OMPL's own status string
+    waypoints: np.ndarray          # (W, 3)
+    samples: np.ndarray            # (S, 3) dense (x, y, theta) along the path, theta unwrapped
+    sigma: np.ndarray              # (S,) arc length along the path [m]
+    direction: np.ndarray          # (S-1,) +1 forward / -1 reverse, per sample interval
+    length: float
+    cusps: int
+    planning_time_s: float
+    validity_calls: int
+    validity_time_s: float
+    options: PathOptions
+    info: dict = field(default_factory=dict)
+
+
+def _ompl():
+    from ompl import base as ob
+    from ompl import geometric as og
+    from ompl import util as ou
+
+    ou.setLogLevel(ou.LogLevel.LOG_WARN)
+    return ob, og, ou
+
+
+def _planner(og, name: str, si):
+    return {"rrtconnect": og.RRTConnect, "rrt": og.RRT, "rrtstar": og.RRTstar,
+            "informedrrtstar": og.InformedRRTstar, "bitstar": og.BITstar, "prmstar": og.PRMstar,
+            "prm": og.PRM, "kpiece": og.KPIECE1, "fmt": og.FMT}[name](si)
+
+
+def make_space(opts: PathOptions, bounds):
+    ob, _, _ = _ompl()
+    if opts.space == "reeds_shepp":
+        space = ob.ReedsSheppStateSpace(float(opts.turning_radius))
+    else:
+        space = ob.DubinsStateSpace(float(opts.turning_radius), False)
+    b = ob.RealVectorBounds(2)
+    b.setLow(0, bounds[0]); b.setHigh(0, bounds[2])   # noqa: E702
+    b.setLow(1, bounds[1]); b.setHigh(1, bounds[3])   # noqa: E702
+    space.setBounds(b)
+    return space
+
+
+def _state(space, pose):
+    s = space.allocState()
+    s.setX(float(pose[0])); s.setY(float(pose[1])); s.setYaw(float(wrap_angle(pose[2])))  # noqa: E702
+    return s
+
+
+def path_length(opts: PathOptions, a, b) -> float:
+    """Length of the shortest Reeds-Shepp / Dubins path from pose a to pose b (no obstacles)."""
+    space = make_space(opts, (-1e6, -1e6, 1e6, 1e6))
+    return float(space.distance(_state(space, a), _state(space, b)))
+
+
+def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptions,
+              isolate: bool = True) -> GeometricPath:
+    """Plan a collision-free (by ``opts.margin``) path from start to goal; never raises for "no path".
+
+    Tries the direct local path first; otherwise runs the chosen OMPL planner for at most
+    ``opts.time_limit_s``. With ``isolate`` (default) the search runs in a forked child process
+    seeded with ``opts.seed`` (see the module docstring).
+    """
+    opts = opts.validated()
+    if world.bounds is None:
+        raise InputError("world", "a collision world with bounds", None)
+    world.clearance_field()                   # build once, in the parent: children inherit it
+    if not isolate:
+        return _plan_path(world, fp, start, goal, opts)
+    import multiprocessing as mp
+
+    ctx = mp.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+
+    def child():
+        try:
+            send.send(("ok", _plan_path(world, fp, start, goal, opts)))
+        except BaseException as exc:           # sent back and re-raised in the parent
+            send.send(("error", exc))
+
+    proc = ctx.Process(target=child, daemon=True)
+    proc.start()
+    send.close()
+    try:
+        kind, value = recv.recv()
+    except EOFError:
+        proc.join()
+        raise RuntimeError(f"the planning process died (exit code {proc.exitcode})") from None
+    proc.join()
+    if kind == "error":
+        raise value
+    return value
+
+
+def _plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptions) -> GeometricPath:
+    ob, og, ou = _ompl()
+    ou.RNG.setSeed(int(opts.seed) + 1)      # before anything samples (OMPL refuses seed 0)
+    space = make_space(opts, world.bounds)
+    ss = og.SimpleSetup(space)
+    check = world.state_checker(fp, opts.margin)
+    counter = {"calls": 0, "time": 0.0}
+
+    def valid(state) -> bool:
+        t0 = time.perf_counter()
+        ok = check(state.getX(), state.getY(), state.getYaw())
+        counter["time"] += time.perf_counter() - t0
+        counter["calls"] += 1
+        return ok
+
+    ss.setStateValidityChecker(valid)
+    si = ss.getSpaceInformation()
+    si.setStateValidityCheckingResolution(min(0.5, opts.resolution / max(space.getMaximumExtent(), 1e-9)))
+    s_start, s_goal = _state(space, start), _state(space, goal)
+    ss.setStartAndGoalStates(s_start, s_goal)
+    ss.setPlanner(_planner(og, opts.planner, si))
+    ss.setup()
+    started = time.perf_counter()
+    if si.checkMotion(s_start, s_goal):
+        # the direct (shortest) local path is free: no search needed
+        exact, have, status_text, used = True, True, "Exact solution (direct connection)", "direct"
+        waypoints = np.array([[float(v) for v in start], [float(v) for v in goal]])
+    else:
+        status = ss.solve(float(opts.time_limit_s))
+        exact = bool(ss.haveExactSolutionPath())
+        have = bool(ss.haveSolutionPath())
+        status_text = status.asString() if hasattr(status, "asString") else str(status)
+        used = opts.planner
+        waypoints = None
+        if have:
+            if opts.simplify:
+                ss.simplifySolution()
+            path = ss.getSolutionPath()
+            waypoints = np.array([[st.getX(), st.getY(), st.getYaw()]
+                                  for st in (path.getState(i) for i in range(path.getStateCount()))])
+    elapsed = time.perf_counter() - started
+    info = {"planner_used": used}
+    if not have:
+        return GeometricPath("failed", status_text, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
+                             0.0, 0, elapsed, counter["calls"], counter["time"], opts, info)
+    length = float(sum(space.distance(_state(space, a), _state(space, b)) for a, b in zip(waypoints[:-1], waypoints[1:])))
+    samples, sigma = densify(space, waypoints, step=min(0.005, opts.resolution / 2))
+    direction, cusps = path_directions(samples)
+    return GeometricPath("exact" if exact else "approximate", status_text, waypoints, samples, sigma, direction,
+                         length, cusps, elapsed, counter["calls"], counter["time"], opts, info)
+
+
+def densify(space, waypoints: np.ndarray, step: float = 0.005):
+    """Sample the local (Reeds-Shepp / Dubins) paths between consecutive waypoints every ~step m.
+
+    Returns the samples (S, 3), theta unwrapped, and their exact arc length: OMPL interpolates these
+    paths uniformly in arc length, so sample k of n on a local path of length d sits at k d / n."""
+    out, sig = [waypoints[:1]], [np.zeros(1)]
+    tmp = space.allocState()
+    offset = 0.0
+    for a, b in zip(waypoints[:-1], waypoints[1:]):
+        sa, sb = _state(space, a), _state(space, b)
+        d = float(space.distance(sa, sb))
+        n = max(1, int(math.ceil(d / step)))
+        pts = np.empty((n, 3))
+        for k in range(1, n + 1):
+            space.interpolate(sa, sb, k / n, tmp)
+            pts[k - 1] = (tmp.getX(), tmp.getY(), tmp.getYaw())
+        out.append(pts)
+        sig.append(offset + d * np.arange(1, n + 1) / n)
+        offset += d
+    samples = np.vstack(out)
+    samples[:, 2] = np.unwrap(samples[:, 2])
+    return samples, np.concatenate(sig)
+
+
+def path_directions(samples: np.ndarray):
+    """Direction of travel per sample interval (+1 forward, -1 reverse) and the number of cusps."""
+    d = np.diff(samples[:, :2], axis=0)
+    ds = np.hypot(d[:, 0], d[:, 1])
+    heading = samples[:-1, 2]
+    along = d[:, 0] * np.cos(heading) + d[:, 1] * np.sin(heading)
+    direction = np.where(along >= 0, 1.0, -1.0)
+    moving = ds > 1e-12
+    # carry the direction through zero-length intervals
+    for k in range(1, len(direction)):
+        if not moving[k]:
+            direction[k] = direction[k - 1]
+    cusps = int(np.sum(direction[1:] != direction[:-1]))
+    return direction, cusps
