@@ -96,7 +96,7 @@ class PathCheck:
     min_clearance_index: int
     min_clearance_pose: np.ndarray
     poses: np.ndarray = field(repr=False)   # (samples, 3) the interpolated poses
-    clearances: np.ndarray = field(repr=False)
+    free: np.ndarray = field(repr=False)    # (samples,) True where the sample keeps the margin
 
 
 class CollisionWorld:
@@ -226,7 +226,33 @@ class CollisionWorld:
         """No obstacle within ``margin`` of the footprint (margin 0: no overlap)."""
         if self.in_collision(pose, fp):
             return False
-        return margin <= 0.0 or self.distance(pose, fp) > margin
+        return margin <= 0.0 or not self._within(pose, fp, margin)
+
+    def _within(self, pose, fp: Footprint, margin: float) -> bool:
+        """Is some obstacle within ``margin`` of the footprint? A distance query that tells the
+        broad phase the answer is never above ``margin`` (so it skips every farther pair) and stops
+        at the first pair inside it; pairs with a disc or circle near the threshold are measured
+        exactly."""
+        hit = False
+        curved_fp = fp.radius is not None
+
+        def callback(o1, o2, data):
+            nonlocal hit
+            d = fcl.distance(o1, o2, _DISTANCE_REQUEST, fcl.DistanceResult())
+            if abs(d - margin) < 1e-4:
+                outline = self._outline.get(id(o1))
+                if outline is not None and (curved_fp or outline[0] == "circle"):
+                    d = _exact_distance(fp, pose, outline)
+            if d <= margin:
+                hit = True
+                return True, d
+            return False, min(d, margin)
+
+        for o in self._robot(fp, pose):
+            self.manager.distance(o, fcl.DistanceData(), callback)
+            if hit:
+                return True
+        return False
 
     def state_checker(self, fp: Footprint, margin: float = 0.0):
         """A fast scalar ``check(x, y, theta) -> bool`` equal to ``is_free`` (for planners that call
@@ -290,6 +316,30 @@ class CollisionWorld:
         poses = np.asarray(poses, dtype=float).reshape(-1, 3)
         return np.array([self.clearance(p, fp) for p in poses])
 
+    def min_clearance(self, poses, fp: Footprint) -> tuple[float, int]:
+        """The smallest signed clearance over poses (N, 3) and its index, exactly, without measuring
+        every pose: poses are visited in order of a lower bound from the distance field (footprint
+        covered by discs) and the search stops once that bound exceeds the best clearance found."""
+        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        field = self.clearance_field()
+        if field is None or len(poses) == 0:
+            c = self.clearance_many(poses, fp)
+            k = int(np.argmin(c))
+            return float(c[k]), k
+        centres, radii = _disc_cover(fp)
+        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        bound = np.full(len(poses), np.inf)
+        for (u, v), rad in zip(centres, radii):
+            bound = np.minimum(bound, field.at(poses[:, 0] + c * u - s * v, poses[:, 1] + s * u + c * v) - rad)
+        best, best_k = np.inf, -1
+        for k in np.argsort(bound, kind="stable"):
+            if bound[k] > best:
+                break
+            ck = self.clearance(poses[k], fp)
+            if ck < best:
+                best, best_k = ck, int(k)
+        return float(best), best_k
+
     def check_path(self, poses, fp: Footprint, margin: float = 0.0, resolution: float = 0.05,
                    angular_resolution: float = 0.05) -> PathCheck:
         """Check a path of poses (N, 3), interpolated so that consecutive samples are at most
@@ -300,16 +350,15 @@ class CollisionWorld:
         if not (resolution > 0 and angular_resolution > 0):
             raise InputError("resolution", "positive", (resolution, angular_resolution))
         samples, segment = interpolate_poses(poses, resolution, angular_resolution)
-        clear = self.clearance_many(samples, fp)
-        bad = clear <= margin if margin > 0 else clear < 0
-        k_min = int(np.argmin(clear))
-        first = int(np.argmax(bad)) if bad.any() else None
+        free = self.free_many(samples, fp, margin)
+        best, k_min = self.min_clearance(samples, fp)
+        first = int(np.argmin(free)) if not free.all() else None
         return PathCheck(
             clear=first is None, margin=margin, samples=len(samples),
             first_conflict_index=first, first_conflict_pose=None if first is None else samples[first],
             first_conflict_segment=None if first is None else int(segment[first]),
-            min_clearance=float(clear[k_min]), min_clearance_index=k_min, min_clearance_pose=samples[k_min],
-            poses=samples, clearances=clear)
+            min_clearance=best, min_clearance_index=k_min, min_clearance_pose=samples[k_min],
+            poses=samples, free=free)
 
 
 _COLLIDE_REQUEST = fcl.CollisionRequest()

@@ -149,10 +149,16 @@ class Nominal:
         return Nominal(self.model, t, x, u, x_func=self._x_func, u_func=self._u_func, source=self.source)
 
     def feasibility_residual(self, rtol: float = 1e-10, atol: float = 1e-12) -> float:
-        """max |x(t) - x0(t)| over the grid when the model is integrated from x0(t0) under u0."""
+        """max |x(t) - x0(t)| over the grid when the model is integrated from x0(t0) under u0 with an
+        adaptive integrator independent of how x0 was made (DOP853, at most one grid step per step so
+        that it cannot step over a short feature of u0; its error control handles the jumps of u0,
+        which a fixed-step method would not)."""
         def rhs(tt, xx):
-            return self.model.rhs(xx, self.at(np.array([tt]))[1][0])
-        sol = solve_ivp(rhs, (self.t[0], self.t[-1]), self.x[0], method="DOP853", t_eval=self.t, rtol=rtol, atol=atol)
+            return self.model.rhs(xx, np.asarray(self._u_func(np.array([tt])), dtype=float)[0])
+        sol = solve_ivp(rhs, (self.t[0], self.t[-1]), self.x[0], method="DOP853", t_eval=self.t, rtol=rtol,
+                        atol=atol, max_step=float(np.min(np.diff(self.t))))
+        if not sol.success:
+            raise NumericalError(f"checking feasibility failed: {sol.message}")
         return float(np.max(np.abs(sol.y.T - self.x)))
 
 
