@@ -223,10 +223,53 @@ class CollisionWorld:
         return -deepest
 
     def is_free(self, pose, fp: Footprint, margin: float = 0.0) -> bool:
-        """No obstacle within ``margin`` of the footprint (margin 0: no overlap)."""
+        """No obstacle within ``margin`` of the footprint (margin 0: no overlap).
+
+        With a margin, two inflated copies of the footprint decide most poses with intersection tests
+        alone: the *outer* one (edges pushed out by the margin, mitred corners) contains the footprint
+        grown by the margin, so if it touches nothing the pose is free; the *inner* one (chamfered
+        corners: points of the rounded outline) lies inside it, so if it touches something the pose
+        is not. Only poses between the two are measured (``_within``).
+        """
         if self.in_collision(pose, fp):
             return False
-        return margin <= 0.0 or not self._within(pose, fp, margin)
+        if margin <= 0.0:
+            return True
+        outer, inner = self._inflated(fp, margin)
+        if not self._collides(outer, pose):
+            return True
+        if self._collides(inner, pose):
+            return False
+        return not self._within(pose, fp, margin)
+
+    def _inflated(self, fp: Footprint, margin: float):
+        key = (id(fp), float(margin))
+        cache = getattr(self, "_inflated_cache", None)
+        if cache is None or cache[0] != key:
+            if fp.radius is not None:
+                band = max(1e-4, 1e-6 * fp.radius)          # GJK's tolerance on curved shapes
+                outer = [_object(fcl.Cylinder(fp.radius + margin + band, 2 * _Z))]
+                inner = [_object(fcl.Cylinder(fp.radius + margin - band, 2 * _Z))]
+            else:
+                outer, inner = [], []
+                for part in convex_parts(fp.vertices):
+                    o, i = _offset_convex(part, margin)
+                    outer.append(_object(_prism(o)))
+                    inner.append(_object(_prism(i)))
+            self._inflated_cache = (key, (outer, inner), fp)
+        return self._inflated_cache[1]
+
+    def _collides(self, objs, pose) -> bool:
+        half = 0.5 * float(pose[2])
+        tf = fcl.Transform(np.array([math.cos(half), 0.0, 0.0, math.sin(half)]),
+                           np.array([float(pose[0]), float(pose[1]), 0.0]))
+        for o in objs:
+            o.setTransform(tf)
+            data = fcl.CollisionData()
+            self.manager.collide(o, data, _first_contact)
+            if data.result.is_collision:
+                return True
+        return False
 
     def _within(self, pose, fp: Footprint, margin: float) -> bool:
         """Is some obstacle within ``margin`` of the footprint? A distance query that tells the
@@ -510,6 +553,22 @@ def _footprint_points(fp: Footprint, spacing: float | None) -> np.ndarray:
     n = np.maximum(1, np.ceil(np.hypot(*(b - v).T) / spacing)).astype(int)
     t = np.concatenate([np.arange(k) / k for k in n])
     return np.vstack([[0.0, 0.0], np.repeat(v, n, axis=0) + t[:, None] * np.repeat(b - v, n, axis=0)])
+
+
+def _offset_convex(v: np.ndarray, d: float) -> tuple[np.ndarray, np.ndarray]:
+    """A convex counter-clockwise polygon grown by d: (outer, inner) polygons with
+    inner <= polygon (+) disc(d) <= outer. Outer: edges moved out by d, corners mitred. Inner: each
+    corner replaced by its two points moved out along the adjacent edges' normals (on the rounded
+    outline, so their convex hull lies inside the grown polygon)."""
+    e = np.roll(v, -1, axis=0) - v
+    n = np.column_stack([e[:, 1], -e[:, 0]]) / np.hypot(e[:, 0], e[:, 1])[:, None]   # outward (CCW polygon)
+    n_prev = np.roll(n, 1, axis=0)
+    miter = (n_prev + n) / (1.0 + np.einsum("ij,ij->i", n_prev, n))[:, None]
+    outer = v + d * miter
+    inner = np.empty((2 * len(v), 2))
+    inner[0::2] = v + d * n_prev
+    inner[1::2] = v + d * n
+    return outer, inner
 
 
 def _axis_aligned_box(v: np.ndarray) -> bool:

@@ -52,6 +52,9 @@ def test_clearance_matches_shapely_on_polygon_map(fp, rng):
             checked += 1
         else:
             assert c <= 1e-9 and not world.is_free(pose, fp)
+        for margin in (0.05, 0.3):                   # the inflated-footprint decisions, against shapely
+            if abs(ref - margin) > 1e-6:
+                assert world.is_free(pose, fp, margin) == (ref > margin), (pose, margin, ref)
     assert checked > 100
 
 
