@@ -73,11 +73,13 @@ def plan(map_file, robot, start, goal, problem, planner, space, turning_radius, 
     write_json(out_dir / "plan.json", {"status": result.status, "message": result.message, "inputs": inputs,
                                        "metrics": result.metrics})
     poses = nom.x[:, pose_columns(model)]
+    cusps = result.metrics["cusps"]
+    cusp_text = f"{cusps} cusp" + ("" if cusps == 1 else "s")
     fig = plan_figure(m, poses, np.sign(nom.u[:, 0]), fp, s, g,
-                      title=f"{m.name}: {name}, {result.metrics['length_m']:.1f} m, {result.metrics['cusps']} cusps, "
+                      title=f"{m.name}: {name}, {result.metrics['length_m']:.1f} m, {cusp_text}, "
                             f"min clearance {result.metrics['min_clearance_m']:.2f} m")
     save_figure(fig, out_dir / "plan.png")
-    click.echo(f"plan found: {result.metrics['length_m']:.2f} m, {result.metrics['cusps']} cusps, "
+    click.echo(f"plan found: {result.metrics['length_m']:.2f} m, {cusp_text}, "
                f"{result.metrics['duration_s']:.1f} s, min clearance {result.metrics['min_clearance_m']:.3f} m, "
                f"max gain {result.metrics['max_gain_norm']:.3g}")
     click.echo(f"wrote {out_dir}/trajectory.csv, trajectory.npz, plan.json, plan.png")

@@ -82,7 +82,7 @@ class PlanResult:
 
 def plan(m: Map, model: Model, fp: Footprint, start, goal, path_opts: PathOptions | None = None,
          timing_opts: TimingOptions | None = None, stab_opts: StabilizerOptions | None = None,
-         check_resolution: float = 0.02, world: CollisionWorld | None = None) -> PlanResult:
+         check_resolution: float = 0.05, world: CollisionWorld | None = None) -> PlanResult:
     """Plan a nominal trajectory of ``model`` from start to goal on the map's known obstacles.
 
     Bad requests (start or goal outside the bounds or in collision, bad options, a model this planner
