@@ -63,6 +63,32 @@ class NumericalError(PipelineError):
     """A computation produced non-finite values or failed to converge."""
 
 
+def require_finite(name: str, value) -> float:
+    """``value`` as a finite float, or an InputError naming ``name``."""
+    import math
+
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InputError(name, "a finite number", value) from None
+    if not math.isfinite(v):
+        raise InputError(name, "a finite number", value)
+    return v
+
+
+def require_positive(name: str, value) -> float:
+    """``value`` as a positive finite float, or an InputError naming ``name``."""
+    import math
+
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InputError(name, "a positive finite number", value) from None
+    if not math.isfinite(v) or v <= 0:
+        raise InputError(name, "a positive finite number", value)
+    return v
+
+
 def _short(value: object, limit: int = 80) -> str:
     text = repr(value)
     return text if len(text) <= limit else text[: limit - 3] + "..."

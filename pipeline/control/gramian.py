@@ -38,23 +38,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputError, NumericalError, SingularGramianError
+from ..errors import InputError, NumericalError, SingularGramianError, require_positive
 from ..nominal import Nominal
 from .elements import interval_segments, to_end_anchored
 from .windows import Segments, combine, exclusive_prefix, scan, sliding
 
 WINDOWS = ("future", "past")
 END_STRATEGIES = ("frozen", "switch")
-
-
-def _positive(name: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InputError(name, "a positive finite number", value) from None
-    if not math.isfinite(v) or v <= 0:
-        raise InputError(name, "a positive finite number", value)
-    return v
 
 
 @dataclass(frozen=True)
@@ -80,11 +70,11 @@ class StabilizerOptions:
     max_substep_fraction: float = 1.0 / 16.0
 
     def validated(self) -> "StabilizerOptions":
-        _positive("alpha", self.alpha)
-        _positive("delta", self.delta)
-        _positive("weight", self.weight)
-        _positive("singular_rtol", self.singular_rtol)
-        _positive("max_substep_fraction", self.max_substep_fraction)
+        require_positive("alpha", self.alpha)
+        require_positive("delta", self.delta)
+        require_positive("weight", self.weight)
+        require_positive("singular_rtol", self.singular_rtol)
+        require_positive("max_substep_fraction", self.max_substep_fraction)
         if self.window not in WINDOWS:
             raise InputError("window", "one of " + ", ".join(WINDOWS), self.window)
         if self.end_strategy not in END_STRATEGIES:

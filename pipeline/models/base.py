@@ -8,12 +8,11 @@ Every method is vectorised over leading axes: ``x`` has shape (..., n), ``u`` (.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, require_positive
 from ..geometry import wrap_angle
 
 
@@ -95,11 +94,5 @@ class Model:
 
 
 def positive_param(name: str, value, model: str) -> float:
-    """Validate a strictly positive finite model parameter."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{model}.{name}", "a positive number", value) from None
-    if not math.isfinite(v) or v <= 0:
-        raise InputError(f"{model}.{name}", "a positive finite number", value)
-    return v
+    """Validate a strictly positive finite model parameter (named ``model.name`` in errors)."""
+    return require_positive(f"{model}.{name}", value)

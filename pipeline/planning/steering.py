@@ -61,7 +61,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, require_finite, require_positive
 from ..geometry import wrap_angle
 
 __all__ = [
@@ -105,24 +105,6 @@ def _array(name: str, value, last: int | None = None, min_last: int | None = Non
     return arr
 
 
-def _positive(name: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InputError(name, "a positive number", value) from None
-    if not math.isfinite(v) or v <= 0.0:
-        raise InputError(name, "a positive finite number", value)
-    return v
-
-
-def _real(name: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InputError(name, "a finite number", value) from None
-    if not math.isfinite(v):
-        raise InputError(name, "a finite number", value)
-    return v
 
 
 # ---------------------------------------------------------------------------------------------
@@ -149,7 +131,7 @@ def _check_phase_args(k, a, b, w, z_start):
     n = z.shape[0]
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 3 <= int(k) <= n:
         raise InputError("k", f"an integer in 3..{n} (the chained dimension is {n})", k)
-    return int(k), _real("a", a), _real("b", b), _positive("w", w), z
+    return int(k), require_finite("a", a), require_finite("b", b), require_positive("w", w), z
 
 
 def net_displacement(k: int, a: float, b: float, w: float, z_start) -> np.ndarray:
@@ -372,12 +354,12 @@ def steer_chained(z0, zf, T: float = 1.0, *, amplitude="balanced", balance: floa
     zf = _vector("zf", zf, (3, 4))
     if zf.shape != z0.shape:
         raise InputError("zf", f"a vector of the same length as z0 ({z0.shape[0]})", f"length {zf.shape[0]}")
-    T = _positive("T", T)
-    balance = _positive("balance", balance)
+    T = require_positive("T", T)
+    balance = require_positive("balance", balance)
     if not (isinstance(amplitude, str) and amplitude == "balanced"):
         if isinstance(amplitude, str):
             raise InputError("amplitude", "'balanced' or a positive number", amplitude)
-        amplitude = _positive("amplitude", amplitude)
+        amplitude = require_positive("amplitude", amplitude)
     n = z0.shape[0]
     if phase_fractions is None:
         frac = np.full(n - 1, 1.0 / (n - 1))
@@ -433,7 +415,7 @@ def _car_kind(model) -> tuple[str, float]:
     name = getattr(model, "name", None)
     if name not in ("rwd_car", "fwd_car"):
         raise InputError("model", "a rwd_car or fwd_car model", name if name is not None else model)
-    L = _positive(f"{name}.wheelbase", getattr(model, "wheelbase", None))
+    L = require_positive(f"{name}.wheelbase", getattr(model, "wheelbase", None))
     return name, L
 
 
@@ -589,7 +571,7 @@ def _frames(frame, x0, xf, name):
         if frame == "world":
             return [("world", np.zeros(2), 0.0)]
         raise InputError("frame", "'auto', 'mean', 'start', 'goal', 'world' or a heading in radians", frame)
-    return [("heading", origin, _real("frame", frame))]
+    return [("heading", origin, require_finite("frame", frame))]
 
 
 def steer_car(model, x0, xf, T: float | None = None, frame="auto", *, points_per_phase: int = 200,
@@ -616,10 +598,10 @@ def steer_car(model, x0, xf, T: float | None = None, frame="auto", *, points_per
     x0 = _vector("x0", x0, (4,))
     xf = _vector("xf", xf, (4,))
     if T is not None:
-        T = _positive("T", T)
+        T = require_positive("T", T)
     ppp = _count("points_per_phase", points_per_phase)
-    theta_limit = _positive("theta_limit", theta_limit)
-    balance = L * L if balance is None else _positive("balance", balance)
+    theta_limit = require_positive("theta_limit", theta_limit)
+    balance = L * L if balance is None else require_positive("balance", balance)
     if theta_limit >= 0.5 * np.pi:
         raise InputError("theta_limit", "below pi/2 rad", theta_limit)
     for label, xx in (("x0", x0), ("xf", xf)):
