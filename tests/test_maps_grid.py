@@ -210,7 +210,7 @@ def test_handmade_origin_yaw_resolution_negate(tmp_path, yaw):
     write_pgm(tmp_path / "tiny.pgm", TINY, comment="hand made")
     m = load_ros_map(write_yaml(tmp_path / "tiny.yaml", "tiny.pgm", resolution=0.25,
                                 origin=[1.5, -2.0, yaw], negate=1))
-    res, ox, oy = 0.25, 1.5, -2.0
+    ox, oy = 1.5, -2.0                    # resolution 0.25 m
     # Pixel (row r, col c) centre in the grid frame: u = (c + .5) res, v = (H - 1 - r + .5) res.
     # yaw 0: world = origin + (u, v); yaw pi/2: world = origin + (-v, u).
     if yaw == 0.0:

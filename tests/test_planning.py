@@ -154,15 +154,6 @@ def test_plan_cli_no_plan_exit_3(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
-def _car_cases():
-    from pipeline.planning.problems import benchmr_center_to_rear_axle
-
-    depot = load_map(MAPS / "nav2/depot.yaml")
-    berlin = load_map(MAPS / "bench-mr/moving_ai_scenarios/Berlin_0_256.map", cell_size=1.0)
-    parking = load_map(MAPS / "bench-mr/polygon_mazes/parking2.svg")
-    return depot, berlin, parking
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("robot", ["rwd_car", "fwd_car"])
 @pytest.mark.parametrize("where", ["depot", "berlin_1m", "parking3", "ours_parking_lot", "ours_warehouse"])

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputError, require_positive
+from ..errors import require_positive
 from ..geometry import wrap_angle
 
 

@@ -9,7 +9,6 @@ controller sampled at 50 Hz with zero-order hold well inside its stability limit
 
 from __future__ import annotations
 
-import numpy as np
 
 from ..control import StabilizerOptions, compute_schedule
 from ..errors import SingularGramianError
