@@ -59,9 +59,11 @@ def _register():
     from . import bench, gains, paper
     from .map import map_group
     from .plan import plan, sweep
+    from .run import run
 
     cli.add_command(map_group)
     cli.add_command(plan)
+    cli.add_command(run)
     cli.add_command(sweep)
     cli.add_command(paper.paper)
     cli.add_command(gains.gains)

@@ -7,7 +7,8 @@
 #   name: parking-lot                   # optional non-empty string; default: the file stem
 #   bounds: [xmin, ymin, xmax, ymax]    # required unless `base` gives them; replaces the base's
 #   base:                               # optional: start from a map in another format
-#     format: ros                       #   ros | movingai | benchmr_svg
+#     format: ros                       #   ros | movingai | benchmr_svg | nhstab (another of these
+#                                       #   YAML files, nested at most 4 deep)
 #     path: ../nav2/depot.yaml          #   relative to this YAML file (or absolute)
 #     unknown: occupied                 #   ros only: how unknown cells count (occupied | free)
 #     cell_size: 0.5                    #   movingai only: metres per cell (default 1.0)
@@ -72,7 +73,11 @@ _BASE_KEYS = {
     "ros": ("format", "path", "unknown"),
     "movingai": ("format", "path", "cell_size", "scenarios"),
     "benchmr_svg": ("format", "path", "convex_hull", "scenarios"),
+    "nhstab": ("format", "path"),
 }
+#: how deep nhstab-format base maps may nest (a file that is its own base would recurse forever)
+_MAX_BASE_NESTING = 4
+_nesting = [0]
 _MAX_DEPTH = 64
 MAX_ABS = 1e9
 """Largest magnitude accepted for any number in a YAML map (keeps products of coordinates finite)."""
@@ -348,7 +353,16 @@ class _Reader:
         target = self.existing_file(rel, "base.path", f"an existing {fmt} map file")
         scen = None if scen_rel is None else self.existing_file(scen_rel, "base.scenarios", "an existing scenario file")
         try:
-            if fmt == "ros":
+            if fmt == "nhstab":
+                if _nesting[0] >= _MAX_BASE_NESTING:
+                    raise self.err("base.path", f"base maps nested at most {_MAX_BASE_NESTING} deep", rel,
+                                   detail="a file that is (indirectly) its own base?")
+                _nesting[0] += 1
+                try:
+                    base = load_yaml_map(target)
+                finally:
+                    _nesting[0] -= 1
+            elif fmt == "ros":
                 from .ros import load_ros_map
                 base = load_ros_map(target, unknown=unknown)
             elif fmt == "movingai":

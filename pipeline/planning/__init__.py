@@ -166,4 +166,4 @@ def plan(m: Map, model: Model, fp: Footprint, start, goal, path_opts: PathOption
 
 
 __all__ = ["plan", "PlanResult", "PathOptions", "TimingOptions", "GeometricPath", "plan_path", "path_length",
-           "PLANNERS", "SPACES", "DEFAULT_STABILIZER", "pose_columns", "default_turning_radius"]
+           "PLANNERS", "SPACES", "PLANNABLE", "DEFAULT_STABILIZER", "pose_columns", "default_turning_radius"]

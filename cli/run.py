@@ -1,0 +1,139 @@
+"""``nhstab run``: the composite controller on a map, with noise, sensing, monitoring and replanning."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from .map import load, map_options, parse_pose
+
+#: exit codes: the run ended but did not reach the goal (collision, replan failed, ...); no first plan
+EXIT_NOT_REACHED = 4
+EXIT_NO_PLAN = 3
+EXIT_INTERRUPTED = 130
+
+
+def parse_levels(name: str, text: str | None) -> dict | None:
+    """``x=0.02,y=0.02,theta=0.01`` -> {"x": 0.02, ...}."""
+    from pipeline.errors import InputError
+
+    if text is None:
+        return None
+    out = {}
+    for part in text.replace(" ", "").split(","):
+        key, sep, value = part.partition("=")
+        try:
+            out[key] = float(value)
+        except ValueError:
+            raise InputError(name, "state=value pairs separated by commas, e.g. x=0.02,y=0.02,theta=0.01",
+                             text) from None
+        if not sep or not key:
+            raise InputError(name, "state=value pairs separated by commas, e.g. x=0.02,y=0.02,theta=0.01", text)
+    return out
+
+
+@click.command()
+@click.argument("map_file", metavar="MAP", required=False, type=click.Path(path_type=Path))
+@click.option("--config", "config_file", type=click.Path(path_type=Path), default=None,
+              help="Run config (YAML) giving any option; the command line overrides it.")
+@click.option("--robot", default=None, help="unicycle, rwd_car or fwd_car (default: the map's, else unicycle).")
+@click.option("--start", default=None, help="Start pose x,y,theta (default: the map's).")
+@click.option("--goal", default=None, help="Goal pose x,y,theta (default: the map's).")
+@click.option("--problem", type=int, default=None, help="Use the map's start/goal problem with this index.")
+@click.option("--controller", default=None, help="gramian (default), tvlqr or open-loop.")
+@click.option("--window", default=None, help="The gramian's window: future (default) or past.")
+@click.option("--alpha", type=float, default=None, help="Gramian law: rate parameter (default: the robot's).")
+@click.option("--delta", type=float, default=None, help="Gramian law: window length [s] (default: the robot's).")
+@click.option("--gamma", type=float, default=None, help="Gramian law: gain factor >= 1/2 (default: the robot's).")
+@click.option("--rate", "rate_hz", type=float, default=None, help="Controller rate [Hz] (default 50).")
+@click.option("--noise", "noise_scale", type=float, default=None,
+              help="Multiply every noise level by this (0: noiseless; default 1).")
+@click.option("--initial-error", default=None, help="Initial error std per state, e.g. x=0.1,y=0.1,theta=0.05.")
+@click.option("--sensor-std", default=None, help="Measurement noise std per state, e.g. x=0.02,y=0.02,theta=0.01.")
+@click.option("--process-std", default=None, help="Process disturbance per state [unit/sqrt(s)].")
+@click.option("--seed", type=int, default=None, help="Root seed of the run (default 0).")
+@click.option("--planner", default=None, help="OMPL planner (default rrtconnect).")
+@click.option("--time-limit", type=float, default=None, help="Budget of each planning call [s] (default 2).")
+@click.option("--margin", type=float, default=None, help="Clearance to keep [m] (default 0.1).")
+@click.option("--max-time", type=float, default=None, help="Simulated time limit [s].")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results/run"),
+              show_default=True)
+@click.option("--animate", is_flag=True, help="Also write run.gif.")
+@map_options
+def run(map_file, config_file, robot, start, goal, problem, controller, window, alpha, delta, gamma, rate_hz,
+        noise_scale, initial_error, sensor_std, process_std, seed, planner, time_limit, margin, max_time, out_dir,
+        animate, cell_size, unknown):
+    """Run the composite controller on MAP: plan, stabilize under noise, sense, monitor with FCL, replan.
+
+    Writes run.json, trajectory.csv, run_map.png and run_tracking.png (and run.gif with --animate)
+    into OUT. Exit code 0 when the goal is reached, 4 when the run ended otherwise (collision, replan
+    failed, timed out, missed goal, numerical failure), 3 when there was no first plan, 2 for bad
+    input, 130 when interrupted (the files then describe the interrupted run).
+    """
+    from pipeline.errors import InputError
+    from pipeline.execution.config import RunOptions, load_run_config, merge
+
+    base, cfg_map = RunOptions(), None
+    if config_file is not None:
+        extra, base = load_run_config(config_file)
+        cfg_map = extra.get("map")
+    map_path = map_file or cfg_map
+    if map_path is None:
+        raise InputError("MAP", "a map file (argument or the config's `map`)", None)
+    noise = base.noise
+    levels = {k: parse_levels(flag, v) for k, flag, v in
+              (("initial", "--initial-error", initial_error), ("sensor", "--sensor-std", sensor_std),
+               ("process", "--process-std", process_std))}
+    from dataclasses import replace
+
+    noise = replace(noise, **{k: {**getattr(noise, k), **v} for k, v in levels.items() if v is not None})
+    if noise_scale is not None:
+        noise = replace(noise, scale=noise_scale)
+    opts = merge(base, robot=robot, seed=seed, rate_hz=rate_hz, max_time_s=max_time, noise=noise,
+                 controller__kind=controller, controller__window=window, controller__alpha=alpha,
+                 controller__delta=delta, controller__gamma=gamma, planning__planner=planner,
+                 planning__time_limit_s=time_limit, planning__margin=margin)
+    m = load(map_path, cell_size, unknown)
+    if problem is not None:
+        if not (0 <= problem < len(m.problems)):
+            raise InputError("--problem", f"an index in [0, {len(m.problems)})", problem)
+        s, g = m.problems[problem].start.as_array(), m.problems[problem].goal.as_array()
+    else:
+        s = parse_pose("--start", start) or opts.start or (m.start.as_array() if m.start else None)
+        g = parse_pose("--goal", goal) or opts.goal or (m.goal.as_array() if m.goal else None)
+    if s is None or g is None:
+        raise InputError("--start/--goal", "poses (the map and the config give none)", None)
+    return execute_and_write(m, str(map_path), opts, s, g, out_dir, animate)
+
+
+def execute_and_write(m, map_path: str, opts, start, goal, out_dir: Path, animate: bool) -> int:
+    import numpy as np
+
+    from pipeline.execution import execute, write_run
+    from pipeline.geometry import default_footprint
+    from pipeline.models import make_model
+
+    from pipeline.errors import InputError
+    from pipeline.planning import PLANNABLE
+
+    name = opts.robot or (m.robot or {}).get("model") or "unicycle"
+    if name not in PLANNABLE:
+        raise InputError("--robot", "one of " + ", ".join(PLANNABLE), name)
+    model = make_model(name)
+    fp = default_footprint(name)
+    click.echo(f"running {opts.controller.kind} control of a {name} on {m.name} (seed {opts.seed}) ...", err=True)
+    result = execute(m, model, fp, np.asarray(start, float), np.asarray(goal, float), opts)
+    files = write_run(result, out_dir, map_path, animate=animate)
+    replans = sum(1 for p in result.plans if p.trigger != "initial")
+    click.echo(f"{result.status}: {result.message}")
+    click.echo(f"{replans} replan(s), {len(result.discovered)} obstacle(s) discovered, "
+               f"{result.log['t'][-1] if len(result.log['t']) else 0:.1f} s simulated in {result.wall_time_s:.1f} s")
+    click.echo("wrote " + ", ".join(str(f) for f in files))
+    if result.status == "reached":
+        return 0
+    if result.status == "no_plan":
+        return EXIT_NO_PLAN
+    if result.status == "interrupted":
+        return EXIT_INTERRUPTED
+    return EXIT_NOT_REACHED

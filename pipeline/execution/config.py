@@ -1,0 +1,342 @@
+"""Options of one composite-controller run, and the strict YAML run-config format.
+
+A run config (``nhstab run --config FILE``) may give every option; the command line overrides it.
+Every key is checked: an unknown key, a wrong type or a value out of range raises one
+:class:`InputError` naming the key path (e.g. ``noise.sensor.theta``), what was expected and what
+was given. The format::
+
+    map: maps/scenarios/warehouse_pallets.yaml   # relative to the config file
+    robot: rwd_car                    # unicycle | rwd_car | fwd_car (default: the map's)
+    start: [x, y, theta]              # default: the map's
+    goal: [x, y, theta]
+    seed: 0                           # root seed: initial error, sensor and process noise, planner
+    rate_hz: 50                       # controller rate (zero-order hold)
+    substeps: 4                       # RK4 steps of the plant per control period
+    saturate: true                    # clip inputs to the robot's limits
+    max_time_s: 120                   # simulated time limit (default: 2 x the active plan + 30 s)
+    controller: {kind: gramian, window: future, alpha: 0.1, delta: 6.0, gamma: 1.0, q: [..], r: [..]}
+    noise:
+      scale: 1.0                      # multiplies every noise level below (0: noiseless)
+      initial: {distribution: gaussian, x: 0.1, y: 0.1, theta: 0.05}   # std (uniform: half-width)
+      sensor: {x: 0.02, y: 0.02, theta: 0.01}                          # measurement std per state
+      process: {x: 0.02, y: 0.02, theta: 0.01}                         # [unit / sqrt(s)]
+      impulses: [{time: 4.0, x: 0.0, y: 0.3}]                          # state jumps at given times
+    sensor: {range_m: 8.0, fov_deg: 270, rate_hz: 10, resolution_deg: 0.5}
+    monitor: {rate_hz: 10, horizon_s: 8.0}
+    planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.1, space: reeds_shepp}
+    replan: {pause_s: 1.0, max_attempts: 3, max_replans: 10}
+    tolerance: {position_m: 0.3, heading_rad: 0.2}
+
+Noise levels are given per state name; states not named get the robot's default (see
+:data:`DEFAULT_NOISE`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..sensing import SensorOptions
+from .controllers import ControllerOptions
+
+#: default noise per state name: initial error std, sensor std, process intensity [unit/sqrt(s)]
+DEFAULT_NOISE = {
+    "initial": {"x": 0.10, "y": 0.10, "theta": 0.05, "phi": 0.0},
+    "sensor": {"x": 0.02, "y": 0.02, "theta": 0.01, "phi": 0.005},
+    "process": {"x": 0.02, "y": 0.02, "theta": 0.01, "phi": 0.0},
+}
+DISTRIBUTIONS = ("gaussian", "uniform")
+
+
+def _number(key: str, v, lo: float = -math.inf, lo_open: bool = False, integer: bool = False):
+    ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
+    if ok and integer:
+        ok = float(v).is_integer()
+    if ok:
+        ok = v > lo if lo_open else v >= lo
+    if not ok:
+        kind = "an integer" if integer else "a finite number"
+        bound = "" if lo == -math.inf else f" {'>' if lo_open else '>='} {lo:g}"
+        raise InputError(key, kind + bound, v)
+    return int(v) if integer else float(v)
+
+
+@dataclass(frozen=True)
+class NoiseOptions:
+    """Noise levels by state name (see :data:`DEFAULT_NOISE`); ``scale`` multiplies all of them;
+    impulses: ((time, {state: jump}), ...)."""
+
+    scale: float = 1.0
+    distribution: str = "gaussian"
+    initial: dict = field(default_factory=dict)
+    sensor: dict = field(default_factory=dict)
+    process: dict = field(default_factory=dict)
+    impulses: tuple = ()
+
+    def validated(self, state_names) -> "NoiseOptions":
+        _number("noise.scale", self.scale, 0.0)
+        if self.distribution not in DISTRIBUTIONS:
+            raise InputError("noise.initial.distribution", "one of " + ", ".join(DISTRIBUTIONS), self.distribution)
+        for kind in ("initial", "sensor", "process"):
+            for name, v in getattr(self, kind).items():
+                if name not in state_names:
+                    raise InputError(f"noise.{kind}.{name}", "a state of the robot (" + ", ".join(state_names) + ")",
+                                     name)
+                _number(f"noise.{kind}.{name}", v, 0.0)
+        for i, (time_s, jump) in enumerate(self.impulses):
+            _number(f"noise.impulses[{i}].time", time_s, 0.0)
+            for name, v in jump.items():
+                if name not in state_names:
+                    raise InputError(f"noise.impulses[{i}].{name}", "time or a state of the robot ("
+                                     + ", ".join(state_names) + ")", name)
+                _number(f"noise.impulses[{i}].{name}", v)
+        return self
+
+    def vector(self, kind: str, state_names) -> np.ndarray:
+        """The levels of one kind in state order, scaled."""
+        given = getattr(self, kind)
+        return self.scale * np.array([float(given.get(s, DEFAULT_NOISE[kind].get(s, 0.0))) for s in state_names])
+
+    def impulse_list(self, state_names) -> list[tuple[float, np.ndarray]]:
+        return sorted((float(t), self.scale * np.array([float(j.get(s, 0.0)) for s in state_names]))
+                      for t, j in self.impulses)
+
+    def describe(self, state_names) -> dict:
+        return {"scale": self.scale, "initial_distribution": self.distribution,
+                **{f"{k}_by_state": dict(zip(state_names, self.vector(k, state_names).tolist()))
+                   for k in ("initial", "sensor", "process")},
+                "process_units": "state unit / sqrt(s) (Wiener increments added every control period)",
+                "impulses": [{"time": t, "jump": j.tolist()} for t, j in self.impulse_list(state_names)]}
+
+
+@dataclass(frozen=True)
+class MonitorOptions:
+    """rate_hz: how often the remaining nominal is checked against discovered obstacles;
+    horizon_s: how far ahead along the nominal."""
+
+    rate_hz: float = 10.0
+    horizon_s: float = 8.0
+
+    def validated(self) -> "MonitorOptions":
+        _number("monitor.rate_hz", self.rate_hz, 0.0, lo_open=True)
+        _number("monitor.horizon_s", self.horizon_s, 0.0, lo_open=True)
+        return self
+
+
+@dataclass(frozen=True)
+class PlanningOptions:
+    """The planner used for the first plan and every replan (see ``nhstab plan``)."""
+
+    planner: str = "rrtconnect"
+    space: str = "reeds_shepp"
+    time_limit_s: float = 2.0
+    margin: float = 0.1
+    turning_radius: float | None = None
+
+    def validated(self) -> "PlanningOptions":
+        from ..planning import PLANNERS, SPACES
+
+        if self.planner not in PLANNERS:
+            raise InputError("planning.planner", "one of " + ", ".join(PLANNERS), self.planner)
+        if self.space not in SPACES:
+            raise InputError("planning.space", "one of " + ", ".join(SPACES), self.space)
+        _number("planning.time_limit_s", self.time_limit_s, 0.0, lo_open=True)
+        _number("planning.margin", self.margin, 0.0)
+        if self.turning_radius is not None:
+            _number("planning.turning_radius", self.turning_radius, 0.0, lo_open=True)
+        return self
+
+
+@dataclass(frozen=True)
+class ReplanOptions:
+    """While a replan runs the robot stops (u = 0) for ``pause_s`` of simulated time (a fixed,
+    documented budget, so that runs are reproducible; the real planning latency is recorded next to
+    it). A failed attempt is retried after another pause with a new seed, up to ``max_attempts`` in a
+    row; at most ``max_replans`` replans per run."""
+
+    pause_s: float = 1.0
+    max_attempts: int = 3
+    max_replans: int = 10
+
+    def validated(self) -> "ReplanOptions":
+        _number("replan.pause_s", self.pause_s, 0.0)
+        _number("replan.max_attempts", self.max_attempts, 1.0, integer=True)
+        _number("replan.max_replans", self.max_replans, 0.0, integer=True)
+        return self
+
+
+@dataclass(frozen=True)
+class ToleranceOptions:
+    """The goal counts as reached when, at the end of the last nominal, the position error and the
+    heading error are within these."""
+
+    position_m: float = 0.3
+    heading_rad: float = 0.2
+
+    def validated(self) -> "ToleranceOptions":
+        _number("tolerance.position_m", self.position_m, 0.0, lo_open=True)
+        _number("tolerance.heading_rad", self.heading_rad, 0.0, lo_open=True)
+        return self
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    robot: str | None = None
+    start: tuple | None = None
+    goal: tuple | None = None
+    seed: int = 0
+    rate_hz: float = 50.0
+    substeps: int = 4
+    saturate: bool = True
+    max_time_s: float | None = None
+    controller: ControllerOptions = field(default_factory=ControllerOptions)
+    noise: NoiseOptions = field(default_factory=NoiseOptions)
+    sensor: SensorOptions = field(default_factory=SensorOptions)
+    monitor: MonitorOptions = field(default_factory=MonitorOptions)
+    planning: PlanningOptions = field(default_factory=PlanningOptions)
+    replan: ReplanOptions = field(default_factory=ReplanOptions)
+    tolerance: ToleranceOptions = field(default_factory=ToleranceOptions)
+
+    def validated(self, state_names, n_inputs: int) -> "RunOptions":
+        _number("seed", self.seed, 0.0, integer=True)
+        _number("rate_hz", self.rate_hz, 0.0, lo_open=True)
+        _number("substeps", self.substeps, 1.0, integer=True)
+        if not isinstance(self.saturate, bool):
+            raise InputError("saturate", "true or false", self.saturate)
+        if self.max_time_s is not None:
+            _number("max_time_s", self.max_time_s, 0.0, lo_open=True)
+        self.controller.validated(len(state_names), n_inputs)
+        self.noise.validated(state_names)
+        self.sensor.validated()
+        self.monitor.validated()
+        self.planning.validated()
+        self.replan.validated()
+        self.tolerance.validated()
+        return self
+
+
+_SECTIONS = {"controller": ControllerOptions, "noise": NoiseOptions, "sensor": SensorOptions,
+             "monitor": MonitorOptions, "planning": PlanningOptions, "replan": ReplanOptions,
+             "tolerance": ToleranceOptions}
+_TOP = {f.name for f in fields(RunOptions)} | {"map"}
+
+
+def _pose(key: str, v):
+    if not (isinstance(v, (list, tuple)) and len(v) == 3):
+        raise InputError(key, "[x, y, theta] (three numbers)", v)
+    return tuple(_number(f"{key}[{i}]", c) for i, c in enumerate(v))
+
+
+def _noise(data: dict) -> NoiseOptions:
+    if not isinstance(data, dict):
+        raise InputError("noise", "a mapping", data)
+    allowed = {"scale", "initial", "sensor", "process", "impulses"}
+    for key in data:
+        if key not in allowed:
+            raise InputError(f"noise.{key}", "one of " + ", ".join(sorted(allowed)), key)
+    kw = {}
+    if "scale" in data:
+        kw["scale"] = _number("noise.scale", data["scale"], 0.0)
+    for kind in ("initial", "sensor", "process"):
+        if kind in data:
+            section = data[kind]
+            if not isinstance(section, dict):
+                raise InputError(f"noise.{kind}", "a mapping of state name to level", section)
+            section = dict(section)
+            if kind == "initial" and "distribution" in section:
+                kw["distribution"] = section.pop("distribution")
+            kw[kind] = section
+    if "impulses" in data:
+        items = data["impulses"]
+        if not isinstance(items, list):
+            raise InputError("noise.impulses", "a list of {time: t, <state>: jump, ...}", items)
+        impulses = []
+        for i, item in enumerate(items):
+            if not isinstance(item, dict) or "time" not in item:
+                raise InputError(f"noise.impulses[{i}]", "a mapping with a time and state jumps", item)
+            rest = {k: v for k, v in item.items() if k != "time"}
+            impulses.append((item["time"], rest))
+        kw["impulses"] = tuple(impulses)
+    return NoiseOptions(**kw)
+
+
+def _section(name: str, data) -> object:
+    cls = _SECTIONS[name]
+    if not isinstance(data, dict):
+        raise InputError(name, "a mapping", data)
+    data = dict(data)
+    if name == "sensor":
+        # degrees in files, radians inside
+        for deg, rad in (("fov_deg", "fov_rad"), ("resolution_deg", "resolution_rad")):
+            if deg in data:
+                data[rad] = math.radians(_number(f"sensor.{deg}", data.pop(deg)))
+    if name == "controller" and "kind" not in data and "type" in data:
+        data["kind"] = data.pop("type")
+    names = {f.name for f in fields(cls)}
+    for key in data:
+        if key not in names:
+            shown = sorted(n.replace("_rad", "_deg") if name == "sensor" and n in ("fov_rad", "resolution_rad")
+                           else n for n in names)
+            raise InputError(f"{name}.{key}", "one of " + ", ".join(shown), key)
+    for key in ("q", "r", "mount"):
+        if key in data and isinstance(data[key], list):
+            data[key] = tuple(data[key])
+    return cls(**data)
+
+
+def load_run_config(path) -> tuple[dict, RunOptions]:
+    """Read a run config; returns ({"map": resolved path or None}, RunOptions). Strict, see module doc."""
+    import yaml
+
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError("--config", "an existing YAML file", str(path)) from None
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise InputError("--config", "valid YAML", str(path), detail=" ".join(str(exc).split())[:200]) from None
+    if not isinstance(data, dict):
+        raise InputError("--config", "a YAML mapping at the top level", type(data).__name__)
+    for key in data:
+        if key not in _TOP:
+            raise InputError(key, "a run-config key (" + ", ".join(sorted(_TOP)) + ")", key)
+    kw = {}
+    for key, v in data.items():
+        if key == "map":
+            continue
+        if key == "noise":
+            kw[key] = _noise(v)
+        elif key in _SECTIONS:
+            kw[key] = _section(key, v)
+        elif key in ("start", "goal"):
+            kw[key] = _pose(key, v)
+        else:
+            kw[key] = v
+    extra = {}
+    if "map" in data:
+        if not isinstance(data["map"], str):
+            raise InputError("map", "a path to a map file", data["map"])
+        m = Path(data["map"])
+        extra["map"] = m if m.is_absolute() else (path.parent / m)
+    return extra, RunOptions(**kw)
+
+
+def merge(base: RunOptions, **overrides) -> RunOptions:
+    """Command-line overrides: ``section__key=value`` sets a key of a section, ``key=value`` a top key;
+    None values are ignored."""
+    top, sections = {}, {}
+    for key, v in overrides.items():
+        if v is None:
+            continue
+        if "__" in key:
+            sec, sub = key.split("__", 1)
+            sections.setdefault(sec, {})[sub] = v
+        else:
+            top[key] = v
+    for sec, vals in sections.items():
+        top[sec] = replace(getattr(base, sec), **vals)
+    return replace(base, **top)

@@ -1,0 +1,207 @@
+"""Feedback laws about a nominal trajectory, all of the form u = u0(t) - K(t) (x - x0(t)).
+
+* ``gramian``: the paper's law, K = gamma B^T P with P the inverse of the weighted window gramian
+  (future window P_c by default, past window P_r optional), from :func:`pipeline.control.compute_schedule`.
+* ``tvlqr``: time-varying LQR about the same nominal, K = R^-1 B^T S with the Riccati equation
+  -S' = A^T S + S A - S B R^-1 B^T S + Q integrated backwards from S(T) = Q (stated Q, R).
+* ``open-loop``: K = 0, u = u0 (what the nominal alone does under noise).
+
+A :class:`FeedbackLaw` holds K on the nominal's uniform grid, linear in between, and evaluates one
+control update in a few microseconds (:meth:`FeedbackLaw.control`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..control import GainSchedule, StabilizerOptions, compute_schedule
+from ..errors import InputError, NumericalError
+from ..nominal import Nominal
+
+CONTROLLERS = ("gramian", "tvlqr", "open-loop")
+WINDOWS = ("future", "past")
+
+
+@dataclass(frozen=True)
+class ControllerOptions:
+    """kind: one of CONTROLLERS; window: the gramian's window ("future" = P_c, "past" = P_r);
+    alpha, delta, gamma: the gramian law's parameters (None: the robot's defaults); q, r: the
+    diagonals of TVLQR's Q (per state) and R (per input), None for identity."""
+
+    kind: str = "gramian"
+    window: str = "future"
+    alpha: float | None = None
+    delta: float | None = None
+    gamma: float | None = None
+    q: tuple[float, ...] | None = None
+    r: tuple[float, ...] | None = None
+
+    def validated(self, n: int, m: int) -> "ControllerOptions":
+        if self.kind not in CONTROLLERS:
+            raise InputError("controller", "one of " + ", ".join(CONTROLLERS), self.kind)
+        if self.window not in WINDOWS:
+            raise InputError("controller.window", "one of " + ", ".join(WINDOWS), self.window)
+        for key in ("alpha", "delta"):
+            v = getattr(self, key)
+            if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InputError(f"controller.{key}", "a positive finite number", v)
+        if self.gamma is not None and not (isinstance(self.gamma, (int, float)) and math.isfinite(self.gamma)
+                                           and self.gamma >= 0.5):
+            raise InputError("controller.gamma", "a finite number >= 1/2", self.gamma)
+        for key, size in (("q", n), ("r", m)):
+            v = getattr(self, key)
+            if v is None:
+                continue
+            arr = np.asarray(v, dtype=float) if _numeric_list(v) else None
+            if arr is None or arr.shape != (size,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+                raise InputError(f"controller.{key}", f"{size} positive finite numbers (a diagonal)", v)
+        return self
+
+    def stabilizer(self, defaults: dict) -> StabilizerOptions:
+        params = dict(defaults)
+        for key in ("alpha", "delta", "gamma"):
+            if getattr(self, key) is not None:
+                params[key] = float(getattr(self, key))
+        return StabilizerOptions(**params, window=self.window)
+
+    def describe(self, n: int, m: int, defaults: dict) -> dict:
+        if self.kind == "gramian":
+            return {"kind": self.kind, **self.stabilizer(defaults).describe()}
+        if self.kind == "tvlqr":
+            return {"kind": self.kind, "Q_diagonal": list(self.q or (1.0,) * n),
+                    "R_diagonal": list(self.r or (1.0,) * m), "S_T": "Q"}
+        return {"kind": self.kind}
+
+
+def _numeric_list(v) -> bool:
+    return isinstance(v, (list, tuple, np.ndarray)) and all(
+        isinstance(x, (int, float, np.floating, np.integer)) and not isinstance(x, bool) for x in v)
+
+
+@dataclass
+class FeedbackLaw:
+    """Gains K (N, m, n) on the nominal's uniform grid t (N,); u0 by the nominal's own interpolant."""
+
+    kind: str
+    nominal: Nominal
+    t: np.ndarray
+    K: np.ndarray
+    schedule: GainSchedule | None = None
+    info: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.t0 = float(self.t[0])
+        self.t_end = float(self.t[-1])
+        self.h = float(self.t[1] - self.t[0])
+        self._last = len(self.t) - 2
+        self._x = self.nominal.x
+        self._xd = self.nominal.model.rhs(self.nominal.x, self.nominal.u) * self.h
+        self._u = self.nominal.u
+        self._angles = list(self.nominal.model.angle_states)
+
+    def _weights(self, tau: float):
+        s = (min(max(tau, self.t0), self.t_end) - self.t0) / self.h
+        k = min(int(s), self._last)
+        return k, s - k
+
+    def reference(self, tau: float) -> tuple[np.ndarray, np.ndarray]:
+        """x0(tau) (cubic Hermite with the model's slopes) and u0(tau) (linear), clamped to the span."""
+        k, a = self._weights(tau)
+        a2 = a * a
+        a3 = a2 * a
+        x0 = ((2 * a3 - 3 * a2 + 1) * self._x[k] + (a3 - 2 * a2 + a) * self._xd[k]
+              + (3 * a2 - 2 * a3) * self._x[k + 1] + (a3 - a2) * self._xd[k + 1])
+        u0 = (1.0 - a) * self._u[k] + a * self._u[k + 1]
+        return x0, u0
+
+    def gain(self, tau: float) -> np.ndarray:
+        k, a = self._weights(tau)
+        return (1.0 - a) * self.K[k] + a * self.K[k + 1]
+
+    def control(self, tau: float, x_measured: np.ndarray, u_feedforward: np.ndarray | None = None):
+        """One control update: (u, x0(tau), e) with e = x_measured - x0(tau), angles wrapped.
+
+        u_feedforward replaces u0(tau) (the run loop passes the mean of u0 over the hold interval)."""
+        k, a = self._weights(tau)
+        a2 = a * a
+        a3 = a2 * a
+        x0 = ((2 * a3 - 3 * a2 + 1) * self._x[k] + (a3 - 2 * a2 + a) * self._xd[k]
+              + (3 * a2 - 2 * a3) * self._x[k + 1] + (a3 - a2) * self._xd[k + 1])
+        e = x_measured - x0
+        if self._angles:
+            e[self._angles] = (e[self._angles] + math.pi) % (2.0 * math.pi) - math.pi
+        uff = (1.0 - a) * self._u[k] + a * self._u[k + 1] if u_feedforward is None else u_feedforward
+        K = (1.0 - a) * self.K[k] + a * self.K[k + 1]
+        return uff - K @ e, x0, e
+
+    def mean_input(self, t_from: float, t_to: float) -> np.ndarray:
+        """The mean of u0 over [t_from, t_to]: exact for the piecewise-linear u0, which is held at its
+        end values outside the nominal's span."""
+        i, j = np.searchsorted(self.t, [t_from, t_to], side="right")
+        pts = [t_from, *self.t[i:j].tolist(), t_to]
+        vals = np.array([self.reference(p)[1] for p in pts])
+        return np.sum(0.5 * (vals[1:] + vals[:-1]) * np.diff(pts)[:, None], axis=0) / (t_to - t_from)
+
+
+def build_law(nominal: Nominal, options: ControllerOptions, defaults: dict,
+              schedule: GainSchedule | None = None) -> FeedbackLaw:
+    """The feedback law of ``options.kind`` along ``nominal``.
+
+    For the gramian law a schedule already computed with the same options (the planner computes one
+    for the future window) is reused. Raises SingularGramianError where the gramian is singular.
+    """
+    model = nominal.model
+    opts = options.validated(model.n, model.m)
+    nom = nominal if nominal.is_uniform() else nominal.resampled(len(nominal.t))
+    if opts.kind == "gramian":
+        stab = opts.stabilizer(defaults).validated()
+        if schedule is None or schedule.options.describe() != stab.describe():
+            schedule = compute_schedule(nom, stab)
+        return FeedbackLaw("gramian", schedule.nominal, schedule.t, schedule.K, schedule,
+                           {"max_gain_norm": schedule.diagnostics["max_gain_norm"],
+                            "rate_bound": schedule.diagnostics["rate_bound"]})
+    if opts.kind == "open-loop":
+        return FeedbackLaw("open-loop", nom, nom.t, np.zeros((len(nom.t), model.m, model.n)))
+    K = tvlqr_gains(nom, np.asarray(opts.q or np.ones(model.n), dtype=float),
+                    np.asarray(opts.r or np.ones(model.m), dtype=float))
+    norms = np.linalg.norm(K, ord=2, axis=(1, 2))
+    return FeedbackLaw("tvlqr", nom, nom.t, K, None, {"max_gain_norm": float(norms.max())})
+
+
+def tvlqr_gains(nominal: Nominal, q: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """K(t) = R^-1 B^T S(t) on the nominal's (uniform) grid; S from the Riccati equation
+    -S' = A^T S + S A - S B R^-1 B^T S + Q, backwards from S(T) = Q.
+
+    Classical RK4 backwards over the grid, A(t) and B(t) from the model's Jacobians at the grid points
+    and at the midpoints of the nominal's interpolant (tested against the algebraic Riccati solution
+    on a time-invariant nominal)."""
+    model = nominal.model
+    t = nominal.t
+    h = float(t[1] - t[0])
+    Q, r_inv = np.diag(q), 1.0 / r
+    A_g, B_g = model.linearize(nominal.x, nominal.u)
+    x_mid, u_mid = nominal.at(0.5 * (t[1:] + t[:-1]))
+    A_m, B_m = model.linearize(x_mid, u_mid)
+    BRB_g = np.einsum("tim,m,tjm->tij", B_g, r_inv, B_g)
+    BRB_m = np.einsum("tim,m,tjm->tij", B_m, r_inv, B_m)
+
+    def rate(S, A, BRB):          # dS/ds for s = T - t (backwards time)
+        d = A.T @ S + S @ A - S @ BRB @ S + Q
+        return 0.5 * (d + d.T)
+
+    S = np.empty((len(t),) + Q.shape)
+    S[-1] = Q
+    for k in range(len(t) - 1, 0, -1):
+        Sk = S[k]
+        k1 = rate(Sk, A_g[k], BRB_g[k])
+        k2 = rate(Sk + 0.5 * h * k1, A_m[k - 1], BRB_m[k - 1])
+        k3 = rate(Sk + 0.5 * h * k2, A_m[k - 1], BRB_m[k - 1])
+        k4 = rate(Sk + h * k3, A_g[k - 1], BRB_g[k - 1])
+        S[k - 1] = Sk + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    K = r_inv[None, :, None] * np.einsum("tnm,tnk->tmk", B_g, S)
+    if not np.all(np.isfinite(K)):
+        raise NumericalError("the TVLQR gains are not finite (the Riccati equation blew up)")
+    return K

@@ -1,0 +1,224 @@
+"""What one run leaves behind: ``run.json`` (the summary), ``trajectory.csv`` (every control sample),
+the figures, optionally an animation.
+
+Everything in ``run.json`` except its ``timing`` section is a function of the inputs and the seed
+(same seed, same bytes); wall-clock figures (planning latencies, run time) live under ``timing``.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..records import write_json, write_text
+from .runner import MODES, RunResult
+
+#: a cusp's neighbourhood for the per-cusp error statistics [s]
+CUSP_WINDOW_S = 1.0
+#: a reversal is a cusp when the runs on both sides each cover at least this much [m]
+CUSP_MIN_RUN_M = 0.5
+#: plan metrics that are wall-clock measurements: moved to run.json's ``timing``
+_TIMED = ("planning_time_s", "time_to_nominal_s", "validity_us_per_state", "validity_calls")
+
+
+def csv_columns(result: RunResult) -> list[str]:
+    model = result.model
+    su, iu = model.state_units, model.input_units
+    cols = ["t [s]", "plan_id", "mode"]
+    cols += [f"{s} [{u}]" for s, u in zip(model.state_names, su)]
+    cols += [f"{s}_nominal [{u}]" for s, u in zip(model.state_names, su)]
+    cols += [f"{s}_measured [{u}]" for s, u in zip(model.state_names, su)]
+    cols += [f"{s} [{u}]" for s, u in zip(model.input_names, iu)]
+    cols += [f"{s}_nominal [{u}]" for s, u in zip(model.input_names, iu)]
+    return cols
+
+
+def trajectory_csv(result: RunResult) -> str:
+    lg = result.log
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(csv_columns(result))
+    for k in range(len(lg["t"])):
+        nums = np.concatenate([lg["x"][k], lg["x0"][k], lg["y"][k], lg["u"][k], lg["u0"][k]])
+        w.writerow([repr(float(lg["t"][k])), int(lg["plan_id"][k]), MODES[lg["mode"][k]],
+                    *(repr(float(v)) for v in nums)])
+    return buf.getvalue()
+
+
+def read_run_csv(path) -> dict:
+    """trajectory.csv back into arrays: t, plan_id, mode (strings), and one array per column name
+    (without its unit), e.g. ``x``, ``x_nominal``, ``v_measured``."""
+    with open(path, newline="", encoding="utf-8") as fh:
+        rows = list(csv.reader(fh))
+    header, body = rows[0], rows[1:]
+    out = {}
+    for i, h in enumerate(header):
+        name = h.split(" [")[0]
+        col = [r[i] for r in body]
+        out[name] = np.array(col) if name == "mode" else (
+            np.array(col, dtype=int) if name == "plan_id" else np.array(col, dtype=float))
+    return out
+
+
+def _errors(result: RunResult):
+    lg, model = result.log, result.model
+    track = lg["mode"] == 0
+    e = model.state_error(lg["x"], lg["x0"])
+    e[~track] = np.nan
+    return e, track
+
+
+def nominal_cusps(nom, min_run_m: float = CUSP_MIN_RUN_M) -> list[float]:
+    """Times of the nominal's cusps: reversals of the speed's sign between runs that each cover at
+    least ``min_run_m`` (the short back-and-forth motions of the cars' sinusoidal steering pieces
+    are not counted as cusps)."""
+    v = nom.u[:, 0]
+    s = np.sign(np.round(v, 9))
+    moving = np.flatnonzero(s)
+    if moving.size == 0:
+        return []
+    # runs of constant sign among the moving samples, with their arc length
+    ds = np.abs(v) * np.gradient(nom.t)
+    runs, first = [], moving[0]
+    for a, b in zip(moving[:-1], moving[1:]):
+        if s[b] != s[a]:
+            runs.append((first, a))
+            first = b
+    runs.append((first, moving[-1]))
+    lengths = [float(ds[i:j + 1].sum()) for i, j in runs]
+    out = []
+    for k in range(1, len(runs)):
+        if lengths[k - 1] >= min_run_m and lengths[k] >= min_run_m:
+            out.append(float(0.5 * (nom.t[runs[k - 1][1]] + nom.t[runs[k][0]])))
+    return out
+
+
+def _cusps(result: RunResult, e: np.ndarray) -> list[dict]:
+    lg, out = result.log, []
+    norms = np.linalg.norm(e, axis=1)
+    pos = np.linalg.norm(e[:, :2], axis=1)
+    for rec in result.plans:
+        if rec.law is None:
+            continue
+        for tau in nominal_cusps(rec.law.nominal):
+            t_cusp = rec.t_start + tau
+            sel = (lg["plan_id"] == rec.id) & (np.abs(lg["t"] - t_cusp) <= CUSP_WINDOW_S) & np.isfinite(norms)
+            if not np.any(sel):
+                continue
+            out.append({"plan_id": rec.id, "time_s": float(t_cusp),
+                        "max_error_norm": float(norms[sel].max()), "max_position_error_m": float(pos[sel].max())})
+    return out
+
+
+def _plan_entry(rec) -> tuple[dict, dict]:
+    entry = {"id": rec.id, "trigger": rec.trigger, "t_detect_s": rec.t_detect, "t_start_s": rec.t_start,
+             "start_pose": rec.start, "margin_m": rec.margin, "seed": rec.seed, "conflict": rec.conflict,
+             "attempts": [{k: v for k, v in a.items() if k != "latency_s"} for a in rec.attempts]}
+    timing = {"id": rec.id, "attempt_latencies_s": [a["latency_s"] for a in rec.attempts]}
+    if rec.result is not None:
+        metrics = dict(rec.result.metrics)
+        for key in _TIMED:
+            if key in metrics:
+                timing[key] = metrics.pop(key)
+        entry["metrics"] = {**metrics, "duration_s": float(rec.law.t_end - rec.law.t0),
+                            "controller_max_gain_norm": rec.law.info.get("max_gain_norm")}
+    return entry, timing
+
+
+def summary(result: RunResult, map_path: str | None = None) -> dict:
+    """The content of run.json."""
+    lg, model, T = result.log, result.model, result.info["period_s"]
+    e, track = _errors(result)
+    norms = np.linalg.norm(e, axis=1)
+    pos = np.linalg.norm(e[:, :2], axis=1)
+    head = np.abs(e[:, 2]) if model.name != "fwd_car" else np.abs(e[:, 3])
+    tracking = {"samples": int(track.sum())}
+    if track.any():
+        tracking.update({
+            "rms_error_norm": float(np.sqrt(np.nanmean(norms ** 2))), "max_error_norm": float(np.nanmax(norms)),
+            "max_error_time_s": float(lg["t"][np.nanargmax(norms)]),
+            "rms_position_error_m": float(np.sqrt(np.nanmean(pos ** 2))), "max_position_error_m": float(np.nanmax(pos)),
+            "rms_heading_error_rad": float(np.sqrt(np.nanmean(head ** 2))), "max_heading_error_rad": float(np.nanmax(head)),
+            "rms_error_by_state": dict(zip(model.state_names, np.sqrt(np.nanmean(e[track] ** 2, axis=0)).tolist())),
+            "per_cusp": _cusps(result, e), "cusp_window_s": CUSP_WINDOW_S, "cusp_min_run_m": CUSP_MIN_RUN_M,
+            "error_norm_note": "||x - x0|| over all states in SI units (angles wrapped), as in the paper"})
+    # executed clearance, recomputed against every real obstacle
+    from ..collision import CollisionWorld
+    from ..planning import pose_columns
+
+    poses = lg["x"][:, pose_columns(model)]
+    clearance = {}
+    if len(poses):
+        truth = CollisionWorld.from_map(result.map, "all")
+        c_min, i_min = truth.min_clearance(poses, result.footprint)
+        margin = result.options.planning.margin
+        free = truth.free_many(poses, result.footprint, margin)
+        clearance = {"min_executed_m": c_min, "time_s": float(lg["t"][i_min]), "pose": poses[i_min],
+                     "margin_m": margin, "samples_below_margin": int((~free).sum()), "samples": len(poses),
+                     "note": "signed clearance of the footprint at every control sample to known and unknown obstacles"}
+    effort = {}
+    if len(lg["t"]):
+        dt = T
+        effort = {"integral_u_squared": dict(zip(model.input_names, (np.sum(lg["u"] ** 2, axis=0) * dt).tolist())),
+                  "integral_feedback_squared": dict(zip(model.input_names,
+                                                        (np.sum((lg["u"] - lg["u0"]) ** 2, axis=0) * dt).tolist())),
+                  "saturated_fraction": float(np.mean(np.any(
+                      np.isclose(np.abs(lg["u"]), model.input_limits()[:, 1], rtol=0, atol=1e-12), axis=1)))}
+    plans, timings = zip(*(_plan_entry(p) for p in result.plans)) if result.plans else ((), ())
+    opts = dataclasses.asdict(result.options)
+    return {
+        "status": result.status, "message": result.message,
+        "inputs": {"map": map_path, "map_name": result.map.name, "robot": model.describe(),
+                   "footprint": result.footprint.describe(), "start": result.start, "goal": result.goal,
+                   "options": opts, "noise": result.options.noise.describe(model.state_names),
+                   "controller": result.options.controller.describe(model.n, model.m, _defaults(model)),
+                   "nhstab_version": __version__},
+        "seeds": result.seeds,
+        "initial_state": result.info.get("x_initial"),
+        "plans": list(plans),
+        "replans": sum(1 for p in result.plans if p.trigger != "initial"),
+        "discovered_obstacles": result.discovered,
+        "collision": result.collision,
+        "final_error": result.info.get("final_errors"),
+        "tracking": tracking,
+        "clearance": clearance,
+        "control_effort": effort,
+        "duration_s": float(lg["t"][-1]) if len(lg["t"]) else 0.0,
+        "timing": {"wall_time_s": result.wall_time_s, "plans": list(timings),
+                   "replan_latencies_s": [t["attempt_latencies_s"][-1] for t, p in zip(timings, result.plans)
+                                          if p.trigger != "initial"],
+                   "note": "wall-clock; everything outside this section is reproducible from the seed"},
+    }
+
+
+def _defaults(model):
+    from ..planning import DEFAULT_STABILIZER
+
+    return DEFAULT_STABILIZER[model.name]
+
+
+def write_run(result: RunResult, out_dir, map_path: str | None = None, figures: bool = True,
+              animate: bool = False) -> list[Path]:
+    """Write trajectory.csv, run.json and the figures; each file atomically (a file that exists is
+    complete), run.json last."""
+    from ..records import save_figure
+
+    out_dir = Path(out_dir)
+    written = [write_text(out_dir / "trajectory.csv", trajectory_csv(result))]
+    if figures:
+        from ..report.runs import run_map_figure, run_tracking_figure
+
+        written.append(save_figure(run_map_figure(result), out_dir / "run_map.png"))
+        written.append(save_figure(run_tracking_figure(result), out_dir / "run_tracking.png"))
+    if animate:
+        from ..report.runs import write_animation
+
+        written.append(write_animation(result, out_dir / "run.gif"))
+    written.append(write_json(out_dir / "run.json", summary(result, map_path)))
+    return written
+

@@ -1,0 +1,425 @@
+"""The composite controller (Walsh et al. 1992, section 4) on a map: plan, stabilize, sense, monitor,
+replan.
+
+One run, step by step at the controller rate 1/T (zero-order hold):
+
+1. **Plan** a nominal from the start to the goal on the robot's map (the known obstacles) with the
+   planner of :mod:`pipeline.planning`, and the feedback law along it.
+2. Every control period: the robot's true state x is *measured* with sensor noise, y = x + n; the
+   law gives u = u_ff - K(tau) (y - x0(tau)) (u_ff: the mean of u0 over the hold interval), clipped
+   to the robot's input limits; the plant is integrated over the period under that constant input;
+   a process disturbance (Wiener increments, and impulses at given times) is added to x.
+3. **Sensing** at the sensor rate from the true pose: unknown obstacles hit by a beam are added to
+   the robot's map (:mod:`pipeline.sensing`).
+4. **Monitoring**, with FCL: (a) at the monitor rate, the remaining nominal over the look-ahead
+   horizon against the *discovered* obstacles with the plan's margin (the known ones were checked
+   when it was planned); a conflict triggers a replan. (b) at every control sample, the true pose
+   against all real obstacles: a collision ends the run.
+5. **Replanning** from the measured state to the goal on the known + discovered obstacles. While it
+   runs the robot stops (u = 0) for ``replan.pause_s`` of simulated time (a fixed budget, so that a
+   run is reproducible; the real latency, detection to new gain schedule ready, is recorded). A
+   failed attempt is retried with the next seed after another pause; ``replan.max_attempts`` failures
+   in a row end the run ("replan_failed"). If the measured start is closer to an obstacle than the
+   margin (the robot came close before it saw the obstacle), the replan uses half its clearance as
+   margin and records that.
+6. **End**: at the end of the last nominal the goal is "reached" if the position and heading errors
+   are within the tolerances, else the run ends "missed_goal". Other ends: "collision", "timed_out"
+   (simulated time beyond ``max_time_s``, or more than ``replan.max_replans`` replans),
+   "numerical_failure" (a non-finite state or input), "no_plan" (no first plan), "interrupted"
+   (Ctrl-C; what was computed is kept).
+
+Randomness: one root seed; numpy SeedSequence children for the initial error, the sensor noise, the
+process noise and the planner (one OMPL seed per planning call), all recorded.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..collision import CollisionWorld, interpolate_poses
+from ..errors import InputError, NumericalError, PipelineError
+from ..geometry import Footprint, wrap_angle
+from ..maps.base import Circle, Map
+from ..models import Model
+from ..planning import (DEFAULT_STABILIZER, PathOptions, PlanResult, TimingOptions, default_turning_radius, plan,
+                        pose_columns)
+from ..sensing import RangeSensor
+from .config import RunOptions
+from .controllers import FeedbackLaw, build_law
+from .plant import Plant
+
+STATUSES = ("reached", "collision", "replan_failed", "timed_out", "missed_goal", "numerical_failure", "no_plan",
+            "interrupted")
+#: modes of the log: following a nominal, stopped while replanning, stopped at the end
+MODES = ("track", "replanning", "done")
+_SEED_STREAMS = {"initial": 0, "sensor": 1, "process": 2, "planner": 3}
+
+
+@dataclass
+class PlanRecord:
+    """One nominal of a run: id, when it became active (simulated time), why it was made."""
+
+    id: int
+    trigger: str                 # "initial" | "conflict"
+    t_detect: float              # when the need was detected
+    t_start: float               # when the robot began to follow it
+    start: np.ndarray            # (3,) the pose it was planned from (measured)
+    seed: int
+    margin: float
+    attempts: list               # one dict per planning call: seed, status, message, latency_s
+    result: PlanResult | None = None
+    law: FeedbackLaw | None = None
+    conflict: dict | None = None  # for a replan: the first conflicting nominal pose and its clearance
+
+    @property
+    def nominal(self):
+        return self.law.nominal if self.law is not None else None
+
+
+@dataclass
+class RunLog:
+    """Per control sample k (time t_k): the true state, the measurement, the reference, the inputs."""
+
+    t: list = field(default_factory=list)
+    x: list = field(default_factory=list)
+    y: list = field(default_factory=list)
+    x0: list = field(default_factory=list)
+    u: list = field(default_factory=list)
+    u0: list = field(default_factory=list)
+    plan_id: list = field(default_factory=list)
+    mode: list = field(default_factory=list)
+
+    def arrays(self, n: int, m: int) -> dict:
+        def arr(v, width):
+            return np.array(v, dtype=float).reshape(-1, width)
+
+        return {"t": np.array(self.t, dtype=float), "x": arr(self.x, n), "y": arr(self.y, n), "x0": arr(self.x0, n),
+                "u": arr(self.u, m), "u0": arr(self.u0, m), "plan_id": np.array(self.plan_id, dtype=int),
+                "mode": np.array(self.mode, dtype=int)}
+
+
+@dataclass
+class RunResult:
+    status: str
+    message: str
+    model: Model
+    footprint: Footprint
+    map: Map
+    start: np.ndarray
+    goal: np.ndarray
+    options: RunOptions
+    plans: list
+    log: dict                         # arrays, see RunLog.arrays
+    discovered: list                  # [{"index": i, "time": t, "pose": [...]}]
+    collision: dict | None
+    seeds: dict
+    wall_time_s: float
+    info: dict = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "reached"
+
+
+def _bounding_circle(shape) -> tuple[np.ndarray, float]:
+    if isinstance(shape, Circle):
+        return np.asarray(shape.center, dtype=float), float(shape.radius)
+    v = np.asarray(shape.vertices, dtype=float)
+    c = 0.5 * (v.min(axis=0) + v.max(axis=0))
+    return c, float(np.max(np.hypot(*(v - c).T)))
+
+
+def _seed_for(root: int, stream: str, index: int = 0) -> np.random.SeedSequence:
+    return np.random.SeedSequence([int(root), _SEED_STREAMS[stream], int(index)])
+
+
+def planner_seed(root: int, call: int) -> int:
+    """OMPL's seed for the planning call number ``call`` of a run (a 31-bit integer)."""
+    return int(_seed_for(root, "planner", call).generate_state(1)[0] % (2**31 - 1))
+
+
+class _Stop(Exception):
+    def __init__(self, status: str, message: str):
+        super().__init__(message)
+        self.status, self.message = status, message
+
+
+class CompositeRun:
+    """State of one run; :func:`execute` drives it."""
+
+    def __init__(self, m: Map, model: Model, fp: Footprint, start, goal, opts: RunOptions):
+        self.m, self.model, self.fp = m, model, fp
+        self.opts = opts.validated(model.state_names, model.m)
+        self.start = np.asarray(start, dtype=float)
+        self.goal = np.asarray(goal, dtype=float)
+        self.T = 1.0 / opts.rate_hz
+        self.plant = Plant(model, self.T, opts.substeps)
+        self.pose_idx = pose_columns(model)
+        self.known = CollisionWorld.from_map(m, "known")
+        self.truth = CollisionWorld.from_map(m, "all")
+        self.robot_world = self.known
+        self.discovered_world: CollisionWorld | None = None
+        self.discovered: list = []
+        self.sensor = RangeSensor(m, opts.sensor)
+        self.rng_sensor = np.random.default_rng(_seed_for(opts.seed, "sensor"))
+        self.rng_process = np.random.default_rng(_seed_for(opts.seed, "process"))
+        self.sigma_sensor = opts.noise.vector("sensor", model.state_names)
+        self.sigma_process = opts.noise.vector("process", model.state_names) * math.sqrt(self.T)
+        self.impulses = opts.noise.impulse_list(model.state_names)
+        lim = model.input_limits()
+        self.u_lo, self.u_hi = lim[:, 0], lim[:, 1]
+        self.stab_defaults = dict(DEFAULT_STABILIZER[model.name])
+        self.plans: list[PlanRecord] = []
+        self.planning_calls = 0
+        self.log = RunLog()
+        self.collision = None
+        self.k = 0
+
+    # ---- planning ---------------------------------------------------------------------------
+    def _path_options(self, seed: int, margin: float) -> PathOptions:
+        p = self.opts.planning
+        radius = p.turning_radius if p.turning_radius is not None else default_turning_radius(self.model)
+        return PathOptions(space=p.space, turning_radius=radius, planner=p.planner, time_limit_s=p.time_limit_s,
+                           seed=seed, margin=margin)
+
+    def _plan_once(self, start_pose: np.ndarray) -> tuple[dict, PlanResult | None, FeedbackLaw | None, float]:
+        """One planning call (path, nominal, gains) from start_pose; returns (attempt record, result,
+        law, margin used)."""
+        seed = planner_seed(self.opts.seed, self.planning_calls)
+        self.planning_calls += 1
+        margin = self.opts.planning.margin
+        attempt = {"seed": seed, "margin": margin}
+        started = time.perf_counter()
+        if self.plans:
+            # the robot may have come closer to an obstacle than the margin before it saw it
+            c = self.robot_world.clearance(start_pose, self.fp)
+            if c <= margin:
+                margin = 0.5 * c
+                attempt.update(margin=margin, margin_reduced_from=self.opts.planning.margin, start_clearance_m=c)
+        result, law = None, None
+        try:
+            if margin <= 0:
+                raise InputError("start", "a pose clear of the obstacles", start_pose.round(3).tolist(),
+                                 detail=f"clearance {self.robot_world.clearance(start_pose, self.fp):.3g} m")
+            result = plan(self.m, self.model, self.fp, start_pose, self.goal, self._path_options(seed, margin),
+                          TimingOptions(dt=self.T), world=self.robot_world)
+            if result.ok:
+                law = build_law(result.nominal, self.opts.controller, self.stab_defaults, result.schedule)
+                attempt.update(status="ok", message=result.message)
+            else:
+                attempt.update(status=result.status, message=result.message)
+        except InputError as exc:
+            if not self.plans:
+                raise
+            attempt.update(status="bad_request", message=str(exc))
+        except PipelineError as exc:   # singular gramian for another window, Riccati failure
+            attempt.update(status="not_stabilizable", message=str(exc))
+        attempt["latency_s"] = time.perf_counter() - started
+        return attempt, (result if law is not None else None), law, margin
+
+    # ---- the loop -----------------------------------------------------------------------------
+    def _record(self, t, x, y, x0, u, u0, plan_id, mode):
+        lg = self.log
+        lg.t.append(t)
+        lg.x.append(x.copy())
+        lg.y.append(y)
+        lg.x0.append(x0)
+        lg.u.append(u)
+        lg.u0.append(u0)
+        lg.plan_id.append(plan_id)
+        lg.mode.append(mode)
+
+    def _measure(self, x):
+        return x + self.sigma_sensor * self.rng_sensor.standard_normal(self.model.n)
+
+    def _advance(self, x, u, t):
+        """The true state one period later: plant, disturbance, impulses; collision check."""
+        x = self.plant.step(x, u)
+        x = x + self.sigma_process * self.rng_process.standard_normal(self.model.n)
+        t_next = (self.k + 1) * self.T
+        while self.impulses and self.impulses[0][0] < t_next - 1e-12:
+            x = x + self.impulses.pop(0)[1]
+        if not np.all(np.isfinite(x)):
+            raise _Stop("numerical_failure", f"the state became non-finite at t = {t_next:.3f} s")
+        self.k += 1
+        self._check_collision(x, t_next)
+        return x
+
+    def _check_collision(self, x, t):
+        pose = x[self.pose_idx]
+        if self.truth.in_collision(pose, self.fp):
+            self.collision = {"time_s": t, "pose": pose.tolist()}
+            raise _Stop("collision", f"collision at t = {t:.2f} s at pose {np.round(pose, 3).tolist()}")
+
+    def _sense(self, x, t):
+        scan = self.sensor.scan(x[self.pose_idx])
+        new = sorted(i for i in scan.revealed if i not in {d["index"] for d in self.discovered})
+        if not new:
+            return False
+        for i in new:
+            self.discovered.append({"index": int(i), "time_s": t, "pose": x[self.pose_idx].tolist()})
+        shapes = [self.m.unknown_obstacles[d["index"]] for d in self.discovered]
+        self.robot_world = self.known.with_obstacles(shapes)
+        self.discovered_world = CollisionWorld(shapes, walls=False)
+        self.discovered_discs = [_bounding_circle(s) for s in shapes]
+        return True
+
+    def _conflict(self, rec: PlanRecord, tau: float) -> dict | None:
+        """The first pose of the remaining nominal within the horizon that is not clear of the
+        discovered obstacles by the plan's margin (FCL), or None. Only poses within reach of a
+        discovered obstacle's bounding circle go to FCL."""
+        if not self.discovered:
+            return None
+        nom = rec.nominal
+        i0, i1 = np.searchsorted(nom.t, [tau, tau + self.opts.monitor.horizon_s])
+        poses = nom.x[max(i0 - 1, 0):i1 + 1][:, self.pose_idx]
+        if len(poses) > 1:
+            d = np.diff(poses, axis=0)
+            if np.max(np.hypot(d[:, 0], d[:, 1])) > 0.05 or np.max(np.abs(wrap_angle(d[:, 2]))) > 0.05:
+                poses = interpolate_poses(poses, 0.05, 0.05)[0]
+        reach = self.fp.bounding_radius + rec.margin
+        near = np.zeros(len(poses), dtype=bool)
+        for centre, radius in self.discovered_discs:
+            near |= np.hypot(poses[:, 0] - centre[0], poses[:, 1] - centre[1]) <= radius + reach
+        for k in np.flatnonzero(near):
+            if not self.discovered_world.is_free(poses[k], self.fp, rec.margin):
+                return {"pose": poses[k].tolist(), "clearance_m": self.discovered_world.clearance(poses[k], self.fp),
+                        "margin_m": rec.margin}
+        return None
+
+    def run(self) -> tuple[str, str]:
+        opts, model = self.opts, self.model
+        every_sense = max(1, round(opts.rate_hz / opts.sensor.rate_hz))
+        every_monitor = max(1, round(opts.rate_hz / opts.monitor.rate_hz))
+        attempt, result, law, margin = self._plan_once(self.start[:3])
+        first = PlanRecord(0, "initial", 0.0, 0.0, self.start[:3].copy(), attempt["seed"], margin, [attempt],
+                           result, law)
+        self.plans.append(first)
+        if law is None:
+            raise _Stop("no_plan", f"no first plan: {attempt['message']}")
+        max_time = self._deadline(0.0, law)
+        # the initial condition error, about the nominal's first state
+        sigma0 = opts.noise.vector("initial", model.state_names)
+        rng0 = np.random.default_rng(_seed_for(opts.seed, "initial"))
+        draw = rng0.standard_normal(model.n) if opts.noise.distribution == "gaussian" else \
+            rng0.uniform(-1.0, 1.0, model.n)
+        x = np.clip(law.nominal.x[0] + sigma0 * draw, *model.state_limits().T)
+        self.x_initial = x.copy()
+        self._check_collision(x, 0.0)
+        rec, t_plan0, replans = first, 0.0, 0
+        zero_u = np.zeros(model.m)
+        while True:
+            t = self.k * self.T
+            if t > max_time + 1e-9:
+                raise _Stop("timed_out", f"the simulated time limit {max_time:.1f} s was reached")
+            tau = t - t_plan0
+            if self.k % every_sense == 0 and self._sense(x, t) or self.k % every_monitor == 0:
+                conflict = self._conflict(rec, tau)
+                if conflict is not None:
+                    if replans >= opts.replan.max_replans:
+                        raise _Stop("timed_out", f"more than replan.max_replans = {opts.replan.max_replans} "
+                                                 f"replans were needed")
+                    replans += 1
+                    rec, x = self._replan(x, t, conflict)
+                    t_plan0 = self.k * self.T
+                    max_time = self._deadline(t_plan0, rec.law)
+                    continue
+            if tau >= rec.law.t_end - 1e-9:
+                y = self._measure(x)
+                self._record(t, x, y, rec.law.reference(tau)[0], zero_u, zero_u, rec.id, 2)
+                return self._final(x)
+            y = self._measure(x)
+            u_ff = rec.law.mean_input(tau, tau + self.T)
+            u, x0, _ = rec.law.control(tau, y, u_ff)
+            if opts.saturate:
+                u = np.clip(u, self.u_lo, self.u_hi)
+            if not np.all(np.isfinite(u)):
+                raise _Stop("numerical_failure", f"the input became non-finite at t = {t:.3f} s")
+            self._record(t, x, y, x0, u, u_ff, rec.id, 0)
+            x = self._advance(x, u, t)
+
+    def _deadline(self, t_start: float, law: FeedbackLaw) -> float:
+        """The simulated time limit: ``max_time_s`` if given; else twice the active nominal's duration
+        plus 30 s from when it began (each replan moves it)."""
+        if self.opts.max_time_s is not None:
+            return self.opts.max_time_s
+        return t_start + 2.0 * (law.t_end - law.t0) + 30.0
+
+    def _replan(self, x, t_detect: float, conflict: dict):
+        """Stop; plan from the measured state until a plan is found or attempts run out. Returns the new
+        record (active from the current time) and the true state."""
+        zero_u = np.zeros(self.model.m)
+        plan_id = len(self.plans)
+        attempts = []
+        every_sense = max(1, round(self.opts.rate_hz / self.opts.sensor.rate_hz))
+        while True:
+            y = self._measure(x)
+            start_pose = y[self.pose_idx]
+            attempt, result, law, margin = self._plan_once(start_pose)
+            attempts.append(attempt)
+            # the robot stands still for the pause (sensing goes on)
+            t_pause_end = self.k * self.T + self.opts.replan.pause_s
+            first = True
+            while self.k * self.T < t_pause_end - 1e-9 or first:
+                t = self.k * self.T
+                yk = y if first else self._measure(x)
+                self._record(t, x, yk, np.full(self.model.n, np.nan), zero_u, zero_u, plan_id - 1, 1)
+                if self.k % every_sense == 0:
+                    self._sense(x, t)
+                x = self._advance(x, zero_u, t)
+                first = False
+            if law is not None:
+                rec = PlanRecord(plan_id, "conflict", t_detect, self.k * self.T, start_pose.copy(), attempt["seed"],
+                                 margin, attempts, result, law, conflict)
+                self.plans.append(rec)
+                return rec, x
+            if len(attempts) >= self.opts.replan.max_attempts:
+                self.plans.append(PlanRecord(plan_id, "conflict", t_detect, math.nan, start_pose.copy(),
+                                             attempt["seed"], margin, attempts, None, None, conflict))
+                raise _Stop("replan_failed", f"{len(attempts)} replanning attempts failed in a row "
+                                             f"(last: {attempt['status']}: {attempt['message']})")
+
+    def _final(self, x) -> tuple[str, str]:
+        pose = x[self.pose_idx]
+        pos_err = float(np.hypot(*(pose[:2] - self.goal[:2])))
+        head_err = float(abs(wrap_angle(pose[2] - self.goal[2])))
+        self.final_errors = {"position_m": pos_err, "heading_rad": head_err}
+        tol = self.opts.tolerance
+        text = f"position error {pos_err:.3f} m, heading error {head_err:.3f} rad"
+        if pos_err <= tol.position_m and head_err <= tol.heading_rad:
+            return "reached", f"goal reached: {text}"
+        return "missed_goal", (f"the last nominal ended outside the goal tolerance ({text}; tolerance "
+                               f"{tol.position_m:g} m, {tol.heading_rad:g} rad)")
+
+
+def execute(m: Map, model: Model, fp: Footprint, start, goal, opts: RunOptions) -> RunResult:
+    """Run the composite controller once. Never raises for what happens during the run (the status
+    says it); bad input raises :class:`InputError` before anything runs (a first plan that cannot be
+    requested, e.g. a start in collision, is bad input)."""
+    started = time.perf_counter()
+    run = CompositeRun(m, model, fp, start, goal, opts)
+    run.final_errors = None
+    try:
+        status, message = run.run()
+    except _Stop as stop:
+        status, message = stop.status, stop.message
+    except KeyboardInterrupt:
+        status, message = "interrupted", f"interrupted by the user at t = {run.k * run.T:.2f} s"
+    except NumericalError as exc:
+        status, message = "numerical_failure", str(exc)
+    log = run.log.arrays(model.n, model.m)
+    if run.final_errors is None and len(log["t"]):
+        pose = log["x"][-1][run.pose_idx]
+        run.final_errors = {"position_m": float(np.hypot(*(pose[:2] - run.goal[:2]))),
+                            "heading_rad": float(abs(wrap_angle(pose[2] - run.goal[2])))}
+    seeds = {"root": int(opts.seed), "planner_calls": [a["seed"] for p in run.plans for a in p.attempts],
+             "streams": "numpy SeedSequence([root, stream, 0]); streams initial=0, sensor=1, process=2; "
+                        "planner call i: SeedSequence([root, 3, i])"}
+    return RunResult(status, message, model, fp, m, run.start, run.goal, run.opts, run.plans, log, run.discovered,
+                     run.collision, seeds, time.perf_counter() - started,
+                     {"final_errors": run.final_errors, "x_initial": getattr(run, "x_initial", None),
+                      "period_s": run.T})

@@ -1,0 +1,144 @@
+"""Figures of one composite-controller run: the map with every nominal, the executed path,
+discovered obstacles and replan points; errors and inputs against time; an optional animation."""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib import patches
+from matplotlib import pyplot as plt
+
+from ..maps.base import Circle
+from .maps import map_figure
+
+MODE_TEXT = ("tracking", "stopped: replanning", "done")
+PLAN_COLORS = ("tab:orange", "tab:purple", "tab:cyan", "tab:olive", "tab:brown", "tab:pink")
+
+
+def _draw_discovered(ax, shape):
+    style = dict(facecolor="tab:red", edgecolor="darkred", alpha=0.55, lw=0.8)
+    patch = patches.Circle(shape.center, shape.radius, **style) if isinstance(shape, Circle) else \
+        patches.Polygon(shape.vertices, closed=True, **style)
+    ax.add_patch(patch)
+    return patch
+
+
+def _poses(result, x):
+    from ..planning import pose_columns
+
+    return x[:, pose_columns(result.model)]
+
+
+def run_map_figure(result, footprints: int = 12):
+    lg = result.log
+    title = (f"{result.map.name}: {result.model.name}, {result.options.controller.kind} -- {result.status}, "
+             f"{sum(p.trigger != 'initial' for p in result.plans)} replan(s)")
+    fig = map_figure(result.map, start=result.start, goal=result.goal, footprint=result.footprint, title=title)
+    ax = fig.axes[0]
+    for d in result.discovered:
+        shape = result.map.unknown_obstacles[d["index"]]
+        _draw_discovered(ax, shape)
+        c = np.asarray(shape.center if isinstance(shape, Circle) else shape.vertices.mean(axis=0))
+        ax.annotate(f"seen {d['time_s']:.1f} s", c, fontsize=6, color="tab:red", ha="center")
+    for rec in result.plans:
+        if rec.law is None:
+            continue
+        p = _poses(result, rec.law.nominal.x)
+        ax.plot(p[:, 0], p[:, 1], color=PLAN_COLORS[rec.id % len(PLAN_COLORS)], lw=1.2, ls="--",
+                label=f"nominal {rec.id} ({rec.trigger}, from {rec.t_start:.1f} s)")
+    if len(lg["t"]):
+        p = _poses(result, lg["x"])
+        ax.plot(p[:, 0], p[:, 1], color="k", lw=1.0, label="executed")
+        for k in np.linspace(0, len(p) - 1, footprints).astype(int):
+            ax.add_patch(patches.Polygon(result.footprint.outline_at(p[k]), closed=True, fill=False,
+                                         edgecolor="0.35", lw=0.5))
+    for rec in result.plans[1:]:
+        ax.plot(*rec.start[:2], marker="X", color="tab:red", ms=8, ls="none",
+                label="replan" if rec.id == 1 else None)
+    if result.collision:
+        ax.plot(*result.collision["pose"][:2], marker="*", color="red", ms=14, ls="none", label="collision")
+    ax.legend(fontsize=6, loc="upper right", framealpha=0.85)
+    return fig
+
+
+def run_tracking_figure(result):
+    lg, model = result.log, result.model
+    t = lg["t"]
+    e = model.state_error(lg["x"], lg["x0"])
+    fig, axes = plt.subplots(3, 1, figsize=(8, 7.5), sharex=True, layout="constrained")
+    norm = np.linalg.norm(e, axis=1)
+    axes[0].semilogy(t, np.where(norm > 0, norm, np.nan), color="k", lw=1.0, label="||x - x0||")
+    axes[0].set_ylabel("error norm")
+    for i, s in enumerate(model.state_names):
+        axes[1].plot(t, e[:, i], lw=0.9, label=f"e_{s}")
+    axes[1].set_ylabel("error e(t)")
+    for i, s in enumerate(model.input_names):
+        line, = axes[2].plot(t, lg["u"][:, i], lw=0.9, label=s)
+        axes[2].plot(t, lg["u0"][:, i], lw=0.8, ls=":", color=line.get_color(), label=f"{s} nominal")
+    axes[2].set_ylabel("inputs")
+    axes[2].set_xlabel("t [s]")
+    for ax in axes:
+        for rec in result.plans[1:]:
+            ax.axvline(rec.t_detect, color="tab:red", lw=0.8, ls="--")
+            if np.isfinite(rec.t_start):
+                ax.axvspan(rec.t_detect, rec.t_start, color="tab:red", alpha=0.08)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper right", ncol=2)
+    axes[0].set_title(f"{result.map.name}: tracking error and inputs (red: replans, shaded: stopped while "
+                      f"replanning) -- {result.status}", fontsize=9)
+    return fig
+
+
+def write_animation(result, path, fps: int = 8, max_frames: int = 120, dpi: int = 60):
+    """A GIF of the run: the robot's footprint moving along the executed path, the nominal in use,
+    obstacles appearing when discovered. The static map is drawn once; each frame restores it and
+    draws only the moving artists (blitting), and Pillow (which matplotlib already needs) writes the
+    GIF."""
+    from PIL import Image
+
+    from ..records import _atomic_write
+
+    lg = result.log
+    p = _poses(result, lg["x"])
+    frames = np.unique(np.linspace(0, len(p) - 1, min(max_frames, len(p))).astype(int))
+    fig = map_figure(result.map, start=result.start, goal=result.goal, footprint=result.footprint,
+                     title=f"{result.map.name}: {result.model.name}, {result.options.controller.kind} control")
+    fig.set_dpi(dpi)
+    ax = fig.axes[0]
+    canvas = fig.canvas
+    canvas.draw()
+    fig.set_layout_engine("none")
+    background = canvas.copy_from_bbox(fig.bbox)
+    trail, = ax.plot([], [], color="k", lw=1.0, animated=True)
+    nominal, = ax.plot([], [], color="tab:orange", lw=1.0, ls="--", animated=True)
+    body = patches.Polygon(result.footprint.outline_at(p[0]), closed=True, color="tab:green", alpha=0.6,
+                           animated=True)
+    ax.add_patch(body)
+    label = ax.text(0.02, 0.02, "", transform=ax.transAxes, fontsize=8, animated=True,
+                    bbox=dict(facecolor="white", alpha=0.8, lw=0))
+    seen = []
+    images = []
+    for k in frames:
+        canvas.restore_region(background)
+        for d in result.discovered:
+            if d["time_s"] <= lg["t"][k] and d["index"] not in [i for i, _ in seen]:
+                patch = _draw_discovered(ax, result.map.unknown_obstacles[d["index"]])
+                patch.set_animated(True)
+                seen.append((d["index"], patch))
+        rec = result.plans[lg["plan_id"][k]]
+        if rec.law is not None:
+            q = _poses(result, rec.law.nominal.x)
+            nominal.set_data(q[:, 0], q[:, 1])
+        trail.set_data(p[:k + 1, 0], p[:k + 1, 1])
+        body.set_xy(result.footprint.outline_at(p[k]))
+        label.set_text(f"t = {lg['t'][k]:.1f} s   plan {rec.id}   {MODE_TEXT[lg['mode'][k]]}")
+        for artist in (*(patch for _, patch in seen), nominal, trail, body, label):
+            ax.draw_artist(artist)
+        canvas.blit(fig.bbox)
+        images.append(Image.frombuffer("RGBA", canvas.get_width_height(), bytes(canvas.buffer_rgba()))
+                      .convert("RGB").quantize(colors=64))
+    plt.close(fig)
+
+    def write(fh):
+        images[0].save(fh, format="GIF", save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+
+    return _atomic_write(path, write)
