@@ -43,6 +43,7 @@ SUBCOMMANDS = {
     "gains": "Gain schedule: N = 1e3, 1e4, 1e5 on the Hilare sinusoid, and the naive method at N = 1e3.",
     "collision": "FCL world build time and car pose checks per second on the Moving AI 512x512 and nav2 depot maps.",
     "planning": "Time to a feasible, stabilizable nominal over 20 fixed start/goal pairs on two maps, two robots.",
+    "run": "Composite controller: replan latency on the depot and warehouse scenarios; cost of a control update.",
 }
 
 

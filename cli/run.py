@@ -55,7 +55,7 @@ def parse_levels(name: str, text: str | None) -> dict | None:
 @click.option("--seed", type=int, default=None, help="Root seed of the run (default 0).")
 @click.option("--planner", default=None, help="OMPL planner (default rrtconnect).")
 @click.option("--time-limit", type=float, default=None, help="Budget of each planning call [s] (default 2).")
-@click.option("--margin", type=float, default=None, help="Clearance to keep [m] (default 0.1).")
+@click.option("--margin", type=float, default=None, help="Clearance nominals keep from known obstacles [m] (default: unicycle 0.1, rwd_car 0.3, fwd_car 0.2).")
 @click.option("--max-time", type=float, default=None, help="Simulated time limit [s].")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results/run"),
               show_default=True)

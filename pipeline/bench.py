@@ -212,7 +212,70 @@ def bench_planning(pairs: int = 20, budget_s: float = 5.0, seed: int = 2026) -> 
                                                      and r["median_s"] < 0.5) for r in rows}}
 
 
-BENCHMARKS = {"gains": bench_gains, "collision": bench_collision, "planning": bench_planning}
+def bench_run(runs: int = 10) -> dict:
+    """The composite controller in closed loop: replan latency (detection to the new gain schedule
+    ready: planning, nominal, clearance check, gains) over ``runs`` seeds of the replanning scenarios
+    on the nav2 depot (unicycle) and our warehouse (rwd_car); and the cost of one control update
+    (measure -> u, with the feedforward mean over the hold interval and saturation)."""
+    from .execution import ControllerOptions, RunOptions, build_law, execute
+    from .geometry import default_footprint
+    from .maps import load_map
+    from .models import make_model
+    from .planning import DEFAULT_STABILIZER
+
+    maps = _maps_dir()
+    rows = []
+    laws = {}
+    for label, path in [("nav2 depot (scenario depot_blocked_aisle)", maps / "scenarios" / "depot_blocked_aisle.yaml"),
+                        ("ours warehouse (scenario warehouse_aisle_a2)", maps / "scenarios" / "warehouse_aisle_a2.yaml")]:
+        m = load_map(path)
+        robot = m.robot["model"]
+        model, fp = make_model(robot), default_footprint(robot)
+        latencies, statuses, replans, walls, sims = [], [], [], [], []
+        for seed in range(runs):
+            r = execute(m, model, fp, m.start.as_array(), m.goal.as_array(), RunOptions(seed=seed))
+            statuses.append(r.status)
+            walls.append(r.wall_time_s)
+            sims.append(float(r.log["t"][-1]) if len(r.log["t"]) else 0.0)
+            for rec in r.plans[1:]:
+                replans.append(rec.id)
+                latencies.extend(a["latency_s"] for a in rec.attempts)
+            laws.setdefault(robot, (r.plans[0].law, model))
+        rows.append({"scenario": label, "robot": robot, "runs": runs, "seeds": list(range(runs)),
+                     "statuses": statuses, "replans": len(replans), "replan_latencies_s": latencies,
+                     "replan_latency_median_s": float(np.median(latencies)) if latencies else None,
+                     "replan_latency_p95_s": float(np.percentile(latencies, 95)) if latencies else None,
+                     "run_wall_time_s": walls, "simulated_s": sims})
+    # one control update, as the run loop does it
+    steps = []
+    for robot, (law, model) in laws.items():
+        for kind in ("gramian", "tvlqr", "open-loop"):
+            lw = law if kind == "gramian" else build_law(law.nominal, ControllerOptions(kind=kind),
+                                                         DEFAULT_STABILIZER[robot])
+            lim = model.input_limits()
+            T = lw.h
+            taus = lw.t[:-1]
+            rng = np.random.default_rng(0)
+            ys = lw.nominal.x[:-1] + 0.01 * rng.standard_normal((len(taus), model.n))
+
+            def updates():
+                for tau, y in zip(taus, ys):
+                    u, _, _ = lw.control(float(tau), y.copy(), lw.mean_input(float(tau), float(tau) + T))
+                    np.clip(u, lim[:, 0], lim[:, 1])
+
+            best, median, _ = _best(updates, 3)
+            steps.append({"robot": robot, "controller": kind, "updates": len(taus),
+                          "us_per_update": 1e6 * best / len(taus), "us_per_update_median": 1e6 * median / len(taus)})
+    p95 = [r["replan_latency_p95_s"] for r in rows if r["replan_latency_p95_s"] is not None]
+    return {"benchmark": "run", "machine": machine(), "scenarios": rows, "control_update": steps,
+            "targets": {"replan_latency_p95_s_max": 1.0, "control_update_us_max": 1000.0},
+            "met": {**{f"replan p95 {r['scenario']}": bool(r["replan_latency_p95_s"] is not None
+                                                          and r["replan_latency_p95_s"] < 1.0) for r in rows},
+                    "control update": bool(all(s["us_per_update"] < 1000.0 for s in steps)),
+                    "every scenario replanned": bool(p95 and len(p95) == len(rows))}}
+
+
+BENCHMARKS = {"gains": bench_gains, "collision": bench_collision, "planning": bench_planning, "run": bench_run}
 
 
 def summary_markdown(results: dict) -> str:
@@ -252,4 +315,20 @@ def summary_markdown(results: dict) -> str:
                          f">= 95 % / < 0.5 s | {'yes' if met else 'NO'} |")
             lines.append(f"| planning | {r['map']}, {r['robot']}: OMPL validity check per state (Python) | "
                          f"{r['validity_us_per_state_median']:.1f} us | - | - |")
+    rr = results.get("run")
+    if rr:
+        for r in rr["scenarios"]:
+            if r["replan_latency_p95_s"] is None:
+                lines.append(f"| run | {r['scenario']}: replan latency | no replans in {r['runs']} runs | < 1 s | NO |")
+                continue
+            met = r["replan_latency_p95_s"] < rr["targets"]["replan_latency_p95_s_max"]
+            lines.append(f"| run | {r['scenario']}, {r['robot']}: replan latency median / p95 over "
+                         f"{len(r['replan_latencies_s'])} replans in {r['runs']} runs | "
+                         f"{r['replan_latency_median_s']:.2f} s / {r['replan_latency_p95_s']:.2f} s | p95 < 1 s | "
+                         f"{'yes' if met else 'NO'} |")
+            reached = sum(s == "reached" for s in r["statuses"])
+            lines.append(f"| run | {r['scenario']}: runs reaching the goal | {reached} / {r['runs']} | - | - |")
+        for st in rr["control_update"]:
+            lines.append(f"| run | control update, {st['robot']}, {st['controller']} | {st['us_per_update']:.1f} us | "
+                         f"< 1000 us | {'yes' if st['us_per_update'] < 1000 else 'NO'} |")
     return "\n".join(lines) + "\n"

@@ -13,6 +13,7 @@ was given. The format::
     rate_hz: 50                       # controller rate (zero-order hold)
     substeps: 4                       # RK4 steps of the plant per control period
     saturate: true                    # clip inputs to the robot's limits
+    headroom: 0.8                     # plan nominals within this fraction of the input/steering limits
     max_time_s: 120                   # simulated time limit (default: 2 x the active plan + 30 s)
     controller: {kind: gramian, window: future, alpha: 0.1, delta: 6.0, gamma: 1.0, q: [..], r: [..]}
     noise:
@@ -21,9 +22,9 @@ was given. The format::
       sensor: {x: 0.02, y: 0.02, theta: 0.01}                          # measurement std per state
       process: {x: 0.02, y: 0.02, theta: 0.01}                         # [unit / sqrt(s)]
       impulses: [{time: 4.0, x: 0.0, y: 0.3}]                          # state jumps at given times
-    sensor: {range_m: 8.0, fov_deg: 270, rate_hz: 10, resolution_deg: 0.5}
+    sensor: {range_m: 8.0, fov_deg: 360, rate_hz: 10, resolution_deg: 0.5}
     monitor: {rate_hz: 10, horizon_s: 8.0}
-    planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.1, space: reeds_shepp}
+    planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.3, space: reeds_shepp}   # margin: robot's default
     replan: {pause_s: 1.0, max_attempts: 3, max_replans: 10}
     tolerance: {position_m: 0.3, heading_rad: 0.2}
 
@@ -50,6 +51,9 @@ DEFAULT_NOISE = {
     "process": {"x": 0.02, "y": 0.02, "theta": 0.01, "phi": 0.0},
 }
 DISTRIBUTIONS = ("gaussian", "uniform")
+#: default planning margin per robot [m]: a car's body reaches 3.3 m ahead of its rear axle, where a
+#: heading error of 0.05 rad already moves it by 0.17 m, so cars keep more room than the unicycle
+DEFAULT_MARGIN = {"unicycle": 0.1, "rwd_car": 0.3, "fwd_car": 0.2}
 
 
 def _number(key: str, v, lo: float = -math.inf, lo_open: bool = False, integer: bool = False):
@@ -129,12 +133,14 @@ class MonitorOptions:
 
 @dataclass(frozen=True)
 class PlanningOptions:
-    """The planner used for the first plan and every replan (see ``nhstab plan``)."""
+    """The planner used for the first plan and every replan (see ``nhstab plan``). ``margin``: the
+    clearance every nominal keeps from the obstacles the robot knows of; None for the robot's
+    default (:data:`DEFAULT_MARGIN`)."""
 
     planner: str = "rrtconnect"
     space: str = "reeds_shepp"
     time_limit_s: float = 2.0
-    margin: float = 0.1
+    margin: float | None = None
     turning_radius: float | None = None
 
     def validated(self) -> "PlanningOptions":
@@ -145,7 +151,8 @@ class PlanningOptions:
         if self.space not in SPACES:
             raise InputError("planning.space", "one of " + ", ".join(SPACES), self.space)
         _number("planning.time_limit_s", self.time_limit_s, 0.0, lo_open=True)
-        _number("planning.margin", self.margin, 0.0)
+        if self.margin is not None:
+            _number("planning.margin", self.margin, 0.0)
         if self.turning_radius is not None:
             _number("planning.turning_radius", self.turning_radius, 0.0, lo_open=True)
         return self
@@ -192,10 +199,13 @@ class RunOptions:
     rate_hz: float = 50.0
     substeps: int = 4
     saturate: bool = True
+    headroom: float = 0.8
     max_time_s: float | None = None
     controller: ControllerOptions = field(default_factory=ControllerOptions)
     noise: NoiseOptions = field(default_factory=NoiseOptions)
-    sensor: SensorOptions = field(default_factory=SensorOptions)
+    #: all round by default: a car reverses as much as it drives forward (one 270-degree lidar would
+    #: leave it blind behind)
+    sensor: SensorOptions = field(default_factory=lambda: SensorOptions(fov_rad=2 * math.pi))
     monitor: MonitorOptions = field(default_factory=MonitorOptions)
     planning: PlanningOptions = field(default_factory=PlanningOptions)
     replan: ReplanOptions = field(default_factory=ReplanOptions)
@@ -205,6 +215,9 @@ class RunOptions:
         _number("seed", self.seed, 0.0, integer=True)
         _number("rate_hz", self.rate_hz, 0.0, lo_open=True)
         _number("substeps", self.substeps, 1.0, integer=True)
+        _number("headroom", self.headroom, 0.0, lo_open=True)
+        if self.headroom > 1.0:
+            raise InputError("headroom", "a number in (0, 1]", self.headroom)
         if not isinstance(self.saturate, bool):
             raise InputError("saturate", "true or false", self.saturate)
         if self.max_time_s is not None:
@@ -285,7 +298,7 @@ def _section(name: str, data) -> object:
     for key in ("q", "r", "mount"):
         if key in data and isinstance(data[key], list):
             data[key] = tuple(data[key])
-    return cls(**data)
+    return replace(getattr(RunOptions(), name), **data)
 
 
 def load_run_config(path) -> tuple[dict, RunOptions]:

@@ -4,7 +4,9 @@ replan.
 One run, step by step at the controller rate 1/T (zero-order hold):
 
 1. **Plan** a nominal from the start to the goal on the robot's map (the known obstacles) with the
-   planner of :mod:`pipeline.planning`, and the feedback law along it.
+   planner of :mod:`pipeline.planning`, and the feedback law along it. The nominal is planned for
+   the robot with its input and steering limits scaled by ``headroom`` (default 0.8), so that the
+   feedback has the rest of the real limits to work with.
 2. Every control period: the robot's true state x is *measured* with sensor noise, y = x + n; the
    law gives u = u_ff - K(tau) (y - x0(tau)) (u_ff: the mean of u0 over the hold interval), clipped
    to the robot's input limits; the plant is integrated over the period under that constant input;
@@ -34,6 +36,7 @@ process noise and the planner (one OMPL seed per planning call), all recorded.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -48,7 +51,7 @@ from ..models import Model
 from ..planning import (DEFAULT_STABILIZER, PathOptions, PlanResult, TimingOptions, default_turning_radius, plan,
                         pose_columns)
 from ..sensing import RangeSensor
-from .config import RunOptions
+from .config import DEFAULT_MARGIN, RunOptions
 from .controllers import FeedbackLaw, build_law
 from .plant import Plant
 
@@ -125,6 +128,20 @@ class RunResult:
         return self.status == "reached"
 
 
+#: the model parameters that are limits (scaled by RunOptions.headroom for planning)
+_LIMITS = ("max_speed", "max_turn_rate", "max_steer", "max_steer_rate")
+
+
+def derated(model: Model, factor: float) -> Model:
+    """The same robot with its input limits and steering-angle limit scaled by ``factor``: nominals
+    planned for it leave the rest of the real limits to the feedback."""
+    params = {f.name: getattr(model, f.name) for f in dataclasses.fields(model) if f.init}
+    for key in _LIMITS:
+        if key in params:
+            params[key] = params[key] * factor
+    return type(model)(**params)
+
+
 def _bounding_circle(shape) -> tuple[np.ndarray, float]:
     if isinstance(shape, Circle):
         return np.asarray(shape.center, dtype=float), float(shape.radius)
@@ -153,11 +170,16 @@ class CompositeRun:
 
     def __init__(self, m: Map, model: Model, fp: Footprint, start, goal, opts: RunOptions):
         self.m, self.model, self.fp = m, model, fp
-        self.opts = opts.validated(model.state_names, model.m)
+        opts = opts.validated(model.state_names, model.m)
+        if opts.planning.margin is None:
+            opts = dataclasses.replace(opts, planning=dataclasses.replace(opts.planning,
+                                                                          margin=DEFAULT_MARGIN[model.name]))
+        self.opts = opts
         self.start = np.asarray(start, dtype=float)
         self.goal = np.asarray(goal, dtype=float)
         self.T = 1.0 / opts.rate_hz
         self.plant = Plant(model, self.T, opts.substeps)
+        self.plan_model = derated(model, opts.headroom) if opts.headroom < 1.0 else model
         self.pose_idx = pose_columns(model)
         self.known = CollisionWorld.from_map(m, "known")
         self.truth = CollisionWorld.from_map(m, "all")
@@ -182,7 +204,7 @@ class CompositeRun:
     # ---- planning ---------------------------------------------------------------------------
     def _path_options(self, seed: int, margin: float) -> PathOptions:
         p = self.opts.planning
-        radius = p.turning_radius if p.turning_radius is not None else default_turning_radius(self.model)
+        radius = p.turning_radius if p.turning_radius is not None else default_turning_radius(self.plan_model)
         return PathOptions(space=p.space, turning_radius=radius, planner=p.planner, time_limit_s=p.time_limit_s,
                            seed=seed, margin=margin)
 
@@ -205,7 +227,7 @@ class CompositeRun:
             if margin <= 0:
                 raise InputError("start", "a pose clear of the obstacles", start_pose.round(3).tolist(),
                                  detail=f"clearance {self.robot_world.clearance(start_pose, self.fp):.3g} m")
-            result = plan(self.m, self.model, self.fp, start_pose, self.goal, self._path_options(seed, margin),
+            result = plan(self.m, self.plan_model, self.fp, start_pose, self.goal, self._path_options(seed, margin),
                           TimingOptions(dt=self.T), world=self.robot_world)
             if result.ok:
                 law = build_law(result.nominal, self.opts.controller, self.stab_defaults, result.schedule)
