@@ -56,8 +56,24 @@ def run_map_figure(result, footprints: int = 12):
                 label="replan" if rec.id == 1 else None)
     if result.collision:
         ax.plot(*result.collision["pose"][:2], marker="*", color="red", ms=14, ls="none", label="collision")
+    _zoom(ax, result)
     ax.legend(fontsize=6, loc="upper right", framealpha=0.85)
     return fig
+
+
+def _zoom(ax, result, pad: float = 6.0):
+    """On a large map, show the part the run used (every nominal, the path, start and goal) plus a
+    margin, when that is less than half of the map's extent."""
+    pts = [np.asarray(result.start[:2]), np.asarray(result.goal[:2])]
+    pts += [_poses(result, r.law.nominal.x)[:, :2] for r in result.plans if r.law is not None]
+    if len(result.log["t"]):
+        pts.append(_poses(result, result.log["x"])[:, :2])
+    pts = np.vstack([np.atleast_2d(p) for p in pts])
+    lo, hi = pts.min(axis=0) - pad, pts.max(axis=0) + pad
+    xmin, ymin, xmax, ymax = result.map.bounds
+    if (hi[0] - lo[0]) * (hi[1] - lo[1]) < 0.5 * (xmax - xmin) * (ymax - ymin):
+        ax.set_xlim(max(lo[0], xmin), min(hi[0], xmax))
+        ax.set_ylim(max(lo[1], ymin), min(hi[1], ymax))
 
 
 def run_tracking_figure(result):
