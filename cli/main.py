@@ -60,10 +60,12 @@ def _register():
     from .map import map_group
     from .plan import plan, sweep
     from .run import run
+    from .batch import batch
 
     cli.add_command(map_group)
     cli.add_command(plan)
     cli.add_command(run)
+    cli.add_command(batch)
     cli.add_command(sweep)
     cli.add_command(paper.paper)
     cli.add_command(gains.gains)

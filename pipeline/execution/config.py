@@ -301,6 +301,34 @@ def _section(name: str, data) -> object:
     return replace(getattr(RunOptions(), name), **data)
 
 
+def options_from_mapping(data: dict, allowed=None, prefix: str = "") -> RunOptions:
+    """RunOptions from a parsed mapping (the run-config keys except ``map``). ``allowed`` restricts
+    the keys; errors name the key with ``prefix`` (e.g. ``run.noise.scale`` in a batch config)."""
+    allowed = set(_TOP - {"map"}) if allowed is None else set(allowed)
+    try:
+        if not isinstance(data, dict):
+            raise InputError("", "a mapping", type(data).__name__)
+        for key in data:
+            if key not in allowed:
+                raise InputError(key, "one of " + ", ".join(sorted(allowed)), key)
+        kw = {}
+        for key, v in data.items():
+            if key == "noise":
+                kw[key] = _noise(v)
+            elif key in _SECTIONS:
+                kw[key] = _section(key, v)
+            elif key in ("start", "goal"):
+                kw[key] = _pose(key, v)
+            else:
+                kw[key] = v
+        return RunOptions(**kw)
+    except InputError as exc:
+        if not prefix:
+            raise
+        name = prefix.rstrip(".") if not exc.argument else prefix + exc.argument
+        raise InputError(name, exc.expected, exc.got) from None
+
+
 def load_run_config(path) -> tuple[dict, RunOptions]:
     """Read a run config; returns ({"map": resolved path or None}, RunOptions). Strict, see module doc."""
     import yaml
@@ -317,25 +345,13 @@ def load_run_config(path) -> tuple[dict, RunOptions]:
     for key in data:
         if key not in _TOP:
             raise InputError(key, "a run-config key (" + ", ".join(sorted(_TOP)) + ")", key)
-    kw = {}
-    for key, v in data.items():
-        if key == "map":
-            continue
-        if key == "noise":
-            kw[key] = _noise(v)
-        elif key in _SECTIONS:
-            kw[key] = _section(key, v)
-        elif key in ("start", "goal"):
-            kw[key] = _pose(key, v)
-        else:
-            kw[key] = v
     extra = {}
     if "map" in data:
         if not isinstance(data["map"], str):
             raise InputError("map", "a path to a map file", data["map"])
         m = Path(data["map"])
         extra["map"] = m if m.is_absolute() else (path.parent / m)
-    return extra, RunOptions(**kw)
+    return extra, options_from_mapping({k: v for k, v in data.items() if k != "map"})
 
 
 def merge(base: RunOptions, **overrides) -> RunOptions:

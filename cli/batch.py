@@ -1,0 +1,84 @@
+"""``nhstab batch``: Monte Carlo robustness batches (run, replay a trial)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+
+class _DefaultToRun(click.Group):
+    """``nhstab batch CONFIG ...`` means ``nhstab batch run CONFIG ...``."""
+
+    def parse_args(self, ctx, args):
+        if args and args[0] not in self.commands and not args[0].startswith("-"):
+            args = ["run", *args]
+        return super().parse_args(ctx, args)
+
+
+@click.group(cls=_DefaultToRun)
+def batch():
+    """Monte Carlo batches over maps, robots, controllers and noise: `nhstab batch CONFIG --out DIR`."""
+
+
+@batch.command("run")
+@click.argument("config_file", metavar="CONFIG", type=click.Path(path_type=Path))
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Folder of the batch: trials.sqlite (and the report).")
+@click.option("--workers", type=int, default=None, help="Local worker processes (default: the number of cores).")
+@click.option("--scheduler", default=None, help="Address of a Dask distributed scheduler, e.g. tcp://10.0.0.5:8786.")
+@click.option("--resume", is_flag=True, help="Continue the batch stored in --out: run each missing trial once.")
+@click.option("--no-progress", is_flag=True, help="No progress bar.")
+def run_cmd(config_file, out_dir, workers, scheduler, resume, no_progress):
+    """Run every trial of CONFIG (strict YAML; see pipeline/batch/config.py), committing each to
+    OUT/trials.sqlite as it finishes. A trial that fails is recorded with its error."""
+    import os
+
+    from pipeline.batch.config import load_batch_config
+    from pipeline.batch.runner import run_batch
+    from pipeline.errors import InputError
+
+    if workers is not None and workers < 1:
+        raise InputError("--workers", "an integer >= 1", workers)
+    config = load_batch_config(config_file)
+    n = len(config.trial_specs())
+    click.echo(f"batch {config.name}: {len(config.cells())} cells x {config.trials} trials = {n} trials", err=True)
+    counts = run_batch(config, out_dir, workers=workers or os.cpu_count() or 1, scheduler=scheduler, resume=resume,
+                       progress=not no_progress)
+    click.echo(f"ran {counts['ran']} trials in {counts['wall_s']:.1f} s ({counts['already_stored']} already stored); "
+               f"{counts['stored']} in {out_dir / 'trials.sqlite'}")
+    return 0
+
+
+@batch.command("replay")
+@click.argument("store_path", metavar="STORE", type=click.Path(path_type=Path))
+@click.argument("trial_id", metavar="TRIAL_ID")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True)
+@click.option("--animate", is_flag=True, help="Also write run.gif.")
+def replay(store_path, trial_id, out_dir, animate):
+    """Replay one stored trial with `nhstab run`: writes OUT/run_config.yaml (its exact options) and
+    the run's files. STORE is a batch folder or its trials.sqlite."""
+    import yaml
+
+    from pipeline.batch.store import Store
+    from pipeline.batch.trial import replay_config
+    from pipeline.errors import InputError
+    from pipeline.execution.config import load_run_config
+    from pipeline.records import write_text
+
+    from .map import load
+    from .run import execute_and_write
+
+    path = store_path / "trials.sqlite" if store_path.is_dir() else store_path
+    with Store(path) as store:
+        record = store.trial(trial_id)
+    if record is None:
+        raise InputError("TRIAL_ID", "the id of a stored trial (see the report's CSV)", trial_id)
+    cfg = replay_config(record)
+    cfg_path = write_text(out_dir / "run_config.yaml", "# replays trial " + trial_id + " of " + str(path) + "\n"
+                          + yaml.safe_dump(cfg, sort_keys=False))
+    extra, opts = load_run_config(cfg_path)
+    cell = record["spec"]["cell_spec"]
+    m = load(extra["map"], cell["cell_size"], None)
+    click.echo(f"replaying {trial_id} (stored status: {record['status']})", err=True)
+    return execute_and_write(m, str(extra["map"]), opts, opts.start, opts.goal, out_dir, animate)

@@ -1,0 +1,2 @@
+"""Batch robustness studies: many trials of the composite controller (see :mod:`pipeline.batch.vector` for
+the vectorised engine for trials that share one nominal)."""

@@ -1,0 +1,266 @@
+"""The batch config (``nhstab batch CONFIG``): strict YAML, expanded into cells and seeded trials.
+
+Format (paths relative to the config file)::
+
+    name: depot-robustness          # optional, default: the file stem
+    root_seed: 2026                 # every trial's seed is spawned from it (numpy SeedSequence)
+    trials: 20                      # trials per cell, >= 1
+    maps:                           # >= 1
+      - path: ../maps/scenarios/depot_blocked_aisle.yaml
+        problems: map               # "map" (default): the map's start and goal;
+                                    # or a list of {start: [x, y, theta], goal: [x, y, theta]};
+                                    # or {first: 0, count: 5}: the map's problems (e.g. from a
+                                    # Moving AI .scen file given as the map's base scenarios)
+        cell_size: 1.0              # optional: Moving AI maps only
+    robots: [unicycle]              # optional, default: each map's robot
+    controllers: [gramian, open-loop, tvlqr]     # default [gramian]
+    grid:                           # every combination is a cell; each list non-empty
+      noise: [0.5, 1.0, 2.0]        # noise scale (multiplies every level of run.noise)
+      alpha: [0.1, 0.2]             # gramian only (default: the robot's)
+      delta: [2.0]
+      gamma: [1.0]
+    run:                            # base options of every trial: the run-config keys except map,
+      rate_hz: 50                   # robot, start, goal and seed (see nhstab run --config)
+      noise: {sensor: {x: 0.02}}
+
+Each trial k of a cell has the seed spawned as child k of ``root_seed``, the same in every cell, so
+controllers and noise levels are compared on the same seeds. Trial ids are ``<cell>#<k>``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..execution.config import RunOptions, options_from_mapping
+from ..execution.controllers import CONTROLLERS
+
+_TOP = ("name", "root_seed", "trials", "maps", "robots", "controllers", "grid", "run")
+_MAP_KEYS = ("path", "problems", "cell_size")
+_GRID_KEYS = ("noise", "alpha", "delta", "gamma")
+_RUN_EXCLUDED = ("robot", "start", "goal", "seed")
+
+
+@dataclass(frozen=True)
+class MapSpec:
+    path: str
+    label: str
+    cell_size: float | None
+    problems: tuple            # ((start, goal), ...) poses as tuples
+
+
+@dataclass
+class BatchConfig:
+    name: str
+    root_seed: int
+    trials: int
+    maps: list
+    robots: list | None
+    controllers: list
+    grid: dict
+    run: dict                  # the raw `run` mapping (validated), kept for the record
+    source: str = ""
+    base_options: RunOptions = field(default_factory=RunOptions)
+
+    def seeds(self) -> list[int]:
+        """Trial k's seed: child k of root_seed (a 32-bit integer, usable as nhstab run --seed)."""
+        children = np.random.SeedSequence(self.root_seed).spawn(self.trials)
+        return [int(c.generate_state(1)[0]) for c in children]
+
+    def cells(self) -> list[dict]:
+        """Every combination: map, problem, robot, controller, grid values."""
+        out = []
+        noise = self.grid.get("noise", [1.0])
+        for ms in self.maps:
+            robots = self.robots or [None]
+            for p_index, (start, goal) in enumerate(ms.problems):
+                for robot, ctrl in itertools.product(robots, self.controllers):
+                    gains = list(itertools.product(self.grid.get("alpha", [None]), self.grid.get("delta", [None]),
+                                                   self.grid.get("gamma", [None]))) if ctrl == "gramian" \
+                        else [(None, None, None)]
+                    for (alpha, delta, gamma), level in itertools.product(gains, noise):
+                        cell = {"map": ms.label, "map_path": ms.path, "cell_size": ms.cell_size,
+                                "problem": p_index, "start": list(start), "goal": list(goal),
+                                "robot": robot, "controller": ctrl, "alpha": alpha, "delta": delta,
+                                "gamma": gamma, "noise": float(level)}
+                        cell["id"] = cell_id(cell)
+                        out.append(cell)
+        return out
+
+    def trial_specs(self) -> list[dict]:
+        seeds = self.seeds()
+        specs = []
+        for cell in self.cells():
+            for k, seed in enumerate(seeds):
+                specs.append({"id": f"{cell['id']}#{k}", "cell": cell["id"], "trial": k, "seed": seed,
+                              "cell_spec": cell, "run": self.run})
+        return specs
+
+    def describe(self) -> dict:
+        return {"name": self.name, "root_seed": self.root_seed, "trials": self.trials,
+                "maps": [{"path": m.path, "label": m.label, "cell_size": m.cell_size, "problems": m.problems}
+                         for m in self.maps],
+                "robots": self.robots, "controllers": self.controllers, "grid": self.grid, "run": self.run,
+                "source": self.source}
+
+    def fingerprint(self) -> str:
+        """A hash of everything that decides the trials (not the name): a resumed batch must match."""
+        d = self.describe()
+        d.pop("name")
+        d.pop("source")
+        return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def cell_id(cell: dict) -> str:
+    parts = [f"map={cell['map']}", f"problem={cell['problem']}", f"robot={cell['robot'] or 'default'}",
+             f"controller={cell['controller']}"]
+    for key in ("alpha", "delta", "gamma"):
+        if cell[key] is not None:
+            parts.append(f"{key}={cell[key]:g}")
+    parts.append(f"noise={cell['noise']:g}")
+    return "|".join(parts)
+
+
+def _number(key, v, lo=None, integer=False, lo_open=False):
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+    if ok and integer:
+        ok = float(v).is_integer()
+    if ok and lo is not None:
+        ok = v > lo if lo_open else v >= lo
+    if not ok:
+        kind = "an integer" if integer else "a finite number"
+        bound = "" if lo is None else f" {'>' if lo_open else '>='} {lo:g}"
+        raise InputError(key, kind + bound, v)
+    return int(v) if integer else float(v)
+
+
+def _list(key, v, minimum=1):
+    if not isinstance(v, list) or len(v) < minimum:
+        raise InputError(key, f"a list of at least {minimum} item{'s' if minimum != 1 else ''}", v)
+    return v
+
+
+def _pose(key, v):
+    if not (isinstance(v, list) and len(v) == 3):
+        raise InputError(key, "[x, y, theta] (three numbers)", v)
+    return tuple(_number(f"{key}[{i}]", c) for i, c in enumerate(v))
+
+
+def load_batch_config(path) -> BatchConfig:
+    """Read and check a batch config; every map is loaded (and its poses checked) here, before any
+    trial runs. Raises InputError naming the key."""
+    import yaml
+
+    from ..maps import load_map
+    from ..models import make_model
+
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError("CONFIG", "an existing batch config (YAML)", str(path)) from None
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise InputError("CONFIG", "valid YAML", str(path), detail=" ".join(str(exc).split())[:200]) from None
+    if not isinstance(data, dict):
+        raise InputError("CONFIG", "a YAML mapping at the top level", type(data).__name__)
+    for key in data:
+        if key not in _TOP:
+            raise InputError(key, "one of " + ", ".join(_TOP), key)
+    for key in ("root_seed", "trials", "maps"):
+        if key not in data:
+            raise InputError(key, "present (required)", "missing")
+    name = data.get("name", path.stem)
+    if not isinstance(name, str) or not name:
+        raise InputError("name", "a non-empty string", name)
+    root_seed = _number("root_seed", data["root_seed"], 0, integer=True)
+    trials = _number("trials", data["trials"], 1, integer=True)
+    maps = []
+    for i, entry in enumerate(_list("maps", data["maps"])):
+        where = f"maps[{i}]"
+        if not isinstance(entry, dict) or "path" not in entry:
+            raise InputError(where, "a mapping with a path", entry)
+        for key in entry:
+            if key not in _MAP_KEYS:
+                raise InputError(f"{where}.{key}", "one of " + ", ".join(_MAP_KEYS), key)
+        if not isinstance(entry["path"], str):
+            raise InputError(f"{where}.path", "a path to a map file", entry["path"])
+        mpath = Path(entry["path"])
+        mpath = mpath if mpath.is_absolute() else path.parent / mpath
+        cell = _number(f"{where}.cell_size", entry["cell_size"], 0, lo_open=True) if "cell_size" in entry else None
+        try:
+            m = load_map(mpath, **({"cell_size": cell} if cell is not None else {}))
+        except InputError as exc:
+            raise InputError(f"{where}.path", "a map that loads", str(entry["path"]), detail=str(exc)) from None
+        problems = _problems(f"{where}.problems", entry.get("problems", "map"), m)
+        label = m.name
+        maps.append(MapSpec(str(mpath), label, cell, problems))
+    labels = [m.label for m in maps]
+    if len(set(labels)) != len(labels):
+        raise InputError("maps", "maps with different names", labels)
+    robots = None
+    if "robots" in data:
+        robots = _list("robots", data["robots"])
+        for j, r in enumerate(robots):
+            if r not in ("unicycle", "rwd_car", "fwd_car"):
+                raise InputError(f"robots[{j}]", "one of unicycle, rwd_car, fwd_car", r)
+            make_model(r)
+    controllers = _list("controllers", data.get("controllers", ["gramian"]))
+    for j, c in enumerate(controllers):
+        if c not in CONTROLLERS:
+            raise InputError(f"controllers[{j}]", "one of " + ", ".join(CONTROLLERS), c)
+    grid = data.get("grid", {}) or {}
+    if not isinstance(grid, dict):
+        raise InputError("grid", "a mapping", grid)
+    for key, values in grid.items():
+        if key not in _GRID_KEYS:
+            raise InputError(f"grid.{key}", "one of " + ", ".join(_GRID_KEYS), key)
+        _list(f"grid.{key}", values)
+        lo, lo_open = {"noise": (0.0, False), "alpha": (0.0, True), "delta": (0.0, True), "gamma": (0.5, False)}[key]
+        grid[key] = [_number(f"grid.{key}[{j}]", v, lo, lo_open=lo_open) for j, v in enumerate(values)]
+    run = data.get("run", {}) or {}
+    allowed = {"rate_hz", "substeps", "saturate", "headroom", "max_time_s", "controller", "noise", "sensor",
+               "monitor", "planning", "replan", "tolerance"}
+    if isinstance(run, dict):
+        for key in run:
+            if key in _RUN_EXCLUDED:
+                raise InputError(f"run.{key}", "set by the batch (maps, robots, trials), not in run", key)
+    base = options_from_mapping(run, allowed, prefix="run.")
+    for ms in maps:
+        robot_names = robots or [((load_map(ms.path, **({"cell_size": ms.cell_size} if ms.cell_size else {})).robot
+                                   or {}).get("model") or "unicycle")]
+        for r in robot_names:
+            model = make_model(r)
+            try:
+                base.validated(model.state_names, model.m)
+            except InputError as exc:
+                raise InputError("run." + exc.argument, exc.expected, exc.got) from None
+    return BatchConfig(name, root_seed, trials, maps, robots, controllers, grid, run, str(path), base)
+
+
+def _problems(key: str, value, m) -> tuple:
+    if value == "map":
+        if m.start is None or m.goal is None:
+            raise InputError(key, "start/goal pairs (the map gives none)", value)
+        return ((tuple(m.start.as_array()), tuple(m.goal.as_array())),)
+    if isinstance(value, dict):
+        for k in value:
+            if k not in ("first", "count"):
+                raise InputError(f"{key}.{k}", "first or count", k)
+        first = _number(f"{key}.first", value.get("first", 0), 0, integer=True)
+        count = _number(f"{key}.count", value.get("count", 1), 1, integer=True)
+        if first + count > len(m.problems):
+            raise InputError(key, f"problems within the map's {len(m.problems)}", value)
+        return tuple((tuple(p.start.as_array()), tuple(p.goal.as_array())) for p in m.problems[first:first + count])
+    items = _list(key, value)
+    out = []
+    for j, item in enumerate(items):
+        if not isinstance(item, dict) or set(item) != {"start", "goal"}:
+            raise InputError(f"{key}[{j}]", "a mapping with start and goal", item)
+        out.append((_pose(f"{key}[{j}].start", item["start"]), _pose(f"{key}[{j}].goal", item["goal"])))
+    return tuple(out)

@@ -1,0 +1,145 @@
+"""Batches: strict config, the store, replay, local vs Dask, kill -9 and resume."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from pipeline.batch.config import load_batch_config
+from pipeline.batch.runner import run_batch
+from pipeline.batch.store import Store
+from pipeline.errors import InputError
+
+ROOT = Path(__file__).resolve().parents[1]
+ROOM = ROOT / "maps/ours/cluttered_room.yaml"
+
+
+def _config(tmp_path, trials=3, controllers=("gramian", "open-loop"), extra=""):
+    f = tmp_path / "batch.yaml"
+    f.write_text(f"name: t\nroot_seed: 11\ntrials: {trials}\nmaps:\n  - path: {ROOM}\n"
+                 f"controllers: [{', '.join(controllers)}]\ngrid:\n  noise: [1.0]\n{extra}")
+    return f
+
+
+def _records(path) -> dict:
+    """Everything a trial decides (status, metrics, series), by id; wall-clock timings left out."""
+    with Store(path) as s:
+        return {t["id"]: json.dumps([t["status"], t["metrics"], t["series"], t["seed"]], sort_keys=True)
+                for t in s.trials()}
+
+
+@pytest.mark.parametrize("text,key", [
+    ("name: t\nroot_seed: 1\ntrials: 2\nmaps: [{path: MAP}]\nfoo: 1\n", "foo"),
+    ("name: t\nroot_seed: 1\ntrials: -2\nmaps: [{path: MAP}]\n", "trials"),
+    ("name: t\nroot_seed: 1\ntrials: 2\nmaps: [{path: MAP}]\ngrid: {noise: []}\n", "grid.noise"),
+    ("name: t\nroot_seed: 1\ntrials: 2\nmaps: [{path: MAP}]\ngrid: {beta: [1]}\n", "grid.beta"),
+    ("name: t\nroot_seed: 1\ntrials: 2\nmaps: [{path: nowhere.yaml}]\n", "maps[0].path"),
+    ("name: t\nroot_seed: 1\ntrials: 2\nmaps: [{path: MAP, problem: map}]\n", "maps[0].problem"),
+    ("name: t\nroot_seed: 1\ntrials: 2\nmaps: [{path: MAP}]\ncontrollers: [pid]\n", "controllers[0]"),
+    ("name: t\nroot_seed: 1\ntrials: 2\nmaps: [{path: MAP}]\nrun: {noise: {scale: -1}}\n", "run.noise.scale"),
+    ("name: t\nroot_seed: 1\ntrials: 2\nmaps: [{path: MAP}]\nrun: {seed: 3}\n", "run.seed"),
+    ("name: t\nroot_seed: 1\ntrials: 2\nmaps: []\n", "maps"),
+])
+def test_a_malformed_batch_config_is_refused_naming_the_key(tmp_path, text, key):
+    f = tmp_path / "b.yaml"
+    f.write_text(text.replace("MAP", str(ROOM)))
+    with pytest.raises(InputError) as err:
+        load_batch_config(f)
+    assert key in str(err.value) and "\n" not in str(err.value)
+
+
+def test_cells_and_paired_seeds(tmp_path):
+    c = load_batch_config(_config(tmp_path, trials=4, extra="  alpha: [0.1, 0.2]\n"))
+    cells = c.cells()
+    # gramian x 2 alphas + open-loop (no gains) = 3 cells
+    assert len(cells) == 3 and len({x["id"] for x in cells}) == 3
+    specs = c.trial_specs()
+    assert len(specs) == 12 and len({s["id"] for s in specs}) == 12
+    by_trial = {}
+    for s in specs:
+        by_trial.setdefault(s["trial"], set()).add(s["seed"])
+    assert all(len(v) == 1 for v in by_trial.values())          # the same seed for trial k in every cell
+    assert len({next(iter(v)) for v in by_trial.values()}) == 4
+
+
+def test_store_records_a_trial_once(tmp_path):
+    with Store(tmp_path / "s.sqlite", create=True) as s:
+        rec = {"id": "a#0", "cell": "a", "trial": 0, "seed": 5, "spec": {}, "status": "reached", "metrics": {"x": 1}}
+        assert s.add(rec) and not s.add({**rec, "status": "collision"})
+        assert s.count() == 1 and s.trial("a#0")["status"] == "reached"
+        assert s.db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+
+
+@pytest.mark.slow
+def test_one_worker_two_workers_and_dask_give_identical_trials(tmp_path):
+    cfg = load_batch_config(_config(tmp_path))
+    run_batch(cfg, tmp_path / "one", workers=1, progress=False)
+    run_batch(cfg, tmp_path / "two", workers=2, progress=False)
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None) as cluster:
+        run_batch(cfg, tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False)
+    one = _records(tmp_path / "one" / "trials.sqlite")
+    assert len(one) == 6
+    assert one == _records(tmp_path / "two" / "trials.sqlite") == _records(tmp_path / "dask" / "trials.sqlite")
+
+
+@pytest.mark.slow
+def test_a_batch_killed_with_sigkill_and_resumed_runs_each_trial_once(tmp_path):
+    cfg_file = _config(tmp_path, trials=6)
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "cli.main", "batch", str(cfg_file), "--out", str(out), "--workers", "1",
+           "--no-progress"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    db = out / "trials.sqlite"
+    deadline = time.time() + 300
+    count = 0
+    while time.time() < deadline and proc.poll() is None:
+        if db.exists():
+            try:
+                with sqlite3.connect(db, timeout=5) as con:
+                    count = con.execute("SELECT COUNT(*) FROM trials").fetchone()[0]
+            except sqlite3.OperationalError:
+                count = 0
+            if count >= 3:
+                break
+        time.sleep(0.05)
+    assert proc.poll() is None, "the batch finished before it could be killed"
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    with Store(db) as s:
+        part = s.count()
+    assert 3 <= part < 12
+    with pytest.raises(InputError, match="--resume"):
+        run_batch(load_batch_config(cfg_file), out, progress=False)
+    counts = run_batch(load_batch_config(cfg_file), out, workers=2, resume=True, progress=False)
+    assert counts["ran"] == 12 - part and counts["stored"] == 12
+    run_batch(load_batch_config(cfg_file), tmp_path / "whole", workers=2, progress=False)
+    assert _records(db) == _records(tmp_path / "whole" / "trials.sqlite")
+
+
+def test_replay_reproduces_a_stored_trial(tmp_path):
+    from click.testing import CliRunner
+
+    from cli.main import cli
+
+    cfg = load_batch_config(_config(tmp_path, trials=1, controllers=("open-loop",)))
+    run_batch(cfg, tmp_path / "b", progress=False)
+    with Store(tmp_path / "b" / "trials.sqlite") as s:
+        rec = s.trials()[0]
+    res = CliRunner().invoke(cli, ["batch", "replay", str(tmp_path / "b"), rec["id"], "--out", str(tmp_path / "r")])
+    assert res.exit_code in (0, 4), res.output
+    d = json.loads((tmp_path / "r" / "run.json").read_text())
+    assert d["status"] == rec["status"]
+    assert d["clearance"]["min_executed_m"] == rec["metrics"]["min_clearance_m"]
+    assert d["tracking"].get("max_error_norm") == rec["metrics"]["max_error_norm"]
