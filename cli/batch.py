@@ -47,6 +47,10 @@ def run_cmd(config_file, out_dir, workers, scheduler, resume, no_progress):
                        progress=not no_progress)
     click.echo(f"ran {counts['ran']} trials in {counts['wall_s']:.1f} s ({counts['already_stored']} already stored); "
                f"{counts['stored']} in {out_dir / 'trials.sqlite'}")
+    from pipeline.batch.report import write_report
+
+    files = write_report(out_dir)
+    click.echo(f"report: {out_dir / 'report.html'} (and {len(files) - 1} more files)")
     return 0
 
 
@@ -82,3 +86,17 @@ def replay(store_path, trial_id, out_dir, animate):
     m = load(extra["map"], cell["cell_size"], None)
     click.echo(f"replaying {trial_id} (stored status: {record['status']})", err=True)
     return execute_and_write(m, str(extra["map"]), opts, opts.start, opts.goal, out_dir, animate)
+
+
+@batch.command("report")
+@click.argument("store_path", metavar="STORE", type=click.Path(path_type=Path))
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Where to write the report (default: the store's folder).")
+def report(store_path, out_dir):
+    """Write report.html, report.md, trials.csv and figures/ from a batch store (STORE: the batch
+    folder or its trials.sqlite). Every number comes from the store."""
+    from pipeline.batch.report import write_report
+
+    files = write_report(store_path, out_dir)
+    click.echo("wrote " + ", ".join(str(f) for f in files))
+    return 0

@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from pipeline.batch.config import load_batch_config
+from pipeline.batch.report import wilson
 from pipeline.batch.runner import run_batch
 from pipeline.batch.store import Store
 from pipeline.errors import InputError
@@ -143,3 +144,36 @@ def test_replay_reproduces_a_stored_trial(tmp_path):
     assert d["status"] == rec["status"]
     assert d["clearance"]["min_executed_m"] == rec["metrics"]["min_clearance_m"]
     assert d["tracking"].get("max_error_norm") == rec["metrics"]["max_error_norm"]
+
+
+def test_wilson_interval_matches_the_closed_form():
+    # n = 10, k = 3: the textbook Wilson interval (z = 1.96) is [0.1078, 0.6032]
+    p, lo, hi = wilson(3, 10)
+    assert p == 0.3 and lo == pytest.approx(0.1078, abs=5e-4) and hi == pytest.approx(0.6032, abs=5e-4)
+    _, lo0, hi0 = wilson(0, 6)
+    assert lo0 == pytest.approx(0.0, abs=1e-12) and hi0 == pytest.approx(0.3903, abs=5e-4)
+
+
+def test_report_numbers_come_from_the_store(tmp_path):
+    from pipeline.batch.report import write_report
+
+    cfg = load_batch_config(_config(tmp_path, trials=3, controllers=("gramian", "open-loop")))
+    run_batch(cfg, tmp_path / "b", workers=2, progress=False)
+    files = write_report(tmp_path / "b")
+    names = {f.name for f in files}
+    assert {"report.html", "report.md", "trials.csv", "rates.png", "envelopes.png"} <= names
+    with Store(tmp_path / "b" / "trials.sqlite") as s:
+        trials = s.trials()
+    import csv as _csv
+
+    rows = list(_csv.DictReader((tmp_path / "b" / "trials.csv").open()))
+    assert len(rows) == len(trials) == 6
+    for row in rows:
+        t = next(x for x in trials if x["id"] == row["id"])
+        assert row["status"] == t["status"]
+        if t["metrics"]["min_clearance_m"] is not None:
+            assert float(row["min_clearance_m"]) == t["metrics"]["min_clearance_m"]
+    md = (tmp_path / "b" / "report.md").read_text()
+    for ctrl in ("gramian", "open-loop"):
+        k = sum(1 for t in trials if t["spec"]["cell_spec"]["controller"] == ctrl and t["status"] == "reached")
+        assert f"/ {ctrl} / noise 1 | 3 | {round(100 * k / 3)}%" in md
