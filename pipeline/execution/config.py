@@ -106,8 +106,8 @@ class NoiseOptions:
         return self.scale * np.array([float(given.get(s, DEFAULT_NOISE[kind].get(s, 0.0))) for s in state_names])
 
     def impulse_list(self, state_names) -> list[tuple[float, np.ndarray]]:
-        return sorted((float(t), self.scale * np.array([float(j.get(s, 0.0)) for s in state_names]))
-                      for t, j in self.impulses)
+        return sorted(((float(t), self.scale * np.array([float(j.get(s, 0.0)) for s in state_names]))
+                       for t, j in self.impulses), key=lambda item: item[0])      # stable: ties keep their order
 
     def describe(self, state_names) -> dict:
         return {"scale": self.scale, "initial_distribution": self.distribution,

@@ -150,13 +150,14 @@ def _bounding_circle(shape) -> tuple[np.ndarray, float]:
     return c, float(np.max(np.hypot(*(v - c).T)))
 
 
-def _seed_for(root: int, stream: str, index: int = 0) -> np.random.SeedSequence:
+def seed_for(root: int, stream: str, index: int = 0) -> np.random.SeedSequence:
+    """The SeedSequence of one random stream of a run ("initial", "sensor", "process", "planner")."""
     return np.random.SeedSequence([int(root), _SEED_STREAMS[stream], int(index)])
 
 
 def planner_seed(root: int, call: int) -> int:
     """OMPL's seed for the planning call number ``call`` of a run (a 31-bit integer)."""
-    return int(_seed_for(root, "planner", call).generate_state(1)[0] % (2**31 - 1))
+    return int(seed_for(root, "planner", call).generate_state(1)[0] % (2**31 - 1))
 
 
 class _Stop(Exception):
@@ -187,8 +188,8 @@ class CompositeRun:
         self.discovered_world: CollisionWorld | None = None
         self.discovered: list = []
         self.sensor = RangeSensor(m, opts.sensor)
-        self.rng_sensor = np.random.default_rng(_seed_for(opts.seed, "sensor"))
-        self.rng_process = np.random.default_rng(_seed_for(opts.seed, "process"))
+        self.rng_sensor = np.random.default_rng(seed_for(opts.seed, "sensor"))
+        self.rng_process = np.random.default_rng(seed_for(opts.seed, "process"))
         self.sigma_sensor = opts.noise.vector("sensor", model.state_names)
         self.sigma_process = opts.noise.vector("process", model.state_names) * math.sqrt(self.T)
         self.impulses = opts.noise.impulse_list(model.state_names)
@@ -326,7 +327,7 @@ class CompositeRun:
         max_time = self._deadline(0.0, law)
         # the initial condition error, about the nominal's first state
         sigma0 = opts.noise.vector("initial", model.state_names)
-        rng0 = np.random.default_rng(_seed_for(opts.seed, "initial"))
+        rng0 = np.random.default_rng(seed_for(opts.seed, "initial"))
         draw = rng0.standard_normal(model.n) if opts.noise.distribution == "gaussian" else \
             rng0.uniform(-1.0, 1.0, model.n)
         x = np.clip(law.nominal.x[0] + sigma0 * draw, *model.state_limits().T)
