@@ -44,6 +44,7 @@ SUBCOMMANDS = {
     "collision": "FCL world build time and car pose checks per second on the Moving AI 512x512 and nav2 depot maps.",
     "planning": "Time to a feasible, stabilizable nominal over 20 fixed start/goal pairs on two maps, two robots.",
     "run": "Composite controller: replan latency on the depot and warehouse scenarios; cost of a control update.",
+    "batch": "Batch throughput: vectorised Hilare trials on one and two workers, a naive baseline, full map trials.",
 }
 
 
