@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..execution.config import RunOptions, options_from_mapping
+from ..execution.config import RunOptions, options_from_mapping, read_yaml_mapping
 from ..execution.controllers import CONTROLLERS
 
 _TOP = ("name", "root_seed", "trials", "maps", "robots", "controllers", "grid", "run")
@@ -155,20 +155,11 @@ def _pose(key, v):
 def load_batch_config(path) -> BatchConfig:
     """Read and check a batch config; every map is loaded (and its poses checked) here, before any
     trial runs. Raises InputError naming the key."""
-    import yaml
-
     from ..maps import load_map
     from ..models import make_model
 
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError("CONFIG", "an existing batch config (YAML)", str(path)) from None
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise InputError("CONFIG", "valid YAML", str(path), detail=" ".join(str(exc).split())[:200]) from None
-    if not isinstance(data, dict):
-        raise InputError("CONFIG", "a YAML mapping at the top level", type(data).__name__)
+    data = read_yaml_mapping(path, "CONFIG", "batch config (YAML)")
     for key in data:
         if key not in _TOP:
             raise InputError(key, "one of " + ", ".join(_TOP), key)

@@ -187,7 +187,7 @@ def distributions_figure(trials, rows):
             else:
                 vals = [_m(t, key) for t in ts if _m(t, key) is not None]
             data.append(vals if vals else [np.nan])
-        ax.boxplot(data, vert=False, widths=0.6, showfliers=True, flierprops={"markersize": 3})
+        ax.boxplot(data, orientation="horizontal", widths=0.6, showfliers=True, flierprops={"markersize": 3})
         if key == "min_clearance_m":
             margins = {_m(t, "margin_m") for t in trials if _m(t, "margin_m") is not None}
             for mg in margins:

@@ -329,19 +329,25 @@ def options_from_mapping(data: dict, allowed=None, prefix: str = "") -> RunOptio
         raise InputError(name, exc.expected, exc.got) from None
 
 
-def load_run_config(path) -> tuple[dict, RunOptions]:
-    """Read a run config; returns ({"map": resolved path or None}, RunOptions). Strict, see module doc."""
+def read_yaml_mapping(path: Path, argument: str, what: str) -> dict:
+    """A YAML file whose top level is a mapping; errors name ``argument`` (e.g. ``--config``)."""
     import yaml
 
-    path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise InputError("--config", "an existing YAML file", str(path)) from None
+        raise InputError(argument, f"an existing {what}", str(path)) from None
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise InputError("--config", "valid YAML", str(path), detail=" ".join(str(exc).split())[:200]) from None
+        raise InputError(argument, "valid YAML", str(path), detail=" ".join(str(exc).split())[:200]) from None
     if not isinstance(data, dict):
-        raise InputError("--config", "a YAML mapping at the top level", type(data).__name__)
+        raise InputError(argument, "a YAML mapping at the top level", type(data).__name__)
+    return data
+
+
+def load_run_config(path) -> tuple[dict, RunOptions]:
+    """Read a run config; returns ({"map": resolved path or None}, RunOptions). Strict, see module doc."""
+    path = Path(path)
+    data = read_yaml_mapping(path, "--config", "run config (YAML)")
     for key in data:
         if key not in _TOP:
             raise InputError(key, "a run-config key (" + ", ".join(sorted(_TOP)) + ")", key)
