@@ -437,6 +437,8 @@ class _ClearanceField:
     """
 
     MAX_CELLS = 4_000_000
+    #: elements of the (poses x footprint points) arrays of one vectorised block
+    BLOCK = 1 << 16
 
     def __init__(self, world: "CollisionWorld"):
         from matplotlib.path import Path as MplPath
@@ -517,15 +519,17 @@ class _ClearanceField:
         """Poses where a point of the footprint lies in a cell certainly inside an obstacle. The points:
         its reference point, vertices and edge midpoints; with ``spacing``, its outline sampled at
         that spacing too."""
-        pts = _footprint_points(fp, spacing)
+        u, v = _footprint_points(fp, spacing).T
         rows, cols = self.inside.shape
         hit = np.zeros(len(poses), dtype=bool)
-        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-        for u, v in pts:
-            j = np.floor((poses[:, 0] + c * u - s * v - self.x0) / self.r).astype(int)
-            i = np.floor((poses[:, 1] + s * u + c * v - self.y0) / self.r).astype(int)
+        step = max(1, self.BLOCK // len(u))             # poses per block of (poses x points) arrays
+        for lo in range(0, len(poses), step):
+            p = poses[lo:lo + step]
+            c, s = np.cos(p[:, 2:3]), np.sin(p[:, 2:3])
+            j = np.floor((p[:, 0:1] + c * u - s * v - self.x0) / self.r).astype(int)
+            i = np.floor((p[:, 1:2] + s * u + c * v - self.y0) / self.r).astype(int)
             ok = (i >= 0) & (i < rows) & (j >= 0) & (j < cols)
-            hit[ok] |= self.inside[i[ok], j[ok]]
+            hit[lo:lo + step] = np.any(self.inside[np.where(ok, i, 0), np.where(ok, j, 0)] & ok, axis=1)
         return hit
 
     def surely_free(self, poses: np.ndarray, fp: Footprint, margin: float) -> np.ndarray:
@@ -618,15 +622,12 @@ def interpolate_poses(poses: np.ndarray, resolution: float, angular_resolution: 
     dth = wrap_angle(d[:, 2])
     steps = np.maximum(1, np.ceil(np.maximum(np.hypot(d[:, 0], d[:, 1]) / resolution,
                                             np.abs(dth) / angular_resolution))).astype(int)
-    out, seg = [], []
-    for i, n in enumerate(steps):
-        a = np.arange(n)[:, None] / n
-        p = poses[i] + a * np.array([d[i, 0], d[i, 1], dth[i]])
-        out.append(p)
-        seg.append(np.full(n, i))
-    out.append(poses[-1:])
-    seg.append(np.array([len(poses) - 2]))
-    return np.vstack(out), np.concatenate(seg)
+    seg = np.repeat(np.arange(len(steps)), steps)
+    first = np.concatenate([[0], np.cumsum(steps)[:-1]])
+    a = ((np.arange(len(seg)) - first[seg]) / steps[seg])[:, None]      # k / n within each segment
+    delta = np.column_stack([d[:, :2], dth])
+    out = poses[seg] + a * delta[seg]
+    return np.vstack([out, poses[-1:]]), np.concatenate([seg, [len(poses) - 2]])
 
 
 def check_poses(m: Map, fp: Footprint, poses: dict, obstacles: str = "all", world: CollisionWorld | None = None) -> dict:
