@@ -229,16 +229,15 @@ class CollisionWorld:
         alone: the *outer* one (edges pushed out by the margin, mitred corners) contains the footprint
         grown by the margin, so if it touches nothing the pose is free; the *inner* one (chamfered
         corners: points of the rounded outline) lies inside it, so if it touches something the pose
-        is not. Only poses between the two are measured (``_within``).
+        is not. Only poses between the two are measured (``_within``). The outer copy goes first: it
+        contains the footprint, so a pose it clears is free without testing the footprint itself.
         """
-        if self.in_collision(pose, fp):
-            return False
         if margin <= 0.0:
-            return True
+            return not self.in_collision(pose, fp)
         outer, inner = self._inflated(fp, margin)
         if not self._collides(outer, pose):
             return True
-        if self._collides(inner, pose):
+        if self._collides(inner, pose) or self.in_collision(pose, fp):
             return False
         return not self._within(pose, fp, margin)
 
@@ -303,26 +302,29 @@ class CollisionWorld:
         field = self.clearance_field()
         if field is None:
             return lambda x, y, th: self.is_free((x, y, th), fp, margin)
+        # plain Python floats and ints throughout (numpy scalars are several times slower here)
         centres, radii = _disc_cover(fp)
-        discs = [(u, v, rad + margin) for (u, v), rad in zip(centres, radii)]
-        pts = [tuple(p) for p in _footprint_points(fp, None)]
+        discs = [(float(u), float(v), float(rad + margin)) for (u, v), rad in zip(centres, radii)]
+        pts = [(float(u), float(v)) for u, v in _footprint_points(fp, None)]
         lower, inside = field.lower_bound, field.inside
         rows, cols = lower.shape
-        x0, y0, r = field.x0, field.y0, field.r
+        x0, y0, r = float(field.x0), float(field.y0), float(field.r)
 
         def check(x: float, y: float, th: float) -> bool:
             c, s = math.cos(th), math.sin(th)
+            for u, v, need in discs:               # every covering disc provably clear: free
+                j = int((x + c * u - s * v - x0) // r)
+                i = int((y + s * u + c * v - y0) // r)
+                if not (0 <= i < rows and 0 <= j < cols) or lower[i, j] <= need:
+                    break
+            else:
+                return True
             for u, v in pts:                       # a footprint point certainly inside an obstacle
                 j = int((x + c * u - s * v - x0) // r)
                 i = int((y + s * u + c * v - y0) // r)
                 if 0 <= i < rows and 0 <= j < cols and inside[i, j]:
                     return False
-            for u, v, need in discs:               # every covering disc provably clear
-                j = int((x + c * u - s * v - x0) // r)
-                i = int((y + s * u + c * v - y0) // r)
-                if not (0 <= i < rows and 0 <= j < cols) or lower[i, j] <= need:
-                    return self.is_free((x, y, th), fp, margin)
-            return True
+            return self.is_free((x, y, th), fp, margin)
 
         return check
 
@@ -340,7 +342,8 @@ class CollisionWorld:
             return np.array([self.is_free(p, fp, margin) for p in poses], dtype=bool)
         sure = field.surely_free(poses, fp, margin)
         out[sure] = True
-        undecided = np.flatnonzero(~sure & ~field.surely_colliding(poses, fp))
+        undecided = np.flatnonzero(~sure)
+        undecided = undecided[~field.surely_colliding(poses[undecided], fp)]
         if len(undecided):
             # a finer look at the rest: the footprint's whole outline, sampled every half cell
             hit = field.surely_colliding(poses[undecided], fp, spacing=field.r / 2)
