@@ -363,9 +363,12 @@ class CollisionWorld:
         return np.array([self.clearance(p, fp) for p in poses])
 
     def min_clearance(self, poses, fp: Footprint) -> tuple[float, int]:
-        """The smallest signed clearance over poses (N, 3) and its index, exactly, without measuring
-        every pose: poses are visited in order of a lower bound from the distance field (footprint
-        covered by discs) and the search stops once that bound exceeds the best clearance found."""
+        """The smallest signed clearance over poses (N, 3) and its (first) index, exactly, without
+        measuring every pose: poses are visited in order of a lower bound from the distance field
+        and the search stops once that bound exceeds the best clearance found, and 0 (a positive
+        bound shows the footprint clear of the obstacles; nothing bounds a penetration depth). The
+        bound: the footprint covered by discs; for a polygon footprint whose discs are clear (so no
+        obstacle lies inside it), also its outline sampled at the field's cell size, which is tighter."""
         poses = np.asarray(poses, dtype=float).reshape(-1, 3)
         field = self.clearance_field()
         if field is None or len(poses) == 0:
@@ -377,13 +380,19 @@ class CollisionWorld:
         bound = np.full(len(poses), np.inf)
         for (u, v), rad in zip(centres, radii):
             bound = np.minimum(bound, field.at(poses[:, 0] + c * u - s * v, poses[:, 1] + s * u + c * v) - rad)
-        best, best_k = np.inf, -1
-        for k in np.argsort(bound, kind="stable"):
-            if bound[k] > best:
+        k0 = int(np.argmin(bound))
+        best, best_k = self.clearance(poses[k0], fp), k0
+        todo = np.flatnonzero(bound <= max(best, 0.0))        # the only poses that can beat it
+        if fp.radius is None:
+            clear = bound[todo] > 0.0
+            bound[todo[clear]] = np.maximum(bound[todo[clear]], field.outline_bound(poses[todo[clear]], fp))
+        for k in todo[np.argsort(bound[todo], kind="stable")]:
+            if bound[k] > max(best, 0.0):
                 break
-            ck = self.clearance(poses[k], fp)
-            if ck < best:
-                best, best_k = ck, int(k)
+            if k != k0:
+                ck = self.clearance(poses[k], fp)
+                if ck < best or (ck == best and k < best_k):
+                    best, best_k = ck, int(k)
         return float(best), best_k
 
     def check_path(self, poses, fp: Footprint, margin: float = 0.0, resolution: float = 0.05,
@@ -534,6 +543,20 @@ class _ClearanceField:
             ok = (i >= 0) & (i < rows) & (j >= 0) & (j < cols)
             hit[lo:lo + step] = np.any(self.inside[np.where(ok, i, 0), np.where(ok, j, 0)] & ok, axis=1)
         return hit
+
+    def outline_bound(self, poses: np.ndarray, fp: Footprint) -> np.ndarray:
+        """A lower bound of the distance from the outline of a polygon footprint to the obstacles at
+        poses (N, 3): its outline sampled every cell size r, each sample's bound less r / 2 (every
+        outline point lies within r / 2 of a sample). It bounds the clearance of the footprint only
+        where no obstacle lies inside the footprint."""
+        u, v = _footprint_points(fp, self.r)[1:].T          # the outline samples (not the reference point)
+        out = np.empty(len(poses))
+        step = max(1, self.BLOCK // len(u))
+        for lo in range(0, len(poses), step):
+            p = poses[lo:lo + step]
+            c, s = np.cos(p[:, 2:3]), np.sin(p[:, 2:3])
+            out[lo:lo + step] = self.at(p[:, 0:1] + c * u - s * v, p[:, 1:2] + s * u + c * v).min(axis=1)
+        return out - self.r / 2
 
     def surely_free(self, poses: np.ndarray, fp: Footprint, margin: float) -> np.ndarray:
         centres, radii = _disc_cover(fp)
