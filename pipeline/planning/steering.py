@@ -284,6 +284,15 @@ class SteeringPlan:
         idx = np.searchsorted(self.phase_times[1:-1], t, side="right")
         return t, idx
 
+    def _parts(self, idx: np.ndarray) -> list[tuple[SteeringPhase, slice | np.ndarray]]:
+        """(phase, its times) for every phase holding some of the times with phase indices ``idx``:
+        slices when the times are in order (a grid), boolean masks otherwise."""
+        if idx.ndim == 1 and np.all(idx[1:] >= idx[:-1]):
+            cuts = np.searchsorted(idx, np.arange(len(self.phases) + 1)).tolist()
+            return [(ph, slice(a, b)) for ph, a, b in zip(self.phases, cuts[:-1], cuts[1:]) if b > a]
+        masks = [(ph, idx == i) for i, ph in enumerate(self.phases)]
+        return [(ph, m) for ph, m in masks if np.any(m)]
+
     def inputs(self, t) -> np.ndarray:
         """Chained inputs (v1, v2) at times t, shape t.shape + (2,)."""
         t, idx = self._locate(t)
@@ -291,10 +300,8 @@ class SteeringPlan:
             ph = self.phases[int(idx)]
             return ph.inputs(t - ph.t0)
         out = np.empty(t.shape + (2,))
-        for i, ph in enumerate(self.phases):
-            m = idx == i
-            if np.any(m):
-                out[m] = ph.inputs(t[m] - ph.t0)
+        for ph, sel in self._parts(idx):
+            out[sel] = ph.inputs(t[sel] - ph.t0)
         return out
 
     def states(self, t, coords: int | None = None) -> np.ndarray:
@@ -305,10 +312,8 @@ class SteeringPlan:
             ph = self.phases[int(idx)]
             return ph.states(t - ph.t0, coords)
         out = np.empty(t.shape + (self.n if coords is None else coords,))
-        for i, ph in enumerate(self.phases):
-            m = idx == i
-            if np.any(m):
-                out[m] = ph.states(t[m] - ph.t0, coords)
+        for ph, sel in self._parts(idx):
+            out[sel] = ph.states(t[sel] - ph.t0, coords)
         return out
 
     def grid(self, points_per_phase: int = 200) -> np.ndarray:
