@@ -102,6 +102,12 @@ class PathCheck:
 class CollisionWorld:
     """An FCL broad-phase world of the obstacles of a map (see the module docstring)."""
 
+    #: free_many measures a free pose's clearance when the next pose FCL decides is this close [m]
+    VOUCH_NEAR = 0.1
+    #: and vouches for later poses up to this much less than the clearance beyond the margin [m]
+    #: (well above FCL's distance tolerance, ~1e-5 m on curved shapes)
+    VOUCH_GAP = 1e-3
+
     def __init__(self, shapes=(), grids: tuple[OccupancyGrid, ...] = (), bounds=None, walls: bool = True):
         started = time.perf_counter()
         self.shapes = tuple(shapes)
@@ -333,7 +339,11 @@ class CollisionWorld:
 
         A conservative distance field (see :class:`_ClearanceField`) first accepts, without FCL, the
         poses where every disc of a cover of the footprint is provably farther than ``margin`` from
-        every obstacle; FCL decides the rest.
+        every obstacle; FCL decides the rest. Along a path (the next such pose within
+        ``VOUCH_NEAR`` m of footprint displacement) a pose FCL finds free also has its clearance c
+        measured: a later pose is free too while no point of the footprint has moved more than
+        c - margin - ``VOUCH_GAP`` from it (|translation| + reach |rotation|, reach = the farthest
+        footprint point from the reference point), as clearance changes no faster than that.
         """
         poses = np.asarray(poses, dtype=float).reshape(-1, 3)
         out = np.zeros(len(poses), dtype=bool)
@@ -348,8 +358,17 @@ class CollisionWorld:
             # a finer look at the rest: the footprint's whole outline, sampled every half cell
             hit = field.surely_colliding(poses[undecided], fp, spacing=field.r / 2)
             undecided = undecided[~hit]
-        for k in undecided:
-            out[k] = self.is_free(poses[k], fp, margin)
+        reach = fp.radius if fp.radius is not None else float(np.hypot(*fp.vertices.T).max())
+        held = None                 # (a pose found free, how far the footprint may move from it and stay free)
+        for n, k in enumerate(undecided):
+            p = poses[k]
+            if held is not None and _moved(held[0], p, reach) < held[1]:
+                out[k] = True
+                continue
+            out[k] = self.is_free(p, fp, margin)
+            held = None
+            if out[k] and n + 1 < len(undecided) and _moved(p, poses[undecided[n + 1]], reach) < self.VOUCH_NEAR:
+                held = (p, self.distance(p, fp) - margin - self.VOUCH_GAP)
         return out
 
     def clearance_field(self) -> "_ClearanceField | None":
@@ -418,6 +437,12 @@ class CollisionWorld:
 
 _COLLIDE_REQUEST = fcl.CollisionRequest()
 _DISTANCE_REQUEST = fcl.DistanceRequest()
+
+
+def _moved(a, b, reach: float) -> float:
+    """An upper bound of how far any point of a footprint within ``reach`` of its reference point
+    moves from pose a to pose b."""
+    return math.hypot(b[0] - a[0], b[1] - a[1]) + reach * abs(b[2] - a[2])
 
 
 def _first_contact(o1, o2, data) -> bool:
