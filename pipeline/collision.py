@@ -107,6 +107,8 @@ class CollisionWorld:
     #: and vouches for later poses up to this much less than the clearance beyond the margin [m]
     #: (well above FCL's distance tolerance, ~1e-5 m on curved shapes)
     VOUCH_GAP = 1e-3
+    #: min_clearance lets a measured clearance bound this many poses either side
+    VOUCH_SPAN = 16
 
     def __init__(self, shapes=(), grids: tuple[OccupancyGrid, ...] = (), bounds=None, walls: bool = True):
         started = time.perf_counter()
@@ -387,7 +389,9 @@ class CollisionWorld:
         and the search stops once that bound exceeds the best clearance found, and 0 (a positive
         bound shows the footprint clear of the obstacles; nothing bounds a penetration depth). The
         bound: the footprint covered by discs; for a polygon footprint whose discs are clear (so no
-        obstacle lies inside it), also its outline sampled at the field's cell size, which is tighter."""
+        obstacle lies inside it), also its outline sampled at the field's cell size, which is tighter;
+        for the ``VOUCH_SPAN`` poses either side of a measured pose with clearance c > 0, also
+        c - ``VOUCH_GAP`` - how far the footprint moved (as in :meth:`free_many`)."""
         poses = np.asarray(poses, dtype=float).reshape(-1, 3)
         field = self.clearance_field()
         if field is None or len(poses) == 0:
@@ -405,11 +409,24 @@ class CollisionWorld:
         if fp.radius is None:
             clear = bound[todo] > 0.0
             bound[todo[clear]] = np.maximum(bound[todo[clear]], field.outline_bound(poses[todo[clear]], fp))
+        # a measured clearance c > 0 also bounds the next poses of a path: c - (how far the footprint moved)
+        reach = fp.radius if fp.radius is not None else float(np.hypot(*fp.vertices.T).max())
+        vouched = np.full(len(poses), -np.inf)
+
+        def vouch(k: int, ck: float):
+            if ck > 0.0:
+                near = slice(max(0, k - self.VOUCH_SPAN), k + self.VOUCH_SPAN + 1)
+                d = poses[near] - poses[k]
+                moved = np.hypot(d[:, 0], d[:, 1]) + reach * np.abs(d[:, 2])
+                vouched[near] = np.maximum(vouched[near], ck - self.VOUCH_GAP - moved)
+
+        vouch(k0, best)
         for k in todo[np.argsort(bound[todo], kind="stable")]:
             if bound[k] > max(best, 0.0):
                 break
-            if k != k0:
+            if k != k0 and vouched[k] <= max(best, 0.0):
                 ck = self.clearance(poses[k], fp)
+                vouch(k, ck)
                 if ck < best or (ck == best and k < best_k):
                     best, best_k = ck, int(k)
         return float(best), best_k
