@@ -180,7 +180,7 @@ def net_motion(k: int, a: float, b: float, w: float, z_start) -> float:
 def _constant_phase(zs: np.ndarray, v1: float, v2: float, t: np.ndarray, coords: int | None = None) -> np.ndarray:
     """States under constant inputs: z2 = z2s + v2 t, z3 = z3s + v1 (z2s t + v2 t^2/2),
     z4 = z4s + v1 (z3s t + v1 (z2s t^2/2 + v2 t^3/6)); only the first ``coords`` (>= 3) of them
-    if given."""
+    if given. ``zs`` (n, ...) and the inputs may also hold one phase per time (arrays shaped as t)."""
     n = zs.shape[0] if coords is None else coords
     out = np.empty(t.shape + (n,))
     out[..., 0] = zs[0] + v1 * t
@@ -194,7 +194,8 @@ def _constant_phase(zs: np.ndarray, v1: float, v2: float, t: np.ndarray, coords:
 def _sin_phase(zs: np.ndarray, k: int, a: float, b: float, w: float, t: np.ndarray,
                coords: int | None = None) -> np.ndarray:
     """States under v1 = a sin(w t), v2 = b cos((k-2) w t); formulas of :func:`net_displacement`;
-    only the first ``coords`` (>= 3) of them if given."""
+    only the first ``coords`` (>= 3) of them if given. ``zs`` (n, ...) and a, b, w may also hold
+    one phase per time (arrays shaped as t)."""
     n = zs.shape[0] if coords is None else coords
     c, s = np.cos(w * t), np.sin(w * t)
     one_c = 1.0 - c
