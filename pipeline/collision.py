@@ -102,6 +102,14 @@ class PathCheck:
 class CollisionWorld:
     """An FCL broad-phase world of the obstacles of a map (see the module docstring)."""
 
+    #: free_many measures a free pose's clearance when the next pose FCL decides is this close [m]
+    VOUCH_NEAR = 0.1
+    #: and vouches for later poses up to this much less than the clearance beyond the margin [m]
+    #: (well above FCL's distance tolerance, ~1e-5 m on curved shapes)
+    VOUCH_GAP = 1e-3
+    #: min_clearance lets a measured clearance bound this many poses either side
+    VOUCH_SPAN = 16
+
     def __init__(self, shapes=(), grids: tuple[OccupancyGrid, ...] = (), bounds=None, walls: bool = True):
         started = time.perf_counter()
         self.shapes = tuple(shapes)
@@ -229,16 +237,15 @@ class CollisionWorld:
         alone: the *outer* one (edges pushed out by the margin, mitred corners) contains the footprint
         grown by the margin, so if it touches nothing the pose is free; the *inner* one (chamfered
         corners: points of the rounded outline) lies inside it, so if it touches something the pose
-        is not. Only poses between the two are measured (``_within``).
+        is not. Only poses between the two are measured (``_within``). The outer copy goes first: it
+        contains the footprint, so a pose it clears is free without testing the footprint itself.
         """
-        if self.in_collision(pose, fp):
-            return False
         if margin <= 0.0:
-            return True
+            return not self.in_collision(pose, fp)
         outer, inner = self._inflated(fp, margin)
         if not self._collides(outer, pose):
             return True
-        if self._collides(inner, pose):
+        if self._collides(inner, pose) or self.in_collision(pose, fp):
             return False
         return not self._within(pose, fp, margin)
 
@@ -303,26 +310,29 @@ class CollisionWorld:
         field = self.clearance_field()
         if field is None:
             return lambda x, y, th: self.is_free((x, y, th), fp, margin)
+        # plain Python floats and ints throughout (numpy scalars are several times slower here)
         centres, radii = _disc_cover(fp)
-        discs = [(u, v, rad + margin) for (u, v), rad in zip(centres, radii)]
-        pts = [tuple(p) for p in _footprint_points(fp, None)]
+        discs = [(float(u), float(v), float(rad + margin)) for (u, v), rad in zip(centres, radii)]
+        pts = [(float(u), float(v)) for u, v in _footprint_points(fp, None)]
         lower, inside = field.lower_bound, field.inside
         rows, cols = lower.shape
-        x0, y0, r = field.x0, field.y0, field.r
+        x0, y0, r = float(field.x0), float(field.y0), float(field.r)
 
         def check(x: float, y: float, th: float) -> bool:
             c, s = math.cos(th), math.sin(th)
+            for u, v, need in discs:               # every covering disc provably clear: free
+                j = int((x + c * u - s * v - x0) // r)
+                i = int((y + s * u + c * v - y0) // r)
+                if not (0 <= i < rows and 0 <= j < cols) or lower[i, j] <= need:
+                    break
+            else:
+                return True
             for u, v in pts:                       # a footprint point certainly inside an obstacle
                 j = int((x + c * u - s * v - x0) // r)
                 i = int((y + s * u + c * v - y0) // r)
                 if 0 <= i < rows and 0 <= j < cols and inside[i, j]:
                     return False
-            for u, v, need in discs:               # every covering disc provably clear
-                j = int((x + c * u - s * v - x0) // r)
-                i = int((y + s * u + c * v - y0) // r)
-                if not (0 <= i < rows and 0 <= j < cols) or lower[i, j] <= need:
-                    return self.is_free((x, y, th), fp, margin)
-            return True
+            return self.is_free((x, y, th), fp, margin)
 
         return check
 
@@ -331,7 +341,11 @@ class CollisionWorld:
 
         A conservative distance field (see :class:`_ClearanceField`) first accepts, without FCL, the
         poses where every disc of a cover of the footprint is provably farther than ``margin`` from
-        every obstacle; FCL decides the rest.
+        every obstacle; FCL decides the rest. Along a path (the next such pose within
+        ``VOUCH_NEAR`` m of footprint displacement) a pose FCL finds free also has its clearance c
+        measured: a later pose is free too while no point of the footprint has moved more than
+        c - margin - ``VOUCH_GAP`` from it (|translation| + reach |rotation|, reach = the farthest
+        footprint point from the reference point), as clearance changes no faster than that.
         """
         poses = np.asarray(poses, dtype=float).reshape(-1, 3)
         out = np.zeros(len(poses), dtype=bool)
@@ -340,13 +354,23 @@ class CollisionWorld:
             return np.array([self.is_free(p, fp, margin) for p in poses], dtype=bool)
         sure = field.surely_free(poses, fp, margin)
         out[sure] = True
-        undecided = np.flatnonzero(~sure & ~field.surely_colliding(poses, fp))
+        undecided = np.flatnonzero(~sure)
+        undecided = undecided[~field.surely_colliding(poses[undecided], fp)]
         if len(undecided):
             # a finer look at the rest: the footprint's whole outline, sampled every half cell
             hit = field.surely_colliding(poses[undecided], fp, spacing=field.r / 2)
             undecided = undecided[~hit]
-        for k in undecided:
-            out[k] = self.is_free(poses[k], fp, margin)
+        reach = fp.radius if fp.radius is not None else float(np.hypot(*fp.vertices.T).max())
+        held = None                 # (a pose found free, how far the footprint may move from it and stay free)
+        for n, k in enumerate(undecided):
+            p = poses[k]
+            if held is not None and _moved(held[0], p, reach) < held[1]:
+                out[k] = True
+                continue
+            out[k] = self.is_free(p, fp, margin)
+            held = None
+            if out[k] and n + 1 < len(undecided) and _moved(p, poses[undecided[n + 1]], reach) < self.VOUCH_NEAR:
+                held = (p, self.distance(p, fp) - margin - self.VOUCH_GAP)
         return out
 
     def clearance_field(self) -> "_ClearanceField | None":
@@ -360,9 +384,14 @@ class CollisionWorld:
         return np.array([self.clearance(p, fp) for p in poses])
 
     def min_clearance(self, poses, fp: Footprint) -> tuple[float, int]:
-        """The smallest signed clearance over poses (N, 3) and its index, exactly, without measuring
-        every pose: poses are visited in order of a lower bound from the distance field (footprint
-        covered by discs) and the search stops once that bound exceeds the best clearance found."""
+        """The smallest signed clearance over poses (N, 3) and its (first) index, exactly, without
+        measuring every pose: poses are visited in order of a lower bound from the distance field
+        and the search stops once that bound exceeds the best clearance found, and 0 (a positive
+        bound shows the footprint clear of the obstacles; nothing bounds a penetration depth). The
+        bound: the footprint covered by discs; for a polygon footprint whose discs are clear (so no
+        obstacle lies inside it), also its outline sampled at the field's cell size, which is tighter;
+        for the ``VOUCH_SPAN`` poses either side of a measured pose with clearance c > 0, also
+        c - ``VOUCH_GAP`` - how far the footprint moved (as in :meth:`free_many`)."""
         poses = np.asarray(poses, dtype=float).reshape(-1, 3)
         field = self.clearance_field()
         if field is None or len(poses) == 0:
@@ -374,13 +403,32 @@ class CollisionWorld:
         bound = np.full(len(poses), np.inf)
         for (u, v), rad in zip(centres, radii):
             bound = np.minimum(bound, field.at(poses[:, 0] + c * u - s * v, poses[:, 1] + s * u + c * v) - rad)
-        best, best_k = np.inf, -1
-        for k in np.argsort(bound, kind="stable"):
-            if bound[k] > best:
+        k0 = int(np.argmin(bound))
+        best, best_k = self.clearance(poses[k0], fp), k0
+        todo = np.flatnonzero(bound <= max(best, 0.0))        # the only poses that can beat it
+        if fp.radius is None:
+            clear = bound[todo] > 0.0
+            bound[todo[clear]] = np.maximum(bound[todo[clear]], field.outline_bound(poses[todo[clear]], fp))
+        # a measured clearance c > 0 also bounds the next poses of a path: c - (how far the footprint moved)
+        reach = fp.radius if fp.radius is not None else float(np.hypot(*fp.vertices.T).max())
+        vouched = np.full(len(poses), -np.inf)
+
+        def vouch(k: int, ck: float):
+            if ck > 0.0:
+                near = slice(max(0, k - self.VOUCH_SPAN), k + self.VOUCH_SPAN + 1)
+                d = poses[near] - poses[k]
+                moved = np.hypot(d[:, 0], d[:, 1]) + reach * np.abs(d[:, 2])
+                vouched[near] = np.maximum(vouched[near], ck - self.VOUCH_GAP - moved)
+
+        vouch(k0, best)
+        for k in todo[np.argsort(bound[todo], kind="stable")]:
+            if bound[k] > max(best, 0.0):
                 break
-            ck = self.clearance(poses[k], fp)
-            if ck < best:
-                best, best_k = ck, int(k)
+            if k != k0 and vouched[k] <= max(best, 0.0):
+                ck = self.clearance(poses[k], fp)
+                vouch(k, ck)
+                if ck < best or (ck == best and k < best_k):
+                    best, best_k = ck, int(k)
         return float(best), best_k
 
     def check_path(self, poses, fp: Footprint, margin: float = 0.0, resolution: float = 0.05,
@@ -406,6 +454,12 @@ class CollisionWorld:
 
 _COLLIDE_REQUEST = fcl.CollisionRequest()
 _DISTANCE_REQUEST = fcl.DistanceRequest()
+
+
+def _moved(a, b, reach: float) -> float:
+    """An upper bound of how far any point of a footprint within ``reach`` of its reference point
+    moves from pose a to pose b."""
+    return math.hypot(b[0] - a[0], b[1] - a[1]) + reach * abs(b[2] - a[2])
 
 
 def _first_contact(o1, o2, data) -> bool:
@@ -437,6 +491,8 @@ class _ClearanceField:
     """
 
     MAX_CELLS = 4_000_000
+    #: elements of the (poses x footprint points) arrays of one vectorised block
+    BLOCK = 1 << 16
 
     def __init__(self, world: "CollisionWorld"):
         from matplotlib.path import Path as MplPath
@@ -517,16 +573,32 @@ class _ClearanceField:
         """Poses where a point of the footprint lies in a cell certainly inside an obstacle. The points:
         its reference point, vertices and edge midpoints; with ``spacing``, its outline sampled at
         that spacing too."""
-        pts = _footprint_points(fp, spacing)
+        u, v = _footprint_points(fp, spacing).T
         rows, cols = self.inside.shape
         hit = np.zeros(len(poses), dtype=bool)
-        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-        for u, v in pts:
-            j = np.floor((poses[:, 0] + c * u - s * v - self.x0) / self.r).astype(int)
-            i = np.floor((poses[:, 1] + s * u + c * v - self.y0) / self.r).astype(int)
+        step = max(1, self.BLOCK // len(u))             # poses per block of (poses x points) arrays
+        for lo in range(0, len(poses), step):
+            p = poses[lo:lo + step]
+            c, s = np.cos(p[:, 2:3]), np.sin(p[:, 2:3])
+            j = np.floor((p[:, 0:1] + c * u - s * v - self.x0) / self.r).astype(int)
+            i = np.floor((p[:, 1:2] + s * u + c * v - self.y0) / self.r).astype(int)
             ok = (i >= 0) & (i < rows) & (j >= 0) & (j < cols)
-            hit[ok] |= self.inside[i[ok], j[ok]]
+            hit[lo:lo + step] = np.any(self.inside[np.where(ok, i, 0), np.where(ok, j, 0)] & ok, axis=1)
         return hit
+
+    def outline_bound(self, poses: np.ndarray, fp: Footprint) -> np.ndarray:
+        """A lower bound of the distance from the outline of a polygon footprint to the obstacles at
+        poses (N, 3): its outline sampled every cell size r, each sample's bound less r / 2 (every
+        outline point lies within r / 2 of a sample). It bounds the clearance of the footprint only
+        where no obstacle lies inside the footprint."""
+        u, v = _footprint_points(fp, self.r)[1:].T          # the outline samples (not the reference point)
+        out = np.empty(len(poses))
+        step = max(1, self.BLOCK // len(u))
+        for lo in range(0, len(poses), step):
+            p = poses[lo:lo + step]
+            c, s = np.cos(p[:, 2:3]), np.sin(p[:, 2:3])
+            out[lo:lo + step] = self.at(p[:, 0:1] + c * u - s * v, p[:, 1:2] + s * u + c * v).min(axis=1)
+        return out - self.r / 2
 
     def surely_free(self, poses: np.ndarray, fp: Footprint, margin: float) -> np.ndarray:
         centres, radii = _disc_cover(fp)
@@ -618,15 +690,12 @@ def interpolate_poses(poses: np.ndarray, resolution: float, angular_resolution: 
     dth = wrap_angle(d[:, 2])
     steps = np.maximum(1, np.ceil(np.maximum(np.hypot(d[:, 0], d[:, 1]) / resolution,
                                             np.abs(dth) / angular_resolution))).astype(int)
-    out, seg = [], []
-    for i, n in enumerate(steps):
-        a = np.arange(n)[:, None] / n
-        p = poses[i] + a * np.array([d[i, 0], d[i, 1], dth[i]])
-        out.append(p)
-        seg.append(np.full(n, i))
-    out.append(poses[-1:])
-    seg.append(np.array([len(poses) - 2]))
-    return np.vstack(out), np.concatenate(seg)
+    seg = np.repeat(np.arange(len(steps)), steps)
+    first = np.concatenate([[0], np.cumsum(steps)[:-1]])
+    a = ((np.arange(len(seg)) - first[seg]) / steps[seg])[:, None]      # k / n within each segment
+    delta = np.column_stack([d[:, :2], dth])
+    out = poses[seg] + a * delta[seg]
+    return np.vstack([out, poses[-1:]]), np.concatenate([seg, [len(poses) - 2]])
 
 
 def check_poses(m: Map, fp: Footprint, poses: dict, obstacles: str = "all", world: CollisionWorld | None = None) -> dict:

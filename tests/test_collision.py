@@ -177,6 +177,51 @@ def test_batched_checks_equal_single_checks_on_real_maps(path, options, rng):
             np.testing.assert_array_equal(np.array([check(*p) for p in poses]), single)
 
 
+ROOMY_MAPS = [REAL_MAPS[1], REAL_MAPS[3], REAL_MAPS[5]]        # the car fits in many places
+
+
+@pytest.mark.parametrize("path,options", ROOMY_MAPS, ids=[p for p, _ in ROOMY_MAPS])
+def test_batched_checks_along_paths_equal_single_checks(path, options, rng):
+    """Along a path free_many lets a measured clearance vouch for the next poses: same answers."""
+    from pathlib import Path
+
+    from pipeline.geometry import default_footprint
+    from pipeline.maps import load_map
+
+    m = load_map(Path(__file__).parent.parent / "maps" / path, **options)
+    world = CollisionWorld.from_map(m)
+    xmin, ymin, xmax, ymax = m.bounds
+    for fp in (default_footprint("rwd_car"), Footprint.disc(0.3)):
+        for margin in (0.0, 0.2):
+            for _ in range(3):          # random walks with steps of a few millimetres, from near an obstacle
+                start = [xmin - 1, ymin - 1, 0.0]
+                while not (world.is_free(start, fp, margin) and world.distance(start, fp) < margin + 0.4):
+                    start = [rng.uniform(xmin, xmax), rng.uniform(ymin, ymax), rng.uniform(-4, 4)]
+                poses = start + np.cumsum(rng.normal(0.0, [0.004, 0.004, 0.002], (400, 3)), axis=0)
+                single = np.array([world.is_free(p, fp, margin) for p in poses])
+                np.testing.assert_array_equal(world.free_many(poses, fp, margin), single)
+
+
+@pytest.mark.parametrize("path,options", REAL_MAPS[1:4], ids=[p for p, _ in REAL_MAPS[1:4]])
+def test_min_clearance_is_the_minimum_over_all_poses(path, options, rng):
+    """min_clearance skips poses by distance-field bounds: it returns what measuring every pose gives."""
+    from pathlib import Path
+
+    from pipeline.geometry import default_footprint
+    from pipeline.maps import load_map
+
+    m = load_map(Path(__file__).parent.parent / "maps" / path, **options)
+    world = CollisionWorld.from_map(m)
+    xmin, ymin, xmax, ymax = m.bounds
+    for fp in (default_footprint("rwd_car"), Footprint.disc(0.3)):
+        for _ in range(4):             # short random walks: smooth paths passing near obstacles
+            start = [rng.uniform(xmin, xmax), rng.uniform(ymin, ymax), rng.uniform(-4, 4)]
+            poses = start + np.cumsum(rng.normal(0.0, [0.03, 0.03, 0.02], (150, 3)), axis=0)
+            every = world.clearance_many(poses, fp)
+            best, k = world.min_clearance(poses, fp)
+            assert best == every.min() and k == int(np.argmin(every))
+
+
 @pytest.mark.parametrize("path,options", REAL_MAPS[:3], ids=[p for p, _ in REAL_MAPS[:3]])
 def test_clearance_field_is_a_lower_bound(path, options, rng):
     from pathlib import Path

@@ -17,17 +17,19 @@ stabilizer's window for cars.
 
 from __future__ import annotations
 
+import bisect
 import math
 
 import numpy as np
 
 from ..collision import CollisionWorld
 from ..errors import InputError, PipelineError
-from ..geometry import Footprint
+from ..geometry import Footprint, wrap_angle
 from ..models import Model
 from ..nominal import Nominal
 from .geometric import GeometricPath
-from .steering import steer_car
+from .steering import (_car_inputs, _constant_phase, _pose_parts, _sin_phase, _theta_phi, from_chained,
+                       steer_car)
 from .timing import TimingOptions
 
 
@@ -75,6 +77,111 @@ class _SteerInPlace:
         u = np.zeros(t.shape + (2,))
         u[..., 1] = self.rate
         return u
+
+
+class _Joined:
+    """The pieces one after the other as one trajectory. Many times at once are evaluated on flat
+    tables of all the pieces' phases, with the pieces' own closed forms (``steering``), so the
+    values are those of the pieces' ``states_at`` / ``inputs_at``; one time goes to its piece."""
+
+    def __init__(self, model: Model, pieces: list):
+        self.model, self.pieces = model, pieces
+        self.name, self.L = model.name, float(model.wheelbase)
+        self.lengths = np.array([float(p.t[-1]) for p in pieces])
+        self.starts = np.concatenate([[0.0], np.cumsum(self.lengths)])
+        self.duration = float(self.starts[-1])
+        self._starts_list = self.starts.tolist()
+        # per piece: its first phase row and its inner phase boundaries (+inf padded)
+        self.first = np.zeros(len(pieces), dtype=int)
+        self.bounds = np.full((len(pieces), 2), np.inf)
+        # per piece, the chart's map back to the world (steer_car's to_world): origin, cos and sin of
+        # its heading, theta(0) and the local theta(0)
+        self.frame = np.zeros((len(pieces), 6))
+        rows = []       # per phase: kind (0 constant, 3 / 4 sinusoid for z3 / z4, -1 steering in place), t0,
+        #                 v1, v2, a, b, w, z_start (4); in place: phi0 and the rate as v1, v2
+        for j, p in enumerate(pieces):
+            self.first[j] = len(rows)
+            if isinstance(p, _SteerInPlace):
+                rows.append([-1, 0.0, p.phi0, p.rate, 0, 0, 1.0, *_state(model, p.pose, 0.0)])
+                continue
+            self.bounds[j, : len(p.plan.phase_times) - 2] = p.plan.phase_times[1:-1]
+            alpha = p.frame["heading"]
+            th0 = float(_theta_phi(self.name, p.x0)[0])
+            self.frame[j] = [*p.frame["origin"], math.cos(alpha), math.sin(alpha), th0, float(wrap_angle(th0 - alpha))]
+            for ph in p.plan.phases:
+                kind = 0 if ph.kind == "constant" else ph.k
+                rows.append([kind, ph.t0, ph.v1, ph.v2, ph.a, ph.b, ph.w, *ph.z_start])
+        rows = np.array(rows, dtype=float)
+        self.kind = rows[:, 0].astype(int)
+        self.t0, self.v1, self.v2, self.a, self.b, self.w = rows[:, 1:7].T
+        self.z_start = rows[:, 7:].T                     # (4, rows)
+        self._memo = None       # (0 or 1, times, the states or inputs there) not yet asked for
+
+    def states(self, t) -> np.ndarray:
+        """Model states at times t (clipped to the span), shape t.shape + (n,) (a scalar t as (1,))."""
+        return self._evaluate(t, 0)
+
+    def inputs(self, t) -> np.ndarray:
+        """Model inputs at times t (clipped to the span), shape t.shape + (m,)."""
+        return self._evaluate(t, 1)
+
+    def _evaluate(self, t, which: int) -> np.ndarray:
+        """States (which = 0) or inputs (1). Both come out of one evaluation, and a Nominal asks for
+        the states and then the inputs at the same times, so the other one is kept (once) for that."""
+        tt = np.atleast_1d(np.asarray(t, dtype=float))
+        memo, self._memo = self._memo, None
+        if memo is not None and memo[0] == which and memo[1].shape == tt.shape and np.array_equal(memo[1], tt):
+            return memo[2]
+        if tt.shape == (1,):     # the integrators' scalar calls: no table bookkeeping
+            t1 = float(tt[0])
+            j = min(max(bisect.bisect_right(self._starts_list, t1) - 1, 0), len(self.pieces) - 1)
+            local = min(max(t1 - self._starts_list[j], 0.0), float(self.lengths[j]))
+            piece = self.pieces[j]
+            val = piece.states_at(local) if which == 0 else piece.inputs_at(local)
+            return np.asarray(val, dtype=float).reshape(1, -1)
+        both = self._table(tt.reshape(-1))
+        both = [val.reshape(tt.shape + val.shape[-1:]) for val in both]
+        self._memo = (1 - which, tt.copy(), both[1 - which])
+        return both[which]
+
+    def _table(self, tt: np.ndarray):
+        j = np.clip(np.searchsorted(self.starts, tt, side="right") - 1, 0, len(self.pieces) - 1)
+        local = np.clip(tt - self.starts[j], 0.0, self.lengths[j])
+        row = self.first[j] + (self.bounds[j, 0] <= local) + (self.bounds[j, 1] <= local)
+        kind = self.kind[row]
+        tau = local - self.t0[row]
+        z = np.empty((len(tt), 4))
+        v = np.empty((len(tt), 2))
+        for k in (0, 3, 4):
+            sel = np.flatnonzero(kind == k)
+            if not len(sel):
+                continue
+            r, ts = row[sel], tau[sel]
+            zs = self.z_start[:, r]
+            v1, v2, a, b, w = self.v1[r], self.v2[r], self.a[r], self.b[r], self.w[r]
+            if k == 0:
+                z[sel] = _constant_phase(zs, v1, v2, ts)
+                v[sel, 0], v[sel, 1] = v1, v2
+            else:
+                z[sel] = _sin_phase(zs, k, a, b, w, ts)
+                v[sel, 0], v[sel, 1] = a * np.sin(w * ts), b * np.cos((k - 2) * w * ts)
+        x = np.empty((len(tt), self.model.n))
+        u = np.empty((len(tt), self.model.m))
+        in_place = kind < 0
+        steer = np.flatnonzero(~in_place) if in_place.any() else slice(None)
+        zl = z[steer]
+        px, py, th, phi = _pose_parts(self.name, from_chained(self.model, zl))
+        ox, oy, ca, sa, th0, th_l0 = self.frame[j[steer]].T
+        cx, cy, cth, cphi = _pose_cols(self.model) + [3 if self.name == "rwd_car" else 2]
+        x[steer, cx], x[steer, cy] = ox + ca * px - sa * py, oy + sa * px + ca * py
+        x[steer, cth], x[steer, cphi] = th0 + (th - th_l0), phi
+        u[steer] = _car_inputs(self.name, self.L, zl, v[steer])
+        if in_place.any():
+            r = row[in_place]
+            x[in_place] = self.z_start[:, r].T
+            x[in_place, cphi] = self.v1[r] + self.v2[r] * local[in_place]
+            u[in_place, 0], u[in_place, 1] = 0.0, self.v2[r]
+        return x, u
 
 
 class CarPlanningError(PipelineError):
@@ -166,39 +273,11 @@ def car_nominal(model: Model, path: GeometricPath, timing: TimingOptions, world:
         subdivisions += 1
         stack.extend([(mid, b), (a, mid)])
     # one continuous-time trajectory from the pieces
-    starts = np.concatenate([[0.0], np.cumsum([p.t[-1] for p in pieces])])
-    duration = float(starts[-1])
-
-    import bisect
-
-    starts_list = starts.tolist()
-
-    def _eval(tt, what):
-        tt = np.asarray(tt, dtype=float)
-        if tt.shape == (1,):            # the integrators' scalar calls: no array bookkeeping
-            t1 = float(tt[0])
-            j = min(max(bisect.bisect_right(starts_list, t1) - 1, 0), len(pieces) - 1)
-            local = min(max(t1 - starts_list[j], 0.0), float(pieces[j].t[-1]))
-            val = pieces[j].states_at(local) if what == "x" else pieces[j].inputs_at(local)
-            return np.asarray(val, dtype=float).reshape(1, -1)
-        tt = np.atleast_1d(tt)
-        k = np.clip(np.searchsorted(starts, tt, side="right") - 1, 0, len(pieces) - 1)
-        out = np.empty(tt.shape + ((model.n,) if what == "x" else (model.m,)))
-        for j in np.unique(k):
-            sel = k == j
-            local = np.clip(tt[sel] - starts[j], 0.0, pieces[j].t[-1])
-            out[sel] = pieces[j].states_at(local) if what == "x" else pieces[j].inputs_at(local)
-        return out
-
-    def x_func(tt):
-        return _eval(tt, "x")
-
-    def u_func(tt):
-        return _eval(tt, "u")
-
+    joined = _Joined(model, pieces)
+    duration = joined.duration
     npts = max(2, int(math.ceil(duration / timing.dt)) + 1)
     t = np.linspace(0.0, duration, npts)
-    nominal = Nominal.from_functions(model, x_func, u_func, t)
+    nominal = Nominal.from_functions(model, joined.states, joined.inputs, t)
     return nominal, {"duration_s": duration, "pieces": len(pieces), "subdivisions": subdivisions,
                      "steer_in_place": in_place,
                      "waypoint_spacing_m": spacing, "dt_s": float(t[1] - t[0]),

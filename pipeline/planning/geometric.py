@@ -131,6 +131,7 @@ def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptio
     if world.bounds is None:
         raise InputError("world", "a collision world with bounds", None)
     world.clearance_field()                   # build once, in the parent: children inherit it
+    _ompl()                                   # import once, in the parent (no generator is made)
     if not isolate:
         return _plan_path(world, fp, start, goal, opts)
     import multiprocessing as mp

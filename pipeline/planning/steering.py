@@ -177,10 +177,11 @@ def net_motion(k: int, a: float, b: float, w: float, z_start) -> float:
 
 
 # ---- closed-form phase laws ---------------------------------------------------------------------
-def _constant_phase(zs: np.ndarray, v1: float, v2: float, t: np.ndarray) -> np.ndarray:
+def _constant_phase(zs: np.ndarray, v1: float, v2: float, t: np.ndarray, coords: int | None = None) -> np.ndarray:
     """States under constant inputs: z2 = z2s + v2 t, z3 = z3s + v1 (z2s t + v2 t^2/2),
-    z4 = z4s + v1 (z3s t + v1 (z2s t^2/2 + v2 t^3/6))."""
-    n = zs.shape[0]
+    z4 = z4s + v1 (z3s t + v1 (z2s t^2/2 + v2 t^3/6)); only the first ``coords`` (>= 3) of them
+    if given. ``zs`` (n, ...) and the inputs may also hold one phase per time (arrays shaped as t)."""
+    n = zs.shape[0] if coords is None else coords
     out = np.empty(t.shape + (n,))
     out[..., 0] = zs[0] + v1 * t
     out[..., 1] = zs[1] + v2 * t
@@ -190,9 +191,12 @@ def _constant_phase(zs: np.ndarray, v1: float, v2: float, t: np.ndarray) -> np.n
     return out
 
 
-def _sin_phase(zs: np.ndarray, k: int, a: float, b: float, w: float, t: np.ndarray) -> np.ndarray:
-    """States under v1 = a sin(w t), v2 = b cos((k-2) w t); formulas of :func:`net_displacement`."""
-    n = zs.shape[0]
+def _sin_phase(zs: np.ndarray, k: int, a: float, b: float, w: float, t: np.ndarray,
+               coords: int | None = None) -> np.ndarray:
+    """States under v1 = a sin(w t), v2 = b cos((k-2) w t); formulas of :func:`net_displacement`;
+    only the first ``coords`` (>= 3) of them if given. ``zs`` (n, ...) and a, b, w may also hold
+    one phase per time (arrays shaped as t)."""
+    n = zs.shape[0] if coords is None else coords
     c, s = np.cos(w * t), np.sin(w * t)
     one_c = 1.0 - c
     out = np.empty(t.shape + (n,))
@@ -203,12 +207,13 @@ def _sin_phase(zs: np.ndarray, k: int, a: float, b: float, w: float, t: np.ndarr
         if n == 4:
             out[..., 3] = (zs[3] + zs[2] * (a / w) * one_c + zs[1] * (a / w) ** 2 * (one_c - 0.5 * s * s)
                            + (a * a * b / w) * (-t * c / (2 * w) + s / (2 * w * w) - s**3 / (6 * w * w)))
-    else:  # k == 4, n == 4
+    else:  # k == 4 (a 4-dimensional chain)
         out[..., 1] = zs[1] + (b / w) * s * c
         out[..., 2] = zs[2] + zs[1] * (a / w) * one_c + a * b * s**3 / (3 * w * w)
-        sin4 = 0.375 * t - np.sin(2 * w * t) / (4 * w) + np.sin(4 * w * t) / (32 * w)  # int_0^t sin^4(w tau)
-        out[..., 3] = (zs[3] + zs[2] * (a / w) * one_c + zs[1] * (a / w) ** 2 * (one_c - 0.5 * s * s)
-                       + (a * a * b / (3 * w * w)) * sin4)
+        if n == 4:
+            sin4 = 0.375 * t - np.sin(2 * w * t) / (4 * w) + np.sin(4 * w * t) / (32 * w)  # int_0^t sin^4(w tau)
+            out[..., 3] = (zs[3] + zs[2] * (a / w) * one_c + zs[1] * (a / w) ** 2 * (one_c - 0.5 * s * s)
+                           + (a * a * b / (3 * w * w)) * sin4)
     return out
 
 
@@ -238,10 +243,10 @@ class SteeringPhase:
             out[..., 1] = self.b * np.cos((self.k - 2) * self.w * tau)
         return out
 
-    def states(self, tau: np.ndarray) -> np.ndarray:
+    def states(self, tau: np.ndarray, coords: int | None = None) -> np.ndarray:
         if self.kind == "constant":
-            return _constant_phase(self.z_start, self.v1, self.v2, tau)
-        return _sin_phase(self.z_start, self.k, self.a, self.b, self.w, tau)
+            return _constant_phase(self.z_start, self.v1, self.v2, tau, coords)
+        return _sin_phase(self.z_start, self.k, self.a, self.b, self.w, tau, coords)
 
 
 @dataclass(frozen=True)
@@ -280,6 +285,15 @@ class SteeringPlan:
         idx = np.searchsorted(self.phase_times[1:-1], t, side="right")
         return t, idx
 
+    def _parts(self, idx: np.ndarray) -> list[tuple[SteeringPhase, slice | np.ndarray]]:
+        """(phase, its times) for every phase holding some of the times with phase indices ``idx``:
+        slices when the times are in order (a grid), boolean masks otherwise."""
+        if idx.ndim == 1 and np.all(idx[1:] >= idx[:-1]):
+            cuts = np.searchsorted(idx, np.arange(len(self.phases) + 1)).tolist()
+            return [(ph, slice(a, b)) for ph, a, b in zip(self.phases, cuts[:-1], cuts[1:]) if b > a]
+        masks = [(ph, idx == i) for i, ph in enumerate(self.phases)]
+        return [(ph, m) for ph, m in masks if np.any(m)]
+
     def inputs(self, t) -> np.ndarray:
         """Chained inputs (v1, v2) at times t, shape t.shape + (2,)."""
         t, idx = self._locate(t)
@@ -287,23 +301,20 @@ class SteeringPlan:
             ph = self.phases[int(idx)]
             return ph.inputs(t - ph.t0)
         out = np.empty(t.shape + (2,))
-        for i, ph in enumerate(self.phases):
-            m = idx == i
-            if np.any(m):
-                out[m] = ph.inputs(t[m] - ph.t0)
+        for ph, sel in self._parts(idx):
+            out[sel] = ph.inputs(t[sel] - ph.t0)
         return out
 
-    def states(self, t) -> np.ndarray:
-        """Chained states at times t (exact closed form), shape t.shape + (n,)."""
+    def states(self, t, coords: int | None = None) -> np.ndarray:
+        """Chained states at times t (exact closed form), shape t.shape + (n,); with ``coords``
+        (3 <= coords <= n) only the first ``coords`` coordinates, shape t.shape + (coords,)."""
         t, idx = self._locate(t)
         if idx.ndim == 0:
             ph = self.phases[int(idx)]
-            return ph.states(t - ph.t0)
-        out = np.empty(t.shape + (self.n,))
-        for i, ph in enumerate(self.phases):
-            m = idx == i
-            if np.any(m):
-                out[m] = ph.states(t[m] - ph.t0)
+            return ph.states(t - ph.t0, coords)
+        out = np.empty(t.shape + (self.n if coords is None else coords,))
+        for ph, sel in self._parts(idx):
+            out[sel] = ph.states(t[sel] - ph.t0, coords)
         return out
 
     def grid(self, points_per_phase: int = 200) -> np.ndarray:
@@ -471,6 +482,7 @@ def car_inputs_from_chained(model, z, v) -> np.ndarray:
 
 
 def _car_inputs(name: str, L: float, z: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """:func:`car_inputs_from_chained` without validation; uses only z2 and z3 of ``z``."""
     z2, z3 = z[..., 1], z[..., 2]
     v1, v2 = v[..., 0], v[..., 1]
     q = 1.0 + z3 * z3
@@ -610,7 +622,11 @@ def steer_car(model, x0, xf, T: float | None = None, frame="auto", *, points_per
 
     best = None
     refusals = []
+    tried = []
     for fname, origin, alpha in _frames(frame, x0, xf, name):
+        if any(alpha == a and np.array_equal(origin, o) for o, a in tried):
+            continue        # the same chart as an earlier frame (e.g. a straight piece): same plan
+        tried.append((origin, alpha))
         ca, sa = math.cos(alpha), math.sin(alpha)
 
         def to_local(x, origin=origin, ca=ca, sa=sa, alpha=alpha):
@@ -626,11 +642,11 @@ def steer_car(model, x0, xf, T: float | None = None, frame="auto", *, points_per
         plan = steer_chained(to_chained(model, l0), to_chained(model, lf), 1.0 if T is None else T,
                              amplitude=amplitude, balance=balance, phase_fractions=phase_fractions)
         dense = plan.grid(max(ppp, 2000) if T is None else ppp)
-        zl = plan.states(dense)
+        zl = plan.states(dense, coords=3)          # z4 (= y) plays no part in the chart or the inputs
         th_local = np.arctan(zl[:, 2])
         max_th = float(np.abs(th_local).max())
-        phi_max = float(np.abs(np.arctan(L * zl[:, 1] * np.cos(th_local) ** 3)).max())
         if max_th >= theta_limit:
+            phi_max = float(np.abs(np.arctan(L * zl[:, 1] * np.cos(th_local) ** 3)).max())
             refusals.append(f"{fname}: max |theta - alpha| = {max_th:.3f} along the path, max |phi| = {phi_max:.3f}")
             continue
         if best is None or max_th < best[0]:
@@ -641,7 +657,7 @@ def steer_car(model, x0, xf, T: float | None = None, frame="auto", *, points_per
     max_th, fname, origin, alpha, plan, l0, dense, zl = best
 
     if T is None:   # time scaling: same path, inputs divided by T
-        uu = car_inputs_from_chained(model, zl, plan.inputs(dense))
+        uu = _car_inputs(name, L, zl, plan.inputs(dense))
         T = max(float(np.abs(uu[:, 0]).max()) / model.max_speed,
                 float(np.abs(uu[:, 1]).max()) / model.max_steer_rate) * 1.001
         if T <= 0.0:
