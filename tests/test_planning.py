@@ -17,6 +17,7 @@ from pipeline.maps import load_map
 from pipeline.maps.base import Circle, Polygon
 from pipeline.models import make_model
 from pipeline.planning import PathOptions, plan, pose_columns
+from pipeline.planning.cars import direction_reversals
 from pipeline.simulation import simulate_tracking
 
 MAPS = Path(__file__).parent.parent / "maps"
@@ -197,6 +198,10 @@ def test_car_plans_on_real_maps(robot, where):
     assert np.all(np.abs(r.nominal.u) <= model.input_limits()[:, 1] * 1.001 + 1e-9)
     assert np.linalg.norm(poses_x[-1, :2] - g[:2]) < 1e-6
     assert np.all(np.isfinite(r.schedule.K)) and r.metrics["max_gain_norm"] < 1e3
+    # the car reverses where the path does, and nowhere else (runs of 5 cm or more, both counted alike)
+    reversals = direction_reversals(poses_x)
+    assert reversals == r.metrics["direction_reversals"] == direction_reversals(r.path.samples)
+    assert reversals <= r.metrics["cusps"]
 
 
 def test_default_stabilizer_parameters_are_the_committed_sweeps_choice():
@@ -209,3 +214,17 @@ def test_default_stabilizer_parameters_are_the_committed_sweeps_choice():
         chosen = sweep["chosen"][row["robot"]]
         if (row["alpha"], row["delta"]) == (chosen["alpha"], chosen["delta"]):
             assert row["max_gain_norm"] <= sweep["gain_bound"]
+
+
+def test_direction_reversals():
+    def line(moves):
+        """Poses along the x axis, heading 0, moving by the given signed distances in 1 cm steps."""
+        x = np.concatenate([[0.0], *[np.full(int(round(abs(m) / 0.01)), np.sign(m) * 0.01) for m in moves]]).cumsum()
+        return np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+
+    assert direction_reversals(line([1.0, -0.5, 0.3])) == 2
+    assert direction_reversals(line([1.0, -0.02, 0.3])) == 0          # a 2 cm run is no reversal
+    assert direction_reversals(line([1.0, -0.5, 0.02, -0.3])) == 1
+    assert direction_reversals(line([-0.2, -0.5])) == 0
+    assert direction_reversals(np.zeros((5, 3))) == 0                 # standing still
+    assert direction_reversals(line([1.0, -0.5]), min_run=0.6) == 0
