@@ -8,13 +8,18 @@ direction of travel), and join consecutive waypoints with sinusoidal steering in
 
 Consecutive waypoints lie on one side of a cusp, so the local planner's first choice is the
 constant-v1 steering (``steer_car(mode="constant_v1")``): the car drives the whole piece in the
-path's direction of travel, without reversing. A piece that comes within the margin of an obstacle,
-exceeds the steering limit, leaves the chart or would move against the path's direction is replaced
-by two pieces through the path's midpoint between its waypoints, down to ``min_spacing``; only a
-piece that cannot be split further falls back to the phased sinusoidal steering
-(``steer_car(mode="phased")``), whose sinusoidal phases drive back and forth. Splitting first keeps
-the direction reversals to the path's cusps. Each piece runs as fast as the speed and steering-rate
-limits allow.
+path's direction of travel, without reversing. Where the path's curvature jumps inside a run (arc to
+straight, or to the opposite arc) the car's continuous steering angle cannot follow it exactly; a
+constant-v1 piece steers through the jump within the steering limit when the jump lies at least a
+quarter of the piece's length from its ends (at a waypoint, the piece on one side would have to
+undo the other side's curvature). So the waypoints of a run are spread evenly (at most ``spacing``
+apart) and then moved a third of that away from the jumps. A piece that comes within the margin of
+an obstacle, exceeds the steering limit, leaves the chart or would move against the path's direction
+is replaced by shorter ones: by three, with a jump it contains in the middle of the middle one, or by
+two through the path's midpoint, down to ``min_spacing``. Only a piece that cannot be split further
+falls back to the phased sinusoidal steering (``steer_car(mode="phased")``), whose sinusoidal phases
+drive back and forth; splitting first keeps the direction reversals to the path's cusps. Each piece
+runs as fast as the speed and steering-rate limits allow.
 
 At a cusp the path's curvature reverses over no distance, and at the ends the car is parked with its
 wheels straight: there the car steers in place (phi' = omega_s at standstill, at the steering-rate
@@ -223,6 +228,47 @@ class CarPlanningError(PipelineError):
     """The local planner could not join two waypoints feasibly, even after subdividing."""
 
 
+def _curvature_jumps(kappa: np.ndarray, special: list[int]) -> np.ndarray:
+    """Sample indices where the path's curvature changes, except within two samples of a special point
+    (cusps and ends: there the car steers in place, and the interval across a cusp has a stray value)."""
+    jumps = np.flatnonzero(np.abs(np.diff(kappa)) > 1e-6) + 1
+    near = np.abs(jumps[:, None] - np.asarray(special)[None, :]).min(axis=1) <= 2
+    return jumps[~near]
+
+
+def _waypoints(sigma: np.ndarray, special: list[int], jumps: np.ndarray, spacing: float) -> list[int]:
+    """Sample indices of the waypoints: the special points, and in each run between two of them points
+    evenly spread at most ``spacing`` apart (no slivers), each moved to a third of that spacing from the
+    nearest curvature jump if it was closer."""
+    out = list(special)
+    js = sigma[jumps]
+    for s, e in zip(special[:-1], special[1:]):
+        length = sigma[e] - sigma[s]
+        count = max(1, int(math.ceil(length / spacing - 1e-9)))
+        h = length / count
+        targets = sigma[s] + h * np.arange(1, count)
+        if len(js) and len(targets):
+            nearest = js[np.argmin(np.abs(targets[:, None] - js[None, :]), axis=1)]
+            away = nearest + np.where(targets >= nearest, h / 3, -h / 3)
+            targets = np.where(np.abs(targets - nearest) < h / 3, away, targets)
+        inner = np.searchsorted(sigma, targets)
+        out += [int(i) for i in inner if s < i < e]
+    return sorted(set(out))
+
+
+def _split(a: int, b: int, sigma: np.ndarray, jumps: np.ndarray) -> list[int]:
+    """Inner split points of the piece a -> b: around the curvature jump nearest its middle (the jump in
+    the middle of the middle piece), or else the path's midpoint; [] if it cannot be split."""
+    inner = jumps[(jumps > a) & (jumps < b)]
+    if len(inner):
+        j = int(inner[np.argmin(np.abs(sigma[inner] - 0.5 * (sigma[a] + sigma[b])))])
+        r = 0.5 * min(sigma[j] - sigma[a], sigma[b] - sigma[j])
+        i1, i2 = (int(i) for i in np.searchsorted(sigma, [sigma[j] - r, sigma[j] + r]))
+        if a < i1 < j < i2 < b:
+            return [i1, i2]
+    return [(a + b) // 2] if b - a >= 2 else []
+
+
 def _state(model: Model, pose, phi: float) -> np.ndarray:
     x, y, th = pose
     return np.array([x, y, th, phi]) if model.name == "rwd_car" else np.array([x, y, phi, th])
@@ -270,9 +316,9 @@ def car_nominal(model: Model, path: GeometricPath, timing: TimingOptions, world:
     def phi_depart(i):
         return depart[i] if i in special else phi_at(i)
 
-    # waypoints every `spacing` of arc length, and at every cusp
-    marks = np.searchsorted(sigma, np.arange(spacing, sigma[-1], spacing))
-    idx = sorted(special | {int(i) for i in marks if 0 < i < n - 1})
+    # waypoints at the cusps and ends, and at most `spacing` apart between them, away from curvature jumps
+    jumps = _curvature_jumps(kappa, sorted(special))
+    idx = _waypoints(sigma, sorted(special), jumps, spacing)
     pieces, subdivisions, in_place, phased = [], 0, 0, 0
 
     def add_in_place(i):
@@ -300,10 +346,11 @@ def car_nominal(model: Model, path: GeometricPath, timing: TimingOptions, world:
                 piece = None
         except InputError:
             piece = None
-        if piece is None and (sigma[b] - sigma[a] > min_spacing and b - a >= 2):
-            mid = (a + b) // 2
+        cuts = _split(a, b, sigma, jumps) if piece is None and sigma[b] - sigma[a] > min_spacing else []
+        if cuts:
             subdivisions += 1
-            stack.extend([(mid, b), (a, mid)])
+            ends = [a, *cuts, b]
+            stack.extend(list(zip(ends[:-1], ends[1:]))[::-1])
             continue
         if piece is None:       # cannot be split further: the phased sinusoids
             try:
