@@ -681,9 +681,9 @@ def steer_car(model, x0, xf, T: float | None = None, frame="auto", *, mode: str 
     "mean" (alpha = mean of the two headings), "start", "goal", "world" (alpha = 0, world origin), a
     number (alpha itself), or "auto" (try mean, start and goal; keep the frame whose steered path
     has the smallest max |theta - alpha|). In the frame the chained plan (``mode``) is computed and
-    mapped back (the heading is offset so x(0) = x0 exactly; xf's heading is met modulo 2 pi). Refuses with :class:`InputError` if |theta - alpha| reaches ``theta_limit``
-    (rad, < pi/2) anywhere on the grid of the best frame (detail gives max |theta - alpha| and
-    max |phi|).
+    mapped back (the heading is offset so x(0) = x0 exactly; xf's heading is met modulo 2 pi).
+    Refuses with :class:`InputError` if |theta - alpha| reaches ``theta_limit`` (rad, < pi/2)
+    anywhere on the grid of the best frame (detail gives max |theta - alpha| and max |phi|).
 
     ``T``: total time; ``None`` picks the shortest T at which max |speed| and max |omega_s| meet
     the model's limits (inputs scale as 1/T along the same geometric path). ``check_limits``:
