@@ -1,10 +1,11 @@
 """Exactly feasible car trajectories along a Reeds-Shepp path (Laumond, Jacobs, Taix, Murray).
 
 A Reeds-Shepp path's curvature jumps where its arcs and straights meet, so a car with the steering
-angle as a state cannot follow it. Take waypoints along the path (every ``spacing`` metres and at
-every cusp), give each the steering angle of the path's curvature there (phi = atan(L kappa d), d the
-direction of travel), and join consecutive waypoints with sinusoidal steering in chained form
-(``steering``): the steering angle is continuous and every piece ends exactly at its waypoint.
+angle as a state cannot follow it. Take waypoints along the path (at every cusp, and at most
+``spacing`` metres apart), give each the steering angle of the path's curvature there
+(phi = atan(L kappa d), d the direction of travel), and join consecutive waypoints with sinusoidal
+steering in chained form (``steering``): the steering angle is continuous and every piece ends
+exactly at its waypoint.
 
 Consecutive waypoints lie on one side of a cusp, so the local planner's first choice is the
 constant-v1 steering (``steer_car(mode="constant_v1")``): the car drives the whole piece in the
