@@ -16,7 +16,9 @@ from pipeline.geometry import default_footprint
 from pipeline.maps import load_map
 from pipeline.maps.base import Circle, Polygon
 from pipeline.models import make_model
-from pipeline.planning import PathOptions, plan, pose_columns
+from pipeline.planning import PathOptions, TimingOptions, plan, pose_columns
+from pipeline.planning.cars import car_nominal, direction_reversals
+from pipeline.planning.geometric import GeometricPath, path_directions
 from pipeline.simulation import simulate_tracking
 
 MAPS = Path(__file__).parent.parent / "maps"
@@ -197,6 +199,10 @@ def test_car_plans_on_real_maps(robot, where):
     assert np.all(np.abs(r.nominal.u) <= model.input_limits()[:, 1] * 1.001 + 1e-9)
     assert np.linalg.norm(poses_x[-1, :2] - g[:2]) < 1e-6
     assert np.all(np.isfinite(r.schedule.K)) and r.metrics["max_gain_norm"] < 1e3
+    # the car reverses where the path does, and nowhere else (runs of 5 cm or more, both counted alike)
+    reversals = direction_reversals(poses_x)
+    assert reversals == r.metrics["direction_reversals"] == direction_reversals(r.path.samples)
+    assert reversals <= r.metrics["cusps"]
 
 
 def test_default_stabilizer_parameters_are_the_committed_sweeps_choice():
@@ -209,3 +215,106 @@ def test_default_stabilizer_parameters_are_the_committed_sweeps_choice():
         chosen = sweep["chosen"][row["robot"]]
         if (row["alpha"], row["delta"]) == (chosen["alpha"], chosen["delta"]):
             assert row["max_gain_norm"] <= sweep["gain_bound"]
+
+
+# ---------------------------------------------------------------------------------------------
+# the car's local planner on a synthetic path (no OMPL): constant-v1 first, then splitting, then phased
+# ---------------------------------------------------------------------------------------------
+CAR_KAPPA = 0.5 * np.tan(0.6) / 2.5     # a curvature well inside the rwd_car's limit tan(0.6) / L
+
+
+def synthetic_path(segments, step=0.005) -> GeometricPath:
+    """Exact samples of a path of (length, curvature dtheta/dsigma, direction) segments from (0, 0, 0)."""
+    pose, sigma0 = np.zeros(3), 0.0
+    samples, sigmas = [pose[None]], [np.zeros(1)]
+    for length, kappa, d in segments:
+        s = np.linspace(0.0, length, int(round(length / step)) + 1)[1:]
+        th = pose[2] + kappa * s
+        if kappa:
+            x = pose[0] + d * (np.sin(th) - np.sin(pose[2])) / kappa
+            y = pose[1] - d * (np.cos(th) - np.cos(pose[2])) / kappa
+        else:
+            x, y = pose[0] + d * s * np.cos(th), pose[1] + d * s * np.sin(th)
+        samples.append(np.column_stack([x, y, th]))
+        sigmas.append(sigma0 + s)
+        pose, sigma0 = samples[-1][-1], sigma0 + length
+    samples, sigma = np.vstack(samples), np.concatenate(sigmas)
+    direction, cusps = path_directions(samples)
+    return GeometricPath("exact", "synthetic", samples[[0, -1]], samples, sigma, direction, float(sigma[-1]), cusps,
+                         0.0, 0, 0.0, PathOptions())
+
+
+# left 3 m, right 3 m (the inflection at a whole number of metres, where a waypoint would fall), a cusp,
+# back 2 m straight and 1.5 m on a left arc
+S_CURVE = [(3.0, CAR_KAPPA, 1), (3.0, -CAR_KAPPA, 1), (2.0, 0.0, -1), (1.5, CAR_KAPPA, -1)]
+
+
+def _car_nominal(path, **kwargs):
+    from pipeline.maps.base import Map
+
+    model, fp = make_model("rwd_car"), default_footprint("rwd_car")
+    world = CollisionWorld.from_map(Map("empty", (-20.0, -20.0, 20.0, 20.0)))
+    return model, car_nominal(model, path, TimingOptions(), world, fp, 0.1, **kwargs)
+
+
+def _check_exact(model, path, nominal):
+    assert nominal.feasibility_residual() < 1e-3
+    np.testing.assert_allclose(nominal.x[0, :3], path.samples[0], atol=1e-12)
+    np.testing.assert_allclose(nominal.x[-1, :3], path.samples[-1], atol=1e-9)
+    phi = nominal.x[:, 3]
+    assert np.abs(phi).max() <= model.max_steer + 1e-9
+    assert np.abs(np.diff(phi)).max() <= model.max_steer_rate * nominal.t[1] * 1.01 + 1e-9
+
+
+def test_car_nominal_drives_each_run_one_way():
+    path = synthetic_path(S_CURVE)
+    assert path.cusps == 1
+    model, (nominal, info) = _car_nominal(path)
+    _check_exact(model, path, nominal)
+    assert info["phased_pieces"] == 0 and info["subdivisions"] == 0
+    assert info["direction_reversals"] == direction_reversals(nominal.x[:, :3]) == 1
+    # forward until the cusp, then backward: v never has the wrong sign (0 while steering in place)
+    v, t_cusp = nominal.u[:, 0], nominal.t[np.argmin(np.hypot(*(nominal.x[:, :2] - path.samples[1200, :2]).T))]
+    assert np.all(v[nominal.t < t_cusp - 1e-9] >= 0) and np.all(v[nominal.t > t_cusp + 2.0] <= 0)
+    # the nominal stays within a few centimetres of the path
+    gap = np.hypot(*(nominal.x[:, None, :2] - path.samples[None, ::10, :2]).transpose(2, 0, 1)).min(axis=1)
+    assert gap.max() < 0.05
+
+
+def test_car_nominal_splits_failing_pieces_before_falling_back(monkeypatch):
+    """Constant-v1 pieces longer than 0.6 m are refused: they are split (no phased pieces, no extra
+    reversals); with splitting ruled out (min_spacing above every piece) the phased sinusoids take
+    over, exactly, at the price of back-and-forth motion."""
+    import pipeline.planning.cars as cars
+    from pipeline.errors import InputError
+
+    real = cars.steer_car
+
+    def refuse_long(model, xa, xb, T=None, mode="phased", **kw):
+        if mode == "constant_v1" and np.hypot(*(xb[:2] - xa[:2])) > 0.6:
+            raise InputError("xf", "a short piece (test)", xb)
+        return real(model, xa, xb, T, mode=mode, **kw)
+
+    monkeypatch.setattr(cars, "steer_car", refuse_long)
+    path = synthetic_path(S_CURVE)
+    model, (nominal, info) = _car_nominal(path)
+    _check_exact(model, path, nominal)
+    assert info["subdivisions"] > 0 and info["phased_pieces"] == 0 and info["direction_reversals"] == 1
+    model, (nominal, info) = _car_nominal(path, min_spacing=100.0)
+    _check_exact(model, path, nominal)
+    assert info["subdivisions"] == 0 and info["phased_pieces"] == info["pieces"] - info["steer_in_place"]
+    assert info["direction_reversals"] > 1
+
+
+def test_direction_reversals():
+    def line(moves):
+        """Poses along the x axis, heading 0, moving by the given signed distances in 1 cm steps."""
+        x = np.concatenate([[0.0], *[np.full(int(round(abs(m) / 0.01)), np.sign(m) * 0.01) for m in moves]]).cumsum()
+        return np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+
+    assert direction_reversals(line([1.0, -0.5, 0.3])) == 2
+    assert direction_reversals(line([1.0, -0.02, 0.3])) == 0          # a 2 cm run is no reversal
+    assert direction_reversals(line([1.0, -0.5, 0.02, -0.3])) == 1
+    assert direction_reversals(line([-0.2, -0.5])) == 0
+    assert direction_reversals(np.zeros((5, 3))) == 0                 # standing still
+    assert direction_reversals(line([1.0, -0.5]), min_run=0.6) == 0

@@ -17,7 +17,7 @@ from pipeline.errors import InputError, PipelineError
 from pipeline.models import make_model
 from pipeline.planning.steering import (CarSteering, SteeringPlan, car_inputs_from_chained, chained_inputs_from_car,
                                         chained_rhs, from_chained, net_displacement, net_motion, steer_car,
-                                        steer_chained, steer_heisenberg, to_chained)
+                                        steer_chained, steer_chained_constant_v1, steer_heisenberg, to_chained)
 
 RTOL, ATOL = 1e-11, 1e-12
 fl = functools.partial(st.floats, allow_nan=False, allow_infinity=False, allow_subnormal=False)
@@ -131,6 +131,78 @@ def test_net_motion_n3_special_case():
 
 
 # ---------------------------------------------------------------------------------------------
+# (b') constant-v1 steering: v1 = (z1f - z1s) / T, v2 = b0 + b1 cos(w t) + b2 sin(w t)
+# ---------------------------------------------------------------------------------------------
+@st.composite
+def constant_v1_pairs(draw, n):
+    """Random chained pairs whose z1 moves by at least 0.25 (c = dz1 / T != 0), either way."""
+    z0 = np.array(draw(st.lists(coord, min_size=n, max_size=n)))
+    zf = np.array(draw(st.lists(coord, min_size=n, max_size=n)))
+    zf[0] = z0[0] + draw(st.sampled_from([-1.0, 1.0])) * draw(fl(0.25, 4.0))
+    return z0, zf
+
+
+@pytest.mark.parametrize("n", [3, 4])
+@settings(max_examples=100, deadline=None)
+@given(data=st.data(), T=horizon)
+def test_constant_v1_reaches_goal_without_reversing(n, data, T):
+    z0, zf = data.draw(constant_v1_pairs(n))
+    plan = steer_chained_constant_v1(z0, zf, T)
+    assert plan.mode == "constant_v1" and plan.T == T and len(plan.phases) == 1
+    np.testing.assert_array_equal(plan.phase_times, [0.0, T])
+    np.testing.assert_allclose(plan.states(np.array([0.0]))[0], z0, atol=1e-12)
+    np.testing.assert_allclose(plan.states(np.array([T]))[0], zf, atol=1e-9)
+    # v1 is the constant (z1f - z1s) / T on the whole horizon: one sign, never zero
+    v1 = plan.inputs(plan.grid(200))[:, 0]
+    assert np.all(v1 == (zf[0] - z0[0]) / T) and np.all(np.sign(v1) == np.sign(zf[0] - z0[0]))
+    if n == 3:
+        assert plan.phases[0].v2_cos == 0.0          # v2 = b0 + b2 sin(w t)
+    numeric = integrate_end(lambda t, z: chained_rhs(z, plan.inputs(t)), z0, plan.phase_times)
+    np.testing.assert_allclose(numeric, zf, atol=1e-6)
+
+
+@pytest.mark.parametrize("n", [3, 4])
+def test_constant_v1_states_follow_the_integrated_trajectory(n, rng):
+    """The closed-form states agree with DOP853 (rtol 1e-12) under the same inputs along the way."""
+    for _ in range(5):
+        z0, zf = rng.uniform(-2, 2, n), rng.uniform(-2, 2, n)
+        T = rng.uniform(0.5, 8.0)
+        plan = steer_chained_constant_v1(z0, zf, T)
+        grid = np.linspace(0.0, T, 101)
+        sol = solve_ivp(lambda t, z: chained_rhs(z, plan.inputs(t)), (0.0, T), z0, method="DOP853", rtol=1e-12,
+                        atol=1e-13, t_eval=grid)
+        assert sol.success
+        np.testing.assert_allclose(plan.states(grid), sol.y.T, atol=1e-9)
+        np.testing.assert_allclose(plan.states(grid, coords=3), sol.y.T[:, :3], atol=1e-9)
+
+
+def test_constant_v1_coefficients_solve_the_linear_system(rng):
+    """(b0, b1, b2) solve M b = e with M of the module docstring, det M = -c^3 T^6 / (8 pi^3)."""
+    for _ in range(10):
+        z0, zf = rng.uniform(-2, 2, 4), rng.uniform(-2, 2, 4)
+        T = rng.uniform(0.5, 8.0)
+        w, c = 2 * math.pi / T, (zf[0] - z0[0]) / T
+        M = np.array([[T, 0.0, 0.0],
+                      [c * T**2 / 2, 0.0, c * T / w],
+                      [c**2 * T**3 / 6, c**2 * T / w**2, c**2 * T**2 / (2 * w)]])
+        e = np.array([zf[1] - z0[1], zf[2] - z0[2] - c * T * z0[1],
+                      zf[3] - z0[3] - c * T * z0[2] - c**2 * T**2 * z0[1] / 2])
+        assert np.linalg.det(M) == pytest.approx(-c**3 * T**6 / (8 * math.pi**3), rel=1e-9)
+        ph = steer_chained_constant_v1(z0, zf, T).phases[0]
+        assert ph.v1 == pytest.approx(c, rel=1e-15)
+        np.testing.assert_allclose([ph.v2, ph.v2_cos, ph.v2_sin], np.linalg.solve(M, e), rtol=1e-9, atol=1e-9)
+
+
+def test_constant_v1_time_scaling_keeps_the_path():
+    """A longer T traces the same states at the same fraction of T, with inputs divided by T."""
+    z0, zf = np.array([0.0, 0.3, -0.2, 0.1]), np.array([1.5, -0.1, 0.25, 0.4])
+    p1, p3 = steer_chained_constant_v1(z0, zf, 1.0), steer_chained_constant_v1(z0, zf, 3.0)
+    tau = np.linspace(0.0, 1.0, 57)
+    np.testing.assert_allclose(p3.states(3.0 * tau), p1.states(tau), atol=1e-12)
+    np.testing.assert_allclose(3.0 * p3.inputs(3.0 * tau), p1.inputs(tau), atol=1e-12)
+
+
+# ---------------------------------------------------------------------------------------------
 # (c) car <-> chained coordinates
 # ---------------------------------------------------------------------------------------------
 def _car_state(name, px, py, th, phi):
@@ -238,6 +310,39 @@ def test_steer_car_auto_time_respects_rate_limits(name):
     np.testing.assert_allclose(res.states_at(res.t), res.x, atol=1e-12)
 
 
+@st.composite
+def ahead_or_behind_pairs(draw):
+    """Car pose pairs whose goal lies within 0.5 rad of the start's heading line, ahead or behind."""
+    p0 = np.array([draw(fl(-5, 5)), draw(fl(-5, 5))])
+    th0 = draw(fl(-math.pi, math.pi))
+    back = draw(st.booleans())
+    r, ang = draw(fl(0.3, 2.0)), th0 + draw(fl(-0.5, 0.5)) + (math.pi if back else 0.0)
+    pf = p0 + r * np.array([math.cos(ang), math.sin(ang)])
+    thf = th0 + draw(fl(-0.6, 0.6))
+    phi0, phif = draw(fl(-0.3, 0.3)), draw(fl(-0.3, 0.3))
+    return (p0[0], p0[1], th0, phi0), (pf[0], pf[1], thf, phif), -1.0 if back else 1.0
+
+
+@pytest.mark.parametrize("name", ["rwd_car", "fwd_car"])
+@settings(max_examples=50, deadline=None)
+@given(pair=ahead_or_behind_pairs())
+def test_steer_car_constant_v1_reaches_goal_in_one_direction(name, pair):
+    model = make_model(name)
+    x0, xf = _car_state(name, *pair[0]), _car_state(name, *pair[1])
+    res = steer_car(model, x0, xf, mode="constant_v1", points_per_phase=300)
+    assert res.plan.mode == "constant_v1" and res.phase_times.tolist() == [0.0, res.T]
+    np.testing.assert_array_equal(res.x[0], x0)
+    assert np.abs(res.final_error).max() < 1e-9
+    # the car moves one way only: the sign of the goal's side
+    assert np.all(np.sign(res.u[:, 0]) == pair[2])
+    # time scaling to the limits, as in the phased mode
+    assert res.max_speed <= model.max_speed and res.max_abs_omega_s <= model.max_steer_rate
+    x_end = integrate_end(lambda t, x: model.rhs(x, res.inputs_at(t)), x0, res.phase_times)
+    assert np.abs(model.state_error(x_end, xf)).max() < 1e-6
+    np.testing.assert_allclose(res.inputs_at(res.t), res.u, atol=1e-12)
+    np.testing.assert_allclose(res.states_at(res.t), res.x, atol=1e-12)
+
+
 def test_steer_car_frames():
     model = make_model("rwd_car")
     x0, xf = np.array([0.0, 0.0, 1.5, 0.0]), np.array([1.0, 2.0, 1.7, 0.0])   # near theta = pi/2 globally
@@ -304,6 +409,17 @@ def test_check_limits():
      "points_per_phase"),
     (lambda: steer_car(make_model("rwd_car"), [0, 0, 0, 0], [1, 1, 0, 0], 1.0, theta_limit=1.6), "theta_limit"),
     (lambda: steer_car(make_model("fwd_car"), [0, 0, 1.6, 0], [1, 1, 0, 0], 1.0), "x0"),
+    (lambda: steer_car(make_model("rwd_car"), [0, 0, 0, 0], [1, 1, 0, 0], 1.0, mode="sideways"), "mode"),
+    (lambda: steer_car(make_model("rwd_car"), [0, 0, 0, 0], [1, 1, 0, 0], 1.0, mode="constant_v1",
+                       phase_fractions=[1, 1, 1]), "phase_fractions"),
+    (lambda: steer_car(make_model("rwd_car"), [0, 0, 0, 0], [1, 1, 0, 0], 1.0, mode="constant_v1", amplitude=0.5),
+     "amplitude"),
+    (lambda: steer_car(make_model("rwd_car"), [0, 0, 0, 0], [0, 1, 0, 0], 1.0, mode="constant_v1", frame="start"),
+     "xf"),
+    (lambda: steer_chained_constant_v1([0, 0, 0], [0, 1, 1], 1.0), "zf"),
+    (lambda: steer_chained_constant_v1([0, 0, 0], [1, 1, 1, 1], 1.0), "zf"),
+    (lambda: steer_chained_constant_v1([0, 0, 0], [1, 1, 1], 0.0), "T"),
+    (lambda: steer_chained_constant_v1([0, 0], [1, 1], 1.0), "z0"),
 ])
 def test_bad_input(call, argument):
     with pytest.raises(InputError) as err:

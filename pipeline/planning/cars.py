@@ -1,13 +1,26 @@
 """Exactly feasible car trajectories along a Reeds-Shepp path (Laumond, Jacobs, Taix, Murray).
 
 A Reeds-Shepp path's curvature jumps where its arcs and straights meet, so a car with the steering
-angle as a state cannot follow it. Take waypoints along the path (every ``spacing`` metres and at
-every cusp), give each the steering angle of the path's curvature there (phi = atan(L kappa d), d the
-direction of travel), and join consecutive waypoints with sinusoidal steering in chained form
-(``steering``): the steering angle is continuous and every piece ends exactly at its waypoint. A
-piece that comes within the margin of an obstacle, exceeds the steering limit or leaves the chart is
-replaced by two pieces through the path's midpoint between its waypoints, down to ``min_spacing``.
-Each piece runs as fast as the speed and steering-rate limits allow.
+angle as a state cannot follow it. Take waypoints along the path (at every cusp, and at most
+``spacing`` metres apart), give each the steering angle of the path's curvature there
+(phi = atan(L kappa d), d the direction of travel), and join consecutive waypoints with sinusoidal
+steering in chained form (``steering``): the steering angle is continuous and every piece ends
+exactly at its waypoint.
+
+Consecutive waypoints lie on one side of a cusp, so the local planner's first choice is the
+constant-v1 steering (``steer_car(mode="constant_v1")``): the car drives the whole piece in the
+path's direction of travel, without reversing. Where the path's curvature jumps inside a run (arc to
+straight, or to the opposite arc) the car's continuous steering angle cannot follow it exactly; a
+constant-v1 piece steers through the jump within the steering limit when the jump lies at least a
+quarter of the piece's length from its ends (at a waypoint, the piece on one side would have to
+undo the other side's curvature). So the waypoints of a run are spread evenly (at most ``spacing``
+apart) and then moved a third of that away from the jumps. A piece that comes within the margin of
+an obstacle, exceeds the steering limit, leaves the chart or would move against the path's direction
+is replaced by shorter ones: by three, with a jump it contains in the middle of the middle one, or by
+two through the path's midpoint, down to ``min_spacing``. Only a piece that cannot be split further
+falls back to the phased sinusoidal steering (``steer_car(mode="phased")``), whose sinusoidal phases
+drive back and forth; splitting first keeps the direction reversals to the path's cusps. Each piece
+runs as fast as the speed and steering-rate limits allow.
 
 At a cusp the path's curvature reverses over no distance, and at the ends the car is parked with its
 wheels straight: there the car steers in place (phi' = omega_s at standstill, at the steering-rate
@@ -28,15 +41,15 @@ from ..geometry import Footprint, wrap_angle
 from ..models import Model
 from ..nominal import Nominal
 from .geometric import GeometricPath
-from .steering import (_car_inputs, _constant_phase, _pose_parts, _sin_phase, _theta_phi, from_chained,
-                       steer_car)
+from .steering import (_car_inputs, _constant_phase, _constant_v1_phase, _pose_parts, _sin_phase, _theta_phi,
+                       from_chained, steer_car)
 from .timing import TimingOptions
 
 
-def _steer(model: Model, xa: np.ndarray, xb: np.ndarray):
-    """Steer xa -> xb; phases with nothing to correct get (almost) no time, so the car never stands
-    still for a whole phase (a dwell longer than the stabilizer's window would make its gramian
-    singular)."""
+def _steer_phased(model: Model, xa: np.ndarray, xb: np.ndarray):
+    """Steer xa -> xb with the phased sinusoids; phases with nothing to correct get (almost) no time, so
+    the car never stands still for a whole phase (a dwell longer than the stabilizer's window would
+    make its gramian singular)."""
     piece = steer_car(model, xa, xb, T=None)
     effort = []
     for ph in piece.plan.phases:
@@ -49,6 +62,29 @@ def _steer(model: Model, xa: np.ndarray, xb: np.ndarray):
     if idle.any() and not idle.all():
         piece = steer_car(model, xa, xb, T=None, phase_fractions=np.where(idle, 1e-6, 1.0))
     return piece
+
+
+def direction_reversals(poses, min_run: float = 0.05) -> int:
+    """How often a sequence of poses (x, y, theta) of a car's rear axle reverses between runs of at
+    least ``min_run`` [m].
+
+    Each step's direction is the sign of its displacement along the heading at its start (as the
+    geometric path's directions are found); steps that do not move belong to no run. Runs of one sign
+    (length: the steps' chords) shorter than ``min_run`` are dropped and the sign changes between the
+    others counted. Applied to a path's dense samples and to a nominal's poses, it counts both the
+    same way.
+    """
+    p = np.asarray(poses, dtype=float)
+    d = np.diff(p[:, :2], axis=0)
+    step = np.hypot(d[:, 0], d[:, 1])
+    along = d[:, 0] * np.cos(p[:-1, 2]) + d[:, 1] * np.sin(p[:-1, 2])
+    moving = step > 1e-12
+    sign, dist = np.where(along[moving] >= 0, 1, -1), step[moving]
+    if not len(sign):
+        return 0
+    starts = np.flatnonzero(np.concatenate([[True], sign[1:] != sign[:-1]]))
+    kept = sign[starts][np.add.reduceat(dist, starts) >= min_run]
+    return int(np.count_nonzero(kept[1:] != kept[:-1]))
 
 
 class _SteerInPlace:
@@ -97,24 +133,25 @@ class _Joined:
         # per piece, the chart's map back to the world (steer_car's to_world): origin, cos and sin of
         # its heading, theta(0) and the local theta(0)
         self.frame = np.zeros((len(pieces), 6))
-        rows = []       # per phase: kind (0 constant, 3 / 4 sinusoid for z3 / z4, -1 steering in place), t0,
-        #                 v1, v2, a, b, w, z_start (4); in place: phi0 and the rate as v1, v2
+        rows = []       # per phase: kind (0 constant, 3 / 4 sinusoid for z3 / z4, 1 constant v1, -1 steering
+        #                 in place), t0, v1, v2, a, b, w, v2_cos, v2_sin, z_start (4); in place: phi0 and the
+        #                 rate as v1, v2
         for j, p in enumerate(pieces):
             self.first[j] = len(rows)
             if isinstance(p, _SteerInPlace):
-                rows.append([-1, 0.0, p.phi0, p.rate, 0, 0, 1.0, *_state(model, p.pose, 0.0)])
+                rows.append([-1, 0.0, p.phi0, p.rate, 0, 0, 1.0, 0, 0, *_state(model, p.pose, 0.0)])
                 continue
             self.bounds[j, : len(p.plan.phase_times) - 2] = p.plan.phase_times[1:-1]
             alpha = p.frame["heading"]
             th0 = float(_theta_phi(self.name, p.x0)[0])
             self.frame[j] = [*p.frame["origin"], math.cos(alpha), math.sin(alpha), th0, float(wrap_angle(th0 - alpha))]
             for ph in p.plan.phases:
-                kind = 0 if ph.kind == "constant" else ph.k
-                rows.append([kind, ph.t0, ph.v1, ph.v2, ph.a, ph.b, ph.w, *ph.z_start])
+                kind = {"constant": 0, "constant_v1": 1}.get(ph.kind, ph.k)
+                rows.append([kind, ph.t0, ph.v1, ph.v2, ph.a, ph.b, ph.w, ph.v2_cos, ph.v2_sin, *ph.z_start])
         rows = np.array(rows, dtype=float)
         self.kind = rows[:, 0].astype(int)
-        self.t0, self.v1, self.v2, self.a, self.b, self.w = rows[:, 1:7].T
-        self.z_start = rows[:, 7:].T                     # (4, rows)
+        self.t0, self.v1, self.v2, self.a, self.b, self.w, self.v2_cos, self.v2_sin = rows[:, 1:9].T
+        self.z_start = rows[:, 9:].T                     # (4, rows)
         self._memo = None       # (0 or 1, times, the states or inputs there) not yet asked for
 
     def states(self, t) -> np.ndarray:
@@ -152,7 +189,7 @@ class _Joined:
         tau = local - self.t0[row]
         z = np.empty((len(tt), 4))
         v = np.empty((len(tt), 2))
-        for k in (0, 3, 4):
+        for k in (0, 1, 3, 4):
             sel = np.flatnonzero(kind == k)
             if not len(sel):
                 continue
@@ -162,6 +199,10 @@ class _Joined:
             if k == 0:
                 z[sel] = _constant_phase(zs, v1, v2, ts)
                 v[sel, 0], v[sel, 1] = v1, v2
+            elif k == 1:
+                bc, bs = self.v2_cos[r], self.v2_sin[r]
+                z[sel] = _constant_v1_phase(zs, v1, v2, bc, bs, w, ts)
+                v[sel, 0], v[sel, 1] = v1, v2 + bc * np.cos(w * ts) + bs * np.sin(w * ts)
             else:
                 z[sel] = _sin_phase(zs, k, a, b, w, ts)
                 v[sel, 0], v[sel, 1] = a * np.sin(w * ts), b * np.cos((k - 2) * w * ts)
@@ -186,6 +227,47 @@ class _Joined:
 
 class CarPlanningError(PipelineError):
     """The local planner could not join two waypoints feasibly, even after subdividing."""
+
+
+def _curvature_jumps(kappa: np.ndarray, special: list[int]) -> np.ndarray:
+    """Sample indices where the path's curvature changes, except within two samples of a special point
+    (cusps and ends: there the car steers in place, and the interval across a cusp has a stray value)."""
+    jumps = np.flatnonzero(np.abs(np.diff(kappa)) > 1e-6) + 1
+    near = np.abs(jumps[:, None] - np.asarray(special)[None, :]).min(axis=1) <= 2
+    return jumps[~near]
+
+
+def _waypoints(sigma: np.ndarray, special: list[int], jumps: np.ndarray, spacing: float) -> list[int]:
+    """Sample indices of the waypoints: the special points, and in each run between two of them points
+    evenly spread at most ``spacing`` apart (no slivers), each moved to a third of that spacing from the
+    nearest curvature jump if it was closer."""
+    out = list(special)
+    js = sigma[jumps]
+    for s, e in zip(special[:-1], special[1:]):
+        length = sigma[e] - sigma[s]
+        count = max(1, int(math.ceil(length / spacing - 1e-9)))
+        h = length / count
+        targets = sigma[s] + h * np.arange(1, count)
+        if len(js) and len(targets):
+            nearest = js[np.argmin(np.abs(targets[:, None] - js[None, :]), axis=1)]
+            away = nearest + np.where(targets >= nearest, h / 3, -h / 3)
+            targets = np.where(np.abs(targets - nearest) < h / 3, away, targets)
+        inner = np.searchsorted(sigma, targets)
+        out += [int(i) for i in inner if s < i < e]
+    return sorted(set(out))
+
+
+def _split(a: int, b: int, sigma: np.ndarray, jumps: np.ndarray) -> list[int]:
+    """Inner split points of the piece a -> b: around the curvature jump nearest its middle (the jump in
+    the middle of the middle piece), or else the path's midpoint; [] if it cannot be split."""
+    inner = jumps[(jumps > a) & (jumps < b)]
+    if len(inner):
+        j = int(inner[np.argmin(np.abs(sigma[inner] - 0.5 * (sigma[a] + sigma[b])))])
+        r = 0.5 * min(sigma[j] - sigma[a], sigma[b] - sigma[j])
+        i1, i2 = (int(i) for i in np.searchsorted(sigma, [sigma[j] - r, sigma[j] + r]))
+        if a < i1 < j < i2 < b:
+            return [i1, i2]
+    return [(a + b) // 2] if b - a >= 2 else []
 
 
 def _state(model: Model, pose, phi: float) -> np.ndarray:
@@ -235,10 +317,10 @@ def car_nominal(model: Model, path: GeometricPath, timing: TimingOptions, world:
     def phi_depart(i):
         return depart[i] if i in special else phi_at(i)
 
-    # waypoints every `spacing` of arc length, and at every cusp
-    marks = np.searchsorted(sigma, np.arange(spacing, sigma[-1], spacing))
-    idx = sorted(special | {int(i) for i in marks if 0 < i < n - 1})
-    pieces, subdivisions, in_place = [], 0, 0
+    # waypoints at the cusps and ends, and at most `spacing` apart between them, away from curvature jumps
+    jumps = _curvature_jumps(kappa, sorted(special))
+    idx = _waypoints(sigma, sorted(special), jumps, spacing)
+    pieces, subdivisions, in_place, phased = [], 0, 0, 0
 
     def add_in_place(i):
         nonlocal in_place
@@ -249,29 +331,43 @@ def car_nominal(model: Model, path: GeometricPath, timing: TimingOptions, world:
     add_in_place(0)
     stack = [(a, b) for a, b in zip(idx[:-1], idx[1:])][::-1]
     max_speed = timing.max_speed or float(model.input_limits()[0, 1])
+
+    def feasible(piece) -> bool:
+        return (piece.max_abs_phi <= float(model.max_steer) + 1e-9 and piece.max_speed <= max_speed * 1.001
+                and bool(world.free_many(piece.x[:, _pose_cols(model)], fp, margin).all()))
+
     while stack:
         a, b = stack.pop()
         xa, xb = _state(model, samples[a], phi_depart(a)), _state(model, samples[b], phi_arrive(b))
-        ok, piece = False, None
+        piece = None
         try:
-            piece = _steer(model, xa, xb)
-            ok = piece.max_abs_phi <= float(model.max_steer) + 1e-9 and piece.max_speed <= max_speed * 1.001
-            if ok:
-                ok = bool(world.free_many(piece.x[:, _pose_cols(model)], fp, margin).all())
+            piece = steer_car(model, xa, xb, T=None, mode="constant_v1")
+            # the piece drives the path's direction (v1 = cos(theta - alpha) s has the sign of s)
+            if math.copysign(1.0, piece.plan.phases[0].v1) != direction[a] or not feasible(piece):
+                piece = None
         except InputError:
-            ok = False
-        if ok:
-            pieces.append(piece)
-            if b in special:
-                add_in_place(b)
+            piece = None
+        cuts = _split(a, b, sigma, jumps) if piece is None and sigma[b] - sigma[a] > min_spacing else []
+        if cuts:
+            subdivisions += 1
+            ends = [a, *cuts, b]
+            stack.extend(list(zip(ends[:-1], ends[1:]))[::-1])
             continue
-        if sigma[b] - sigma[a] <= min_spacing or b - a < 2:
-            where = np.round(samples[a], 3).tolist()
-            raise CarPlanningError(f"no feasible sinusoidal steering between path points at sigma = {sigma[a]:.3f} "
-                                   f"and {sigma[b]:.3f} m (from {where}), even subdivided to {min_spacing:g} m")
-        mid = (a + b) // 2
-        subdivisions += 1
-        stack.extend([(mid, b), (a, mid)])
+        if piece is None:       # cannot be split further: the phased sinusoids
+            try:
+                piece = _steer_phased(model, xa, xb)
+                piece = piece if feasible(piece) else None
+            except InputError:
+                piece = None
+            if piece is None:
+                where = np.round(samples[a], 3).tolist()
+                raise CarPlanningError(f"no feasible sinusoidal steering between path points at sigma = "
+                                       f"{sigma[a]:.3f} and {sigma[b]:.3f} m (from {where}), even subdivided to "
+                                       f"{min_spacing:g} m")
+            phased += 1
+        pieces.append(piece)
+        if b in special:
+            add_in_place(b)
     # one continuous-time trajectory from the pieces
     joined = _Joined(model, pieces)
     duration = joined.duration
@@ -279,6 +375,7 @@ def car_nominal(model: Model, path: GeometricPath, timing: TimingOptions, world:
     t = np.linspace(0.0, duration, npts)
     nominal = Nominal.from_functions(model, joined.states, joined.inputs, t)
     return nominal, {"duration_s": duration, "pieces": len(pieces), "subdivisions": subdivisions,
-                     "steer_in_place": in_place,
+                     "steer_in_place": in_place, "phased_pieces": phased,
+                     "direction_reversals": direction_reversals(nominal.x[:, _pose_cols(model)]),
                      "waypoint_spacing_m": spacing, "dt_s": float(t[1] - t[0]),
                      "path_deviation_m": float(max(np.linalg.norm(p.final_error[:2]) for p in pieces))}

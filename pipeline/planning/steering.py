@@ -28,6 +28,30 @@ sign(b) = sign(c_k), so |b| = (|c_k| / beta^(k-2))^(1/(k-1)) (``balance`` beta =
 Every phase integrates in closed form, so :class:`SteeringPlan` evaluates states and inputs
 exactly (round-off only) at any time.
 
+Constant-v1 steering (:func:`steer_chained_constant_v1`)
+--------------------------------------------------------
+In the phased algorithm v1 = a sin(w t) changes sign, so a car drives back and forth in every
+phase. This mode keeps v1 constant over the whole time T and puts the correction into v2 alone
+(Murray & Sastry also steer with u1 constant and a sinusoid/polynomial series in u2):
+    v1 = c = (z1f - z1s) / T,   v2 = b0 + b1 cos(w t) + b2 sin(w t),   w = 2 pi / T.
+With S = sin(w t) and C = 1 - cos(w t) the chained equations integrate in closed form
+(:func:`_constant_v1_phase`):
+    z1 = z1s + c t,
+    z2 = z2s + b0 t + (b1 S + b2 C) / w,
+    z3 = z3s + c (z2s t + b0 t^2/2 + b1 C / w^2 + b2 (t - S/w) / w),
+    z4 = z4s + c (z3s t + c (z2s t^2/2 + b0 t^3/6 + b1 (t - S/w) / w^2 + b2 (t^2/2 - C/w^2) / w)).
+At t = T (S = C = 0, w T = 2 pi) the targets are linear in b = (b0, b1, b2):
+    [ T          0          0           ] [b0]   [e2 = z2f - z2s                              ]
+    [ c T^2/2    0          c T/w       ] [b1] = [e3 = z3f - z3s - c T z2s                    ]
+    [ c^2 T^3/6  c^2 T/w^2  c^2 T^2/(2w)] [b2]   [e4 = z4f - z4s - c T z3s - c^2 T^2 z2s / 2 ]
+whose determinant is T (0 * c^2 T^2/(2w) - (c T/w)(c^2 T/w^2)) = -c^3 T^3 / w^3
+= -c^3 T^6 / (8 pi^3): nonsingular exactly when c != 0, i.e. when z1 has to move. It is triangular
+after swapping columns 2 and 3, so
+    b0 = e2 / T,   b2 = (w / T) (e3 / c - b0 T^2/2),   b1 = (w^2 / T) (e4 / c^2 - b0 T^3/6 - b2 T^2/(2w)).
+For n = 3 the z4 row drops out: b1 = 0 and v2 = b0 + b2 sin(w t) (2 x 2 determinant c T^2 / w).
+Time scaling: with tau = t / T the states depend on (c T, b T) only and the solution has b ~ 1/T,
+so a longer T traces the same path with inputs divided by T (as the phased plans do).
+
 Cars in chained form (valid for |theta| < pi/2 and |phi| < pi/2)
 ---------------------------------------------------------------
 Both cars move their rear-axle midpoint with body speed s along the heading and turn with
@@ -65,12 +89,15 @@ from ..errors import InputError, require_finite, require_positive
 from ..geometry import wrap_angle
 
 __all__ = [
-    "SteeringPlan", "SteeringPhase", "CarSteering",
-    "chained_rhs", "net_motion", "net_displacement", "steer_chained", "steer_heisenberg",
+    "SteeringPlan", "SteeringPhase", "CarSteering", "STEERING_MODES",
+    "chained_rhs", "net_motion", "net_displacement", "steer_chained", "steer_chained_constant_v1", "steer_heisenberg",
     "to_chained", "from_chained", "car_inputs_from_chained", "chained_inputs_from_car", "steer_car",
 ]
 
 _TWO_PI = 2.0 * math.pi
+#: the chained-form steering methods: the phased sinusoids of :func:`steer_chained` and the constant-v1
+#: sinusoid of :func:`steer_chained_constant_v1`
+STEERING_MODES = ("phased", "constant_v1")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -217,9 +244,28 @@ def _sin_phase(zs: np.ndarray, k: int, a: float, b: float, w: float, t: np.ndarr
     return out
 
 
+def _constant_v1_phase(zs: np.ndarray, c, b0, b1, b2, w, t: np.ndarray, coords: int | None = None) -> np.ndarray:
+    """States under v1 = c, v2 = b0 + b1 cos(w t) + b2 sin(w t) (closed forms in the module docstring);
+    only the first ``coords`` (>= 3) of them if given. The parameters may be arrays broadcasting with
+    ``t`` (and ``zs`` of shape (n, ...) likewise)."""
+    n = zs.shape[0] if coords is None else coords
+    wt = w * t
+    S, C = np.sin(wt), 1.0 - np.cos(wt)
+    ramp = t - S / w                                        # int_0^t C
+    out = np.empty(np.shape(t) + (n,))
+    out[..., 0] = zs[0] + c * t
+    out[..., 1] = zs[1] + b0 * t + (b1 * S + b2 * C) / w
+    out[..., 2] = zs[2] + c * (zs[1] * t + 0.5 * b0 * t * t + b1 * C / (w * w) + b2 * ramp / w)
+    if n == 4:
+        out[..., 3] = zs[3] + c * (zs[2] * t + c * (0.5 * zs[1] * t * t + b0 * t**3 / 6.0 + b1 * ramp / (w * w)
+                                                    + b2 * (0.5 * t * t - C / (w * w)) / w))
+    return out
+
+
 @dataclass(frozen=True)
 class SteeringPhase:
-    """One phase of a plan. ``kind`` is "constant" (inputs v1, v2) or "sinusoid" (k, a, b, w)."""
+    """One phase of a plan. ``kind`` is "constant" (inputs v1, v2), "sinusoid" (k, a, b, w) or
+    "constant_v1" (v1 constant, v2(t) = v2 + v2_cos cos(w t) + v2_sin sin(w t))."""
 
     kind: str
     t0: float
@@ -232,12 +278,17 @@ class SteeringPhase:
     a: float = 0.0
     b: float = 0.0
     w: float = 0.0
+    v2_cos: float = 0.0
+    v2_sin: float = 0.0
 
     def inputs(self, tau: np.ndarray) -> np.ndarray:
         out = np.empty(tau.shape + (2,))
         if self.kind == "constant":
             out[..., 0] = self.v1
             out[..., 1] = self.v2
+        elif self.kind == "constant_v1":
+            out[..., 0] = self.v1
+            out[..., 1] = self.v2 + self.v2_cos * np.cos(self.w * tau) + self.v2_sin * np.sin(self.w * tau)
         else:
             out[..., 0] = self.a * np.sin(self.w * tau)
             out[..., 1] = self.b * np.cos((self.k - 2) * self.w * tau)
@@ -246,15 +297,19 @@ class SteeringPhase:
     def states(self, tau: np.ndarray, coords: int | None = None) -> np.ndarray:
         if self.kind == "constant":
             return _constant_phase(self.z_start, self.v1, self.v2, tau, coords)
+        if self.kind == "constant_v1":
+            return _constant_v1_phase(self.z_start, self.v1, self.v2, self.v2_cos, self.v2_sin, self.w, tau, coords)
         return _sin_phase(self.z_start, self.k, self.a, self.b, self.w, tau, coords)
 
 
 @dataclass(frozen=True)
 class SteeringPlan:
-    """A piecewise (constant, then one sinusoid per higher coordinate) chained-form plan.
+    """A piecewise chained-form plan: ``mode`` "phased" (constant, then one sinusoid per higher
+    coordinate) or "constant_v1" (one phase).
 
-    ``phase_times`` holds the n phase boundaries 0 = t_0 < t_1 < ... < t_(n-1) = T. Inputs are
-    right-continuous at the boundaries (the value of the later phase; at T the last phase's).
+    ``phase_times`` holds the phase boundaries 0 = t_0 < t_1 < ... = T (n of them for "phased", 2 for
+    "constant_v1"). Inputs are right-continuous at the boundaries (the value of the later phase; at T
+    the last phase's).
     """
 
     z0: np.ndarray
@@ -263,6 +318,7 @@ class SteeringPlan:
     phase_times: np.ndarray
     phases: tuple[SteeringPhase, ...]
     amplitude: str | float = "balanced"
+    mode: str = "phased"
 
     @property
     def n(self) -> int:
@@ -361,10 +417,7 @@ def steer_chained(z0, zf, T: float = 1.0, *, amplitude="balanced", balance: floa
     ``phase_fractions``: n - 1 positive weights of the phase lengths (default equal).
     A correction below 8 machine epsilons of the coordinate's size is treated as zero (idle phase).
     """
-    z0 = _vector("z0", z0, (3, 4))
-    zf = _vector("zf", zf, (3, 4))
-    if zf.shape != z0.shape:
-        raise InputError("zf", f"a vector of the same length as z0 ({z0.shape[0]})", f"length {zf.shape[0]}")
+    z0, zf = _chained_pair(z0, zf)
     T = require_positive("T", T)
     balance = require_positive("balance", balance)
     if not (isinstance(amplitude, str) and amplitude == "balanced"):
@@ -405,6 +458,45 @@ def steer_chained(z0, zf, T: float = 1.0, *, amplitude="balanced", balance: floa
         phases.append(SteeringPhase("sinusoid", t0, t1, z.copy(), z_end, k=k, a=a, b=b, w=w))
         z = z_end
     return SteeringPlan(z0=z0, zf=zf, T=T, phase_times=times, phases=tuple(phases), amplitude=amplitude)
+
+
+def _chained_pair(z0, zf) -> tuple[np.ndarray, np.ndarray]:
+    z0 = _vector("z0", z0, (3, 4))
+    zf = _vector("zf", zf, (3, 4))
+    if zf.shape != z0.shape:
+        raise InputError("zf", f"a vector of the same length as z0 ({z0.shape[0]})", f"length {zf.shape[0]}")
+    return z0, zf
+
+
+def steer_chained_constant_v1(z0, zf, T: float = 1.0) -> SteeringPlan:
+    """Steer the chained form from ``z0`` to ``zf`` in time ``T`` with v1 constant.
+
+    One phase of v1 = c = (z1f - z1s) / T and v2 = b0 + b1 cos(w t) + b2 sin(w t), w = 2 pi / T, with
+    (b0, b1, b2) the solution of the 3 x 3 linear system of the module docstring (determinant
+    -c^3 T^6 / (8 pi^3); for n = 3, b1 = 0 and the 2 x 2 system in (b0, b2)). v1 never changes sign:
+    its sign is the direction z1 moves. States and inputs are exact closed forms
+    (:func:`_constant_v1_phase`), the end state equals ``zf`` up to round-off (set exactly in the
+    plan's ``phases[0].z_end``). Refuses (:class:`InputError` on ``zf``) when z1f = z1s: then c = 0
+    and the system is singular (z3, z4 cannot move).
+    """
+    z0, zf = _chained_pair(z0, zf)
+    T = require_positive("T", T)
+    n = z0.shape[0]
+    if zf[0] == z0[0]:
+        raise InputError("zf", "a z1 different from z0's (constant v1 = (z1f - z1s) / T must not vanish)", zf)
+    w = _TWO_PI / T
+    c = (zf[0] - z0[0]) / T
+    e2 = zf[1] - z0[1]
+    e3 = zf[2] - z0[2] - c * T * z0[1]
+    b0 = e2 / T
+    b2 = (w / T) * (e3 / c - 0.5 * b0 * T * T)
+    b1 = 0.0
+    if n == 4:
+        e4 = zf[3] - z0[3] - c * T * z0[2] - 0.5 * (c * T) ** 2 * z0[1]
+        b1 = (w * w / T) * (e4 / (c * c) - b0 * T**3 / 6.0 - b2 * T * T / (2.0 * w))
+    phase = SteeringPhase("constant_v1", 0.0, T, z0.copy(), zf.copy(), v1=c, v2=b0, v2_cos=b1, v2_sin=b2, w=w)
+    return SteeringPlan(z0=z0, zf=zf, T=T, phase_times=np.array([0.0, T]), phases=(phase,),
+                        amplitude="none", mode="constant_v1")
 
 
 def steer_heisenberg(x0, xf, T: float = 1.0, **kwargs) -> SteeringPlan:
@@ -586,27 +678,37 @@ def _frames(frame, x0, xf, name):
     return [("heading", origin, require_finite("frame", frame))]
 
 
-def steer_car(model, x0, xf, T: float | None = None, frame="auto", *, points_per_phase: int = 200,
-              theta_limit: float = 1.2, amplitude="balanced", balance: float | None = None,
-              phase_fractions=None, check_limits: bool = False) -> CarSteering:
+def steer_car(model, x0, xf, T: float | None = None, frame="auto", *, mode: str = "phased",
+              points_per_phase: int = 200, theta_limit: float = 1.2, amplitude="balanced",
+              balance: float | None = None, phase_fractions=None, check_limits: bool = False) -> CarSteering:
     """Exactly steer a ``rwd_car`` or ``fwd_car`` from model state x0 to xf through the chained form.
 
     The poses are expressed in a local frame (origin = x0's position, heading alpha): ``frame``
     "mean" (alpha = mean of the two headings), "start", "goal", "world" (alpha = 0, world origin), a
     number (alpha itself), or "auto" (try mean, start and goal; keep the frame whose steered path
-    has the smallest max |theta - alpha|). In the frame the chained plan of :func:`steer_chained`
-    is computed and mapped back (the heading is offset so x(0) = x0 exactly; xf's heading is met
-    modulo 2 pi). Refuses with :class:`InputError` if |theta - alpha| reaches ``theta_limit``
-    (rad, < pi/2) anywhere on the grid of the best frame (detail gives max |theta - alpha| and
-    max |phi|).
+    has the smallest max |theta - alpha|). In the frame the chained plan (``mode``) is computed and
+    mapped back (the heading is offset so x(0) = x0 exactly; xf's heading is met modulo 2 pi).
+    Refuses with :class:`InputError` if |theta - alpha| reaches ``theta_limit`` (rad, < pi/2)
+    anywhere on the grid of the best frame (detail gives max |theta - alpha| and max |phi|).
 
     ``T``: total time; ``None`` picks the shortest T at which max |speed| and max |omega_s| meet
     the model's limits (inputs scale as 1/T along the same geometric path). ``check_limits``:
     raise InputError if the steering angle, speed or steering rate limit is exceeded.
-    ``amplitude``/``balance`` go to :func:`steer_chained`; ``balance`` defaults to L^2, i.e.
-    |a| = |b| in the dimensionless chained coordinates (x/L, tan(phi)/cos^3 theta, tan theta, y/L).
+    ``mode``: "phased" (:func:`steer_chained`, the car drives back and forth in its sinusoidal
+    phases) or "constant_v1" (:func:`steer_chained_constant_v1`: v1 = cos(theta) s keeps one sign, so
+    the car never reverses within the piece; refused with InputError on ``xf`` when the goal does not
+    advance along the frame's axis). ``amplitude``/``balance``/``phase_fractions`` go to
+    :func:`steer_chained` (phased mode only); ``balance`` defaults to L^2, i.e. |a| = |b| in the
+    dimensionless chained coordinates (x/L, tan(phi)/cos^3 theta, tan theta, y/L).
     """
     name, L = _car_kind(model)
+    if mode not in STEERING_MODES:
+        raise InputError("mode", "one of " + ", ".join(STEERING_MODES), mode)
+    if mode == "constant_v1":
+        for key, value in (("amplitude", None if amplitude == "balanced" else amplitude), ("balance", balance),
+                           ("phase_fractions", phase_fractions)):
+            if value is not None:
+                raise InputError(key, "left at its default: it applies to mode 'phased' only", value)
     x0 = _vector("x0", x0, (4,))
     xf = _vector("xf", xf, (4,))
     if T is not None:
@@ -619,6 +721,11 @@ def steer_car(model, x0, xf, T: float | None = None, frame="auto", *, points_per
     for label, xx in (("x0", x0), ("xf", xf)):
         if abs(_theta_phi(name, xx)[1]) >= 0.5 * np.pi:
             raise InputError(label, "a steering angle |phi| < pi/2", xx)
+
+    def chained(z0, zf, T):
+        if mode == "constant_v1":
+            return steer_chained_constant_v1(z0, zf, T)
+        return steer_chained(z0, zf, T, amplitude=amplitude, balance=balance, phase_fractions=phase_fractions)
 
     best = None
     refusals = []
@@ -639,8 +746,11 @@ def steer_car(model, x0, xf, T: float | None = None, frame="auto", *, points_per
         if ends >= theta_limit:
             refusals.append(f"{fname}: endpoint |theta - alpha| = {ends:.3f}")
             continue
-        plan = steer_chained(to_chained(model, l0), to_chained(model, lf), 1.0 if T is None else T,
-                             amplitude=amplitude, balance=balance, phase_fractions=phase_fractions)
+        z0l, zfl = to_chained(model, l0), to_chained(model, lf)
+        if mode == "constant_v1" and zfl[0] == z0l[0]:
+            refusals.append(f"{fname}: the goal does not advance along the frame's axis (v1 would be 0)")
+            continue
+        plan = chained(z0l, zfl, 1.0 if T is None else T)
         dense = plan.grid(max(ppp, 2000) if T is None else ppp)
         zl = plan.states(dense, coords=3)          # z4 (= y) plays no part in the chart or the inputs
         th_local = np.arctan(zl[:, 2])
@@ -662,8 +772,7 @@ def steer_car(model, x0, xf, T: float | None = None, frame="auto", *, points_per
                 float(np.abs(uu[:, 1]).max()) / model.max_steer_rate) * 1.001
         if T <= 0.0:
             T = 1.0   # x0 == xf: nothing to do
-        plan = steer_chained(plan.z0, plan.zf, T, amplitude=amplitude, balance=balance,
-                             phase_fractions=phase_fractions)
+        plan = chained(plan.z0, plan.zf, T)
 
     th_l0 = float(_theta_phi(name, l0)[0])
     th0 = float(_theta_phi(name, x0)[0])
