@@ -23,6 +23,7 @@ SCENARIOS = {
     "Berlin (Moving AI)": ("maps/scenarios/berlin_roadworks.yaml", []),
     "warehouse, car": ("maps/scenarios/warehouse_aisle_a2.yaml", []),
     "cluttered room": ("maps/ours/cluttered_room.yaml", []),
+    "parking lot, car": ("maps/ours/parking_lot.yaml", []),
 }
 
 

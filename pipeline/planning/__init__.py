@@ -24,11 +24,11 @@ from .geometric import PLANNERS, SPACES, GeometricPath, PathOptions, path_length
 from .timing import TimingOptions, unicycle_nominal
 
 #: default stabilizer parameters per robot, chosen by ``nhstab sweep`` (results/planning/sweep.md): the
-#: largest guaranteed rate with max ||K|| <= 100 along a plan in the bundled parking lot
+#: largest guaranteed rate with max ||K|| <= 50 along a plan in the bundled parking lot
 DEFAULT_STABILIZER = {
     "unicycle": {"alpha": 0.2, "delta": 2.0, "gamma": 1.0},
     "rwd_car": {"alpha": 0.1, "delta": 6.0, "gamma": 1.0},
-    "fwd_car": {"alpha": 0.1, "delta": 6.0, "gamma": 1.0},
+    "fwd_car": {"alpha": 0.2, "delta": 3.0, "gamma": 1.0},
 }
 #: default Reeds-Shepp turning radius of the unicycle [m] (it could turn in place; a radius keeps the
 #: path smooth and the gramian well conditioned)
