@@ -13,7 +13,7 @@ was given. The format::
     rate_hz: 50                       # controller rate (zero-order hold)
     substeps: 4                       # RK4 steps of the plant per control period
     saturate: true                    # clip inputs to the robot's limits
-    headroom: 0.8                     # plan nominals within this fraction of the input/steering limits
+    headroom: 0.8                     # plan nominals within this fraction of the input limits
     max_time_s: 120                   # simulated time limit (default: 2 x the active plan + 30 s)
     controller: {kind: gramian, window: future, alpha: 0.1, delta: 6.0, gamma: 1.0, q: [..], r: [..]}
     noise:

@@ -5,8 +5,8 @@ One run, step by step at the controller rate 1/T (zero-order hold):
 
 1. **Plan** a nominal from the start to the goal on the robot's map (the known obstacles) with the
    planner of :mod:`pipeline.planning`, and the feedback law along it. The nominal is planned for
-   the robot with its input and steering limits scaled by ``headroom`` (default 0.8), so that the
-   feedback has the rest of the real limits to work with.
+   the robot with its input limits scaled by ``headroom`` (default 0.8), so that the feedback has
+   the rest of the real limits to work with.
 2. Every control period: the robot's true state x is *measured* with sensor noise, y = x + n; the
    law gives u = u_ff - K(tau) (y - x0(tau)) (u_ff: the mean of u0 over the hold interval), clipped
    to the robot's input limits; the plant is integrated over the period under that constant input;
@@ -128,13 +128,15 @@ class RunResult:
         return self.status == "reached"
 
 
-#: the model parameters that are limits (scaled by RunOptions.headroom for planning)
-_LIMITS = ("max_speed", "max_turn_rate", "max_steer", "max_steer_rate")
+#: the input limits (scaled by RunOptions.headroom for planning). The steering angle is not scaled:
+#: cars already plan at 1.25 times their minimum turning radius, which keeps the steering angle of
+#: the path's arcs at or below atan(0.8 tan(max_steer)), 0.11 rad inside the rwd car's limit
+_LIMITS = ("max_speed", "max_turn_rate", "max_steer_rate")
 
 
 def derated(model: Model, factor: float) -> Model:
-    """The same robot with its input limits and steering-angle limit scaled by ``factor``: nominals
-    planned for it leave the rest of the real limits to the feedback."""
+    """The same robot with its input limits scaled by ``factor``: nominals planned for it leave the
+    rest of the real limits to the feedback."""
     params = {f.name: getattr(model, f.name) for f in dataclasses.fields(model) if f.init}
     for key in _LIMITS:
         if key in params:
