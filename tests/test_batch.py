@@ -177,3 +177,14 @@ def test_report_numbers_come_from_the_store(tmp_path):
     for ctrl in ("gramian", "open-loop"):
         k = sum(1 for t in trials if t["spec"]["cell_spec"]["controller"] == ctrl and t["status"] == "reached")
         assert f"/ {ctrl} / noise 1 | 3 | {round(100 * k / 3)}%" in md
+
+
+def test_report_with_a_partial_gain_grid(tmp_path):
+    """A grid that sets alpha only (delta and gamma the robot's) labels its cells and draws."""
+    from pipeline.batch.report import write_report
+
+    cfg = load_batch_config(_config(tmp_path, trials=1, controllers=("gramian",), extra="  alpha: [0.1, 0.2]\n"))
+    run_batch(cfg, tmp_path / "b", progress=False)
+    write_report(tmp_path / "b")
+    md = (tmp_path / "b" / "report.md").read_text()
+    assert "/ gramian a0.1 / noise 1 |" in md and "/ gramian a0.2 / noise 1 |" in md

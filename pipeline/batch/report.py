@@ -98,7 +98,8 @@ def _num(v):
 
 
 def _label(row) -> str:
-    gains = "" if row["alpha"] is None else f" a{row['alpha']:g} d{row['delta']:g} g{row['gamma']:g}"
+    gains = "".join(f" {name}{row[key]:g}" for name, key in (("a", "alpha"), ("d", "delta"), ("g", "gamma"))
+                    if row[key] is not None)
     return f"{row['map']} / {row['controller']}{gains} / noise {row['noise']:g}"
 
 
@@ -251,7 +252,7 @@ def noise_figure(rows):
         y = [r["success_rate"] for r in rs]
         err = np.clip([[r["success_rate"] - r["success_lo"] for r in rs],
                        [r["success_hi"] - r["success_rate"] for r in rs]], 0.0, None)
-        gains = "" if a is None else f" a{a:g} d{d:g}"
+        gains = "".join(f" {name}{v:g}" for name, v in (("a", a), ("d", d), ("g", g)) if v is not None)
         ax.errorbar(x, y, yerr=err, marker="o", capsize=3, label=f"{ctrl}{gains} ({mp})")
     ax.set_xlabel("noise level (scale of every noise source)")
     ax.set_ylabel("success rate (Wilson 95%)")
