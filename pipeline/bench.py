@@ -266,8 +266,26 @@ def bench_run(runs: int = 10) -> dict:
             best, median, _ = _best(updates, 3)
             steps.append({"robot": robot, "controller": kind, "updates": len(taus),
                           "us_per_update": 1e6 * best / len(taus), "us_per_update_median": 1e6 * median / len(taus)})
+    # one scan of the run's range sensor (all round, 0.5 degree beams) from random free poses
+    from .collision import CollisionWorld
+    from .sensing import RangeSensor
+
+    scans = []
+    for label, path in [("nav2 depot (604x307 cells, 0.05 m)", maps / "nav2" / "depot.yaml"),
+                        ("ours warehouse_corridor (vector shapes)", maps / "ours" / "warehouse_corridor.yaml")]:
+        m = load_map(path)
+        sensor, world = RangeSensor(m, RunOptions().sensor), CollisionWorld.from_map(m, "all")
+        rng = np.random.default_rng(5)
+        xmin, ymin, xmax, ymax = m.bounds
+        poses = np.column_stack([rng.uniform(xmin, xmax, 400), rng.uniform(ymin, ymax, 400),
+                                 rng.uniform(-np.pi, np.pi, 400)])
+        poses = poses[world.free_many(poses, default_footprint("unicycle"))][:100]
+        times = [_best(lambda p=p: sensor.scan(p), 3)[0] for p in poses]
+        scans.append({"map": label, "beams": sensor.beams, "poses": len(poses),
+                      "scan_ms_median": 1e3 * float(np.median(times)),
+                      "scan_ms_p90": 1e3 * float(np.percentile(times, 90))})
     p95 = [r["replan_latency_p95_s"] for r in rows if r["replan_latency_p95_s"] is not None]
-    return {"benchmark": "run", "machine": machine(), "scenarios": rows, "control_update": steps,
+    return {"benchmark": "run", "machine": machine(), "scenarios": rows, "control_update": steps, "sensor_scan": scans,
             "targets": {"replan_latency_p95_s_max": 1.0, "control_update_us_max": 1000.0},
             "met": {**{f"replan p95 {r['scenario']}": bool(r["replan_latency_p95_s"] is not None
                                                           and r["replan_latency_p95_s"] < 1.0) for r in rows},
@@ -450,6 +468,9 @@ def summary_markdown(results: dict) -> str:
                          f"{'yes' if met else 'NO'} |")
             reached = sum(s == "reached" for s in r["statuses"])
             lines.append(f"| run | {r['scenario']}: runs reaching the goal | {reached} / {r['runs']} | - | - |")
+        for sc in rr.get("sensor_scan", []):
+            lines.append(f"| run | sensor scan ({sc['beams']} beams), {sc['map']}: median / p90 over {sc['poses']} poses | "
+                         f"{sc['scan_ms_median']:.2f} / {sc['scan_ms_p90']:.2f} ms | - | - |")
         for st in rr["control_update"]:
             lines.append(f"| run | control update, {st['robot']}, {st['controller']} | {st['us_per_update']:.1f} us | "
                          f"< 1000 us | {'yes' if st['us_per_update'] < 1000 else 'NO'} |")

@@ -30,13 +30,10 @@ origin is strictly inside an obstacle (or outside the map bounds), every beam ha
 that obstacle. An unknown obstacle is preferred there, then a known one. An origin exactly on a
 polygon's boundary gives range 0 on the beams that cross its edge line.
 
-Cost. Measured on one core of the 2-core development machine, while other jobs were running, with
-the default options (540 beams). Each figure is the median over 200 random free poses of the best of
-5 scans: ``maps/nav2/depot.yaml`` (604 x 307 cells of 0.05 m) 1.6 ms (90th percentile 1.9 ms);
-``maps/ours/warehouse_corridor.yaml`` (17 known and 2 unknown shapes) 0.2 ms (0.26 ms); Bench-MR
-``warehouse.svg`` (1760 edges) 0.25 ms; ``maps/nav2/tb3_sandbox.yaml`` 1.8-2.4 ms. Only the edges
-within range are intersected, and each only with the beams inside the angle it subtends. Each
-beam's grid traversal stops at the nearest shape or boundary hit (or at the range).
+Cost: ``nhstab bench run`` times a scan on the depot grid and on a vector map
+(``results/bench/summary.md``). Only the edges within range are intersected, and each only with the
+beams inside the angle it subtends. Each beam's grid traversal stops at the nearest shape or
+boundary hit (or at the range).
 """
 
 from __future__ import annotations

@@ -129,12 +129,18 @@ def test_a_batch_killed_with_sigkill_and_resumed_runs_each_trial_once(tmp_path):
     assert _records(db) == _records(tmp_path / "whole" / "trials.sqlite")
 
 
-def test_replay_reproduces_a_stored_trial(tmp_path):
+def test_replay_reproduces_a_stored_trial(tmp_path, monkeypatch):
+    """Also with the map given relative to the config and the batch run from another folder."""
     from click.testing import CliRunner
 
     from cli.main import cli
 
-    cfg = load_batch_config(_config(tmp_path, trials=1, controllers=("open-loop",)))
+    f = tmp_path / "cfg" / "batch.yaml"
+    f.parent.mkdir()
+    rel = os.path.relpath(ROOM, f.parent)
+    f.write_text(f"name: t\nroot_seed: 11\ntrials: 1\nmaps:\n  - path: {rel}\ncontrollers: [open-loop]\n")
+    monkeypatch.chdir(tmp_path)
+    cfg = load_batch_config("cfg/batch.yaml")
     run_batch(cfg, tmp_path / "b", progress=False)
     with Store(tmp_path / "b" / "trials.sqlite") as s:
         rec = s.trials()[0]

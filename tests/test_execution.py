@@ -244,3 +244,9 @@ def test_a_start_in_collision_is_bad_input_and_an_unreachable_goal_is_a_status()
     r = execute(walled, make_model("unicycle"), default_footprint("unicycle"), m.start.as_array(),
                 np.array([17.0, 5.0, 0.0]), RunOptions(planning=replace(RunOptions().planning, time_limit_s=0.3)))
     assert r.status == "no_plan" and "no collision-free path" in r.message
+
+
+def test_a_zero_margin_is_a_valid_request():
+    """planning.margin = 0 plans (it used to be mistaken for a start in contact)."""
+    r = _run(_open_map(), noise=NoiseOptions(scale=0.0), planning=replace(RunOptions().planning, margin=0.0))
+    assert r.status == "reached" and r.plans[0].margin == 0.0

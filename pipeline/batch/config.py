@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..execution.config import RunOptions, options_from_mapping, read_yaml_mapping
+from ..execution.config import RunOptions, check_number, check_pose, options_from_mapping, read_yaml_mapping
 from ..execution.controllers import CONTROLLERS
 
 _TOP = ("name", "root_seed", "trials", "maps", "robots", "controllers", "grid", "run")
@@ -127,29 +127,10 @@ def cell_id(cell: dict) -> str:
     return "|".join(parts)
 
 
-def _number(key, v, lo=None, integer=False, lo_open=False):
-    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
-    if ok and integer:
-        ok = float(v).is_integer()
-    if ok and lo is not None:
-        ok = v > lo if lo_open else v >= lo
-    if not ok:
-        kind = "an integer" if integer else "a finite number"
-        bound = "" if lo is None else f" {'>' if lo_open else '>='} {lo:g}"
-        raise InputError(key, kind + bound, v)
-    return int(v) if integer else float(v)
-
-
 def _list(key, v, minimum=1):
     if not isinstance(v, list) or len(v) < minimum:
         raise InputError(key, f"a list of at least {minimum} item{'s' if minimum != 1 else ''}", v)
     return v
-
-
-def _pose(key, v):
-    if not (isinstance(v, list) and len(v) == 3):
-        raise InputError(key, "[x, y, theta] (three numbers)", v)
-    return tuple(_number(f"{key}[{i}]", c) for i, c in enumerate(v))
 
 
 def load_batch_config(path) -> BatchConfig:
@@ -169,9 +150,9 @@ def load_batch_config(path) -> BatchConfig:
     name = data.get("name", path.stem)
     if not isinstance(name, str) or not name:
         raise InputError("name", "a non-empty string", name)
-    root_seed = _number("root_seed", data["root_seed"], 0, integer=True)
-    trials = _number("trials", data["trials"], 1, integer=True)
-    maps = []
+    root_seed = check_number("root_seed", data["root_seed"], 0, integer=True)
+    trials = check_number("trials", data["trials"], 1, integer=True)
+    maps, loaded = [], []
     for i, entry in enumerate(_list("maps", data["maps"])):
         where = f"maps[{i}]"
         if not isinstance(entry, dict) or "path" not in entry:
@@ -183,14 +164,14 @@ def load_batch_config(path) -> BatchConfig:
             raise InputError(f"{where}.path", "a path to a map file", entry["path"])
         mpath = Path(entry["path"])
         mpath = mpath if mpath.is_absolute() else path.parent / mpath
-        cell = _number(f"{where}.cell_size", entry["cell_size"], 0, lo_open=True) if "cell_size" in entry else None
+        cell = check_number(f"{where}.cell_size", entry["cell_size"], 0, lo_open=True) if "cell_size" in entry else None
         try:
             m = load_map(mpath, **({"cell_size": cell} if cell is not None else {}))
         except InputError as exc:
             raise InputError(f"{where}.path", "a map that loads", str(entry["path"]), detail=str(exc)) from None
         problems = _problems(f"{where}.problems", entry.get("problems", "map"), m)
-        label = m.name
-        maps.append(MapSpec(str(mpath), label, cell, problems))
+        maps.append(MapSpec(str(mpath), m.name, cell, problems))
+        loaded.append(m)
     labels = [m.label for m in maps]
     if len(set(labels)) != len(labels):
         raise InputError("maps", "maps with different names", labels)
@@ -213,7 +194,7 @@ def load_batch_config(path) -> BatchConfig:
             raise InputError(f"grid.{key}", "one of " + ", ".join(_GRID_KEYS), key)
         _list(f"grid.{key}", values)
         lo, lo_open = {"noise": (0.0, False), "alpha": (0.0, True), "delta": (0.0, True), "gamma": (0.5, False)}[key]
-        grid[key] = [_number(f"grid.{key}[{j}]", v, lo, lo_open=lo_open) for j, v in enumerate(values)]
+        grid[key] = [check_number(f"grid.{key}[{j}]", v, lo, lo_open=lo_open) for j, v in enumerate(values)]
     run = data.get("run", {}) or {}
     allowed = {"rate_hz", "substeps", "saturate", "headroom", "max_time_s", "controller", "noise", "sensor",
                "monitor", "planning", "replan", "tolerance"}
@@ -222,9 +203,8 @@ def load_batch_config(path) -> BatchConfig:
             if key in _RUN_EXCLUDED:
                 raise InputError(f"run.{key}", "set by the batch (maps, robots, trials), not in run", key)
     base = options_from_mapping(run, allowed, prefix="run.")
-    for ms in maps:
-        robot_names = robots or [((load_map(ms.path, **({"cell_size": ms.cell_size} if ms.cell_size else {})).robot
-                                   or {}).get("model") or "unicycle")]
+    for m in loaded:
+        robot_names = robots or [(m.robot or {}).get("model") or "unicycle"]
         for r in robot_names:
             model = make_model(r)
             try:
@@ -243,8 +223,8 @@ def _problems(key: str, value, m) -> tuple:
         for k in value:
             if k not in ("first", "count"):
                 raise InputError(f"{key}.{k}", "first or count", k)
-        first = _number(f"{key}.first", value.get("first", 0), 0, integer=True)
-        count = _number(f"{key}.count", value.get("count", 1), 1, integer=True)
+        first = check_number(f"{key}.first", value.get("first", 0), 0, integer=True)
+        count = check_number(f"{key}.count", value.get("count", 1), 1, integer=True)
         if first + count > len(m.problems):
             raise InputError(key, f"problems within the map's {len(m.problems)}", value)
         return tuple((tuple(p.start.as_array()), tuple(p.goal.as_array())) for p in m.problems[first:first + count])
@@ -253,5 +233,5 @@ def _problems(key: str, value, m) -> tuple:
     for j, item in enumerate(items):
         if not isinstance(item, dict) or set(item) != {"start", "goal"}:
             raise InputError(f"{key}[{j}]", "a mapping with start and goal", item)
-        out.append((_pose(f"{key}[{j}].start", item["start"]), _pose(f"{key}[{j}].goal", item["goal"])))
+        out.append((check_pose(f"{key}[{j}].start", item["start"]), check_pose(f"{key}[{j}].goal", item["goal"])))
     return tuple(out)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from pathlib import Path
 import traceback
 
 import numpy as np
@@ -114,7 +115,9 @@ def replay_config(record: dict) -> dict:
     opts = trial_options(record["spec"])
     cell = record["spec"]["cell_spec"]
     d = dataclasses.asdict(opts)
-    out = {"map": cell["map_path"], "seed": opts.seed, "start": list(opts.start), "goal": list(opts.goal)}
+    # the stored map path is relative to where the batch ran (like the workers); the run config
+    # resolves paths relative to itself, so it gets the absolute path
+    out = {"map": str(Path(cell["map_path"]).resolve()), "seed": opts.seed, "start": list(opts.start), "goal": list(opts.goal)}
     if opts.robot:
         out["robot"] = opts.robot
     for key in ("rate_hz", "substeps", "saturate", "headroom", "max_time_s"):

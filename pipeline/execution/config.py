@@ -56,7 +56,7 @@ DISTRIBUTIONS = ("gaussian", "uniform")
 DEFAULT_MARGIN = {"unicycle": 0.1, "rwd_car": 0.3, "fwd_car": 0.2}
 
 
-def _number(key: str, v, lo: float = -math.inf, lo_open: bool = False, integer: bool = False):
+def check_number(key: str, v, lo: float = -math.inf, lo_open: bool = False, integer: bool = False):
     ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
     if ok and integer:
         ok = float(v).is_integer()
@@ -82,7 +82,7 @@ class NoiseOptions:
     impulses: tuple = ()
 
     def validated(self, state_names) -> "NoiseOptions":
-        _number("noise.scale", self.scale, 0.0)
+        check_number("noise.scale", self.scale, 0.0)
         if self.distribution not in DISTRIBUTIONS:
             raise InputError("noise.initial.distribution", "one of " + ", ".join(DISTRIBUTIONS), self.distribution)
         for kind in ("initial", "sensor", "process"):
@@ -90,14 +90,14 @@ class NoiseOptions:
                 if name not in state_names:
                     raise InputError(f"noise.{kind}.{name}", "a state of the robot (" + ", ".join(state_names) + ")",
                                      name)
-                _number(f"noise.{kind}.{name}", v, 0.0)
+                check_number(f"noise.{kind}.{name}", v, 0.0)
         for i, (time_s, jump) in enumerate(self.impulses):
-            _number(f"noise.impulses[{i}].time", time_s, 0.0)
+            check_number(f"noise.impulses[{i}].time", time_s, 0.0)
             for name, v in jump.items():
                 if name not in state_names:
                     raise InputError(f"noise.impulses[{i}].{name}", "time or a state of the robot ("
                                      + ", ".join(state_names) + ")", name)
-                _number(f"noise.impulses[{i}].{name}", v)
+                check_number(f"noise.impulses[{i}].{name}", v)
         return self
 
     def vector(self, kind: str, state_names) -> np.ndarray:
@@ -126,8 +126,8 @@ class MonitorOptions:
     horizon_s: float = 8.0
 
     def validated(self) -> "MonitorOptions":
-        _number("monitor.rate_hz", self.rate_hz, 0.0, lo_open=True)
-        _number("monitor.horizon_s", self.horizon_s, 0.0, lo_open=True)
+        check_number("monitor.rate_hz", self.rate_hz, 0.0, lo_open=True)
+        check_number("monitor.horizon_s", self.horizon_s, 0.0, lo_open=True)
         return self
 
 
@@ -150,11 +150,11 @@ class PlanningOptions:
             raise InputError("planning.planner", "one of " + ", ".join(PLANNERS), self.planner)
         if self.space not in SPACES:
             raise InputError("planning.space", "one of " + ", ".join(SPACES), self.space)
-        _number("planning.time_limit_s", self.time_limit_s, 0.0, lo_open=True)
+        check_number("planning.time_limit_s", self.time_limit_s, 0.0, lo_open=True)
         if self.margin is not None:
-            _number("planning.margin", self.margin, 0.0)
+            check_number("planning.margin", self.margin, 0.0)
         if self.turning_radius is not None:
-            _number("planning.turning_radius", self.turning_radius, 0.0, lo_open=True)
+            check_number("planning.turning_radius", self.turning_radius, 0.0, lo_open=True)
         return self
 
 
@@ -170,9 +170,9 @@ class ReplanOptions:
     max_replans: int = 10
 
     def validated(self) -> "ReplanOptions":
-        _number("replan.pause_s", self.pause_s, 0.0)
-        _number("replan.max_attempts", self.max_attempts, 1.0, integer=True)
-        _number("replan.max_replans", self.max_replans, 0.0, integer=True)
+        check_number("replan.pause_s", self.pause_s, 0.0)
+        check_number("replan.max_attempts", self.max_attempts, 1.0, integer=True)
+        check_number("replan.max_replans", self.max_replans, 0.0, integer=True)
         return self
 
 
@@ -185,8 +185,8 @@ class ToleranceOptions:
     heading_rad: float = 0.2
 
     def validated(self) -> "ToleranceOptions":
-        _number("tolerance.position_m", self.position_m, 0.0, lo_open=True)
-        _number("tolerance.heading_rad", self.heading_rad, 0.0, lo_open=True)
+        check_number("tolerance.position_m", self.position_m, 0.0, lo_open=True)
+        check_number("tolerance.heading_rad", self.heading_rad, 0.0, lo_open=True)
         return self
 
 
@@ -212,16 +212,16 @@ class RunOptions:
     tolerance: ToleranceOptions = field(default_factory=ToleranceOptions)
 
     def validated(self, state_names, n_inputs: int) -> "RunOptions":
-        _number("seed", self.seed, 0.0, integer=True)
-        _number("rate_hz", self.rate_hz, 0.0, lo_open=True)
-        _number("substeps", self.substeps, 1.0, integer=True)
-        _number("headroom", self.headroom, 0.0, lo_open=True)
+        check_number("seed", self.seed, 0.0, integer=True)
+        check_number("rate_hz", self.rate_hz, 0.0, lo_open=True)
+        check_number("substeps", self.substeps, 1.0, integer=True)
+        check_number("headroom", self.headroom, 0.0, lo_open=True)
         if self.headroom > 1.0:
             raise InputError("headroom", "a number in (0, 1]", self.headroom)
         if not isinstance(self.saturate, bool):
             raise InputError("saturate", "true or false", self.saturate)
         if self.max_time_s is not None:
-            _number("max_time_s", self.max_time_s, 0.0, lo_open=True)
+            check_number("max_time_s", self.max_time_s, 0.0, lo_open=True)
         self.controller.validated(len(state_names), n_inputs)
         self.noise.validated(state_names)
         self.sensor.validated()
@@ -238,10 +238,10 @@ _SECTIONS = {"controller": ControllerOptions, "noise": NoiseOptions, "sensor": S
 _TOP = {f.name for f in fields(RunOptions)} | {"map"}
 
 
-def _pose(key: str, v):
+def check_pose(key: str, v):
     if not (isinstance(v, (list, tuple)) and len(v) == 3):
         raise InputError(key, "[x, y, theta] (three numbers)", v)
-    return tuple(_number(f"{key}[{i}]", c) for i, c in enumerate(v))
+    return tuple(check_number(f"{key}[{i}]", c) for i, c in enumerate(v))
 
 
 def _noise(data: dict) -> NoiseOptions:
@@ -253,7 +253,7 @@ def _noise(data: dict) -> NoiseOptions:
             raise InputError(f"noise.{key}", "one of " + ", ".join(sorted(allowed)), key)
     kw = {}
     if "scale" in data:
-        kw["scale"] = _number("noise.scale", data["scale"], 0.0)
+        kw["scale"] = check_number("noise.scale", data["scale"], 0.0)
     for kind in ("initial", "sensor", "process"):
         if kind in data:
             section = data[kind]
@@ -286,7 +286,7 @@ def _section(name: str, data) -> object:
         # degrees in files, radians inside
         for deg, rad in (("fov_deg", "fov_rad"), ("resolution_deg", "resolution_rad")):
             if deg in data:
-                data[rad] = math.radians(_number(f"sensor.{deg}", data.pop(deg)))
+                data[rad] = math.radians(check_number(f"sensor.{deg}", data.pop(deg)))
     if name == "controller" and "kind" not in data and "type" in data:
         data["kind"] = data.pop("type")
     names = {f.name for f in fields(cls)}
@@ -318,7 +318,7 @@ def options_from_mapping(data: dict, allowed=None, prefix: str = "") -> RunOptio
             elif key in _SECTIONS:
                 kw[key] = _section(key, v)
             elif key in ("start", "goal"):
-                kw[key] = _pose(key, v)
+                kw[key] = check_pose(key, v)
             else:
                 kw[key] = v
         return RunOptions(**kw)

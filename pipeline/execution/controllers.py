@@ -107,15 +107,20 @@ class FeedbackLaw:
         k = min(int(s), self._last)
         return k, s - k
 
+    def _state(self, k: int, a: float) -> np.ndarray:
+        """x0 at fraction a of grid interval k: cubic Hermite with the model's slopes."""
+        a2 = a * a
+        a3 = a2 * a
+        return ((2 * a3 - 3 * a2 + 1) * self._x[k] + (a3 - 2 * a2 + a) * self._xd[k]
+                + (3 * a2 - 2 * a3) * self._x[k + 1] + (a3 - a2) * self._xd[k + 1])
+
     def reference(self, tau: float) -> tuple[np.ndarray, np.ndarray]:
         """x0(tau) (cubic Hermite with the model's slopes) and u0(tau) (linear), clamped to the span."""
         k, a = self._weights(tau)
-        a2 = a * a
-        a3 = a2 * a
-        x0 = ((2 * a3 - 3 * a2 + 1) * self._x[k] + (a3 - 2 * a2 + a) * self._xd[k]
-              + (3 * a2 - 2 * a3) * self._x[k + 1] + (a3 - a2) * self._xd[k + 1])
-        u0 = (1.0 - a) * self._u[k] + a * self._u[k + 1]
-        return x0, u0
+        return self._state(k, a), self._input(k, a)
+
+    def _input(self, k: int, a: float) -> np.ndarray:
+        return (1.0 - a) * self._u[k] + a * self._u[k + 1]
 
     def gain(self, tau: float) -> np.ndarray:
         k, a = self._weights(tau)
@@ -126,14 +131,11 @@ class FeedbackLaw:
 
         u_feedforward replaces u0(tau) (the run loop passes the mean of u0 over the hold interval)."""
         k, a = self._weights(tau)
-        a2 = a * a
-        a3 = a2 * a
-        x0 = ((2 * a3 - 3 * a2 + 1) * self._x[k] + (a3 - 2 * a2 + a) * self._xd[k]
-              + (3 * a2 - 2 * a3) * self._x[k + 1] + (a3 - a2) * self._xd[k + 1])
+        x0 = self._state(k, a)
         e = x_measured - x0
         if self._angles:
             e[self._angles] = (e[self._angles] + math.pi) % (2.0 * math.pi) - math.pi
-        uff = (1.0 - a) * self._u[k] + a * self._u[k + 1] if u_feedforward is None else u_feedforward
+        uff = self._input(k, a) if u_feedforward is None else u_feedforward
         K = (1.0 - a) * self.K[k] + a * self.K[k + 1]
         return uff - K @ e, x0, e
 
@@ -142,7 +144,7 @@ class FeedbackLaw:
         end values outside the nominal's span."""
         i, j = np.searchsorted(self.t, [t_from, t_to], side="right")
         pts = [t_from, *self.t[i:j].tolist(), t_to]
-        vals = np.array([self.reference(p)[1] for p in pts])
+        vals = np.array([self._input(*self._weights(p)) for p in pts])
         return np.sum(0.5 * (vals[1:] + vals[:-1]) * np.diff(pts)[:, None], axis=0) / (t_to - t_from)
 
 

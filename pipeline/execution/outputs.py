@@ -154,7 +154,7 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
     poses = lg["x"][:, pose_columns(model)]
     clearance = {}
     if len(poses):
-        truth = CollisionWorld.from_map(result.map, "all")
+        truth = result.world if result.world is not None else CollisionWorld.from_map(result.map, "all")
         c_min, i_min = truth.min_clearance(poses, result.footprint)
         margin = result.options.planning.margin
         free = truth.free_many(poses, result.footprint, margin)

@@ -122,6 +122,8 @@ class RunResult:
     seeds: dict
     wall_time_s: float
     info: dict = field(default_factory=dict)
+    #: the FCL world of every real obstacle (known and unknown) the run was checked against
+    world: CollisionWorld | None = None
 
     @property
     def ok(self) -> bool:
@@ -219,17 +221,19 @@ class CompositeRun:
         margin = self.opts.planning.margin
         attempt = {"seed": seed, "margin": margin}
         started = time.perf_counter()
+        clearance = math.inf
         if self.plans:
             # the robot may have come closer to an obstacle than the margin before it saw it
-            c = self.robot_world.clearance(start_pose, self.fp)
-            if c <= margin:
-                margin = 0.5 * c
-                attempt.update(margin=margin, margin_reduced_from=self.opts.planning.margin, start_clearance_m=c)
+            clearance = self.robot_world.clearance(start_pose, self.fp)
+            if 0 < clearance <= margin:
+                margin = 0.5 * clearance
+                attempt.update(margin=margin, margin_reduced_from=self.opts.planning.margin,
+                               start_clearance_m=clearance)
         result, law = None, None
         try:
-            if margin <= 0:
+            if clearance <= 0:
                 raise InputError("start", "a pose clear of the obstacles", start_pose.round(3).tolist(),
-                                 detail=f"clearance {self.robot_world.clearance(start_pose, self.fp):.3g} m")
+                                 detail=f"clearance {clearance:.3g} m")
             result = plan(self.m, self.plan_model, self.fp, start_pose, self.goal, self._path_options(seed, margin),
                           TimingOptions(dt=self.T), world=self.robot_world)
             if result.ok:
@@ -282,7 +286,8 @@ class CompositeRun:
 
     def _sense(self, x, t):
         scan = self.sensor.scan(x[self.pose_idx])
-        new = sorted(i for i in scan.revealed if i not in {d["index"] for d in self.discovered})
+        seen = {d["index"] for d in self.discovered}
+        new = sorted(i for i in scan.revealed if i not in seen)
         if not new:
             return False
         for i in new:
@@ -447,4 +452,4 @@ def execute(m: Map, model: Model, fp: Footprint, start, goal, opts: RunOptions) 
     return RunResult(status, message, model, fp, m, run.start, run.goal, run.opts, run.plans, log, run.discovered,
                      run.collision, seeds, time.perf_counter() - started,
                      {"final_errors": run.final_errors, "x_initial": getattr(run, "x_initial", None),
-                      "period_s": run.T})
+                      "period_s": run.T}, run.truth)
