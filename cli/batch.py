@@ -34,9 +34,9 @@ def run_cmd(config_file, out_dir, workers, scheduler, resume, no_progress):
     OUT/trials.sqlite as it finishes. A trial that fails is recorded with its error."""
     import os
 
-    from pipeline.batch.config import load_batch_config
-    from pipeline.batch.runner import run_batch
-    from pipeline.errors import InputError
+    from nhstab.batch.config import load_batch_config
+    from nhstab.batch.runner import run_batch
+    from nhstab.errors import InputError
 
     if workers is not None and workers < 1:
         raise InputError("--workers", "an integer >= 1", workers)
@@ -47,7 +47,7 @@ def run_cmd(config_file, out_dir, workers, scheduler, resume, no_progress):
                        progress=not no_progress)
     click.echo(f"ran {counts['ran']} trials in {counts['wall_s']:.1f} s ({counts['already_stored']} already stored); "
                f"{counts['stored']} in {out_dir / 'trials.sqlite'}")
-    from pipeline.batch.report import write_report
+    from nhstab.batch.report import write_report
 
     files = write_report(out_dir)
     click.echo(f"report: {out_dir / 'report.html'} (and {len(files) - 1} more files)")
@@ -64,11 +64,11 @@ def replay(store_path, trial_id, out_dir, animate):
     the run's files. STORE is a batch folder or its trials.sqlite."""
     import yaml
 
-    from pipeline.batch.store import Store
-    from pipeline.batch.trial import replay_config
-    from pipeline.errors import InputError
-    from pipeline.execution.config import load_run_config
-    from pipeline.records import write_text
+    from nhstab.batch.store import Store
+    from nhstab.batch.trial import replay_config
+    from nhstab.errors import InputError
+    from nhstab.execution.config import load_run_config
+    from nhstab.records import write_text
 
     from .map import load
     from .run import execute_and_write
@@ -95,7 +95,7 @@ def replay(store_path, trial_id, out_dir, animate):
 def report(store_path, out_dir):
     """Write report.html, report.md, trials.csv and figures/ from a batch store (STORE: the batch
     folder or its trials.sqlite). Every number comes from the store."""
-    from pipeline.batch.report import write_report
+    from nhstab.batch.report import write_report
 
     files = write_report(store_path, out_dir)
     click.echo("wrote " + ", ".join(str(f) for f in files))

@@ -9,7 +9,7 @@ import click
 
 
 def _emit(result: dict, out: Path):
-    from pipeline.records import to_jsonable, write_json
+    from nhstab.records import to_jsonable, write_json
 
     write_json(out, result)
     click.echo(json.dumps(to_jsonable(result), indent=2))
@@ -24,8 +24,8 @@ def bench(ctx, out_dir):
     """Run every benchmark (no subcommand) or one of them. Writes JSON."""
     if ctx.invoked_subcommand is not None:
         return 0
-    from pipeline.bench import BENCHMARKS, summary_markdown
-    from pipeline.records import write_json, write_text
+    from nhstab.bench import BENCHMARKS, summary_markdown
+    from nhstab.records import write_json, write_text
 
     results = {}
     for name, fn in BENCHMARKS.items():
@@ -38,8 +38,9 @@ def bench(ctx, out_dir):
     return 0
 
 
-#: the benchmark subcommands: name -> help (the functions live in pipeline.bench.BENCHMARKS)
+#: the benchmark subcommands: name -> help (the functions live in nhstab.bench.BENCHMARKS)
 SUBCOMMANDS = {
+    "startup": "Import time: `nhstab --help` against `python -c pass`, whole processes.",
     "gains": "Gain schedule: N = 1e3, 1e4, 1e5 on the Hilare sinusoid, and the naive method at N = 1e3.",
     "collision": "FCL world build time and car pose checks per second on the Moving AI 512x512 and nav2 depot maps.",
     "planning": "Time to a feasible, stabilizable nominal over 20 fixed start/goal pairs on two maps, two robots.",
@@ -53,7 +54,7 @@ def _subcommand(name: str, help_text: str):
     @click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
                   default=Path(f"results/bench/{name}.json"), show_default=True)
     def run(out):
-        from pipeline.bench import BENCHMARKS
+        from nhstab.bench import BENCHMARKS
 
         _emit(BENCHMARKS[name](), out)
         return 0

@@ -10,7 +10,7 @@ from .options import stabilizer_options
 
 
 def _parse_params(items) -> dict:
-    from pipeline.errors import InputError
+    from nhstab.errors import InputError
 
     params = {}
     for item in items:
@@ -37,10 +37,10 @@ def gains(trajectory, model_name, params, alpha, delta, gamma, window, end_strat
     Writes gains.npz (t, P, K, H eigenvalues, gamma, x0, u0) and gains.json (options and diagnostics:
     p_m, p_M, the guaranteed rate 2 alpha p_m / p_M, the smallest eigenvalue of H and where).
     """
-    from pipeline.control import StabilizerOptions, compute_schedule
-    from pipeline.models import make_model
-    from pipeline.records import write_json, write_npz
-    from pipeline.trajectory_io import read_trajectory
+    from nhstab.control import StabilizerOptions, compute_schedule
+    from nhstab.models import make_model
+    from nhstab.records import write_json, write_npz
+    from nhstab.trajectory_io import read_trajectory
 
     model = make_model(model_name, **_parse_params(params))
     opts = StabilizerOptions(alpha=alpha, delta=delta, gamma=gamma, window=window, end_strategy=end_strategy).validated()

@@ -6,8 +6,8 @@ import sys
 
 import click
 
-from pipeline import __version__
-from pipeline.errors import InputError, PipelineError, SingularGramianError
+from nhstab._version import __version__
+from nhstab.errors import InputError, PipelineError, SingularGramianError
 
 #: exit code for bad input (arguments, options, files, unusable trajectories)
 EXIT_INPUT = 2
@@ -57,11 +57,13 @@ def cli():
 
 def _register():
     from . import bench, gains, paper
+    from .examples import examples
     from .map import map_group
     from .plan import plan, sweep
     from .run import run
     from .batch import batch
 
+    cli.add_command(examples)
     cli.add_command(map_group)
     cli.add_command(plan)
     cli.add_command(run)

@@ -9,7 +9,7 @@ import click
 
 
 def parse_pose(name: str, text: str | None):
-    from pipeline.errors import InputError
+    from nhstab.errors import InputError
 
     if text is None:
         return None
@@ -18,8 +18,6 @@ def parse_pose(name: str, text: str | None):
         values = [float(v) for v in parts]
     except ValueError:
         raise InputError(name, "x,y,theta (metres, metres, radians)", text) from None
-    if len(values) == 2:
-        values.append(0.0)
     if len(values) != 3 or not all(abs(v) < float("inf") for v in values):
         raise InputError(name, "x,y,theta (metres, metres, radians), finite", text)
     return tuple(values)
@@ -33,7 +31,7 @@ def map_options(f):
 
 
 def load(path, cell_size, unknown):
-    from pipeline.maps import load_map
+    from nhstab.maps import load_map
 
     options = {}
     if cell_size is not None:
@@ -43,38 +41,12 @@ def load(path, cell_size, unknown):
     return load_map(path, **options)
 
 
-def map_summary(m, fp=None) -> dict:
-    from pipeline.collision import check_poses, grid_rectangles
-    from pipeline.maps.raster import free_fraction
-
-    frac, cell = free_fraction(m)
-    grids = []
-    for g in m.grids:
-        unknown = int(g.unknown.sum()) if g.unknown is not None else 0
-        grids.append({"cells": list(g.shape), "resolution_m": g.resolution, "origin": list(g.origin),
-                      "occupied_cells": int(g.occupied.sum()), "unknown_cells": unknown,
-                      "merged_boxes": len(grid_rectangles(g.occupied))})
-    info = {
-        "name": m.name, "source": m.source, "bounds": list(m.bounds), "size_m": list(m.size),
-        "known_obstacles": len(m.obstacles), "unknown_obstacles": len(m.unknown_obstacles),
-        "grids": grids, "free_fraction": frac, "free_fraction_cell_m": cell,
-        "problems": len(m.problems),
-        "start": None if m.start is None else list(m.start.as_array()),
-        "goal": None if m.goal is None else list(m.goal.as_array()),
-        "robot": m.robot,
-    }
-    if fp is not None and (m.start is not None or m.goal is not None):
-        clear = check_poses(m, fp, {"start": _arr(m.start), "goal": _arr(m.goal)})
-        info.update({f"{k}_clearance_m": v for k, v in clear.items()})
-    return info
-
-
 def _arr(p):
     return None if p is None else p.as_array()
 
 
 def _footprint(m, robot):
-    from pipeline.geometry import default_footprint
+    from nhstab.geometry import default_footprint
 
     model = robot or (m.robot or {}).get("model") or "unicycle"
     return default_footprint(model)
@@ -92,10 +64,12 @@ def map_group():
 @map_options
 def info(map_file, as_json, robot, cell_size, unknown):
     """Size, resolution, obstacle counts and free fraction of MAP."""
+    from nhstab.report.maps import map_summary
+
     m = load(map_file, cell_size, unknown)
     summary = map_summary(m, _footprint(m, robot))
     if as_json:
-        from pipeline.records import to_jsonable
+        from nhstab.records import to_jsonable
 
         click.echo(json.dumps(to_jsonable(summary), indent=2))
         return 0
@@ -129,9 +103,9 @@ def info(map_file, as_json, robot, cell_size, unknown):
 @map_options
 def show(map_file, out, start, goal, robot, problems, cell_size, unknown):
     """Draw MAP: known obstacles solid, unknown dashed, bounds, start and goal with the footprint."""
-    from pipeline.collision import check_poses
-    from pipeline.records import save_figure
-    from pipeline.report.maps import map_figure
+    from nhstab.collision import check_poses
+    from nhstab.records import save_figure
+    from nhstab.report.maps import map_figure
 
     m = load(map_file, cell_size, unknown)
     fp = _footprint(m, robot)
@@ -158,19 +132,23 @@ GALLERY = [
 
 
 @map_group.command("gallery")
-@click.option("--maps", "maps_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("maps"),
-              show_default=True, help="The bundled maps folder.")
+@click.option("--maps", "maps_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="The bundled maps folder (default: the one installed with nhstab).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results/maps"),
               show_default=True)
 def gallery(maps_dir, out_dir):
     """Draw a selection of the bundled maps into OUT (the committed results/maps)."""
-    from pipeline.errors import InputError
-    from pipeline.maps import load_map
-    from pipeline.records import save_figure
-    from pipeline.report.maps import map_figure
+    from nhstab.errors import InputError
+    from nhstab.maps import load_map
+    from nhstab.records import save_figure
+    from nhstab.report.maps import map_figure
 
+    if maps_dir is None:
+        from nhstab.examples import data_root
+
+        maps_dir = data_root()
     if not maps_dir.is_dir():
-        raise InputError("--maps", "the bundled maps folder (run from the root of a source checkout)", str(maps_dir))
+        raise InputError("--maps", "a folder holding the bundled maps", str(maps_dir))
     for rel, load_opts, draw in GALLERY:
         m = load_map(maps_dir / rel, **load_opts)
         fp = _footprint(m, draw.get("robot"))

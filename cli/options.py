@@ -4,17 +4,24 @@ from __future__ import annotations
 
 import click
 
-from pipeline.control import END_STRATEGIES, WINDOWS
+
+
+WINDOW_CHOICES = ("future", "past")
+END_STRATEGY_CHOICES = ("frozen", "switch")
 
 
 def stabilizer_options(defaults: bool = True):
     """--alpha, --delta, --gamma, --window, --end-strategy. With ``defaults=False`` they default to
     None (meaning: keep the case's own value)."""
 
+    # the choices, spelled out here so that ``nhstab --help`` needs no numpy or scipy
+    # (tests/test_cli.py checks them against nhstab.control.WINDOWS and END_STRATEGIES)
+    windows, end_strategies = WINDOW_CHOICES, END_STRATEGY_CHOICES
+
     def deco(f):
-        f = click.option("--end-strategy", type=click.Choice(END_STRATEGIES), default="frozen" if defaults else None,
+        f = click.option("--end-strategy", type=click.Choice(end_strategies), default="frozen" if defaults else None,
                          help="What P is where the window runs off the trajectory (see README).")(f)
-        f = click.option("--window", type=click.Choice(WINDOWS), default="future" if defaults else None,
+        f = click.option("--window", type=click.Choice(windows), default="future" if defaults else None,
                          help="future: P_c = H_c(t, t+delta)^-1 (Proposition 1); past: P_r (Remark 2).")(f)
         f = click.option("--gamma", type=float, default=1.0 if defaults else None, help="Gain factor, >= 1/2.")(f)
         f = click.option("--delta", type=float, default=1.0 if defaults else None, help="Window length [s], > 0.")(f)

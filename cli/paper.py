@@ -22,7 +22,7 @@ def paper(out_dir, cases, list_cases, alpha, delta, gamma, window, end_strategy)
 
     Stabilizer options given here override every selected case's own values (recorded in the summary).
     """
-    from pipeline.paper import CASES, run_paper
+    from nhstab.paper import CASES, run_paper
 
     if list_cases:
         for case in CASES.values():

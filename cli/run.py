@@ -16,7 +16,7 @@ EXIT_INTERRUPTED = 130
 
 def parse_levels(name: str, text: str | None) -> dict | None:
     """``x=0.02,y=0.02,theta=0.01`` -> {"x": 0.02, ...}."""
-    from pipeline.errors import InputError
+    from nhstab.errors import InputError
 
     if text is None:
         return None
@@ -71,8 +71,8 @@ def run(map_file, config_file, robot, start, goal, problem, controller, window, 
     failed, timed out, missed goal, numerical failure), 3 when there was no first plan, 2 for bad
     input, 130 when interrupted (the files then describe the interrupted run).
     """
-    from pipeline.errors import InputError
-    from pipeline.execution.config import RunOptions, load_run_config, merge
+    from nhstab.errors import InputError
+    from nhstab.execution.config import RunOptions, load_run_config, merge
 
     base, cfg_map = RunOptions(), None
     if config_file is not None:
@@ -94,28 +94,23 @@ def run(map_file, config_file, robot, start, goal, problem, controller, window, 
                  controller__kind=controller, controller__window=window, controller__alpha=alpha,
                  controller__delta=delta, controller__gamma=gamma, planning__planner=planner,
                  planning__time_limit_s=time_limit, planning__margin=margin)
+    from nhstab.maps import resolve_poses
+
     m = load(map_path, cell_size, unknown)
-    if problem is not None:
-        if not (0 <= problem < len(m.problems)):
-            raise InputError("--problem", f"an index in [0, {len(m.problems)})", problem)
-        s, g = m.problems[problem].start.as_array(), m.problems[problem].goal.as_array()
-    else:
-        s = parse_pose("--start", start) or opts.start or (m.start.as_array() if m.start else None)
-        g = parse_pose("--goal", goal) or opts.goal or (m.goal.as_array() if m.goal else None)
-    if s is None or g is None:
-        raise InputError("--start/--goal", "poses (the map and the config give none)", None)
+    s, g = resolve_poses(m, parse_pose("--start", start) or opts.start, parse_pose("--goal", goal) or opts.goal,
+                         problem, names=("--start", "--goal", "--problem"))
     return execute_and_write(m, str(map_path), opts, s, g, out_dir, animate)
 
 
 def execute_and_write(m, map_path: str, opts, start, goal, out_dir: Path, animate: bool) -> int:
     import numpy as np
 
-    from pipeline.execution import execute, write_run
-    from pipeline.geometry import default_footprint
-    from pipeline.models import make_model
+    from nhstab.execution import execute, write_run
+    from nhstab.geometry import default_footprint
+    from nhstab.models import make_model
 
-    from pipeline.errors import InputError
-    from pipeline.planning import PLANNABLE
+    from nhstab.errors import InputError
+    from nhstab.planning import PLANNABLE
 
     name = opts.robot or (m.robot or {}).get("model") or "unicycle"
     if name not in PLANNABLE:

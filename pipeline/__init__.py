@@ -1,8 +1,73 @@
 """nhstab: plan, stabilize and stress-test nonholonomic robots.
 
-The library follows the pipeline of the composite controller of Walsh, Tilbury, Sastry, Murray and
-Laumond (1992): robot models (``pipeline.models``), nominal trajectories (``pipeline.nominal``),
-the gramian gain schedule (``pipeline.control``) and the closed loop (``pipeline.simulation``).
+The library follows the composite controller of Walsh, Tilbury, Sastry, Murray and Laumond (1992):
+a map and a robot go in, a collision-free nominal trajectory is planned, the gramian feedback law
+stabilizes the robot to it under noise, FCL monitors the clearance and the robot replans when it
+senses what the map missed.
+
+The names a user needs for the common jobs are here, at the top (each is documented where it lives):
+
+=======================  ==========================================================================
+``load_map(path)``       any supported map file, or ``"example:NAME"`` (a bundled one) -> ``Map``
+``list_examples()``      the bundled maps and scenarios (``nhstab examples``)
+``make_model(name)``     a robot model by name (``unicycle``, ``rwd_car``, ``fwd_car``, ``heisenberg``)
+``default_footprint``    the footprint nhstab uses for a model by default
+``plan(...)``            map + robot + start/goal -> ``PlanResult`` with a feasible ``Nominal``
+``PathOptions``          options of the planning search (planner, budget, seed, margin)
+``compute_schedule``     the gramian gain schedule along a nominal (``StabilizerOptions``)
+``execute(...)``         one run of the composite controller -> ``RunResult``
+``RunOptions``           options of a run (controller, noise, sensing, replanning); ``load_run_config``
+``write_run``            a run's files (run.json, trajectory.csv, figures)
+``load_batch_config``    a Monte Carlo batch config; ``run_batch`` runs it into a store
+=======================  ==========================================================================
+
+Submodules: ``nhstab.models``, ``nhstab.maps``, ``nhstab.collision``, ``nhstab.planning``,
+``nhstab.control``, ``nhstab.execution``, ``nhstab.batch``, ``nhstab.report``.
+
+The names are imported on first use, so ``import nhstab`` stays cheap.
 """
 
-__version__ = "0.1.0"
+from __future__ import annotations
+
+from importlib import import_module
+
+from ._version import __version__
+
+#: public name -> module that defines it
+_PUBLIC = {
+    "load_map": "nhstab.maps",
+    "Map": "nhstab.maps",
+    "list_examples": "nhstab.examples",
+    "make_model": "nhstab.models",
+    "default_footprint": "nhstab.geometry",
+    "plan": "nhstab.planning",
+    "PathOptions": "nhstab.planning",
+    "PlanResult": "nhstab.planning",
+    "Nominal": "nhstab.nominal",
+    "compute_schedule": "nhstab.control",
+    "StabilizerOptions": "nhstab.control",
+    "execute": "nhstab.execution",
+    "RunOptions": "nhstab.execution",
+    "RunResult": "nhstab.execution",
+    "load_run_config": "nhstab.execution",
+    "write_run": "nhstab.execution",
+    "load_batch_config": "nhstab.batch.config",
+    "run_batch": "nhstab.batch.runner",
+    "PipelineError": "nhstab.errors",
+    "InputError": "nhstab.errors",
+}
+
+__all__ = ["__version__", *_PUBLIC]
+
+
+def __getattr__(name: str):
+    module = _PUBLIC.get(name)
+    if module is None:
+        raise AttributeError(f"module 'nhstab' has no attribute {name!r}")
+    value = getattr(import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_PUBLIC))

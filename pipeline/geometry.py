@@ -175,6 +175,7 @@ DEFAULT_FOOTPRINTS = {
 
 
 def default_footprint(model_name: str) -> Footprint:
+    """The footprint nhstab uses for a model when none is given (see ``DEFAULT_FOOTPRINTS``)."""
     try:
         return DEFAULT_FOOTPRINTS[model_name]()
     except KeyError:

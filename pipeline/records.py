@@ -70,10 +70,6 @@ def write_npz(path, **arrays) -> Path:
 
 
 def save_figure(fig, path, dpi: int = 110) -> Path:
-    """Save a matplotlib figure atomically as PNG and close it."""
-    import matplotlib.pyplot as plt
-
-    try:
-        return _atomic_write(Path(path), lambda fh: fig.savefig(fh, format="png", dpi=dpi))
-    finally:
-        plt.close(fig)
+    """Save a matplotlib figure atomically as PNG (figures from :func:`nhstab.report.subplots` are not
+    registered with pyplot, so there is nothing to close)."""
+    return _atomic_write(Path(path), lambda fh: fig.savefig(fh, format="png", dpi=dpi))

@@ -149,7 +149,7 @@ class _Grid:
 
 
 class RangeSensor:
-    """Simulated range sensor on a :class:`~pipeline.maps.base.Map`; :meth:`scan` takes a pose.
+    """Simulated range sensor on a :class:`~nhstab.maps.base.Map`; :meth:`scan` takes a pose.
 
     The edge, circle and grid arrays are built once here; a scan is vectorised over beams.
     """
@@ -454,7 +454,7 @@ def _wrap(a):
 
 
 def _pose(pose) -> tuple[float, float, float]:
-    """(x, y, theta) from a sequence of three numbers or a :class:`~pipeline.maps.base.Pose`."""
+    """(x, y, theta) from a sequence of three numbers or a :class:`~nhstab.maps.base.Pose`."""
     if hasattr(pose, "as_array"):
         pose = pose.as_array()
     try:

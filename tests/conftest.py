@@ -6,8 +6,8 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from pipeline.models import make_model  # noqa: E402
-from pipeline.nominal import Nominal  # noqa: E402
+from nhstab.models import make_model  # noqa: E402
+from nhstab.nominal import Nominal  # noqa: E402
 
 
 def hilare_sinusoid(t_end=2 * np.pi, hz=500.0):

@@ -13,11 +13,11 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.batch.config import load_batch_config
-from pipeline.batch.report import wilson
-from pipeline.batch.runner import run_batch
-from pipeline.batch.store import Store
-from pipeline.errors import InputError
+from nhstab.batch.config import load_batch_config
+from nhstab.batch.report import wilson
+from nhstab.batch.runner import run_batch
+from nhstab.batch.store import Store
+from nhstab.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
 ROOM = ROOT / "maps/ours/cluttered_room.yaml"
@@ -133,7 +133,7 @@ def test_replay_reproduces_a_stored_trial(tmp_path, monkeypatch):
     """Also with the map given relative to the config and the batch run from another folder."""
     from click.testing import CliRunner
 
-    from cli.main import cli
+    from nhstab.cli.main import cli
 
     f = tmp_path / "cfg" / "batch.yaml"
     f.parent.mkdir()
@@ -161,7 +161,7 @@ def test_wilson_interval_matches_the_closed_form():
 
 
 def test_report_numbers_come_from_the_store(tmp_path):
-    from pipeline.batch.report import write_report
+    from nhstab.batch.report import write_report
 
     cfg = load_batch_config(_config(tmp_path, trials=3, controllers=("gramian", "open-loop")))
     run_batch(cfg, tmp_path / "b", workers=2, progress=False)
@@ -187,7 +187,7 @@ def test_report_numbers_come_from_the_store(tmp_path):
 
 def test_report_with_a_partial_gain_grid(tmp_path):
     """A grid that sets alpha only (delta and gamma the robot's) labels its cells and draws."""
-    from pipeline.batch.report import write_report
+    from nhstab.batch.report import write_report
 
     cfg = load_batch_config(_config(tmp_path, trials=1, controllers=("gramian",), extra="  alpha: [0.1, 0.2]\n"))
     run_batch(cfg, tmp_path / "b", progress=False)

@@ -7,17 +7,17 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.batch.vector import simulate_shared
-from pipeline.bench import hilare_sinusoid
-from pipeline.errors import InputError
-from pipeline.execution import ControllerOptions, Plant, RunOptions, build_law, execute, summary
-from pipeline.execution.config import NoiseOptions
-from pipeline.execution.runner import seed_for
-from pipeline.geometry import default_footprint
-from pipeline.maps.base import Map, Pose, box_polygon
-from pipeline.models import make_model
-from pipeline.nominal import Nominal
-from pipeline.paper import CASES
+from nhstab.batch.vector import simulate_shared
+from nhstab.bench import hilare_sinusoid
+from nhstab.errors import InputError
+from nhstab.execution import ControllerOptions, Plant, RunOptions, build_law, execute, summary
+from nhstab.execution.config import NoiseOptions
+from nhstab.execution.runner import seed_for
+from nhstab.geometry import default_footprint
+from nhstab.maps.base import Map, Pose, box_polygon
+from nhstab.models import make_model
+from nhstab.nominal import Nominal
+from nhstab.paper import CASES
 
 SEEDS = [0, 1, 7, 123, 2026]
 

@@ -7,10 +7,10 @@ import pytest
 from click.testing import CliRunner
 from conftest import hilare_sinusoid
 
-from cli.main import cli
-from pipeline.control import StabilizerOptions, compute_schedule
-from pipeline.nominal import Nominal
-from pipeline.trajectory_io import write_trajectory
+from nhstab.cli.main import cli
+from nhstab.control import StabilizerOptions, compute_schedule
+from nhstab.nominal import Nominal
+from nhstab.trajectory_io import write_trajectory
 
 
 @pytest.fixture
@@ -114,7 +114,7 @@ def test_version_and_help(runner):
 
 
 def test_every_benchmark_has_a_subcommand():
-    from cli.bench import SUBCOMMANDS
-    from pipeline.bench import BENCHMARKS
+    from nhstab.cli.bench import SUBCOMMANDS
+    from nhstab.bench import BENCHMARKS
 
     assert set(SUBCOMMANDS) == set(BENCHMARKS)

@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from cli.main import cli
+from nhstab.cli.main import cli
 
 MAPS = Path(__file__).parent.parent / "maps"
 
@@ -83,8 +83,8 @@ def test_bad_map_files(runner, tmp_path):
 def test_every_bundled_map_loads_builds_and_draws(tmp_path):
     """Every map file copied from the shared research folder (and ours) loads, becomes a collision
     world, and `map info` summarises it."""
-    from pipeline.collision import CollisionWorld
-    from pipeline.maps import load_map
+    from nhstab.collision import CollisionWorld
+    from nhstab.maps import load_map
 
     files = sorted(p for p in MAPS.rglob("*") if p.suffix in (".yaml", ".map", ".svg"))
     assert len(files) >= 15

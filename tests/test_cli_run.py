@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from cli.main import cli
-from pipeline.execution import read_run_csv
+from nhstab.cli.main import cli
+from nhstab.execution import read_run_csv
 
 ROOT = Path(__file__).resolve().parents[1]
 ROOM = str(ROOT / "maps/ours/cluttered_room.yaml")
@@ -82,7 +82,7 @@ def test_run_writes_every_output_and_the_csv_has_units(tmp_path):
 def test_an_interrupted_run_keeps_what_was_computed_and_says_so(tmp_path, monkeypatch):
     """Ctrl-C during the run: the files written are complete and say "interrupted"; exit code 130;
     no temporary files are left."""
-    from pipeline.execution import plant
+    from nhstab.execution import plant
 
     calls = {"n": 0}
     step = plant.Plant.step

@@ -9,9 +9,9 @@ from shapely.geometry import Point, box
 from shapely.geometry import Polygon as SPolygon
 from shapely.ops import unary_union
 
-from pipeline.collision import CollisionWorld, grid_rectangles
-from pipeline.geometry import Footprint
-from pipeline.maps.base import Circle, Map, OccupancyGrid, Polygon, box_polygon
+from nhstab.collision import CollisionWorld, grid_rectangles
+from nhstab.geometry import Footprint
+from nhstab.maps.base import Circle, Map, OccupancyGrid, Polygon, box_polygon
 
 L_SHAPE = Polygon(np.array([[2, 2], [6, 2], [6, 3], [3, 3], [3, 6], [2, 6]], float))
 POLY_MAP = Map("poly", (0, 0, 10, 10), obstacles=(L_SHAPE, Circle((7, 7), 1.0), box_polygon(8, 2, 1.5, 0.8, 0.6)))
@@ -162,8 +162,8 @@ def test_batched_checks_equal_single_checks_on_real_maps(path, options, rng):
     """The distance-field prefilter of free_many only ever decides what FCL would."""
     from pathlib import Path
 
-    from pipeline.geometry import default_footprint
-    from pipeline.maps import load_map
+    from nhstab.geometry import default_footprint
+    from nhstab.maps import load_map
 
     m = load_map(Path(__file__).parent.parent / "maps" / path, **options)
     world = CollisionWorld.from_map(m)
@@ -185,8 +185,8 @@ def test_batched_checks_along_paths_equal_single_checks(path, options, rng):
     """Along a path free_many lets a measured clearance vouch for the next poses: same answers."""
     from pathlib import Path
 
-    from pipeline.geometry import default_footprint
-    from pipeline.maps import load_map
+    from nhstab.geometry import default_footprint
+    from nhstab.maps import load_map
 
     m = load_map(Path(__file__).parent.parent / "maps" / path, **options)
     world = CollisionWorld.from_map(m)
@@ -207,8 +207,8 @@ def test_min_clearance_is_the_minimum_over_all_poses(path, options, rng):
     """min_clearance skips poses by distance-field bounds: it returns what measuring every pose gives."""
     from pathlib import Path
 
-    from pipeline.geometry import default_footprint
-    from pipeline.maps import load_map
+    from nhstab.geometry import default_footprint
+    from nhstab.maps import load_map
 
     m = load_map(Path(__file__).parent.parent / "maps" / path, **options)
     world = CollisionWorld.from_map(m)
@@ -226,7 +226,7 @@ def test_min_clearance_is_the_minimum_over_all_poses(path, options, rng):
 def test_clearance_field_is_a_lower_bound(path, options, rng):
     from pathlib import Path
 
-    from pipeline.maps import load_map
+    from nhstab.maps import load_map
 
     m = load_map(Path(__file__).parent.parent / "maps" / path, **options)
     world = CollisionWorld.from_map(m)

@@ -11,16 +11,16 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.linalg import solve_continuous_are
 
-from pipeline.control import StabilizerOptions, compute_schedule
-from pipeline.errors import InputError
-from pipeline.execution import ControllerOptions, Plant, RunOptions, build_law, execute, summary, tvlqr_gains
-from pipeline.execution.config import NoiseOptions, load_run_config, merge
-from pipeline.execution.outputs import nominal_cusps
-from pipeline.execution.runner import planner_seed
-from pipeline.geometry import default_footprint
-from pipeline.maps.base import Map, Pose, box_polygon
-from pipeline.models import make_model
-from pipeline.nominal import Nominal
+from nhstab.control import StabilizerOptions, compute_schedule
+from nhstab.errors import InputError
+from nhstab.execution import ControllerOptions, Plant, RunOptions, build_law, execute, summary, tvlqr_gains
+from nhstab.execution.config import NoiseOptions, load_run_config, merge
+from nhstab.execution.outputs import nominal_cusps
+from nhstab.execution.runner import planner_seed
+from nhstab.geometry import default_footprint
+from nhstab.maps.base import Map, Pose, box_polygon
+from nhstab.models import make_model
+from nhstab.nominal import Nominal
 
 
 @pytest.mark.parametrize("name,u", [("unicycle", [1.0, 2.0]), ("rwd_car", [1.5, 0.8]), ("fwd_car", [1.0, -0.9]),
@@ -218,7 +218,7 @@ def test_measured_noise_has_the_configured_spread():
 
 
 def test_same_seed_same_run_json_except_timing(tmp_path):
-    from pipeline.execution import write_run
+    from nhstab.execution import write_run
 
     m = _open_map(unknown=(box_polygon(9.0, 5.0, 0.6, 3.0),))
     texts = []

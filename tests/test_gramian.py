@@ -5,10 +5,10 @@ import pytest
 from conftest import fwd_car_parking, heisenberg_line, hilare_sinusoid
 from reference import reference_H, transition, window_gramian
 
-from pipeline.control import StabilizerOptions, compute_schedule
-from pipeline.errors import InputError, PipelineError, SingularGramianError, TrajectoryError
-from pipeline.models import make_model
-from pipeline.nominal import Nominal
+from nhstab.control import StabilizerOptions, compute_schedule
+from nhstab.errors import InputError, PipelineError, SingularGramianError, TrajectoryError
+from nhstab.models import make_model
+from nhstab.nominal import Nominal
 
 
 def heisenberg_line_H(t, alpha, delta, weight=6.0):

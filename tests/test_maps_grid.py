@@ -23,15 +23,15 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pipeline.errors import InputError, PipelineError
-from pipeline.maps.base import Map, MapError
-from pipeline.maps.movingai import (
+from nhstab.errors import InputError, PipelineError
+from nhstab.maps.base import Map, MapError
+from nhstab.maps.movingai import (
     load_movingai_map,
     load_movingai_scenarios,
     movingai_cell_to_world,
     world_to_movingai_cell,
 )
-from pipeline.maps.ros import load_ros_map, map_server_values, read_image
+from nhstab.maps.ros import load_ros_map, map_server_values, read_image
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 NAV2 = MAPS / "nav2"

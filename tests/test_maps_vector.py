@@ -2,7 +2,7 @@
 
 Reference values for the Bench-MR worlds come from ``maps/bench-mr/SOURCE.md`` (measured there
 independently of this loader); geometric checks use shapely, an implementation independent of
-``pipeline.maps``. Tolerances are stated at each comparison.
+``nhstab.maps``. Tolerances are stated at each comparison.
 """
 
 from __future__ import annotations
@@ -17,16 +17,16 @@ import shapely.geometry as sg
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pipeline.errors import InputError, PipelineError
-from pipeline.maps import Circle, Map, MapError, Polygon, load_map
-from pipeline.maps.svg import (
+from nhstab.errors import InputError, PipelineError
+from nhstab.maps import Circle, Map, MapError, Polygon, load_map
+from nhstab.maps.svg import (
     BENCHMR_SCALE,
     load_benchmr_footprint,
     load_benchmr_scenarios,
     load_benchmr_svg,
     parse_path_d,
 )
-from pipeline.maps.yaml_format import is_simple_polygon, load_yaml_map, point_in_polygon
+from nhstab.maps.yaml_format import is_simple_polygon, load_yaml_map, point_in_polygon
 
 MAPS = Path(__file__).resolve().parents[1] / "maps"
 MAZES = MAPS / "bench-mr" / "polygon_mazes"
@@ -377,9 +377,9 @@ def test_yaml_base_relative_path_and_wrapped_base_error(tmp_path):
     assert "uses_curvy.yaml: base.path" in msg and "curvy.svg" in msg and "\n" not in msg
 
 
-needs_ros = pytest.mark.skipif(importlib.util.find_spec("pipeline.maps.ros") is None,
+needs_ros = pytest.mark.skipif(importlib.util.find_spec("nhstab.maps.ros") is None,
                                reason="pipeline/maps/ros.py not present")
-needs_movingai = pytest.mark.skipif(importlib.util.find_spec("pipeline.maps.movingai") is None,
+needs_movingai = pytest.mark.skipif(importlib.util.find_spec("nhstab.maps.movingai") is None,
                                     reason="pipeline/maps/movingai.py not present")
 
 

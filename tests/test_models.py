@@ -5,8 +5,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.errors import InputError, PipelineError, UnknownModelError
-from pipeline.models import MODELS, make_model
+from nhstab.errors import InputError, PipelineError, UnknownModelError
+from nhstab.models import MODELS, make_model
 
 MODEL_NAMES = sorted(MODELS)
 angle = st.floats(-3.0, 3.0, allow_nan=False)

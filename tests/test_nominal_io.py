@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from conftest import hilare_sinusoid
 
-from pipeline.errors import InputError, TrajectoryError
-from pipeline.models import make_model
-from pipeline.nominal import Nominal
-from pipeline.trajectory_io import column_names, read_trajectory, write_trajectory
+from nhstab.errors import InputError, TrajectoryError
+from nhstab.models import make_model
+from nhstab.nominal import Nominal
+from nhstab.trajectory_io import column_names, read_trajectory, write_trajectory
 
 
 def test_integrated_nominal_is_feasible():

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from conftest import hilare_sinusoid
 
-from pipeline.control import StabilizerOptions, compute_schedule
-from pipeline.paper import CASES, run_paper
-from pipeline.simulation import fit_decay_rate, simulate_tracking
+from nhstab.control import StabilizerOptions, compute_schedule
+from nhstab.paper import CASES, run_paper
+from nhstab.simulation import fit_decay_rate, simulate_tracking
 
 
 @pytest.fixture(scope="module")

@@ -10,16 +10,16 @@ from shapely import STRtree
 from shapely.geometry import Point, box
 from shapely.geometry import Polygon as SPolygon
 
-from cli.main import cli
-from pipeline.collision import CollisionWorld
-from pipeline.geometry import default_footprint
-from pipeline.maps import load_map
-from pipeline.maps.base import Circle, Polygon
-from pipeline.models import make_model
-from pipeline.planning import PathOptions, TimingOptions, plan, pose_columns
-from pipeline.planning.cars import car_nominal, direction_reversals
-from pipeline.planning.geometric import GeometricPath, path_directions
-from pipeline.simulation import simulate_tracking
+from nhstab.cli.main import cli
+from nhstab.collision import CollisionWorld
+from nhstab.geometry import default_footprint
+from nhstab.maps import load_map
+from nhstab.maps.base import Circle, Polygon
+from nhstab.models import make_model
+from nhstab.planning import PathOptions, TimingOptions, plan, pose_columns
+from nhstab.planning.cars import car_nominal, direction_reversals
+from nhstab.planning.geometric import GeometricPath, path_directions
+from nhstab.simulation import simulate_tracking
 
 MAPS = Path(__file__).parent.parent / "maps"
 
@@ -160,8 +160,8 @@ def test_plan_cli_no_plan_exit_3(tmp_path):
 @pytest.mark.parametrize("robot", ["rwd_car", "fwd_car"])
 @pytest.mark.parametrize("where", ["depot", "berlin_1m", "parking3", "ours_parking_lot", "ours_warehouse"])
 def test_car_plans_on_real_maps(robot, where):
-    from pipeline.planning import default_turning_radius
-    from pipeline.planning.problems import benchmr_center_to_rear_axle, random_problems
+    from nhstab.planning import default_turning_radius
+    from nhstab.planning.problems import benchmr_center_to_rear_axle, random_problems
 
     model, fp = make_model(robot), default_footprint(robot)
     if where == "depot":
@@ -207,7 +207,7 @@ def test_car_plans_on_real_maps(robot, where):
 
 def test_default_stabilizer_parameters_are_the_committed_sweeps_choice():
     """The per-robot defaults are what `nhstab sweep` chose (results/planning/sweep.json)."""
-    from pipeline.planning import DEFAULT_STABILIZER
+    from nhstab.planning import DEFAULT_STABILIZER
 
     sweep = json.loads((Path(__file__).parent.parent / "results" / "planning" / "sweep.json").read_text())
     assert sweep["chosen"] == DEFAULT_STABILIZER
@@ -250,7 +250,7 @@ S_CURVE = [(3.0, CAR_KAPPA, 1), (3.0, -CAR_KAPPA, 1), (2.0, 0.0, -1), (1.5, CAR_
 
 
 def _car_nominal(path, **kwargs):
-    from pipeline.maps.base import Map
+    from nhstab.maps.base import Map
 
     model, fp = make_model("rwd_car"), default_footprint("rwd_car")
     world = CollisionWorld.from_map(Map("empty", (-20.0, -20.0, 20.0, 20.0)))
@@ -285,8 +285,8 @@ def test_car_nominal_splits_failing_pieces_before_falling_back(monkeypatch):
     """Constant-v1 pieces longer than 0.6 m are refused: they are split (no phased pieces, no extra
     reversals); with splitting ruled out (min_spacing above every piece) the phased sinusoids take
     over, exactly, at the price of back-and-forth motion."""
-    import pipeline.planning.cars as cars
-    from pipeline.errors import InputError
+    import nhstab.planning.cars as cars
+    from nhstab.errors import InputError
 
     real = cars.steer_car
 

@@ -6,10 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.collision import CollisionWorld
-from pipeline.geometry import Footprint
-from pipeline.maps.base import Map, box_polygon
-from pipeline.planning.geometric import PathOptions, path_length, plan_path
+from nhstab.collision import CollisionWorld
+from nhstab.geometry import Footprint
+from nhstab.maps.base import Map, box_polygon
+from nhstab.planning.geometric import PathOptions, path_length, plan_path
 
 DATA = Path(__file__).parent / "data" / "steering-crosscheck-cases.csv"
 
@@ -89,7 +89,7 @@ def test_no_path_is_failed_not_an_exception():
                                         ({"turning_radius": 0.0}, "turning_radius"), ({"space": "hyperbolic"}, "space"),
                                         ({"margin": -1.0}, "margin"), ({"seed": -3}, "seed")])
 def test_bad_options(kwargs, arg):
-    from pipeline.errors import InputError
+    from nhstab.errors import InputError
 
     with pytest.raises(InputError) as exc:
         PathOptions(**kwargs).validated()

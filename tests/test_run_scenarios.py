@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from cli.main import cli
-from pipeline.collision import CollisionWorld
-from pipeline.execution import read_run_csv
-from pipeline.geometry import default_footprint, wrap_angle
-from pipeline.maps import load_map
-from pipeline.maps.base import Circle
+from nhstab.cli.main import cli
+from nhstab.collision import CollisionWorld
+from nhstab.execution import read_run_csv
+from nhstab.geometry import default_footprint, wrap_angle
+from nhstab.maps import load_map
+from nhstab.maps.base import Circle
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = {

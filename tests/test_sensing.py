@@ -1,4 +1,4 @@
-"""The simulated range sensor (pipeline.sensing).
+"""The simulated range sensor (nhstab.sensing).
 
 Reference values are computed here, independently of the sensor. Tolerances:
 
@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 import shapely.geometry as sg
 
-from pipeline.errors import InputError
-from pipeline.maps import Circle, Map, OccupancyGrid, Polygon, box_polygon, load_map
-from pipeline.sensing import HIT_KNOWN, HIT_NOTHING, RangeSensor, Scan, SensorOptions
+from nhstab.errors import InputError
+from nhstab.maps import Circle, Map, OccupancyGrid, Polygon, box_polygon, load_map
+from nhstab.sensing import HIT_KNOWN, HIT_NOTHING, RangeSensor, Scan, SensorOptions
 
 MAPS = Path(__file__).resolve().parents[1] / "maps"
 TOL = 1e-9

@@ -4,7 +4,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.control.windows import Segments, combine, exclusive_prefix, scan, sliding
+from nhstab.control.windows import Segments, combine, exclusive_prefix, scan, sliding
 
 
 def _segments(K, n, seed):

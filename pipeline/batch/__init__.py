@@ -1,2 +1,2 @@
-"""Batch robustness studies: many trials of the composite controller (see :mod:`pipeline.batch.vector` for
+"""Batch robustness studies: many trials of the composite controller (see :mod:`nhstab.batch.vector` for
 the vectorised engine for trials that share one nominal)."""

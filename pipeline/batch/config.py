@@ -136,6 +136,7 @@ def _list(key, v, minimum=1):
 def load_batch_config(path) -> BatchConfig:
     """Read and check a batch config; every map is loaded (and its poses checked) here, before any
     trial runs. Raises InputError naming the key."""
+    from ..examples import resolve_map_path
     from ..maps import load_map
     from ..models import make_model
 
@@ -162,7 +163,7 @@ def load_batch_config(path) -> BatchConfig:
                 raise InputError(f"{where}.{key}", "one of " + ", ".join(_MAP_KEYS), key)
         if not isinstance(entry["path"], str):
             raise InputError(f"{where}.path", "a path to a map file", entry["path"])
-        mpath = Path(entry["path"])
+        mpath = resolve_map_path(entry["path"])      # example:NAME, or relative to the config
         mpath = mpath if mpath.is_absolute() else path.parent / mpath
         cell = check_number(f"{where}.cell_size", entry["cell_size"], 0, lo_open=True) if "cell_size" in entry else None
         try:

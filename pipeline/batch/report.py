@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..report import subplots
 from ..records import save_figure, write_text
 from .store import Store
 
@@ -105,18 +106,10 @@ def _label(row) -> str:
 
 # ---- figures ---------------------------------------------------------------------------------------
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib import pyplot as plt
-
-    return plt
 
 
 def rates_figure(rows):
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(9, 0.45 * len(rows) + 1.6), layout="constrained")
+    fig, ax = subplots(figsize=(9, 0.45 * len(rows) + 1.6), layout="constrained")
     y = np.arange(len(rows))
     for j, (key, color) in enumerate((("success", "tab:green"), ("collision", "tab:red"),
                                       ("margin_violation", "tab:orange"))):
@@ -138,9 +131,8 @@ def rates_figure(rows):
 def envelope_figure(trials, rows):
     """Per gramian cell (and the baselines beside them): percentiles of ||e(t)|| over trials, and the
     median over trials of each trial's own gramian bound."""
-    plt = _plt()
     cells = _cells(trials)
-    fig, axes = plt.subplots(len(rows), 1, figsize=(8, 2.2 * len(rows) + 0.6), sharex=True, squeeze=False,
+    fig, axes = subplots(len(rows), 1, figsize=(8, 2.2 * len(rows) + 0.6), sharex=True, squeeze=False,
                              layout="constrained")
     for ax, row in zip(axes[:, 0], rows):
         series = [t["series"] for t in cells[row["cell"]] if t.get("series")]
@@ -174,11 +166,10 @@ def envelope_figure(trials, rows):
 
 
 def distributions_figure(trials, rows):
-    plt = _plt()
     cells = _cells(trials)
     keys = [("min_clearance_m", "min executed clearance [m]"), ("final_position_error_m", "final position error [m]"),
             ("replans", "replans"), ("replan_latency", "replan latency [s]")]
-    fig, axes = plt.subplots(1, 4, figsize=(13, 0.4 * len(rows) + 2.0), sharey=True, layout="constrained")
+    fig, axes = subplots(1, 4, figsize=(13, 0.4 * len(rows) + 2.0), sharey=True, layout="constrained")
     for ax, (key, title) in zip(axes, keys):
         data = []
         for row in rows:
@@ -204,7 +195,6 @@ def distributions_figure(trials, rows):
 def paired_figure(trials):
     """Controllers on the same seeds: each trial's minimum clearance under the gramian law against a
     baseline's, for every (map, noise) cell group where both ran."""
-    plt = _plt()
     by = {}
     for t in trials:
         c = t["spec"]["cell_spec"]
@@ -215,7 +205,7 @@ def paired_figure(trials):
     pairs = [(k, v) for k, v in by.items() if "gramian" in v and len(v) > 1]
     if not pairs:
         return None
-    fig, ax = plt.subplots(figsize=(5.5, 5), layout="constrained")
+    fig, ax = subplots(figsize=(5.5, 5), layout="constrained")
     markers = {"open-loop": "x", "tvlqr": "o"}
     lo, hi = np.inf, -np.inf
     for (mp, _, noise), ctrls in pairs:
@@ -237,7 +227,6 @@ def paired_figure(trials):
 
 
 def noise_figure(rows):
-    plt = _plt()
     groups = {}
     for r in rows:
         key = (r["map"], r["controller"], r["alpha"], r["delta"], r["gamma"])
@@ -245,7 +234,7 @@ def noise_figure(rows):
     groups = {k: v for k, v in groups.items() if len({r["noise"] for r in v}) > 1}
     if not groups:
         return None
-    fig, ax = plt.subplots(figsize=(6.5, 4.2), layout="constrained")
+    fig, ax = subplots(figsize=(6.5, 4.2), layout="constrained")
     for (mp, ctrl, a, d, g), rs in groups.items():
         rs = sorted(rs, key=lambda r: r["noise"])
         x = [r["noise"] for r in rs]
@@ -336,6 +325,4 @@ def write_report(store_path, out_dir=None) -> list[Path]:
                      f"<figcaption>{html.escape(captions[name])}</figcaption></figure>")
     h.append("<p>Every trial is in <a href='trials.csv'>trials.csv</a>.</p></body></html>")
     written.append(write_text(out_dir / "report.html", "\n".join(h) + "\n"))
-    plt = _plt()
-    plt.close("all")
     return written

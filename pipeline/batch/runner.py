@@ -59,6 +59,8 @@ def run_batch(config: BatchConfig, out_dir, workers: int = 1, scheduler: str | N
               progress: bool = True) -> dict:
     """Run every trial of ``config`` missing from the store in ``out_dir``. Returns counts."""
     out_dir = Path(out_dir)
+    if scheduler:
+        require_dask(scheduler)          # before the store is made: a refused request leaves nothing behind
     specs = config.trial_specs()
     with open_store(config, out_dir, resume) as store:
         done = store.done_ids()
@@ -112,12 +114,19 @@ def _dask_trial(spec: dict) -> dict:
     return run_trial(spec)
 
 
+def require_dask(scheduler: str) -> None:
+    """Refuse ``--scheduler`` in one line when Dask's distributed package is not installed (it is the
+    optional extra ``nhstab[cluster]``)."""
+    import importlib.util
+
+    if importlib.util.find_spec("distributed") is None:
+        raise InputError("--scheduler", "Dask distributed installed: pip install 'nhstab[cluster]'", scheduler,
+                         detail="local batches need no Dask: drop --scheduler and use --workers")
+
+
 def _run_dask(todo: list, scheduler: str, store: Store, bar) -> None:
-    try:
-        from distributed import Client, as_completed
-    except ImportError:
-        raise InputError("--scheduler", "dask[distributed] installed (pip install 'nhstab[dask]')",
-                         scheduler) from None
+    from distributed import Client, as_completed
+
     try:
         client = Client(scheduler, timeout="20s")
     except OSError as exc:

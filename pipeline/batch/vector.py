@@ -3,7 +3,7 @@ vectorised over trials.
 
 Robustness studies run many trials that share one nominal (same map, robot, plan and feedback law)
 and differ only in their random initial error, sensor noise and process noise. For such trials the
-composite controller (:class:`pipeline.execution.runner.CompositeRun`) never senses anything new,
+composite controller (:class:`nhstab.execution.runner.CompositeRun`) never senses anything new,
 never replans and follows the nominal to its end, so a trial is its tracking loop alone.
 :func:`simulate_shared` runs K of them as one (K, n) stack.
 
@@ -14,7 +14,7 @@ in the same order (the reference, gains and feedforward evaluated by the law's o
 error wrapped as :meth:`FeedbackLaw.control` wraps it, one BLAS matrix-vector product per trial as
 ``K @ e`` does it, :meth:`Plant.step` on the stack, which treats every row as it treats one state).
 tests/test_batch_vector.py checks this against a per-trial loop and against
-:func:`pipeline.execution.execute` on a planned nominal.
+:func:`nhstab.execution.execute` on a planned nominal.
 
 Measured (one core of a shared 2-core AVX-512 machine, OMP/MKL/OpenBLAS threads 1, the Hilare
 sinusoid at 50 Hz: 315 steps, 4 RK4 substeps, best of 2-5): 15 trials/s for K = 1 (the per-step

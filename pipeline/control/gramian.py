@@ -41,6 +41,7 @@ import numpy as np
 from ..errors import InputError, NumericalError, SingularGramianError, require_positive
 from ..nominal import Nominal
 from .elements import interval_segments, to_end_anchored
+from .interpolant import GridInterpolant
 from .windows import Segments, combine, exclusive_prefix, scan, sliding
 
 WINDOWS = ("future", "past")
@@ -128,21 +129,24 @@ class GainSchedule:
     def h(self) -> float:
         return float(self.t[1] - self.t[0])
 
-    def _locate(self, tau):
-        s = np.clip((np.asarray(tau, dtype=float) - self.t[0]) / self.h, 0.0, len(self.t) - 1.0)
-        k = np.minimum(np.floor(s).astype(int), len(self.t) - 2)
-        return k, s - k
+    @property
+    def interpolant(self) -> GridInterpolant:
+        """The schedule's one interpolator: x0 cubic Hermite, u0 the nominal's own function, K linear
+        (see :mod:`nhstab.control.interpolant`)."""
+        cached = self.__dict__.get("_interpolant")
+        if cached is None:
+            nom = self.nominal
+            cached = GridInterpolant(self.t, nom.x, nom.model.rhs(nom.x, nom.u), nom.u, self.K, u_func=nom._u_func)
+            self.__dict__["_interpolant"] = cached
+        return cached
 
     def gain_at(self, tau):
         """K(tau), linearly interpolated between grid points; shape (..., m, n)."""
-        k, frac = self._locate(tau)
-        frac = np.asarray(frac)[..., None, None]
-        return (1.0 - frac) * self.K[k] + frac * self.K[k + 1]
+        return self.interpolant.gain_many(tau)
 
     def P_at(self, tau):
-        k, frac = self._locate(tau)
-        frac = np.asarray(frac)[..., None, None]
-        return (1.0 - frac) * self.P[k] + frac * self.P[k + 1]
+        """P(tau), linearly interpolated between grid points; shape (..., n, n)."""
+        return self.interpolant.linear_many(self.P, tau)
 
     def diagnose(self, t_from: float | None = None, t_to: float | None = None) -> dict:
         """Diagnostics over the grid points in [t_from, t_to] (default: the whole schedule).
@@ -170,48 +174,15 @@ class GainSchedule:
             "max_gain_norm": float(gain_norms[k_gain]), "max_gain_norm_time_s": float(self.t[sel][k_gain]),
         }
 
-    def evaluator(self) -> "ScheduleEvaluator":
-        """A fast scalar-time evaluator of (x0, u0, K) for closed-loop integration."""
-        return ScheduleEvaluator(self)
+    def evaluator(self) -> GridInterpolant:
+        """A fast scalar-time evaluator: ``evaluator()(tau)`` -> (x0, u0, K) (the interpolant)."""
+        return self.interpolant
 
     def control(self, tau: float, x: np.ndarray) -> np.ndarray:
         """u = u0(tau) - K(tau) e, e = x - x0(tau) (angles wrapped)."""
         x0, u0 = self.nominal.at(tau)
         e = self.nominal.model.state_error(x, x0)
         return u0 - self.gain_at(tau) @ e
-
-
-class ScheduleEvaluator:
-    """(x0(t), u0(t), K(t)) at one time, fast: O(1) index arithmetic on the uniform grid.
-
-    x0 is the cubic Hermite interpolant through the grid samples with the model's own slopes
-    f(x0) + g(x0) u0 (4th-order accurate: well below 1e-10 on the grids used here); u0 comes from the
-    nominal itself (its closed form, or its defining interpolant); K is linear between grid points.
-    """
-
-    def __init__(self, schedule: GainSchedule):
-        nom = schedule.nominal
-        self.model = nom.model
-        self.t0 = float(schedule.t[0])
-        self.h = schedule.h
-        self.last = len(schedule.t) - 2
-        self.x = nom.x
-        self.xd = nom.model.rhs(nom.x, nom.u) * self.h
-        self.K = schedule.K
-        self._u = nom._u_func
-        self.t_end = float(schedule.t[-1])
-
-    def __call__(self, tau: float):
-        tau = min(max(float(tau), self.t0), self.t_end)
-        s = (tau - self.t0) / self.h
-        k = min(int(s), self.last)
-        a = s - k
-        a2, a3 = a * a, a * a * a
-        h00, h10, h01, h11 = 2 * a3 - 3 * a2 + 1, a3 - 2 * a2 + a, -2 * a3 + 3 * a2, a3 - a2
-        x0 = h00 * self.x[k] + h10 * self.xd[k] + h01 * self.x[k + 1] + h11 * self.xd[k + 1]
-        u0 = np.asarray(self._u(np.array([tau])), dtype=float)[0]
-        K = (1.0 - a) * self.K[k] + a * self.K[k + 1]
-        return x0, u0, K
 
 
 def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None, **overrides) -> GainSchedule:

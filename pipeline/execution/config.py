@@ -5,7 +5,7 @@ Every key is checked: an unknown key, a wrong type or a value out of range raise
 :class:`InputError` naming the key path (e.g. ``noise.sensor.theta``), what was expected and what
 was given. The format::
 
-    map: maps/scenarios/warehouse_pallets.yaml   # relative to the config file
+    map: maps/scenarios/warehouse_pallets.yaml   # relative to the config file, or example:NAME
     robot: rwd_car                    # unicycle | rwd_car | fwd_car (default: the map's)
     start: [x, y, theta]              # default: the map's
     goal: [x, y, theta]
@@ -355,7 +355,9 @@ def load_run_config(path) -> tuple[dict, RunOptions]:
     if "map" in data:
         if not isinstance(data["map"], str):
             raise InputError("map", "a path to a map file", data["map"])
-        m = Path(data["map"])
+        from ..examples import resolve_map_path
+
+        m = resolve_map_path(data["map"])            # example:NAME, or relative to the config
         extra["map"] = m if m.is_absolute() else (path.parent / m)
     return extra, options_from_mapping({k: v for k, v in data.items() if k != "map"})
 

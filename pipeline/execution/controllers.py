@@ -1,7 +1,7 @@
 """Feedback laws about a nominal trajectory, all of the form u = u0(t) - K(t) (x - x0(t)).
 
 * ``gramian``: the paper's law, K = gamma B^T P with P the inverse of the weighted window gramian
-  (future window P_c by default, past window P_r optional), from :func:`pipeline.control.compute_schedule`.
+  (future window P_c by default, past window P_r optional), from :func:`nhstab.control.compute_schedule`.
 * ``tvlqr``: time-varying LQR about the same nominal, K = R^-1 B^T S with the Riccati equation
   -S' = A^T S + S A - S B R^-1 B^T S + Q integrated backwards from S(T) = Q (stated Q, R).
 * ``open-loop``: K = 0, u = u0 (what the nominal alone does under noise).
@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..control import GainSchedule, StabilizerOptions, compute_schedule
+from ..control.interpolant import GridInterpolant
 from ..errors import InputError, NumericalError
 from ..nominal import Nominal
 
@@ -93,58 +94,38 @@ class FeedbackLaw:
     info: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        self.t0 = float(self.t[0])
-        self.t_end = float(self.t[-1])
-        self.h = float(self.t[1] - self.t[0])
-        self._last = len(self.t) - 2
-        self._x = self.nominal.x
-        self._xd = self.nominal.model.rhs(self.nominal.x, self.nominal.u) * self.h
-        self._u = self.nominal.u
-        self._angles = list(self.nominal.model.angle_states)
-
-    def _weights(self, tau: float):
-        s = (min(max(tau, self.t0), self.t_end) - self.t0) / self.h
-        k = min(int(s), self._last)
-        return k, s - k
-
-    def _state(self, k: int, a: float) -> np.ndarray:
-        """x0 at fraction a of grid interval k: cubic Hermite with the model's slopes."""
-        a2 = a * a
-        a3 = a2 * a
-        return ((2 * a3 - 3 * a2 + 1) * self._x[k] + (a3 - 2 * a2 + a) * self._xd[k]
-                + (3 * a2 - 2 * a3) * self._x[k + 1] + (a3 - a2) * self._xd[k + 1])
+        nom = self.nominal
+        self.interp = GridInterpolant(self.t, nom.x, nom.model.rhs(nom.x, nom.u), nom.u, self.K)
+        self.t0, self.t_end, self.h = self.interp.t0, self.interp.t_end, self.interp.h
+        self._angles = list(nom.model.angle_states)
 
     def reference(self, tau: float) -> tuple[np.ndarray, np.ndarray]:
         """x0(tau) (cubic Hermite with the model's slopes) and u0(tau) (linear), clamped to the span."""
-        k, a = self._weights(tau)
-        return self._state(k, a), self._input(k, a)
-
-    def _input(self, k: int, a: float) -> np.ndarray:
-        return (1.0 - a) * self._u[k] + a * self._u[k + 1]
+        k, a = self.interp.locate(tau)
+        return self.interp.state(k, a), self.interp.input(k, a)
 
     def gain(self, tau: float) -> np.ndarray:
-        k, a = self._weights(tau)
-        return (1.0 - a) * self.K[k] + a * self.K[k + 1]
+        return self.interp.gain(*self.interp.locate(tau))
 
     def control(self, tau: float, x_measured: np.ndarray, u_feedforward: np.ndarray | None = None):
         """One control update: (u, x0(tau), e) with e = x_measured - x0(tau), angles wrapped.
 
         u_feedforward replaces u0(tau) (the run loop passes the mean of u0 over the hold interval)."""
-        k, a = self._weights(tau)
-        x0 = self._state(k, a)
+        interp = self.interp
+        k, a = interp.locate(tau)
+        x0 = interp.state(k, a)
         e = x_measured - x0
         if self._angles:
             e[self._angles] = (e[self._angles] + math.pi) % (2.0 * math.pi) - math.pi
-        uff = self._input(k, a) if u_feedforward is None else u_feedforward
-        K = (1.0 - a) * self.K[k] + a * self.K[k + 1]
-        return uff - K @ e, x0, e
+        uff = interp.input(k, a) if u_feedforward is None else u_feedforward
+        return uff - interp.gain(k, a) @ e, x0, e
 
     def mean_input(self, t_from: float, t_to: float) -> np.ndarray:
         """The mean of u0 over [t_from, t_to]: exact for the piecewise-linear u0, which is held at its
         end values outside the nominal's span."""
         i, j = np.searchsorted(self.t, [t_from, t_to], side="right")
         pts = [t_from, *self.t[i:j].tolist(), t_to]
-        vals = np.array([self._input(*self._weights(p)) for p in pts])
+        vals = np.array([self.interp.input(*self.interp.locate(p)) for p in pts])
         return np.sum(0.5 * (vals[1:] + vals[:-1]) * np.diff(pts)[:, None], axis=0) / (t_to - t_from)
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from ..errors import InputError
 from ..records import write_json, write_text
 from .runner import MODES, RunResult
 
@@ -222,3 +223,44 @@ def write_run(result: RunResult, out_dir, map_path: str | None = None, figures: 
     written.append(write_json(out_dir / "run.json", summary(result, map_path)))
     return written
 
+
+
+def plan_record(result, map_label: str, model, footprint, start, goal, path_options) -> dict:
+    """The content of plan.json: status, message, inputs (map, robot, footprint, poses, options,
+    feasibility residual) and the plan's metrics."""
+    nom = result.nominal
+    inputs = {"map": map_label, "robot": model.describe(), "footprint": footprint.describe(),
+              "start": [float(v) for v in start], "goal": [float(v) for v in goal],
+              "path_options": dict(path_options.__dict__),
+              "feasibility_residual_m": None if nom is None else nom.feasibility_residual()}
+    return {"status": result.status, "message": result.message, "inputs": inputs, "metrics": result.metrics}
+
+
+def write_plan(result, out_dir, m, map_label: str, model, footprint, start, goal, path_options,
+               figures: bool = True) -> list[Path]:
+    """Write trajectory.csv, trajectory.npz, plan.png and plan.json (last) for a successful plan of
+    :func:`nhstab.planning.plan` on map ``m``; each file atomically."""
+    import numpy as np
+
+    from ..planning import pose_columns
+    from ..records import save_figure
+    from ..trajectory_io import write_trajectory
+
+    if not result.ok:
+        raise InputError("result", "a successful plan (result.ok)", result.status)
+    out_dir = Path(out_dir)
+    nom = result.nominal
+    written = [write_trajectory(out_dir / "trajectory.csv", nom), write_trajectory(out_dir / "trajectory.npz", nom)]
+    if figures:
+        from ..report.plans import plan_figure
+
+        met = result.metrics
+        cusps = met["cusps"]
+        title = (f"{m.name}: {model.name}, {met['length_m']:.1f} m, {cusps} cusp{'' if cusps == 1 else 's'}, "
+                 f"min clearance {met['min_clearance_m']:.2f} m")
+        fig = plan_figure(m, nom.x[:, pose_columns(model)],
+                          np.sign(nom.u[:, 0]), footprint, start, goal, title=title)
+        written.append(save_figure(fig, out_dir / "plan.png"))
+    written.append(write_json(out_dir / "plan.json",
+                              plan_record(result, map_label, model, footprint, start, goal, path_options)))
+    return written

@@ -4,7 +4,7 @@ replan.
 One run, step by step at the controller rate 1/T (zero-order hold):
 
 1. **Plan** a nominal from the start to the goal on the robot's map (the known obstacles) with the
-   planner of :mod:`pipeline.planning`, and the feedback law along it. The nominal is planned for
+   planner of :mod:`nhstab.planning`, and the feedback law along it. The nominal is planned for
    the robot with its input limits scaled by ``headroom`` (default 0.8), so that the feedback has
    the rest of the real limits to work with.
 2. Every control period: the robot's true state x is *measured* with sensor noise, y = x + n; the
@@ -12,7 +12,7 @@ One run, step by step at the controller rate 1/T (zero-order hold):
    to the robot's input limits; the plant is integrated over the period under that constant input;
    a process disturbance (Wiener increments, and impulses at given times) is added to x.
 3. **Sensing** at the sensor rate from the true pose: unknown obstacles hit by a beam are added to
-   the robot's map (:mod:`pipeline.sensing`).
+   the robot's map (:mod:`nhstab.sensing`).
 4. **Monitoring**, with FCL: (a) at the monitor rate, the remaining nominal over the look-ahead
    horizon against the *discovered* obstacles with the plan's margin (the known ones were checked
    when it was planned); a conflict triggers a replan. (b) at every control sample, the true pose

@@ -2,11 +2,11 @@
 
 Formats (dispatch on the file name):
 
-* ``.svg`` -- a Bench-MR polygon world (:func:`pipeline.maps.svg.load_benchmr_svg`);
-* ``.map`` -- a Moving AI grid map (:func:`pipeline.maps.movingai.load_movingai_map`);
+* ``.svg`` -- a Bench-MR polygon world (:func:`nhstab.maps.svg.load_benchmr_svg`);
+* ``.map`` -- a Moving AI grid map (:func:`nhstab.maps.movingai.load_movingai_map`);
 * ``.yaml`` / ``.yml`` -- a ROS map_server map if the top-level mapping has an ``image`` key
-  (:func:`pipeline.maps.ros.load_ros_map`), otherwise nhstab's own YAML map format
-  (:func:`pipeline.maps.yaml_format.load_yaml_map`).
+  (:func:`nhstab.maps.ros.load_ros_map`), otherwise nhstab's own YAML map format
+  (:func:`nhstab.maps.yaml_format.load_yaml_map`).
 """
 
 from __future__ import annotations
@@ -21,7 +21,8 @@ from ..errors import InputError
 from .base import Circle, Map, MapError, OccupancyGrid, Polygon, Pose, Problem, box_polygon
 from .yaml_format import _one_line, is_file
 
-__all__ = ["Map", "Pose", "Polygon", "Circle", "OccupancyGrid", "Problem", "MapError", "box_polygon", "load_map"]
+__all__ = ["Map", "Pose", "Polygon", "Circle", "OccupancyGrid", "Problem", "MapError", "box_polygon", "load_map",
+           "resolve_poses"]
 
 _OPTIONS = {
     "svg": ("convex_hull", "scenarios"),
@@ -47,9 +48,13 @@ def load_map(path: str | Path, **options: Any) -> Map:
     * ROS ``.yaml``: ``unknown="occupied"`` (how unknown cells count);
     * nhstab ``.yaml``: no options.
 
+    ``path`` may also be ``example:NAME``, a map bundled with nhstab (see :mod:`nhstab.examples`).
+
     A missing file or an unsupported extension raises :class:`MapError` naming the file.
     """
-    path = Path(path)
+    from ..examples import resolve_map_path
+
+    path = resolve_map_path(path)
     if not is_file(path):
         raise MapError(str(path), "an existing map file", "no such file or not a file")
     suffix = path.suffix.lower()
@@ -126,3 +131,42 @@ def _is_ros_yaml(path: Path) -> bool:
     except RecursionError:
         raise MapError(str(path), "valid YAML", detail="nesting too deep") from None
     return isinstance(doc, dict) and "image" in doc
+
+
+def resolve_poses(m: Map, start=None, goal=None, problem: int | None = None, *,
+                  names: tuple[str, str, str] = ("start", "goal", "problem")):
+    """The start and goal of a request as (3,) arrays: the map's problem ``problem`` if given, else
+    ``start``/``goal`` where given, else the map's own. ``names`` are what errors call the three
+    arguments (the command line passes its flags). Raises :class:`InputError` when a pose is missing
+    or the problem index is out of range."""
+    import numpy as np
+
+    s_name, g_name, p_name = names
+    if problem is not None:
+        if isinstance(problem, bool) or not isinstance(problem, (int, np.integer)) or not (0 <= problem < len(m.problems)):
+            raise InputError(p_name, f"an index in [0, {len(m.problems)}) ({m.name} has {len(m.problems)} problems)",
+                             problem)
+        p = m.problems[int(problem)]
+        return p.start.as_array(), p.goal.as_array()
+    s = _pose_or(start, m.start, s_name)
+    g = _pose_or(goal, m.goal, g_name)
+    if s is None or g is None:
+        missing = " and ".join(n for n, v in ((s_name, s), (g_name, g)) if v is None)
+        raise InputError(missing, f"a pose x,y,theta ({m.name} gives none)", None)
+    return s, g
+
+
+def _pose_or(value, default: Pose | None, name: str):
+    import numpy as np
+
+    if value is None:
+        return None if default is None else default.as_array()
+    if isinstance(value, Pose):
+        return value.as_array()
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(name, "a pose of three numbers (x, y, theta)", value) from None
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value)
+    return arr

@@ -5,6 +5,7 @@
 # Units are metres and radians; world frame x right, y up; a pose is [x, y, theta].
 #
 #   name: parking-lot                   # optional non-empty string; default: the file stem
+#   description: what happens here      # optional one-line string (listed by `nhstab examples`)
 #   bounds: [xmin, ymin, xmax, ymax]    # required unless `base` gives them; replaces the base's
 #   base:                               # optional: start from a map in another format
 #     format: ros                       #   ros | movingai | benchmr_svg | nhstab (another of these
@@ -68,7 +69,7 @@ import yaml
 from ..errors import PipelineError
 from .base import Circle, Map, MapError, OccupancyGrid, Polygon, Pose, Problem, Shape, box_polygon, signed_area
 
-_TOP_KEYS = ("name", "bounds", "base", "obstacles", "unknown_obstacles", "start", "goal", "robot")
+_TOP_KEYS = ("name", "description", "bounds", "base", "obstacles", "unknown_obstacles", "start", "goal", "robot")
 _BASE_KEYS = {
     "ros": ("format", "path", "unknown"),
     "movingai": ("format", "path", "cell_size", "scenarios"),
@@ -389,6 +390,7 @@ class _Reader:
             raise self.err("", "a YAML mapping with at least bounds", "an empty document")
         doc = self.mapping(doc, "", _TOP_KEYS)
         name = self.string(doc["name"], "name") if "name" in doc else self.path.stem
+        description = self.string(doc["description"], "description") if "description" in doc else None
         base, base_meta = self.base(doc["base"]) if "base" in doc else (None, None)
         if "bounds" in doc:
             bounds = self.numbers(doc["bounds"], "bounds", 4, "[xmin, ymin, xmax, ymax]")
@@ -416,7 +418,7 @@ class _Reader:
 
         m = Map(name=name, bounds=bounds, obstacles=obstacles, grids=grids, unknown_obstacles=unknown,
                 start=start, goal=goal, robot=robot, problems=problems, source=str(self.path),
-                meta={"format": "nhstab_yaml", "base": base_meta,
+                meta={"format": "nhstab_yaml", "base": base_meta, "description": description,
                       "own_obstacles": len(doc.get("obstacles") or ()),
                       "own_unknown_obstacles": len(doc.get("unknown_obstacles") or ())})
         for key, pose in (("start", start), ("goal", goal)):

@@ -41,8 +41,8 @@ from ..geometry import Footprint, wrap_angle
 from ..models import Model
 from ..nominal import Nominal
 from .geometric import GeometricPath
-from .steering import (_car_inputs, _constant_phase, _constant_v1_phase, _pose_parts, _sin_phase, _theta_phi,
-                       from_chained, steer_car)
+from .car_charts import _car_inputs, _pose_parts, _theta_phi, from_chained, steer_car
+from .steering import _constant_phase, _constant_v1_phase, _sin_phase
 from .timing import TimingOptions
 
 

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib import patches
 from matplotlib.transforms import Affine2D
 
 from ..maps.base import Circle, Map, Polygon
+from . import subplots
 
 KNOWN = "#4a4a4a"
 UNKNOWN = "#c0392b"
@@ -39,7 +39,7 @@ def map_figure(m: Map, start=None, goal=None, footprint=None, title: str | None 
     xmin, ymin, xmax, ymax = m.bounds
     w, h = xmax - xmin, ymax - ymin
     scale = 7.5 / max(w, h)
-    fig, ax = plt.subplots(figsize=(max(3.5, w * scale) + 0.6, max(3.0, h * scale) + 0.6), layout="constrained")
+    fig, ax = subplots(figsize=(max(3.5, w * scale) + 0.6, max(3.0, h * scale) + 0.6), layout="constrained")
     ax.set_xlim(xmin - 0.02 * w, xmax + 0.02 * w)
     ax.set_ylim(ymin - 0.02 * h, ymax + 0.02 * h)
     for g in m.grids:
@@ -74,3 +74,33 @@ def map_figure(m: Map, start=None, goal=None, footprint=None, title: str | None 
     ax.set_ylabel("y [m]")
     ax.set_title(title or m.name, fontsize=9)
     return fig
+
+
+def map_summary(m: Map, footprint=None) -> dict:
+    """The facts ``nhstab map info`` prints: bounds, size, grids (cells, resolution, occupied, unknown,
+    merged boxes), obstacle counts, free fraction, problems, start, goal, robot, and, with a
+    footprint, the start's and goal's clearance (FCL)."""
+    from ..collision import check_poses, grid_rectangles
+    from ..maps.raster import free_fraction
+
+    frac, cell = free_fraction(m)
+    grids = []
+    for g in m.grids:
+        unknown = int(g.unknown.sum()) if g.unknown is not None else 0
+        grids.append({"cells": list(g.shape), "resolution_m": g.resolution, "origin": list(g.origin),
+                      "occupied_cells": int(g.occupied.sum()), "unknown_cells": unknown,
+                      "merged_boxes": len(grid_rectangles(g.occupied))})
+    info = {
+        "name": m.name, "source": m.source, "bounds": list(m.bounds), "size_m": list(m.size),
+        "known_obstacles": len(m.obstacles), "unknown_obstacles": len(m.unknown_obstacles),
+        "grids": grids, "free_fraction": frac, "free_fraction_cell_m": cell,
+        "problems": len(m.problems),
+        "start": None if m.start is None else list(m.start.as_array()),
+        "goal": None if m.goal is None else list(m.goal.as_array()),
+        "robot": m.robot,
+    }
+    if footprint is not None and (m.start is not None or m.goal is not None):
+        clear = check_poses(m, footprint, {"start": None if m.start is None else m.start.as_array(),
+                                           "goal": None if m.goal is None else m.goal.as_array()})
+        info.update({f"{k}_clearance_m": v for k, v in clear.items()})
+    return info

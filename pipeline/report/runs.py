@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 from matplotlib import patches
-from matplotlib import pyplot as plt
 
 from ..maps.base import Circle
+from . import subplots
 from .maps import map_figure
 
 MODE_TEXT = ("tracking", "stopped: replanning", "done")
@@ -80,7 +80,7 @@ def run_tracking_figure(result):
     lg, model = result.log, result.model
     t = lg["t"]
     e = model.state_error(lg["x"], lg["x0"])
-    fig, axes = plt.subplots(3, 1, figsize=(8, 7.5), sharex=True, layout="constrained")
+    fig, axes = subplots(3, 1, figsize=(8, 7.5), sharex=True, layout="constrained")
     norm = np.linalg.norm(e, axis=1)
     axes[0].semilogy(t, np.where(norm > 0, norm, np.nan), color="k", lw=1.0, label="||x - x0||")
     axes[0].set_ylabel("error norm")
@@ -152,7 +152,7 @@ def write_animation(result, path, fps: int = 8, max_frames: int = 120, dpi: int 
         canvas.blit(fig.bbox)
         images.append(Image.frombuffer("RGBA", canvas.get_width_height(), bytes(canvas.buffer_rgba()))
                       .convert("RGB").quantize(colors=64))
-    plt.close(fig)
+
 
     def write(fh):
         images[0].save(fh, format="GIF", save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-import matplotlib.pyplot as plt
+from . import subplots
+
 
 
 def _title(ax, title: str | None):
@@ -12,7 +13,7 @@ def _title(ax, title: str | None):
 
 def errors_figure(t, e, state_names, title=None):
     """The paper's 'errors e versus time'."""
-    fig, ax = plt.subplots(figsize=(6.4, 3.6), layout="constrained")
+    fig, ax = subplots(figsize=(6.4, 3.6), layout="constrained")
     for j, name in enumerate(state_names):
         ax.plot(t, e[:, j], label=f"e_{name}")
     ax.axhline(0.0, color="0.6", lw=0.6)
@@ -25,7 +26,7 @@ def errors_figure(t, e, state_names, title=None):
 
 def inputs_figure(t, v, input_names, title=None):
     """The paper's 'error inputs v versus time'."""
-    fig, ax = plt.subplots(figsize=(6.4, 3.6), layout="constrained")
+    fig, ax = subplots(figsize=(6.4, 3.6), layout="constrained")
     for j, name in enumerate(input_names):
         ax.plot(t, v[:, j], label=f"v_{name}")
     ax.axhline(0.0, color="0.6", lw=0.6)
@@ -38,7 +39,7 @@ def inputs_figure(t, v, input_names, title=None):
 
 def phase_figure(x_nominal, x_actual, labels=("x1", "x2"), title=None):
     """The paper's (x1, x2) phase plot of nominal and actual paths."""
-    fig, ax = plt.subplots(figsize=(5.0, 4.6), layout="constrained")
+    fig, ax = subplots(figsize=(5.0, 4.6), layout="constrained")
     ax.plot(x_nominal[:, 0], x_nominal[:, 1], color="k", lw=1.4, label="nominal")
     ax.plot(x_actual[:, 0], x_actual[:, 1], color="tab:red", lw=1.2, ls="--", label="actual")
     ax.plot(x_nominal[0, 0], x_nominal[0, 1], "ko", ms=4)
@@ -53,7 +54,7 @@ def phase_figure(x_nominal, x_actual, labels=("x1", "x2"), title=None):
 
 def gramian_figure(t, h_min_eig, gain_norm, t_span=None, title=None):
     """Smallest eigenvalue of the window gramian H and the gain norm ||K|| along the schedule."""
-    fig, ax = plt.subplots(figsize=(6.4, 3.6), layout="constrained")
+    fig, ax = subplots(figsize=(6.4, 3.6), layout="constrained")
     ax.semilogy(t, h_min_eig, color="tab:blue", label="lambda_min(H)")
     ax.set_xlabel("t [s]")
     ax.set_ylabel("lambda_min(H)", color="tab:blue")
@@ -70,7 +71,7 @@ def gramian_figure(t, h_min_eig, gain_norm, t_span=None, title=None):
 
 def error_norm_comparison_figure(runs, title=None):
     """||e(t)|| of several runs on a log scale; ``runs`` is a list of (label, t, err_norm, status)."""
-    fig, ax = plt.subplots(figsize=(6.4, 3.8), layout="constrained")
+    fig, ax = subplots(figsize=(6.4, 3.8), layout="constrained")
     for label, t, en, status in runs:
         ax.semilogy(t, en, label=f"{label} ({status})")
     ax.set_xlabel("t [s]")

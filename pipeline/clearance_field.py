@@ -1,0 +1,192 @@
+"""A conservative raster distance field of a map's obstacles (no FCL here).
+
+:class:`ClearanceField` gives, from a distance transform of a raster, a lower bound on the distance
+from any point to the obstacles, and from it cheap certain answers for footprints at many poses:
+certainly free (:meth:`ClearanceField.surely_free`), certainly colliding
+(:meth:`ClearanceField.surely_colliding`), and a lower bound of the clearance of a polygon outline
+(:meth:`ClearanceField.outline_bound`). :mod:`nhstab.collision` (FCL, the exact authority) uses it as a
+prefilter, so that only the poses it cannot decide reach FCL.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .geometry import Footprint
+
+
+class ClearanceField:
+    """A lower bound on the distance from any point to the obstacles, from a raster.
+
+    Cells of size r are marked occupied when an obstacle may touch them: cells whose centre lies in
+    an obstacle, cells holding a point of its boundary sampled every r/2, then grown by one cell
+    (so a corner clipped between two samples is covered too); circles mark every cell within
+    radius + r/sqrt(2) of their centre; everything outside the bounds counts as occupied (the
+    walls). With D the Euclidean distance transform between cell centres, every point p satisfies
+    dist(p, obstacles) >= D(cell of p) - sqrt(2) r: p and the obstacle point each lie within
+    r/sqrt(2) of their cells' centres.
+    """
+
+    MAX_CELLS = 4_000_000
+    #: elements of the (poses x footprint points) arrays of one vectorised block
+    BLOCK = 1 << 16
+
+    def __init__(self, bounds, resolutions, outlines):
+        """``bounds`` (xmin, ymin, xmax, ymax); ``resolutions``: the cell sizes of the map's grids (the
+        raster uses the finest, else 1/512 of the larger side); ``outlines``: the obstacles, each
+        ("poly", vertices (k, 2) convex part or polygon) or ("circle", centre, radius)."""
+        from matplotlib.path import Path as MplPath
+        from scipy.ndimage import binary_dilation, binary_erosion, distance_transform_edt
+
+        xmin, ymin, xmax, ymax = bounds
+        r = min(resolutions, default=max(xmax - xmin, ymax - ymin) / 512)
+        while ((xmax - xmin) / r + 4) * ((ymax - ymin) / r + 4) > self.MAX_CELLS:
+            r *= 1.5
+        pad = 2
+        self.r = r
+        self.x0, self.y0 = xmin - pad * r, ymin - pad * r
+        cols = int(math.ceil((xmax - xmin) / r)) + 2 * pad
+        rows = int(math.ceil((ymax - ymin) / r)) + 2 * pad
+        occ = np.zeros((rows, cols), dtype=bool)
+        xs = self.x0 + (np.arange(cols) + 0.5) * r
+        ys = self.y0 + (np.arange(rows) + 0.5) * r
+        occ[:, xs < xmin] = occ[:, xs > xmax] = True
+        occ[ys < ymin, :] = occ[ys > ymax, :] = True
+        grown = np.zeros_like(occ)
+        # cells certainly inside an obstacle: per convex part, cells whose 3 x 3 block of centres is
+        # inside (by convexity the cell lies in the square those centres span); per circle, cells
+        # whose farthest corner is inside.
+        self.inside = np.zeros_like(occ)
+        for outline in outlines:
+            if outline[0] == "circle":
+                (cx, cy), rad = outline[1], outline[2]
+                ja, jb = self._span(cx - rad - r, cx + rad + r, self.x0, cols)
+                ia, ib = self._span(cy - rad - r, cy + rad + r, self.y0, rows)
+                X, Y = np.meshgrid(xs[ja:jb], ys[ia:ib])
+                occ[ia:ib, ja:jb] |= np.hypot(X - cx, Y - cy) <= rad + r / math.sqrt(2)
+                self.inside[ia:ib, ja:jb] |= np.hypot(np.abs(X - cx) + r / 2, np.abs(Y - cy) + r / 2) <= rad
+                continue
+            v = outline[1]
+            ja, jb = self._span(v[:, 0].min(), v[:, 0].max(), self.x0, cols)
+            ia, ib = self._span(v[:, 1].min(), v[:, 1].max(), self.y0, rows)
+            if jb > ja and ib > ia:
+                X, Y = np.meshgrid(xs[ja:jb], ys[ia:ib])
+                inside = MplPath(v).contains_points(np.column_stack([X.ravel(), Y.ravel()])).reshape(X.shape)
+                grown[ia:ib, ja:jb] |= inside
+                if axis_aligned_box(v):
+                    # exactly the cells whose whole square lies in the box
+                    tol = 1e-9 * r
+                    inx = (xs[ja:jb] - r / 2 >= v[:, 0].min() - tol) & (xs[ja:jb] + r / 2 <= v[:, 0].max() + tol)
+                    iny = (ys[ia:ib] - r / 2 >= v[:, 1].min() - tol) & (ys[ia:ib] + r / 2 <= v[:, 1].max() + tol)
+                    self.inside[ia:ib, ja:jb] |= iny[:, None] & inx[None, :]
+                else:
+                    self.inside[ia:ib, ja:jb] |= binary_erosion(inside, structure=np.ones((3, 3), dtype=bool),
+                                                                border_value=0)
+            a, b = v, np.roll(v, -1, axis=0)
+            n = np.maximum(1, np.ceil(np.hypot(*(b - a).T) / (r / 2))).astype(int)
+            t = np.concatenate([np.arange(k + 1) / k for k in n])
+            starts = np.repeat(a, n + 1, axis=0)
+            ends = np.repeat(b, n + 1, axis=0)
+            pts = starts + t[:, None] * (ends - starts)
+            j = np.clip(np.floor((pts[:, 0] - self.x0) / r).astype(int), 0, cols - 1)
+            i = np.clip(np.floor((pts[:, 1] - self.y0) / r).astype(int), 0, rows - 1)
+            grown[i, j] = True
+        occ |= binary_dilation(grown, structure=np.ones((3, 3), dtype=bool))
+        self.lower_bound = distance_transform_edt(~occ) * r - math.sqrt(2) * r
+
+    def _span(self, lo, hi, origin, n):
+        """Index range [a, b) of the cells whose centres may lie in [lo, hi]."""
+        return (max(0, int(math.floor((lo - origin) / self.r - 0.5))),
+                min(n, int(math.ceil((hi - origin) / self.r + 0.5))))
+
+    def at(self, x, y) -> np.ndarray:
+        """Lower bound of the distance to the obstacles at points (x, y); -inf outside the raster."""
+        j = np.floor((np.asarray(x) - self.x0) / self.r).astype(int)
+        i = np.floor((np.asarray(y) - self.y0) / self.r).astype(int)
+        rows, cols = self.lower_bound.shape
+        ok = (i >= 0) & (i < rows) & (j >= 0) & (j < cols)
+        out = np.full(np.shape(j), -np.inf)
+        out[ok] = self.lower_bound[i[ok], j[ok]]
+        return out
+
+    def surely_colliding(self, poses: np.ndarray, fp: Footprint, spacing: float | None = None) -> np.ndarray:
+        """Poses where a point of the footprint lies in a cell certainly inside an obstacle. The points:
+        its reference point, vertices and edge midpoints; with ``spacing``, its outline sampled at
+        that spacing too."""
+        u, v = footprint_points(fp, spacing).T
+        rows, cols = self.inside.shape
+        hit = np.zeros(len(poses), dtype=bool)
+        step = max(1, self.BLOCK // len(u))             # poses per block of (poses x points) arrays
+        for lo in range(0, len(poses), step):
+            p = poses[lo:lo + step]
+            c, s = np.cos(p[:, 2:3]), np.sin(p[:, 2:3])
+            j = np.floor((p[:, 0:1] + c * u - s * v - self.x0) / self.r).astype(int)
+            i = np.floor((p[:, 1:2] + s * u + c * v - self.y0) / self.r).astype(int)
+            ok = (i >= 0) & (i < rows) & (j >= 0) & (j < cols)
+            hit[lo:lo + step] = np.any(self.inside[np.where(ok, i, 0), np.where(ok, j, 0)] & ok, axis=1)
+        return hit
+
+    def outline_bound(self, poses: np.ndarray, fp: Footprint) -> np.ndarray:
+        """A lower bound of the distance from the outline of a polygon footprint to the obstacles at
+        poses (N, 3): its outline sampled every cell size r, each sample's bound less r / 2 (every
+        outline point lies within r / 2 of a sample). It bounds the clearance of the footprint only
+        where no obstacle lies inside the footprint."""
+        u, v = footprint_points(fp, self.r)[1:].T          # the outline samples (not the reference point)
+        out = np.empty(len(poses))
+        step = max(1, self.BLOCK // len(u))
+        for lo in range(0, len(poses), step):
+            p = poses[lo:lo + step]
+            c, s = np.cos(p[:, 2:3]), np.sin(p[:, 2:3])
+            out[lo:lo + step] = self.at(p[:, 0:1] + c * u - s * v, p[:, 1:2] + s * u + c * v).min(axis=1)
+        return out - self.r / 2
+
+    def surely_free(self, poses: np.ndarray, fp: Footprint, margin: float) -> np.ndarray:
+        centres, radii = disc_cover(fp)
+        ok = np.ones(len(poses), dtype=bool)
+        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        for (u, v), rad in zip(centres, radii):
+            x = poses[:, 0] + c * u - s * v
+            y = poses[:, 1] + s * u + c * v
+            ok &= self.at(x, y) > rad + margin
+        return ok
+
+
+def footprint_points(fp: Footprint, spacing: float | None) -> np.ndarray:
+    """The footprint's reference point (0, 0) first, then its vertices and edge midpoints, or with
+    ``spacing`` its outline sampled at that spacing (robot frame, (k, 2))."""
+    if fp.radius is not None:
+        if spacing is None:
+            return np.zeros((1, 2))
+        n = max(8, int(math.ceil(2 * math.pi * fp.radius / spacing)))
+        a = np.arange(n) * 2 * math.pi / n
+        return np.vstack([[0.0, 0.0], fp.radius * np.column_stack([np.cos(a), np.sin(a)])])
+    v = fp.vertices
+    if spacing is None:
+        return np.vstack([[0.0, 0.0], v, 0.5 * (v + np.roll(v, -1, axis=0))])
+    b = np.roll(v, -1, axis=0)
+    n = np.maximum(1, np.ceil(np.hypot(*(b - v).T) / spacing)).astype(int)
+    t = np.concatenate([np.arange(k) / k for k in n])
+    return np.vstack([[0.0, 0.0], np.repeat(v, n, axis=0) + t[:, None] * np.repeat(b - v, n, axis=0)])
+
+
+def axis_aligned_box(v: np.ndarray) -> bool:
+    if len(v) != 4:
+        return False
+    d = np.roll(v, -1, axis=0) - v
+    return bool(np.all((np.abs(d[:, 0]) < 1e-12) | (np.abs(d[:, 1]) < 1e-12)))
+
+
+def disc_cover(fp: Footprint):
+    """Discs (centres in the robot frame, radii) whose union contains the footprint."""
+    if fp.radius is not None:
+        return [(0.0, 0.0)], [fp.radius]
+    v = fp.vertices
+    x0, y0 = v.min(axis=0)
+    x1, y1 = v.max(axis=0)
+    length, width = x1 - x0, y1 - y0
+    k = max(1, int(math.ceil(length / max(width, 1e-9))))
+    seg = length / k
+    radius = math.hypot(seg / 2, width / 2)
+    return [(x0 + (q + 0.5) * seg, (y0 + y1) / 2) for q in range(k)], [radius] * k
