@@ -162,7 +162,7 @@ def test_batched_checks_equal_single_checks_on_real_maps(path, options, rng):
     """The distance-field prefilter of free_many only ever decides what FCL would."""
     from pathlib import Path
 
-    from nhstab.geometry import default_footprint
+    from nhstab.robot import default_footprint
     from nhstab.maps import load_map
 
     m = load_map(Path(__file__).parent.parent / "maps" / path, **options)
@@ -185,7 +185,7 @@ def test_batched_checks_along_paths_equal_single_checks(path, options, rng):
     """Along a path free_many lets a measured clearance vouch for the next poses: same answers."""
     from pathlib import Path
 
-    from nhstab.geometry import default_footprint
+    from nhstab.robot import default_footprint
     from nhstab.maps import load_map
 
     m = load_map(Path(__file__).parent.parent / "maps" / path, **options)
@@ -207,7 +207,7 @@ def test_min_clearance_is_the_minimum_over_all_poses(path, options, rng):
     """min_clearance skips poses by distance-field bounds: it returns what measuring every pose gives."""
     from pathlib import Path
 
-    from nhstab.geometry import default_footprint
+    from nhstab.robot import default_footprint
     from nhstab.maps import load_map
 
     m = load_map(Path(__file__).parent.parent / "maps" / path, **options)

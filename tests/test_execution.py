@@ -17,7 +17,7 @@ from nhstab.execution import ControllerOptions, Plant, RunOptions, build_law, ex
 from nhstab.execution.config import NoiseOptions, load_run_config, merge
 from nhstab.execution.outputs import nominal_cusps
 from nhstab.execution.runner import planner_seed
-from nhstab.geometry import default_footprint
+from nhstab.robot import default_footprint
 from nhstab.maps.base import Map, Pose, box_polygon
 from nhstab.models import make_model
 from nhstab.nominal import Nominal

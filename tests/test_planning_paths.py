@@ -80,7 +80,7 @@ def test_plan_around_a_wall_is_clear_by_the_margin_and_seeded():
 def test_no_path_is_failed_not_an_exception():
     m = Map("closed", (0, 0, 20, 10), obstacles=(box_polygon(10, 5, 1.0, 10.0),))
     g = plan_path(CollisionWorld.from_map(m), Footprint.disc(0.2), (2, 5, 0), (18, 5, 0),
-                  PathOptions(turning_radius=1.0, time_limit_s=0.3))
+                  PathOptions(turning_radius=1.0, time_limit_s=0.3, margin=0.1))
     assert g.status in ("failed", "approximate")
     assert g.status != "exact"
 
@@ -92,5 +92,5 @@ def test_bad_options(kwargs, arg):
     from nhstab.errors import InputError
 
     with pytest.raises(InputError) as exc:
-        PathOptions(**kwargs).validated()
+        PathOptions(**{"turning_radius": 1.0, "margin": 0.1, **kwargs}).validated()
     assert exc.value.argument == arg

@@ -13,7 +13,8 @@ from click.testing import CliRunner
 from nhstab.cli.main import cli
 from nhstab.collision import CollisionWorld
 from nhstab.execution import read_run_csv
-from nhstab.geometry import default_footprint, wrap_angle
+from nhstab.geometry import wrap_angle
+from nhstab.robot import default_footprint
 from nhstab.maps import load_map
 from nhstab.maps.base import Circle
 

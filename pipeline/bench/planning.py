@@ -14,10 +14,9 @@ def bench_planning(pairs: int = 20, budget_s: float = 5.0, seed: int = 2026) -> 
     gain schedule) over fixed start/goal pairs on the nav2 depot and a Bench-MR parking world, for
     the unicycle and the rwd car; and OMPL's validity checking time per state (Python callback)."""
     from ..collision import CollisionWorld
-    from ..geometry import default_footprint
+    from ..robot import default_robot
     from ..maps import load_map
-    from ..models import make_model
-    from ..planning import PathOptions, default_turning_radius, plan
+    from ..planning import PathOptions, plan
     from ..planning.problems import random_problems
 
     maps = maps_dir()
@@ -27,13 +26,14 @@ def bench_planning(pairs: int = 20, budget_s: float = 5.0, seed: int = 2026) -> 
         m = load_map(path)
         world = CollisionWorld.from_map(m)
         for robot in ("unicycle", "rwd_car"):
-            model, fp = make_model(robot), default_footprint(robot)
+            rob = default_robot(robot)
+            fp = rob.footprint
             problems = random_problems(world, fp, pairs, seed=seed, clearance=0.5, min_distance=8.0)
             times, statuses, per_state = [], [], []
             for k, (start, goal) in enumerate(problems):
-                opts = PathOptions(turning_radius=default_turning_radius(model), time_limit_s=budget_s, seed=k)
+                opts = PathOptions(time_limit_s=budget_s, seed=k, margin=0.1)
                 t0 = time.perf_counter()
-                r = plan(m, model, fp, start, goal, opts, world=world)
+                r = plan(m, rob, start, goal, opts, world=world)
                 times.append(time.perf_counter() - t0)
                 statuses.append(r.status)
                 if r.metrics.get("validity_calls"):

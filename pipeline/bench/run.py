@@ -14,10 +14,8 @@ def bench_run(runs: int = 10) -> dict:
     on the nav2 depot (unicycle) and our warehouse (rwd_car); and the cost of one control update
     (measure -> u, with the feedforward mean over the hold interval and saturation)."""
     from ..execution import ControllerOptions, RunOptions, build_law, execute
-    from ..geometry import default_footprint
+    from ..robot import default_footprint, default_robot
     from ..maps import load_map
-    from ..models import make_model
-    from ..planning import DEFAULT_STABILIZER
 
     maps = maps_dir()
     rows = []
@@ -26,10 +24,11 @@ def bench_run(runs: int = 10) -> dict:
                         ("ours warehouse (scenario warehouse_aisle_a2)", maps / "scenarios" / "warehouse_aisle_a2.yaml")]:
         m = load_map(path)
         robot = m.robot["model"]
-        model, fp = make_model(robot), default_footprint(robot)
+        rob = default_robot(robot)
+        model = rob.model
         latencies, statuses, replans, walls, sims = [], [], [], [], []
         for seed in range(runs):
-            r = execute(m, model, fp, m.start.as_array(), m.goal.as_array(), RunOptions(seed=seed))
+            r = execute(m, rob, m.start.as_array(), m.goal.as_array(), RunOptions(seed=seed))
             statuses.append(r.status)
             walls.append(r.wall_time_s)
             sims.append(float(r.log["t"][-1]) if len(r.log["t"]) else 0.0)
@@ -47,7 +46,7 @@ def bench_run(runs: int = 10) -> dict:
     for robot, (law, model) in laws.items():
         for kind in ("gramian", "tvlqr", "open-loop"):
             lw = law if kind == "gramian" else build_law(law.nominal, ControllerOptions(kind=kind),
-                                                         DEFAULT_STABILIZER[robot])
+                                                         default_robot(robot).stabilizer)
             lim = model.input_limits()
             T = lw.h
             taus = lw.t[:-1]

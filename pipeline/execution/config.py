@@ -6,7 +6,9 @@ Every key is checked: an unknown key, a wrong type or a value out of range raise
 was given. The format::
 
     map: maps/scenarios/warehouse_pallets.yaml   # relative to the config file, or example:NAME
-    robot: rwd_car                    # unicycle | rwd_car | fwd_car (default: the map's)
+    robot: rwd_car                    # a model name, or a robot description (default: the map's):
+                                      #   {model: rwd_car, wheelbase: 2.7, footprint: {...}, margin: 0.1, ...}
+                                      #   (see nhstab.robot)
     start: [x, y, theta]              # default: the map's
     goal: [x, y, theta]
     seed: 0                           # root seed: initial error, sensor and process noise, planner
@@ -24,7 +26,7 @@ was given. The format::
       impulses: [{time: 4.0, x: 0.0, y: 0.3}]                          # state jumps at given times
     sensor: {range_m: 8.0, fov_deg: 360, rate_hz: 10, resolution_deg: 0.5}
     monitor: {rate_hz: 10, horizon_s: 8.0}
-    planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.3, space: reeds_shepp}   # margin: robot's default
+    planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.3, space: reeds_shepp}   # margin: the robot's
     replan: {pause_s: 1.0, max_attempts: 3, max_replans: 10}
     tolerance: {position_m: 0.3, heading_rad: 0.2}
 
@@ -51,9 +53,6 @@ DEFAULT_NOISE = {
     "process": {"x": 0.02, "y": 0.02, "theta": 0.01, "phi": 0.0},
 }
 DISTRIBUTIONS = ("gaussian", "uniform")
-#: default planning margin per robot [m]: a car's body reaches 3.3 m ahead of its rear axle, where a
-#: heading error of 0.05 rad already moves it by 0.17 m, so cars keep more room than the unicycle
-DEFAULT_MARGIN = {"unicycle": 0.1, "rwd_car": 0.3, "fwd_car": 0.2}
 
 
 def check_number(key: str, v, lo: float = -math.inf, lo_open: bool = False, integer: bool = False):
@@ -135,7 +134,7 @@ class MonitorOptions:
 class PlanningOptions:
     """The planner used for the first plan and every replan (see ``nhstab plan``). ``margin``: the
     clearance every nominal keeps from the obstacles the robot knows of; None for the robot's
-    default (:data:`DEFAULT_MARGIN`)."""
+    (``Robot.margin``, see :mod:`nhstab.robot`)."""
 
     planner: str = "rrtconnect"
     space: str = "reeds_shepp"
@@ -192,7 +191,8 @@ class ToleranceOptions:
 
 @dataclass(frozen=True)
 class RunOptions:
-    robot: str | None = None
+    #: a model name or a robot spec mapping (the YAML form of :mod:`nhstab.robot`); None: the map's
+    robot: str | dict | None = None
     start: tuple | None = None
     goal: tuple | None = None
     seed: int = 0
@@ -319,6 +319,11 @@ def options_from_mapping(data: dict, allowed=None, prefix: str = "") -> RunOptio
                 kw[key] = _section(key, v)
             elif key in ("start", "goal"):
                 kw[key] = check_pose(key, v)
+            elif key == "robot":
+                from ..robot import robot_from_spec
+
+                robot_from_spec(v, where="robot")          # checked here, kept as plain data
+                kw[key] = v
             else:
                 kw[key] = v
         return RunOptions(**kw)

@@ -48,10 +48,11 @@ from ..errors import InputError, NumericalError, PipelineError
 from ..geometry import Footprint, wrap_angle
 from ..maps.base import Circle, Map
 from ..models import Model
-from ..planning import (DEFAULT_STABILIZER, PathOptions, PlanResult, TimingOptions, default_turning_radius, plan,
+from ..planning import (PathOptions, PlanResult, TimingOptions, plan,
                         pose_columns)
 from ..sensing import RangeSensor
-from .config import DEFAULT_MARGIN, RunOptions
+from ..robot import Robot, make_robot, resolve_robot
+from .config import RunOptions
 from .controllers import FeedbackLaw, build_law
 from .plant import Plant
 
@@ -124,6 +125,8 @@ class RunResult:
     info: dict = field(default_factory=dict)
     #: the FCL world of every real obstacle (known and unknown) the run was checked against
     world: CollisionWorld | None = None
+    #: the robot as used (model, footprint, margin, stabilizer defaults)
+    robot: Robot | None = None
 
     @property
     def ok(self) -> bool:
@@ -173,18 +176,19 @@ class _Stop(Exception):
 class CompositeRun:
     """State of one run; :func:`execute` drives it."""
 
-    def __init__(self, m: Map, model: Model, fp: Footprint, start, goal, opts: RunOptions):
-        self.m, self.model, self.fp = m, model, fp
+    def __init__(self, m: Map, robot: Robot, start, goal, opts: RunOptions):
+        model, fp = robot.model, robot.footprint
+        self.m, self.robot, self.model, self.fp = m, robot, model, fp
         opts = opts.validated(model.state_names, model.m)
         if opts.planning.margin is None:
-            opts = dataclasses.replace(opts, planning=dataclasses.replace(opts.planning,
-                                                                          margin=DEFAULT_MARGIN[model.name]))
+            opts = dataclasses.replace(opts, planning=dataclasses.replace(opts.planning, margin=robot.margin))
         self.opts = opts
         self.start = np.asarray(start, dtype=float)
         self.goal = np.asarray(goal, dtype=float)
         self.T = 1.0 / opts.rate_hz
         self.plant = Plant(model, self.T, opts.substeps)
         self.plan_model = derated(model, opts.headroom) if opts.headroom < 1.0 else model
+        self.plan_robot = robot.with_model(self.plan_model)
         self.pose_idx = pose_columns(model)
         self.known = CollisionWorld.from_map(m, "known")
         self.truth = CollisionWorld.from_map(m, "all")
@@ -199,7 +203,7 @@ class CompositeRun:
         self.impulses = opts.noise.impulse_list(model.state_names)
         lim = model.input_limits()
         self.u_lo, self.u_hi = lim[:, 0], lim[:, 1]
-        self.stab_defaults = dict(DEFAULT_STABILIZER[model.name])
+        self.stab_defaults = dict(robot.stabilizer)
         self.plans: list[PlanRecord] = []
         self.planning_calls = 0
         self.log = RunLog()
@@ -209,7 +213,7 @@ class CompositeRun:
     # ---- planning ---------------------------------------------------------------------------
     def _path_options(self, seed: int, margin: float) -> PathOptions:
         p = self.opts.planning
-        radius = p.turning_radius if p.turning_radius is not None else default_turning_radius(self.plan_model)
+        radius = p.turning_radius if p.turning_radius is not None else self.robot.turning_radius
         return PathOptions(space=p.space, turning_radius=radius, planner=p.planner, time_limit_s=p.time_limit_s,
                            seed=seed, margin=margin)
 
@@ -234,7 +238,7 @@ class CompositeRun:
             if clearance <= 0:
                 raise InputError("start", "a pose clear of the obstacles", start_pose.round(3).tolist(),
                                  detail=f"clearance {clearance:.3g} m")
-            result = plan(self.m, self.plan_model, self.fp, start_pose, self.goal, self._path_options(seed, margin),
+            result = plan(self.m, self.plan_robot, start_pose, self.goal, self._path_options(seed, margin),
                           TimingOptions(dt=self.T), world=self.robot_world)
             if result.ok:
                 law = build_law(result.nominal, self.opts.controller, self.stab_defaults, result.schedule)
@@ -426,12 +430,46 @@ class CompositeRun:
                                f"{tol.position_m:g} m, {tol.heading_rad:g} rad)")
 
 
-def execute(m: Map, model: Model, fp: Footprint, start, goal, opts: RunOptions) -> RunResult:
-    """Run the composite controller once. Never raises for what happens during the run (the status
-    says it); bad input raises :class:`InputError` before anything runs (a first plan that cannot be
-    requested, e.g. a start in collision, is bad input)."""
+def execute(m: Map, *args, **kwargs) -> RunResult:
+    """Run the composite controller once: ``execute(m, robot=None, start=None, goal=None, opts=None)``.
+
+    ``robot``: a :class:`~nhstab.robot.Robot`; None takes ``opts.robot`` (a model name or a robot
+    spec), else the map's ``robot:`` block, else the unicycle. ``start``/``goal``: poses; None takes
+    the map's. ``opts``: :class:`RunOptions` (default: all defaults). The older form
+    ``execute(m, model, footprint, start, goal, opts)`` is still accepted.
+
+    Never raises for what happens during the run (the status says it); bad input raises
+    :class:`InputError` before anything runs (a first plan that cannot be requested, e.g. a start in
+    collision, is bad input)."""
+    if args and isinstance(args[0], Model):
+        if len(args) < 2:
+            raise InputError("footprint", "a Footprint after the model (or pass a Robot)", None)
+        model, fp, *args = args
+        args = [make_robot(model, footprint=fp), *args]
+    names = ("robot", "start", "goal", "opts")
+    if len(args) > len(names):
+        raise InputError("execute", f"at most {len(names) + 1} positional arguments", len(args) + 1)
+    given = dict(zip(names, args))
+    for key, v in kwargs.items():
+        if key not in names or key in given:
+            raise InputError(f"execute {key}", "one of robot, start, goal, opts, given once", key)
+        given[key] = v
+    opts = given.get("opts") or RunOptions()
+    if not isinstance(opts, RunOptions):
+        raise InputError("opts", "a RunOptions", type(opts).__name__)
+    robot = resolve_robot(given.get("robot") if given.get("robot") is not None else opts.robot, m.robot,
+                          source="run options" if given.get("robot") is None and opts.robot is not None else "")
+    from ..maps import resolve_poses
+
+    start, goal = resolve_poses(m, given.get("start") if given.get("start") is not None else opts.start,
+                                given.get("goal") if given.get("goal") is not None else opts.goal)
+    return _execute(m, robot, start, goal, opts)
+
+
+def _execute(m: Map, robot: Robot, start, goal, opts: RunOptions) -> RunResult:
+    model, fp = robot.model, robot.footprint
     started = time.perf_counter()
-    run = CompositeRun(m, model, fp, start, goal, opts)
+    run = CompositeRun(m, robot, start, goal, opts)
     run.final_errors = None
     try:
         status, message = run.run()
@@ -452,4 +490,4 @@ def execute(m: Map, model: Model, fp: Footprint, start, goal, opts: RunOptions) 
     return RunResult(status, message, model, fp, m, run.start, run.goal, run.opts, run.plans, log, run.discovered,
                      run.collision, seeds, time.perf_counter() - started,
                      {"final_errors": run.final_errors, "x_initial": getattr(run, "x_initial", None),
-                      "period_s": run.T}, run.truth)
+                      "period_s": run.T}, run.truth, robot)

@@ -16,23 +16,13 @@ import numpy as np
 from ..collision import CollisionWorld, check_poses
 from ..control import GainSchedule, StabilizerOptions, compute_schedule
 from ..errors import InputError, SingularGramianError
-from ..geometry import Footprint
 from ..maps.base import Map
 from ..models import Model
 from ..nominal import Nominal
+from ..robot import Robot, default_robot, make_robot
 from .geometric import PLANNERS, SPACES, GeometricPath, PathOptions, path_length, plan_path
 from .timing import TimingOptions, unicycle_nominal
 
-#: default stabilizer parameters per robot, chosen by ``nhstab sweep`` (results/planning/sweep.md): the
-#: largest guaranteed rate with max ||K|| <= 50 along a plan in the bundled parking lot
-DEFAULT_STABILIZER = {
-    "unicycle": {"alpha": 0.2, "delta": 2.0, "gamma": 1.0},
-    "rwd_car": {"alpha": 0.1, "delta": 6.0, "gamma": 1.0},
-    "fwd_car": {"alpha": 0.2, "delta": 3.0, "gamma": 1.0},
-}
-#: default Reeds-Shepp turning radius of the unicycle [m] (it could turn in place; a radius keeps the
-#: path smooth and the gramian well conditioned)
-UNICYCLE_TURNING_RADIUS = 0.5
 #: the geometric planner keeps this much more than the requested margin, so that the nominal still
 #: clears the margin: the unicycle's follows the sampled path to a few millimetres. Cars get more room
 #: for their steering pieces: the phased sinusoids wandered 0.1-0.5 m from the path (up to 1.1 m),
@@ -48,20 +38,14 @@ def pose_columns(model: Model) -> list[int]:
     return [names.index("x"), names.index("y"), names.index("theta")]
 
 
-#: cars plan with this multiple of their minimum turning radius, so that the sinusoidal steering that
-#: makes the path feasible has room below the steering limit
-CAR_RADIUS_FACTOR = 1.25
-
-
 def min_turning_radius(model: Model) -> float:
     """Both cars: theta' = tan(phi) s / L for rear-axle speed s, so R_min = L / tan(max_steer)."""
     return float(model.wheelbase / math.tan(model.max_steer))
 
 
 def default_turning_radius(model: Model) -> float:
-    if model.name == "unicycle":
-        return UNICYCLE_TURNING_RADIUS
-    return CAR_RADIUS_FACTOR * min_turning_radius(model)
+    """The planning turning radius of the model's built-in robot (see :mod:`nhstab.robot`)."""
+    return default_robot(model.name, **model.params()).turning_radius
 
 
 @dataclass
@@ -82,25 +66,45 @@ class PlanResult:
         return self.status == "ok"
 
 
-def plan(m: Map, model: Model, fp: Footprint, start, goal, path_opts: PathOptions | None = None,
-         timing_opts: TimingOptions | None = None, stab_opts: StabilizerOptions | None = None,
-         check_resolution: float = 0.05, world: CollisionWorld | None = None) -> PlanResult:
-    """Plan a nominal trajectory of ``model`` from start to goal on the map's known obstacles.
+def plan(m: Map, robot: Robot, *args, **kwargs) -> PlanResult:
+    """Plan a nominal trajectory of ``robot`` from start to goal on the map's known obstacles:
+    ``plan(m, robot, start, goal, path_opts=None, timing_opts=None, stab_opts=None,
+    check_resolution=0.05, world=None)``.
+
+    ``robot`` is a :class:`~nhstab.robot.Robot` (footprint, turning radius, margin and stabilizer
+    defaults come from it where the options leave them None). The older form
+    ``plan(m, model, footprint, start, goal, ...)`` is still accepted: the model's built-in robot
+    with that footprint.
 
     Bad requests (start or goal outside the bounds or in collision, bad options, a model this planner
     does not handle) raise :class:`InputError`; a request the planner cannot satisfy returns a result
     whose ``status`` says why.
     """
+    if isinstance(robot, Model):
+        if not args:
+            raise InputError("footprint", "a Footprint after the model (or pass a Robot)", None)
+        fp, *args = args
+        robot = make_robot(robot, footprint=fp)
+    if not isinstance(robot, Robot):
+        raise InputError("robot", "a Robot (nhstab.robot.make_robot) or a Model and a Footprint",
+                         type(robot).__name__)
+    return _plan(m, robot, *args, **kwargs)
+
+
+def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = None,
+          timing_opts: TimingOptions | None = None, stab_opts: StabilizerOptions | None = None,
+          check_resolution: float = 0.05, world: CollisionWorld | None = None) -> PlanResult:
+    model, fp = robot.model, robot.footprint
     if model.name not in PLANNABLE:
         raise InputError("robot", "one of " + ", ".join(PLANNABLE), model.name)
-    path_opts = (path_opts or PathOptions(turning_radius=default_turning_radius(model))).validated()
+    path_opts = (path_opts or PathOptions()).for_robot(robot).validated()
     timing_opts = (timing_opts or TimingOptions()).validated()
-    stab_opts = (stab_opts or StabilizerOptions(**DEFAULT_STABILIZER[model.name])).validated()
+    stab_opts = (stab_opts or StabilizerOptions(**robot.stabilizer)).validated()
+    start, goal = _pose(start, "start", model), _pose(goal, "goal", model)
     if model.name != "unicycle" and path_opts.turning_radius < min_turning_radius(model) - 1e-9:
         raise InputError("turning_radius", f"at least the {model.name}'s minimum turning radius "
                          f"{min_turning_radius(model):.4g} m", path_opts.turning_radius)
     world = world or CollisionWorld.from_map(m, "known")
-    start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
     clearances = check_poses(m, fp, {"start": start, "goal": goal}, world=world)
     for key, c in clearances.items():
         if c <= path_opts.margin:
@@ -159,7 +163,7 @@ def plan(m: Map, model: Model, fp: Footprint, start, goal, path_opts: PathOption
         metrics["time_to_nominal_s"] = time.perf_counter() - started
         return PlanResult("not_stabilizable", str(exc), path, nominal, metrics=metrics)
     d = schedule.diagnostics
-    metrics.update({"stabilizer": stab_opts.describe(), "h_min_eigenvalue": d["h_min_eigenvalue"],
+    metrics.update({"robot": robot.name, "stabilizer": stab_opts.describe(), "h_min_eigenvalue": d["h_min_eigenvalue"],
                     "h_min_eigenvalue_time_s": d["h_min_eigenvalue_time_s"], "max_gain_norm": d["max_gain_norm"],
                     "p_m": d["p_m"], "p_M": d["p_M"], "rate_bound": d["rate_bound"],
                     "time_to_nominal_s": time.perf_counter() - started})
@@ -167,5 +171,20 @@ def plan(m: Map, model: Model, fp: Footprint, start, goal, path_opts: PathOption
                       path, nominal, schedule, metrics)
 
 
+def _pose(value, name: str, model: Model) -> np.ndarray:
+    """A start or goal pose: (x, y, theta) finite numbers (a full state of the model is also
+    accepted: its pose columns are used)."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(name, "a pose of three numbers (x, y, theta)", value) from None
+    if arr.shape == (model.n,) and model.n != 3:
+        arr = arr[pose_columns(model)]
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise InputError(name, "a pose of three finite numbers (x, y, theta)",
+                         value if arr.size < 10 else f"shape {arr.shape}")
+    return arr
+
+
 __all__ = ["plan", "PlanResult", "PathOptions", "TimingOptions", "GeometricPath", "plan_path", "path_length",
-           "PLANNERS", "SPACES", "PLANNABLE", "DEFAULT_STABILIZER", "pose_columns", "default_turning_radius"]
+           "PLANNERS", "SPACES", "PLANNABLE", "pose_columns", "default_turning_radius", "min_turning_radius"]

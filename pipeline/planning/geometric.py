@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -36,13 +36,18 @@ class PathOptions:
     """
 
     space: str = "reeds_shepp"
-    turning_radius: float = 1.0
+    turning_radius: float | None = None      # None: the robot's (filled in by planning.plan)
     planner: str = "rrtconnect"
     time_limit_s: float = 1.0
     seed: int = 0
-    margin: float = 0.1
+    margin: float | None = None              # None: the robot's (filled in by planning.plan)
     resolution: float = 0.05
     simplify: bool = True
+
+    def for_robot(self, robot) -> "PathOptions":
+        """These options with the robot's turning radius and margin where they are None."""
+        return replace(self, turning_radius=robot.turning_radius if self.turning_radius is None else self.turning_radius,
+                       margin=robot.margin if self.margin is None else self.margin)
 
     def validated(self) -> "PathOptions":
         if self.space not in SPACES:
@@ -51,12 +56,17 @@ class PathOptions:
             raise InputError("planner", "one of " + ", ".join(PLANNERS), self.planner)
         for key in ("turning_radius", "time_limit_s", "resolution"):
             v = getattr(self, key)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            if v is not None and not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                                      and v > 0):
                 raise InputError(key, "a positive finite number", v)
-        if not (math.isfinite(self.margin) and self.margin >= 0):
+        if self.margin is not None and not (isinstance(self.margin, (int, float)) and not isinstance(self.margin, bool)
+                                            and math.isfinite(self.margin) and self.margin >= 0):
             raise InputError("margin", "a finite number >= 0", self.margin)
-        if not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+        if not isinstance(self.seed, (int, np.integer)) or isinstance(self.seed, bool) or self.seed < 0:
             raise InputError("seed", "a non-negative integer", self.seed)
+        for key in ("turning_radius", "margin"):
+            if getattr(self, key) is None:
+                raise InputError(key, "a number (planning.plan takes it from the robot when not given)", None)
         return self
 
 

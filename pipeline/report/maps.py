@@ -98,6 +98,7 @@ def map_summary(m: Map, footprint=None) -> dict:
         "start": None if m.start is None else list(m.start.as_array()),
         "goal": None if m.goal is None else list(m.goal.as_array()),
         "robot": m.robot,
+        "notes": list(m.meta.get("notes") or []),
     }
     if footprint is not None and (m.start is not None or m.goal is not None):
         clear = check_poses(m, footprint, {"start": None if m.start is None else m.start.as_array(),
