@@ -672,3 +672,40 @@ def write_suite(out, check: bool = False) -> dict:
     for name, text in files.items():
         write_text(out / name, text)
     return {"written": sorted(files), "folder": str(out)}
+
+
+# ---- the figure of the tightest parallel maneuver ---------------------------------------------------
+
+def tightest_parallel_run(car: str = "rwd_car", seeds=(0, 1, 2), opts=None, folder=None, progress=None):
+    """``nhstab run`` (the composite controller, default noise and gramian law unless ``opts`` say
+    otherwise) on the bundled parallel slots of ``car``, tightest first, each with ``seeds`` in turn,
+    until one reaches the goal. Returns (case row, seed, RunResult or None, tried): ``tried`` lists
+    every attempt with its status, so the figure's caption can say what failed before it."""
+    from dataclasses import replace
+
+    from .execution import RunOptions, execute
+    from .maps import load_map
+    from .robot import robot_from_spec
+
+    if folder is None:
+        from .examples import data_root
+
+        folder = data_root() / "parking"
+    folder = Path(folder)
+    rows = sorted((r for r in read_suite_csv(folder / "suite.csv") if r["kind"] == "parallel" and r["car"] == car),
+                  key=lambda r: r["factor"])
+    if not rows:
+        raise InputError("car", "a car of the parking suite (" + ", ".join(cars()) + ")", car)
+    base = opts or RunOptions()
+    tried = []
+    for row in rows:
+        m = load_map(folder / f"{row['name']}.yaml")
+        robot = robot_from_spec(m.robot, source="map")
+        for seed in seeds:
+            result = execute(m, robot, m.start.as_array(), m.goal.as_array(), replace(base, seed=int(seed)))
+            tried.append({"map": row["name"], "factor": row["factor"], "seed": int(seed), "status": result.status})
+            if progress is not None:
+                progress(f"{row['name']} seed {seed}: {result.status}")
+            if result.status == "reached":
+                return row, int(seed), result, tried
+    return None, None, None, tried

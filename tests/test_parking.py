@@ -321,3 +321,26 @@ def test_bench_parking_command_writes_json(tmp_path):
 def test_bench_parking_refuses_unknown_cases():
     res = CliRunner().invoke(cli, ["bench", "parking", "--case", "nope", "--out", "/dev/null"])
     assert res.exit_code == 2 and "'case'" in res.output
+
+
+def test_parking_batch_config_covers_the_suite_with_three_controllers_and_noise_levels():
+    from nhstab.batch.config import load_batch_config
+
+    config = load_batch_config(ROOT / "results" / "parking" / "batch.yaml")
+    cells = config.cells()
+    names = {c["map"] for c in cells}
+    rows = {r["name"]: r for r in P.read_suite_csv(FOLDER / "suite.csv")}
+    assert names <= set(rows)
+    assert {rows[n]["kind"] for n in names} == {"parallel", "perpendicular", "angled45", "angled60"}
+    assert {rows[n]["factor"] for n in names if rows[n]["kind"] == "parallel"} == set(P.PARALLEL_FACTORS)
+    assert {c["controller"] for c in cells} == {"gramian", "tvlqr", "open-loop"}
+    assert sorted({c["noise"] for c in cells}) == [0.5, 1.0, 2.0]
+    assert len(cells) == len(names) * 9
+    assert all(c["robot"] is None for c in cells)        # each map's own car
+
+
+def test_parking_figure_refuses_bad_input():
+    res = CliRunner().invoke(cli, ["parking", "figure", "--seeds", "a,b", "--out", "/tmp/x"])
+    assert res.exit_code == 2 and "--seeds" in res.output
+    res = CliRunner().invoke(cli, ["parking", "figure", "--car", "bus", "--out", "/tmp/x"])
+    assert res.exit_code == 2 and "'car'" in res.output
