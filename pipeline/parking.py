@@ -50,7 +50,7 @@ from __future__ import annotations
 import csv
 import io
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
@@ -231,7 +231,6 @@ class Case:
     slot: np.ndarray          # (4, 2) the slot or bay the goal must lie in
     robot: dict
     description: str
-    notes: dict = field(default_factory=dict)
 
     @property
     def file_name(self) -> str:
@@ -267,9 +266,7 @@ def parallel_case(car_name: str, spec: dict, factor: float) -> Case:
     desc = (f"Parallel parking, {label} ({ln:g} x {w:g} m): a slot of {slot:.2f} m = {factor:g} x L1 "
             f"(L1 = {L1:.2f} m, the single-maneuver minimum) between parked cars at a curb; start in the lane.")
     return Case(f"parallel_{car_name}_{round(100 * factor):03d}", car_name, "parallel", factor, slot, L1,
-                (0.0, -SIDEWALK, x_max, y_top + SIDEWALK), obstacles, start, goal, slot_poly, spec, desc,
-                {"parking_lane_m": lane, "travel_lanes_m": 2 * TRAVEL_LANE,
-                 "single_maneuver_with_margin_m": parallel_min_length(car, spec["margin"])})
+                (0.0, -SIDEWALK, x_max, y_top + SIDEWALK), obstacles, start, goal, slot_poly, spec, desc)
 
 
 def _bay_case(car_name: str, spec: dict, kind: str, theta: float, aisle: float, factor: float, estimate: float,
@@ -317,8 +314,7 @@ def _bay_case(car_name: str, spec: dict, kind: str, theta: float, aisle: float, 
             f"{aisle:.2f} m wide = {factor:g} x its swept-path estimate {estimate:.2f} m; start in the aisle.")
     return Case(f"{kind}_{car_name}_aisle{round(100 * factor):03d}", car_name, kind, factor, aisle, estimate,
                 (0.0, y_back - WALL, x_max, y_top + (WALL if kind == "perpendicular" else 0.0)), obstacles, start,
-                goal, bay, spec, desc, {"bay_width_m": W, "bay_depth_m": row["depth"], "bay_angle_deg":
-                                        math.degrees(theta), "entry": "reverse" if reverse_in else "forward"})
+                goal, bay, spec, desc)
 
 
 def _row(car: CarGeometry, theta: float, W: float, x_left: float, n_bays: int, mirror: bool = False,

@@ -206,8 +206,9 @@ def test_names_are_unique_bundled_examples(rows):
     assert len(names) == len(set(names))
     for name in rows:
         assert name in examples, name
-        assert resolve_map_path(f"example:{name}") == (FOLDER / f"{name}.yaml").resolve() or \
-            resolve_map_path(f"example:{name}").name == f"{name}.yaml"
+        path = resolve_map_path(f"example:{name}")
+        assert path.name == f"{name}.yaml" and path.parent.name == "parking"
+        assert load_map(f"example:{name}").name == name
         assert examples[name].description.startswith(rows[name]["description"][:40])
 
 
