@@ -105,8 +105,8 @@ def _default_car_spec() -> dict:
             "margin": SUITE_MARGIN}
 
 
-#: the suite's cars: name -> robot description (the robot: block of each map)
 def cars() -> dict[str, dict]:
+    """The suite's cars: name -> robot description (the ``robot:`` block of each map)."""
     return {"rwd_car": _default_car_spec(), "van": _van_spec()}
 
 
