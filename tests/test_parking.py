@@ -313,7 +313,11 @@ def test_bench_parking_command_writes_json(tmp_path):
         if t["status"] == "ok":
             assert t["duration_bound_s"] > 0 and t["cusps"] >= 0 and t["max_gain_norm"] > 0
             assert t["max_abs_steering_rad"] <= 0.6 + 1e-9
-    assert row["met"] == (row["success_rate"] == 1.0 and row["median_time_s"] < 1.0)
+    assert row["success_met"] == (row["success_rate"] == 1.0 and row["median_time_s"] < 1.0)
+    ok = [t for t in row["trials"] if t["ok_within_budget"]]
+    assert row["bounds_met"] == all(t["duration_s"] <= t["duration_bound_s"] and t["max_gain_norm"] <= 50.0
+                                    and t["max_abs_steering_rad"] <= 0.6 + 1e-9 for t in ok)
+    assert row["met"] == (row["success_met"] and row["bounds_met"])
     from nhstab.bench.parking import summary_lines
 
     assert "angled60_rwd_car_aisle200" in summary_lines(data)[0]

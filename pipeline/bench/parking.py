@@ -21,7 +21,9 @@ record
 - the steering's largest |phi| against the car's limit.
 
 Targets (issue 11): parallel slots >= 1.1 x L1 and every perpendicular and angled bay: 100 %
-success with a median under 1 s; slots of 1.0-1.05 x L1: >= 90 %; 0.9 x L1: >= 50 %.
+success with a median under 1 s; slots of 1.0-1.05 x L1: >= 90 %; 0.9 x L1: >= 50 % (``success_met``);
+and every successful nominal within the duration, gain and steering bounds of item 4
+(``bounds_met``). A case is ``met`` when both are.
 """
 
 from __future__ import annotations
@@ -92,9 +94,11 @@ def bench_parking(seeds: int = SEEDS, budget_s: float = BUDGET_S, cases=None, pr
             if r.nominal is not None:
                 cusps = int(mt.get("direction_reversals", mt.get("cusps", 0)))
                 bound = duration_bound(float(mt["length_m"]), cusps, model)
+                steer = mt.get("max_abs_steering_rad")
                 trial.update({"length_m": float(mt["length_m"]), "cusps": cusps, "duration_s": float(mt["duration_s"]),
                               "duration_bound_s": bound, "duration_within_bound": bool(mt["duration_s"] <= bound),
-                              "max_abs_steering_rad": mt.get("max_abs_steering_rad")})
+                              "max_abs_steering_rad": steer,
+                              "steering_within_limit": steer is None or bool(steer <= model.max_steer + 1e-9)})
             if r.ok:
                 trial.update({"max_gain_norm": float(mt["max_gain_norm"]),
                               "gain_within_bound": bool(mt["max_gain_norm"] <= GAIN_BOUND)})
@@ -111,7 +115,9 @@ def bench_parking(seeds: int = SEEDS, budget_s: float = BUDGET_S, cases=None, pr
             "duration_bound": "1.5 x (length / max_speed + (2 cusps + 2) max_steer / max_steer_rate)",
             "targets": {"parallel >= 1.1 L1, perpendicular, angled": "100 % success, median < 1 s",
                         "parallel 1.0-1.05 L1": ">= 90 % success", "parallel 0.9 L1": ">= 50 % success",
-                        "success": f"status ok and the whole plan() call within {budget_s:g} s"},
+                        "success": f"status ok and the whole plan() call within {budget_s:g} s",
+                        "bounds": "every successful nominal: duration <= bound, max ||K|| <= gain bound, "
+                                  "|phi| <= max_steer"},
             "rows": rows, "met": met, "all_met": bool(all(met.values()))}
 
 
@@ -121,8 +127,9 @@ def _row(spec: dict, robot, trials: list, budget_s: float) -> dict:
     median = float(np.median([t["time_s"] for t in ok])) if ok else None
     kind, factor = spec["kind"], spec["factor"]
     need = target_rate(kind, factor)
-    met = rate >= need - 1e-12 and (not needs_fast_median(kind, factor) or (median is not None
-                                                                           and median < MEDIAN_TARGET_S))
+    success_met = rate >= need - 1e-12 and (not needs_fast_median(kind, factor) or (
+        median is not None and median < MEDIAN_TARGET_S))
+    bounds_met = all(t["duration_within_bound"] and t["gain_within_bound"] and t["steering_within_limit"] for t in ok)
     statuses: dict = {}
     for t in trials:
         key = t["status"] if t["status"] != "ok" or t["ok_within_budget"] else "ok_over_budget"
@@ -144,8 +151,9 @@ def _row(spec: dict, robot, trials: list, budget_s: float) -> dict:
         "max_gain_norm_median": stat("max_gain_norm", lambda v: float(np.median(v))),
         "max_gain_norm_max": stat("max_gain_norm", max),
         "gains_within_bound": stat("gain_within_bound", lambda v: int(sum(v))),
+        "steering_within_limit": stat("steering_within_limit", lambda v: int(sum(v))),
         "target_success_rate": need, "target_median_s": MEDIAN_TARGET_S if needs_fast_median(kind, factor) else None,
-        "met": bool(met),
+        "success_met": bool(success_met), "bounds_met": bool(bounds_met), "met": bool(success_met and bounds_met),
     }
 
 
@@ -156,12 +164,13 @@ def summary_lines(p: dict) -> list[str]:
         ok = round(r["success_rate"] * len(r["trials"]))
         med = "-" if r["median_time_s"] is None else f"{r['median_time_s']:.2f} s"
         target = f">= {100 * r['target_success_rate']:.0f} %" + (
-            f" / < {r['target_median_s']:g} s" if r["target_median_s"] is not None else "")
+            f" / < {r['target_median_s']:g} s" if r["target_median_s"] is not None else "") + ", nominals within bounds"
         extra = ""
         if ok:
             extra = (f"; cusps {r['cusps_median']:g} (max {r['cusps_max']}); duration within bound "
                      f"{r['durations_within_bound']}/{ok} (worst {r['duration_over_bound_max']:.2f} x bound); "
-                     f"max ||K|| {r['max_gain_norm_max']:.3g} ({r['gains_within_bound']}/{ok} <= {p['gain_bound']:g})")
+                     f"max ||K|| {r['max_gain_norm_max']:.3g} ({r['gains_within_bound']}/{ok} <= {p['gain_bound']:g}); "
+                     f"steering within its limit {r['steering_within_limit']}/{ok}")
         size = ("slot" if r["kind"] == "parallel" else "aisle") + f" {r['factor']:g} x"
         lines.append(f"| parking | {r['name']} ({size}): success / median over {len(r['trials'])} seeds "
                      f"({p['budget_s']:g} s){extra} | {ok}/{len(r['trials'])} / {med} | {target} | "
