@@ -23,12 +23,14 @@ EXIT_NO_PLAN = 3
 @click.option("--turning-radius", type=float, default=None, help="[m] (default: the robot's minimum; unicycle 0.5).")
 @click.option("--time-limit", type=float, default=2.0, show_default=True, help="Planning budget [s].")
 @click.option("--seed", type=int, default=0, show_default=True, help="OMPL's random seed for this call.")
+@click.option("--guide/--no-guide", default=True, show_default=True,
+              help="Guided search: a grid shortest path sets subgoals; --no-guide: OMPL over the whole map.")
 @click.option("--margin", type=float, default=0.1, show_default=True, help="Clearance to keep from known obstacles [m].")
 @click.option("--max-speed", type=float, default=None, help="[m/s] (default: the robot's limit).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True)
 @map_options
-def plan(map_file, robot, start, goal, problem, planner, space, turning_radius, time_limit, seed, margin, max_speed,
-         out_dir, cell_size, unknown):
+def plan(map_file, robot, start, goal, problem, planner, space, turning_radius, time_limit, seed, guide, margin,
+         max_speed, out_dir, cell_size, unknown):
     """Plan on MAP and write trajectory.csv, trajectory.npz, plan.json and plan.png into OUT.
 
     Exit code 2 for a bad request (start or goal out of bounds or in collision, unknown planner, zero
@@ -47,7 +49,7 @@ def plan(map_file, robot, start, goal, problem, planner, space, turning_radius, 
     s, g = resolve_poses(m, parse_pose("--start", start), parse_pose("--goal", goal), problem,
                          names=("--start", "--goal", "--problem"))
     path_opts = PathOptions(space=space, turning_radius=default_turning_radius(model) if turning_radius is None else turning_radius, planner=planner,
-                            time_limit_s=time_limit, seed=seed, margin=margin)
+                            time_limit_s=time_limit, seed=seed, margin=margin, guide=guide)
     result = make_plan(m, model, fp, s, g, path_opts, TimingOptions(max_speed=max_speed))
     if not result.ok:
         click.echo(f"nhstab: no plan ({result.status}): {result.message}", err=True)

@@ -24,7 +24,7 @@ was given. The format::
       impulses: [{time: 4.0, x: 0.0, y: 0.3}]                          # state jumps at given times
     sensor: {range_m: 8.0, fov_deg: 360, rate_hz: 10, resolution_deg: 0.5}
     monitor: {rate_hz: 10, horizon_s: 8.0}
-    planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.3, space: reeds_shepp}   # margin: robot's default
+    planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.3, space: reeds_shepp, guide: true}   # margin: robot's default
     replan: {pause_s: 1.0, max_attempts: 3, max_replans: 10, budget_growth: 4.0}
     tolerance: {position_m: 0.3, heading_rad: 0.2}
 
@@ -135,13 +135,15 @@ class MonitorOptions:
 class PlanningOptions:
     """The planner used for the first plan and every replan (see ``nhstab plan``). ``margin``: the
     clearance every nominal keeps from the obstacles the robot knows of; None for the robot's
-    default (:data:`DEFAULT_MARGIN`)."""
+    default (:data:`DEFAULT_MARGIN`). ``guide``: the guided search (a grid shortest path sets the
+    subgoals); false searches with OMPL's planner over the whole map."""
 
     planner: str = "rrtconnect"
     space: str = "reeds_shepp"
     time_limit_s: float = 2.0
     margin: float | None = None
     turning_radius: float | None = None
+    guide: bool = True
 
     def validated(self) -> "PlanningOptions":
         from ..planning import PLANNERS, SPACES
@@ -155,6 +157,8 @@ class PlanningOptions:
             check_number("planning.margin", self.margin, 0.0)
         if self.turning_radius is not None:
             check_number("planning.turning_radius", self.turning_radius, 0.0, lo_open=True)
+        if not isinstance(self.guide, bool):
+            raise InputError("planning.guide", "true or false", self.guide)
         return self
 
 

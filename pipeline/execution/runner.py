@@ -213,7 +213,7 @@ class CompositeRun:
         p = self.opts.planning
         radius = p.turning_radius if p.turning_radius is not None else default_turning_radius(self.plan_model)
         return PathOptions(space=p.space, turning_radius=radius, planner=p.planner,
-                           time_limit_s=p.time_limit_s * budget_factor, seed=seed, margin=margin)
+                           time_limit_s=p.time_limit_s * budget_factor, seed=seed, margin=margin, guide=p.guide)
 
     def _plan_once(self, start_pose: np.ndarray, attempt_index: int = 0
                    ) -> tuple[dict, PlanResult | None, FeedbackLaw | None, float]:

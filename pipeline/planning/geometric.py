@@ -14,8 +14,8 @@ The search (``plan_path``):
    the farthest subgoal within ``GUIDE_LOOKAHEAD_M`` whose local path is free (halving the distance
    until one is), and where none is, runs OMPL's planner (RRTConnect by default) between the current
    pose and a subgoal a few turning radii ahead, in a box around the two;
-3. otherwise, or if the guided search fails, OMPL's planner over the whole map for the rest of the
-   budget.
+3. otherwise, or if the guided search fails (it stops after ``GUIDED_SHARE`` of the budget), OMPL's
+   planner over the whole map for the rest of the budget.
 
 OMPL plans with nhstab's own motion validator (the same local paths and checks) and a state validity
 checker on the distance field and FCL. Only exact solutions count. OMPL's RNG is process-wide, but in
@@ -186,8 +186,11 @@ def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptio
 GUIDE_LOOKAHEAD_M = 40.0
 #: an OMPL search between two guide subgoals gets at most this fraction of the whole budget (and at least
 #: LOCAL_MIN_BUDGET_S, never more than what is left)
-LOCAL_BUDGET_FRACTION = 0.25
-LOCAL_MIN_BUDGET_S = 0.2
+LOCAL_BUDGET_FRACTION = 0.15
+LOCAL_MIN_BUDGET_S = 0.1
+#: the guided search stops after this fraction of the budget, so that the unguided search over the whole
+#: map keeps the rest (where the guide's corridor does not suit the robot, e.g. a car that must turn)
+GUIDED_SHARE = 0.5
 
 
 class _Search:
@@ -336,9 +339,14 @@ def _guided(search: _Search, start, goal, info: dict):
     pos, s_cur = start, guide.project(guide.start_xy)
     out = [start]
     k_ompl = 0
+    share_end = search.started + GUIDED_SHARE * float(opts.time_limit_s)
+
+    def left() -> float:
+        return min(search.left(), share_end - time.perf_counter())
+
     while True:
-        if search.left() <= 0:
-            info["guide"]["failure"] = "time limit"
+        if left() <= 0:
+            info["guide"]["failure"] = "its share of the time limit"
             return None
         rest = guide.length_m - s_cur
         cands = []
@@ -367,11 +375,11 @@ def _guided(search: _Search, start, goal, info: dict):
                 b = world.bounds
                 box = (max(b[0], lo[0]), max(b[1], lo[1]), min(b[2], hi[0]), min(b[3], hi[1]))
                 k_ompl += 1
-                pts = search.ompl(pos, pose, min(search.left(), budget_cap), box, _seed(opts.seed, k_ompl))
+                pts = search.ompl(pos, pose, min(left(), budget_cap), box, _seed(opts.seed, k_ompl))
                 if pts is not None:
                     nxt = (pose, s, list(pts[1:]))
                     break
-                if search.left() <= 0:
+                if left() <= 0:
                     break
             if nxt is None:
                 info["guide"]["failure"] = f"no local path past guide arc length {s_cur:.2f} m"
