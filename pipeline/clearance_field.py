@@ -39,8 +39,7 @@ class ClearanceField:
         """``bounds`` (xmin, ymin, xmax, ymax); ``resolutions``: the cell sizes of the map's grids (the
         raster uses the finest, else 1/512 of the larger side); ``outlines``: the obstacles, each
         ("poly", vertices (k, 2) convex part or polygon) or ("circle", centre, radius)."""
-        from matplotlib.path import Path as MplPath
-        from scipy.ndimage import binary_dilation, binary_erosion, distance_transform_edt
+        from scipy.ndimage import distance_transform_edt
 
         xmin, ymin, xmax, ymax = bounds
         r = min(resolutions, default=max(xmax - xmin, ymax - ymin) / 512)
@@ -56,6 +55,35 @@ class ClearanceField:
         ys = self.y0 + (np.arange(rows) + 0.5) * r
         occ[:, xs < xmin] = occ[:, xs > xmax] = True
         occ[ys < ymin, :] = occ[ys > ymax, :] = True
+        more, self.inside = self._mark(outlines, occ.shape)
+        self.lower_bound = distance_transform_edt(~(occ | more)) * r - math.sqrt(2) * r
+
+    def with_outlines(self, outlines) -> "ClearanceField":
+        """The field of these obstacles added to this one's, on the same raster: the distance to a union
+        is the smaller of the distances, so only the new obstacles are rasterised."""
+        from scipy.ndimage import distance_transform_edt
+
+        new = object.__new__(ClearanceField)
+        new.r, new.x0, new.y0 = self.r, self.x0, self.y0
+        occ, inside = new._mark(outlines, self.lower_bound.shape)
+        new.inside = self.inside | inside
+        if occ.any():
+            bound = distance_transform_edt(~occ) * self.r - math.sqrt(2) * self.r
+            new.lower_bound = np.minimum(self.lower_bound, bound)
+        else:
+            new.lower_bound = self.lower_bound
+        return new
+
+    def _mark(self, outlines, shape):
+        """(occupied, inside) rasters of the obstacles (see the class docstring)."""
+        from matplotlib.path import Path as MplPath
+        from scipy.ndimage import binary_dilation, binary_erosion
+
+        r = self.r
+        rows, cols = shape
+        occ = np.zeros(shape, dtype=bool)
+        xs = self.x0 + (np.arange(cols) + 0.5) * r
+        ys = self.y0 + (np.arange(rows) + 0.5) * r
         grown = np.zeros_like(occ)
         # cells certainly inside an obstacle: per convex part, cells whose 3 x 3 block of centres is
         # inside (by convexity the cell lies in the square those centres span); per circle, cells
@@ -102,8 +130,9 @@ class ClearanceField:
             j = np.clip(np.floor((pts[:, 0] - self.x0) / r).astype(int), 0, cols - 1)
             i = np.clip(np.floor((pts[:, 1] - self.y0) / r).astype(int), 0, rows - 1)
             grown[i, j] = True
-        occ |= binary_dilation(grown, structure=np.ones((3, 3), dtype=bool))
-        self.lower_bound = distance_transform_edt(~occ) * r - math.sqrt(2) * r
+        if grown.any():
+            occ |= binary_dilation(grown, structure=np.ones((3, 3), dtype=bool))
+        return occ, self.inside
 
     def _span(self, lo, hi, origin, n):
         """Index range [a, b) of the cells whose centres may lie in [lo, hi]."""

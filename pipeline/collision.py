@@ -177,8 +177,20 @@ class CollisionWorld:
         return cls(shapes, grids, m.bounds, walls)
 
     def with_obstacles(self, shapes) -> "CollisionWorld":
-        """A new world with ``shapes`` (e.g. discovered obstacles) added."""
-        return CollisionWorld(self.shapes + tuple(shapes), self.grids, self.bounds, self.walls)
+        """A new world with ``shapes`` (e.g. discovered obstacles) added. If this world's distance field
+        exists, the new one is derived from it (only the added shapes are rasterised)."""
+        shapes = tuple(shapes)
+        world = CollisionWorld(self.shapes + shapes, self.grids, self.bounds, self.walls)
+        field = getattr(self, "_field", None)
+        if field is not None:
+            added = []
+            for shape in shapes:
+                if isinstance(shape, Polygon):
+                    added.extend(("poly", part) for part in convex_parts(shape.vertices))
+                else:
+                    added.append(("circle", shape.center, shape.radius))
+            world._field = field.with_outlines(added)
+        return world
 
     @property
     def n_objects(self) -> int:
