@@ -17,8 +17,10 @@ The search (``plan_path``):
 3. otherwise, or if the guided search fails (it stops after ``GUIDED_SHARE`` of the budget), OMPL's
    planner over the whole map for the rest of the budget.
 
-OMPL plans with nhstab's own motion validator (the same local paths and checks) and a state validity
-checker on the distance field and FCL. Only exact solutions count. OMPL's RNG is process-wide, but in
+OMPL searches with its own discrete motion validator (in C++, a motion's states in bisection order, so
+a blocked motion costs a few checks) and nhstab's state validity checker (the distance field, then
+FCL); each edge of its solution is then checked as nhstab's local path (split at OMPL's midpoint where
+two Reeds-Shepp words of equal length made the two differ). Only exact solutions count. OMPL's RNG is process-wide, but in
 OMPL 2 ``RNG.setSeed`` reseeds the seed generator that every new RNG draws from, even after
 generators exist; each OMPL call here seeds it first and builds its planner afterwards, so the same
 seed gives the same plan in-process, whatever ran before (tested against a fresh process).
@@ -235,7 +237,9 @@ class _Search:
         ss = og.SimpleSetup(space)
         ss.setStateValidityChecker(lambda st: self.pose_free((st.getX(), st.getY(), st.getYaw())))
         si = ss.getSpaceInformation()
-        si.setMotionValidator(_MotionValidator(si, self))
+        # OMPL's own discrete motion validator (C++: it visits a motion's states in bisection order, so
+        # a motion through an obstacle costs a few state checks, and most motions RRT tries are such)
+        si.setStateValidityCheckingResolution(min(0.5, self.opts.resolution / max(space.getMaximumExtent(), 1e-9)))
         ss.setStartAndGoalStates(_state(space, a), _state(space, b))
         ss.setPlanner(_planner(og, self.opts.planner, si))
         ss.setup()
@@ -247,36 +251,32 @@ class _Search:
         if self.opts.simplify:
             ss.simplifySolution(max(0.05, min(self.left(), float(budget))))
         path = ss.getSolutionPath()
-        pts = np.array([[st.getX(), st.getY(), st.getYaw()]
-                        for st in (path.getState(i) for i in range(path.getStateCount()))])
-        pts[0], pts[-1] = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-        return pts
+        states = [space.cloneState(path.getState(i)) for i in range(path.getStateCount())]
+        out = [np.asarray(a, dtype=float)]
+        for k in range(len(states) - 1):
+            piece = self._adopt(space, states[k], states[k + 1], 0)
+            if piece is None:
+                return None
+            out.extend(piece)
+        out[-1] = np.asarray(b, dtype=float)
+        return np.array(out)
 
-
-def _motion_validator_class():
-    ob, _, _ = _ompl()
-
-    class MotionValidator(ob.MotionValidator):
-        """OMPL's motion check by nhstab's local paths and checks (see ``_Search.connect``)."""
-
-        def __init__(self, si, search: _Search):
-            super().__init__(si)
-            self.search = search
-
-        def checkMotion(self, s1, s2, *rest):
-            return self.search.connect((s1.getX(), s1.getY(), s1.getYaw()), (s2.getX(), s2.getY(), s2.getYaw()))
-
-    return MotionValidator
-
-
-def _MotionValidator(si, search):
-    global _MV_CLASS
-    if _MV_CLASS is None:
-        _MV_CLASS = _motion_validator_class()
-    return _MV_CLASS(si, search)
-
-
-_MV_CLASS = None
+    def _adopt(self, space, sa, sb, depth: int):
+        """The poses after sa of the edge sa -> sb of an OMPL solution, checked as nhstab's local paths.
+        OMPL checked the edge along its own interpolation, which is the same local path except where two
+        Reeds-Shepp words tie in length; such an edge is split at OMPL's midpoint (sub-paths of a
+        shortest path are shortest) until nhstab's paths agree, or None."""
+        pa = (sa.getX(), sa.getY(), sa.getYaw())
+        pb = (sb.getX(), sb.getY(), sb.getYaw())
+        if self.connect(pa, pb):
+            return [np.array(pb)]
+        if depth >= 6:
+            return None
+        mid = space.allocState()
+        space.interpolate(sa, sb, 0.5, mid)
+        first = self._adopt(space, sa, mid, depth + 1)
+        second = None if first is None else self._adopt(space, mid, sb, depth + 1)
+        return None if second is None else first + second
 
 
 def _seed(seed: int, k: int) -> int:
