@@ -25,12 +25,15 @@ EXIT_NO_PLAN = 3
               help="[m] (default: the robot's: unicycle 0.5, cars 1.25 x their minimum).")
 @click.option("--time-limit", type=float, default=2.0, show_default=True, help="Planning budget [s].")
 @click.option("--seed", type=int, default=0, show_default=True, help="OMPL's random seed for this call.")
+@click.option("--guide/--no-guide", default=True, show_default=True,
+              help="Guided search: a grid shortest path sets subgoals; --no-guide: OMPL over the whole map.")
 @click.option("--margin", type=float, default=None,
               help="Clearance to keep from known obstacles [m] (default: the robot's margin).")
 @click.option("--max-speed", type=float, default=None, help="[m/s] (default: the robot's limit).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True)
 @map_options
-def plan(map_file, robot, robot_config, start, goal, problem, planner, space, turning_radius, time_limit, seed, margin,
+def plan(map_file, robot, robot_config, start, goal, problem, planner, space, turning_radius, time_limit, seed, guide,
+         margin,
          max_speed, out_dir, cell_size, unknown):
     """Plan on MAP and write trajectory.csv, trajectory.npz, plan.json and plan.png into OUT.
 
@@ -48,7 +51,7 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     s, g = resolve_poses(m, parse_pose("--start", start), parse_pose("--goal", goal), problem,
                          names=("--start", "--goal", "--problem"))
     path_opts = PathOptions(space=space, turning_radius=turning_radius, planner=planner, time_limit_s=time_limit,
-                            seed=seed, margin=margin).for_robot(rob)
+                            seed=seed, margin=margin, guide=guide).for_robot(rob)
     result = make_plan(m, rob, s, g, path_opts, TimingOptions(max_speed=max_speed))
     if not result.ok:
         click.echo(f"nhstab: no plan ({result.status}): {result.message}", err=True)

@@ -56,15 +56,17 @@ def parse_levels(name: str, text: str | None) -> dict | None:
 @click.option("--seed", type=int, default=None, help="Root seed of the run (default 0).")
 @click.option("--planner", default=None, help="OMPL planner (default rrtconnect).")
 @click.option("--time-limit", type=float, default=None, help="Budget of each planning call [s] (default 2).")
+@click.option("--guide/--no-guide", default=None,
+              help="Guided search (default) or OMPL's planner over the whole map (planning.guide).")
 @click.option("--margin", type=float, default=None, help="Clearance nominals keep from known obstacles [m] (default: the robot's margin).")
 @click.option("--max-time", type=float, default=None, help="Simulated time limit [s].")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results/run"),
               show_default=True)
 @click.option("--animate", is_flag=True, help="Also write run.gif.")
 @map_options
-def run(map_file, config_file, robot, robot_config, start, goal, problem, controller, window, alpha, delta, gamma, rate_hz,
-        noise_scale, initial_error, sensor_std, process_std, seed, planner, time_limit, margin, max_time, out_dir,
-        animate, cell_size, unknown):
+def run(map_file, config_file, robot, robot_config, start, goal, problem, controller, window, alpha, delta, gamma,
+        rate_hz, noise_scale, initial_error, sensor_std, process_std, seed, planner, time_limit, guide, margin, max_time,
+        out_dir, animate, cell_size, unknown):
     """Run the composite controller on MAP: plan, stabilize under noise, sense, monitor with FCL, replan.
 
     Writes run.json, trajectory.csv, run_map.png and run_tracking.png (and run.gif with --animate)
@@ -94,7 +96,7 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     opts = merge(base, seed=seed, rate_hz=rate_hz, max_time_s=max_time, noise=noise,
                  controller__kind=controller, controller__window=window, controller__alpha=alpha,
                  controller__delta=delta, controller__gamma=gamma, planning__planner=planner,
-                 planning__time_limit_s=time_limit, planning__margin=margin)
+                 planning__time_limit_s=time_limit, planning__margin=margin, planning__guide=guide)
     from nhstab.maps import resolve_poses
 
     m = load(map_path, cell_size, unknown)

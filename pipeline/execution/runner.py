@@ -20,8 +20,10 @@ One run, step by step at the controller rate 1/T (zero-order hold):
 5. **Replanning** from the measured state to the goal on the known + discovered obstacles. While it
    runs the robot stops (u = 0) for ``replan.pause_s`` of simulated time (a fixed budget, so that a
    run is reproducible; the real latency, detection to new gain schedule ready, is recorded). A
-   failed attempt is retried with the next seed after another pause; ``replan.max_attempts`` failures
-   in a row end the run ("replan_failed"). If the measured start is closer to an obstacle than the
+   failed attempt is retried with the next seed after another pause (from the third attempt on with
+   ``replan.budget_growth`` times the budget); ``replan.max_attempts`` failures in a row end the run
+   ("replan_failed"). The first plan is retried the same way (without pauses) before the run ends
+   "no_plan". If the measured start is closer to an obstacle than the
    margin (the robot came close before it saw the obstacle), the replan uses half its clearance as
    margin and records that.
 6. **End**: at the end of the last nominal the goal is "reached" if the position and heading errors
@@ -211,19 +213,21 @@ class CompositeRun:
         self.k = 0
 
     # ---- planning ---------------------------------------------------------------------------
-    def _path_options(self, seed: int, margin: float) -> PathOptions:
+    def _path_options(self, seed: int, margin: float, budget_factor: float = 1.0) -> PathOptions:
         p = self.opts.planning
         radius = p.turning_radius if p.turning_radius is not None else self.robot.turning_radius
-        return PathOptions(space=p.space, turning_radius=radius, planner=p.planner, time_limit_s=p.time_limit_s,
-                           seed=seed, margin=margin)
+        return PathOptions(space=p.space, turning_radius=radius, planner=p.planner,
+                           time_limit_s=p.time_limit_s * budget_factor, seed=seed, margin=margin, guide=p.guide)
 
-    def _plan_once(self, start_pose: np.ndarray) -> tuple[dict, PlanResult | None, FeedbackLaw | None, float]:
-        """One planning call (path, nominal, gains) from start_pose; returns (attempt record, result,
-        law, margin used)."""
+    def _plan_once(self, start_pose: np.ndarray, attempt_index: int = 0
+                   ) -> tuple[dict, PlanResult | None, FeedbackLaw | None, float]:
+        """One planning call (path, nominal, gains) from start_pose, the ``attempt_index``-th in a row
+        (later attempts get a larger budget); returns (attempt record, result, law, margin used)."""
         seed = planner_seed(self.opts.seed, self.planning_calls)
         self.planning_calls += 1
         margin = self.opts.planning.margin
-        attempt = {"seed": seed, "margin": margin}
+        factor = self.opts.replan.budget_factor(attempt_index)
+        attempt = {"seed": seed, "margin": margin, "time_limit_s": self.opts.planning.time_limit_s * factor}
         started = time.perf_counter()
         clearance = math.inf
         if self.plans:
@@ -238,8 +242,8 @@ class CompositeRun:
             if clearance <= 0:
                 raise InputError("start", "a pose clear of the obstacles", start_pose.round(3).tolist(),
                                  detail=f"clearance {clearance:.3g} m")
-            result = plan(self.m, self.plan_robot, start_pose, self.goal, self._path_options(seed, margin),
-                          TimingOptions(dt=self.T), world=self.robot_world)
+            result = plan(self.m, self.plan_robot, start_pose, self.goal,
+                          self._path_options(seed, margin, factor), TimingOptions(dt=self.T), world=self.robot_world)
             if result.ok:
                 law = build_law(result.nominal, self.opts.controller, self.stab_defaults, result.schedule)
                 attempt.update(status="ok", message=result.message)
@@ -329,12 +333,20 @@ class CompositeRun:
         opts, model = self.opts, self.model
         every_sense = max(1, round(opts.rate_hz / opts.sensor.rate_hz))
         every_monitor = max(1, round(opts.rate_hz / opts.monitor.rate_hz))
-        attempt, result, law, margin = self._plan_once(self.start[:3])
-        first = PlanRecord(0, "initial", 0.0, 0.0, self.start[:3].copy(), attempt["seed"], margin, [attempt],
+        # the first plan, retried like a replan (a new seed, then a larger budget), without pauses: the
+        # robot has not moved yet
+        attempts = []
+        while True:
+            attempt, result, law, margin = self._plan_once(self.start[:3], len(attempts))
+            attempts.append(attempt)
+            if law is not None or len(attempts) >= opts.replan.max_attempts:
+                break
+        first = PlanRecord(0, "initial", 0.0, 0.0, self.start[:3].copy(), attempt["seed"], margin, attempts,
                            result, law)
         self.plans.append(first)
         if law is None:
-            raise _Stop("no_plan", f"no first plan: {attempt['message']}")
+            raise _Stop("no_plan", f"no first plan in {len(attempts)} attempt{'s' if len(attempts) > 1 else ''} "
+                                   f"(last: {attempt['status']}: {attempt['message']})")
         max_time = self._deadline(0.0, law)
         # the initial condition error, about the nominal's first state
         sigma0 = opts.noise.vector("initial", model.state_names)
@@ -393,7 +405,7 @@ class CompositeRun:
         while True:
             y = self._measure(x)
             start_pose = y[self.pose_idx]
-            attempt, result, law, margin = self._plan_once(start_pose)
+            attempt, result, law, margin = self._plan_once(start_pose, len(attempts))
             attempts.append(attempt)
             # the robot stands still for the pause (sensing goes on)
             t_pause_end = self.k * self.T + self.opts.replan.pause_s
