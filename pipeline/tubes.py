@@ -324,3 +324,199 @@ def certified_clearance(world, fp: Footprint, poses: np.ndarray, reach: np.ndarr
             moved = np.hypot(d[:, 0], d[:, 1]) + rho * np.abs(d[:, 2])
             vouched[near] = np.maximum(vouched[near], ck - gap - moved)
     return float(best), best_k, float(best_c), evals
+
+
+def failing_reach(world, fp: Footprint, poses: np.ndarray, reach: np.ndarray) -> float:
+    """The largest reach_k among the samples whose grown footprint is not clear (c_k < reach_k), or 0:
+    the margin that would make a nominal keeping it certify those samples. Samples the distance field
+    shows clear are not measured."""
+    from .clearance_field import disc_cover
+
+    field = world.clearance_field()
+    cand = np.arange(len(poses))
+    if field is not None:
+        centres, radii = disc_cover(fp)
+        cth, sth = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        bound = np.full(len(poses), np.inf)
+        for (u, v), rad in zip(centres, radii):
+            bound = np.minimum(bound, field.at(poses[:, 0] + cth * u - sth * v, poses[:, 1] + sth * u + cth * v) - rad)
+        cand = np.flatnonzero(bound < reach)
+    worst = 0.0
+    for k in cand[np.argsort(-reach[cand], kind="stable")]:
+        if reach[k] <= worst:
+            break
+        if world.clearance(poses[k], fp) < reach[k]:
+            worst = float(reach[k])
+    return worst
+
+
+def plan_with_auto_margin(plan_at, tube_of, world, fp: Footprint, *, cap: float,
+                          start: float = AUTO_MARGIN_START, rounds: int = AUTO_MARGIN_ROUNDS,
+                          slack: float = AUTO_MARGIN_SLACK):
+    """``--margin auto``: plan at a small margin, predict the tube, and while its certified clearance is
+    negative replan with the margin the failing samples need, a few rounds at most.
+
+    ``plan_at(margin)`` -> (PlanResult, FeedbackLaw or None); ``tube_of(law)`` -> a :class:`Tube` with a
+    certified clearance against ``world``; ``cap``: the largest margin the request allows (the start's
+    and goal's clearance, less 1 mm). Round i + 1 uses margin max(m_i + slack, R_i + slack), capped,
+    with R_i the largest reach among the samples of round i whose grown footprint is not clear
+    (:func:`failing_reach`): a nominal that keeps that margin certifies them, if the tube stays as wide.
+    Stops when certified, when the margin cannot grow (the cap), or when a round finds no plan.
+    Returns (result, law, tube, record) for the plan with the largest certified clearance (result of
+    the first round and law None if that one failed); ``record`` says what happened."""
+    history, best, last = [], None, None
+    margin = min(start, cap)
+    for i in range(rounds):
+        result, law = plan_at(margin)
+        entry = {"round": i, "margin_m": margin, "status": result.status}
+        last = result
+        if law is None:
+            entry["message"] = result.message
+            history.append(entry)
+            break
+        tube = tube_of(law)
+        entry.update(certified_clearance_m=tube.certified_clearance,
+                     nominal_min_clearance_m=result.metrics.get("min_clearance_m"),
+                     max_reach_m=float(tube.reach.max()))
+        history.append(entry)
+        if best is None or tube.certified_clearance > best[3].certified_clearance:
+            best = (margin, result, law, tube)
+        if tube.certified_clearance >= 0.0 or i == rounds - 1:
+            break
+        need = failing_reach(world, fp, tube.poses, tube.reach)
+        entry["failing_max_reach_m"] = need
+        nxt = min(cap, max(margin + slack, need + slack))
+        if nxt <= margin + 1e-9:
+            entry["stopped"] = f"the margin cannot grow past {cap:.3g} m (the start's or goal's clearance)"
+            break
+        margin = nxt
+    record = {"mode": "auto", "rounds": history, "start_margin_m": min(start, cap), "cap_m": cap,
+              "max_rounds": rounds, "slack_m": slack}
+    if best is None:
+        record.update(margin_m=None, certified=False,
+                      message=f"margin auto: no plan at margin {history[-1]['margin_m']:.3g} m")
+        return last, None, None, record
+    margin, result, law, tube = best
+    ok = tube.certified_clearance >= 0.0
+    trail = ", ".join(f"{h['margin_m']:.3g} m -> " + (f"{h['certified_clearance_m']:+.3f} m" if "certified_clearance_m" in h
+                                                       else h["status"]) for h in history)
+    if ok:
+        text = (f"margin auto: certified at margin {margin:.3g} m (tube clearance {tube.certified_clearance:+.3f} m "
+                f"at p = {tube.probability:g}) after {len(history)} round(s): {trail}")
+    else:
+        why = history[-1].get("stopped") or ("no plan at the next margin" if history[-1]["status"] != "ok"
+                                             else f"{rounds} rounds used")
+        text = (f"margin auto: NOT certified ({why}); kept margin {margin:.3g} m, tube clearance "
+                f"{tube.certified_clearance:+.3f} m at t = {tube.t[tube.certified_index]:.2f} s; rounds: {trail}")
+    record.update(margin_m=margin, certified=ok, certified_clearance_m=tube.certified_clearance, message=text)
+    return result, law, tube, record
+
+
+def choose_gains(nominal, defaults: dict, tube_of, window: str = "future", *,
+                 alphas=AUTO_GAINS_ALPHA, deltas=AUTO_GAINS_DELTA, gammas=AUTO_GAINS_GAMMA,
+                 max_saturation: float = AUTO_GAINS_MAX_SATURATION):
+    """``--gains auto``: the gramian law's (alpha, delta, gamma) for this nominal from a small grid
+    (alpha and delta as factors of the robot's defaults, gamma as given), minimising the tube's mean
+    reach over the samples subject to a run saturation bound below ``max_saturation``. Settings whose
+    window does not fit the nominal or whose gramian is singular are skipped. ``tube_of(law)`` -> Tube
+    (no world needed). Returns (law, record); if no setting meets the saturation bound, the one with
+    the smallest bound, and the record says so."""
+    from .errors import PipelineError
+    from .execution.controllers import ControllerOptions, build_law
+
+    rows, best, fallback = [], None, None
+    for fa in alphas:
+        for fd in deltas:
+            for g in gammas:
+                a, d = float(defaults["alpha"]) * fa, float(defaults["delta"]) * fd
+                row = {"alpha": a, "delta": d, "gamma": float(g)}
+                try:
+                    law = build_law(nominal, ControllerOptions(kind="gramian", window=window, alpha=a, delta=d,
+                                                               gamma=float(g)), defaults)
+                    tube = tube_of(law)
+                except PipelineError as exc:
+                    row["skipped"] = " ".join(str(exc).split())[:160]
+                    rows.append(row)
+                    continue
+                row.update(mean_reach_m=float(tube.reach.mean()), max_reach_m=float(tube.reach.max()),
+                           saturation_probability=tube.saturation["run_bound"],
+                           max_gain_norm=law.info.get("max_gain_norm"))
+                rows.append(row)
+                key = (row["mean_reach_m"], row["saturation_probability"])
+                if row["saturation_probability"] < max_saturation and (best is None or key < best[0]):
+                    best = (key, row, law)
+                if fallback is None or row["saturation_probability"] < fallback[0]:
+                    fallback = (row["saturation_probability"], row, law)
+    default_row = next((r for r in rows if r["alpha"] == float(defaults["alpha"]) and r["delta"] == float(defaults["delta"])
+                        and r["gamma"] == float(defaults["gamma"])), None)
+    if best is None and fallback is None:
+        raise InputError("--gains", "a gain grid with at least one usable setting for this nominal", "auto",
+                         detail="every setting was skipped: " + (rows[-1].get("skipped", "") if rows else ""))
+    chosen = best if best is not None else fallback
+    row, law = chosen[1], chosen[2]
+    met = best is not None
+    text = (f"gains auto: alpha {row['alpha']:g}, delta {row['delta']:g} s, gamma {row['gamma']:g}: mean reach "
+            f"{row['mean_reach_m']:.3f} m, saturation bound {row['saturation_probability']:.3g}")
+    if default_row is not None and "mean_reach_m" in default_row:
+        text += (f" (defaults alpha {default_row['alpha']:g}, delta {default_row['delta']:g}, gamma "
+                 f"{default_row['gamma']:g}: {default_row['mean_reach_m']:.3f} m, "
+                 f"{default_row['saturation_probability']:.3g})")
+    if not met:
+        text += f"; NO setting has a saturation bound below {max_saturation:g}: kept the smallest"
+    record = {"mode": "auto", "chosen": {k: row[k] for k in ("alpha", "delta", "gamma")}, "objective": "mean reach",
+              "max_saturation": max_saturation, "met": met, "default": default_row, "grid": rows, "message": text}
+    return law, record
+
+
+def plan_and_tube(m, model, fp: Footprint, start, goal, path_options, timing_options, *, margin="auto",
+                  gains: str = "default", noise=None, probability: float = DEFAULT_PROBABILITY,
+                  rate_hz: float = 50.0, substeps: int = 4, world=None, robot=None):
+    """``nhstab plan`` with its tube: plan (``margin`` a number, or "auto" for
+    :func:`plan_with_auto_margin`), the gramian law with the robot's default parameters (``gains``
+    "auto": :func:`choose_gains`), and the error tube under ``noise`` (a NoiseOptions; default: the run's
+    default noise) at ``rate_hz``, certified against the map's known obstacles. ``model`` is the robot
+    the nominal is planned for (derated for headroom), ``robot`` the real one (its limits; default
+    ``model``).
+
+    Returns (result, law, tube, extra) with extra = {"tube_model": ..., "margin_auto": ..., "gains_auto": ...}
+    (the records that apply); law and tube are None when no plan was found."""
+    from dataclasses import replace
+
+    from .collision import CollisionWorld
+    from .execution.config import NoiseOptions
+    from .execution.controllers import ControllerOptions, build_law
+    from .planning import DEFAULT_STABILIZER, plan
+
+    if gains not in ("default", "auto"):
+        raise InputError("--gains", "default or auto", gains)
+    noise = NoiseOptions() if noise is None else noise
+    noise.validated(model.state_names)
+    world = world or CollisionWorld.from_map(m, "known")
+    defaults = dict(DEFAULT_STABILIZER[model.name])
+    extra = {"tube_model": {"noise": noise.describe(model.state_names), "rate_hz": rate_hz, "substeps": substeps,
+                            "input_limits": (robot or model).input_limits()[:, 1].tolist(),
+                            "controller": "gramian, future window",
+                            "initial_error": "the noise's initial error about the nominal's start"}}
+
+    def tube_of(law, certify=True):
+        return predict_tube(law, noise, fp, world if certify else None, rate_hz=rate_hz, substeps=substeps,
+                            model=robot or model, probability=probability)
+
+    def plan_at(mg):
+        result = plan(m, model, fp, start, goal, replace(path_options, margin=mg), timing_options, world=world)
+        if not result.ok:
+            return result, None
+        if gains == "auto":
+            law, record = choose_gains(result.nominal, defaults, lambda lw: tube_of(lw, certify=False))
+            extra["gains_auto"] = record
+        else:
+            law = build_law(result.nominal, ControllerOptions(kind="gramian"), defaults, result.schedule)
+        return result, law
+
+    if margin == "auto":
+        clear = [world.clearance(np.asarray(p, dtype=float), fp) for p in (start, goal)]
+        result, law, tube, record = plan_with_auto_margin(plan_at, tube_of, world, fp, cap=min(clear) - 1e-3)
+        extra["margin_auto"] = record
+        return result, law, tube, extra
+    result, law = plan_at(margin)
+    return result, law, (tube_of(law) if law is not None else None), extra

@@ -77,6 +77,7 @@ class PlanRecord:
     result: PlanResult | None = None
     law: FeedbackLaw | None = None
     conflict: dict | None = None  # for a replan: the first conflicting nominal pose and its clearance
+    tube: object | None = None    # the predicted error tube (nhstab.tubes.Tube)
 
     @property
     def nominal(self):
@@ -213,12 +214,16 @@ class CompositeRun:
         return PathOptions(space=p.space, turning_radius=radius, planner=p.planner, time_limit_s=p.time_limit_s,
                            seed=seed, margin=margin)
 
-    def _plan_once(self, start_pose: np.ndarray) -> tuple[dict, PlanResult | None, FeedbackLaw | None, float]:
-        """One planning call (path, nominal, gains) from start_pose; returns (attempt record, result,
-        law, margin used)."""
+    def _plan_once(self, start_pose: np.ndarray):
+        """One planning call (path, nominal, gains, error tube) from start_pose; returns (attempt record,
+        result, law, margin used, tube). With ``planning.margin: auto`` the call is the tube loop of
+        :func:`nhstab.tubes.plan_with_auto_margin` (its rounds share the call's seed)."""
+        from ..tubes import AUTO_MARGIN_START, plan_with_auto_margin
+
         seed = planner_seed(self.opts.seed, self.planning_calls)
         self.planning_calls += 1
-        margin = self.opts.planning.margin
+        auto = self.opts.planning.margin == "auto"
+        margin = AUTO_MARGIN_START if auto else self.opts.planning.margin
         attempt = {"seed": seed, "margin": margin}
         started = time.perf_counter()
         clearance = math.inf
@@ -227,17 +232,24 @@ class CompositeRun:
             clearance = self.robot_world.clearance(start_pose, self.fp)
             if 0 < clearance <= margin:
                 margin = 0.5 * clearance
-                attempt.update(margin=margin, margin_reduced_from=self.opts.planning.margin,
-                               start_clearance_m=clearance)
-        result, law = None, None
+                attempt.update(margin=margin, margin_reduced_from=attempt["margin"], start_clearance_m=clearance)
+        result, law, tube = None, None, None
         try:
             if clearance <= 0:
                 raise InputError("start", "a pose clear of the obstacles", start_pose.round(3).tolist(),
                                  detail=f"clearance {clearance:.3g} m")
-            result = plan(self.m, self.plan_model, self.fp, start_pose, self.goal, self._path_options(seed, margin),
-                          TimingOptions(dt=self.T), world=self.robot_world)
-            if result.ok:
-                law = build_law(result.nominal, self.opts.controller, self.stab_defaults, result.schedule)
+            if auto:
+                cap = min(clearance, self.robot_world.clearance(self.goal, self.fp)) - 1e-3
+                result, law, tube, record = plan_with_auto_margin(
+                    lambda mg: self._plan_at(start_pose, seed, mg, attempt), self._tube_of, self.robot_world,
+                    self.fp, cap=cap, start=margin)
+                attempt["margin_auto"] = record
+                if record["margin_m"] is not None:
+                    margin = attempt["margin"] = record["margin_m"]
+            else:
+                result, law = self._plan_at(start_pose, seed, margin, attempt)
+                tube = self._tube_of(law) if law is not None else None
+            if law is not None:
                 attempt.update(status="ok", message=result.message)
             else:
                 attempt.update(status=result.status, message=result.message)
@@ -248,7 +260,40 @@ class CompositeRun:
         except PipelineError as exc:   # singular gramian for another window, Riccati failure
             attempt.update(status="not_stabilizable", message=str(exc))
         attempt["latency_s"] = time.perf_counter() - started
-        return attempt, (result if law is not None else None), law, margin
+        return attempt, (result if law is not None else None), law, margin, tube
+
+    def _plan_at(self, start_pose, seed: int, margin: float, attempt: dict):
+        """plan() at ``margin`` and the feedback law along the nominal (``controller.gains: auto``: chosen
+        by the tube, recorded in the attempt)."""
+        from ..tubes import choose_gains
+
+        result = plan(self.m, self.plan_model, self.fp, start_pose, self.goal, self._path_options(seed, margin),
+                      TimingOptions(dt=self.T), world=self.robot_world)
+        if not result.ok:
+            return result, None
+        if self.opts.controller.gains == "auto":
+            law, record = choose_gains(result.nominal, self.stab_defaults, lambda lw: self._tube_of(lw, world=False),
+                                       self.opts.controller.window)
+            attempt["gains_auto"] = record
+        else:
+            law = build_law(result.nominal, self.opts.controller, self.stab_defaults, result.schedule)
+        return result, law
+
+    def _tube_of(self, law: FeedbackLaw, world=True):
+        """The error tube of a nominal of this run (:func:`nhstab.tubes.predict_tube`) under the run's
+        noise, rate and robot, certified against the obstacles the robot knows of now. The first plan
+        starts from the initial error (with the impulses); a replan from a measured state after the
+        pause: sensor noise plus the pause's process noise (impulses are not included)."""
+        from ..tubes import predict_tube
+
+        names = self.model.state_names
+        initial = None
+        if self.plans:
+            initial = np.diag(self.opts.noise.vector("sensor", names) ** 2
+                              + self.opts.noise.vector("process", names) ** 2 * self.opts.replan.pause_s)
+        return predict_tube(law, self.opts.noise, self.fp, self.robot_world if world else None,
+                            rate_hz=self.opts.rate_hz, substeps=self.opts.substeps, model=self.model,
+                            initial_cov=initial, impulses=not self.plans)
 
     # ---- the loop -----------------------------------------------------------------------------
     def _record(self, t, x, y, x0, u, u0, plan_id, mode):
@@ -325,9 +370,9 @@ class CompositeRun:
         opts, model = self.opts, self.model
         every_sense = max(1, round(opts.rate_hz / opts.sensor.rate_hz))
         every_monitor = max(1, round(opts.rate_hz / opts.monitor.rate_hz))
-        attempt, result, law, margin = self._plan_once(self.start[:3])
+        attempt, result, law, margin, tube = self._plan_once(self.start[:3])
         first = PlanRecord(0, "initial", 0.0, 0.0, self.start[:3].copy(), attempt["seed"], margin, [attempt],
-                           result, law)
+                           result, law, tube=tube)
         self.plans.append(first)
         if law is None:
             raise _Stop("no_plan", f"no first plan: {attempt['message']}")
@@ -389,7 +434,7 @@ class CompositeRun:
         while True:
             y = self._measure(x)
             start_pose = y[self.pose_idx]
-            attempt, result, law, margin = self._plan_once(start_pose)
+            attempt, result, law, margin, tube = self._plan_once(start_pose)
             attempts.append(attempt)
             # the robot stands still for the pause (sensing goes on)
             t_pause_end = self.k * self.T + self.opts.replan.pause_s
@@ -404,7 +449,7 @@ class CompositeRun:
                 first = False
             if law is not None:
                 rec = PlanRecord(plan_id, "conflict", t_detect, self.k * self.T, start_pose.copy(), attempt["seed"],
-                                 margin, attempts, result, law, conflict)
+                                 margin, attempts, result, law, conflict, tube)
                 self.plans.append(rec)
                 return rec, x
             if len(attempts) >= self.opts.replan.max_attempts:
