@@ -46,6 +46,7 @@ SUBCOMMANDS = {
     "planning": "Time to a feasible, stabilizable nominal over 20 fixed start/goal pairs on two maps, two robots.",
     "run": "Composite controller: replan latency on the depot and warehouse scenarios; cost of a control update.",
     "batch": "Batch throughput: vectorised Hilare trials on one and two workers, a naive baseline, full map trials.",
+    "tube": "Error tube: its time against the plan's on the bundled scenarios, and a per-step loop baseline.",
 }
 
 

@@ -53,7 +53,7 @@ from .geometry import Footprint
 DEFAULT_PROBABILITY = 0.997
 #: ``--margin auto``: the first margin tried [m], the rounds at most, and the room added to a deficit [m]
 AUTO_MARGIN_START = 0.02
-AUTO_MARGIN_ROUNDS = 4
+AUTO_MARGIN_ROUNDS = 5
 AUTO_MARGIN_SLACK = 0.01
 #: ``--gains auto``: the grid, as factors of the robot's default alpha and delta, and gamma values
 AUTO_GAINS_ALPHA = (0.5, 1.0, 2.0)
@@ -284,7 +284,8 @@ def certified_clearance(world, fp: Footprint, poses: np.ndarray, reach: np.ndarr
     Poses are visited in order of a lower bound of c_k - reach_k (the distance field's disc cover, and
     for a polygon footprint whose discs are clear its outline) until that bound is no better than the
     best value found; a measured c_j > 0 also bounds its neighbours i by c_j - 1 mm - (how far the
-    footprint moved from j to i), as in :meth:`CollisionWorld.min_clearance`."""
+    footprint moved from j to i: |translation| + rho |rotation|, rho the farthest footprint point, 0 for a
+    disc), as in :meth:`CollisionWorld.min_clearance`."""
     from .clearance_field import disc_cover
 
     poses = np.asarray(poses, dtype=float)
@@ -306,8 +307,8 @@ def certified_clearance(world, fp: Footprint, poses: np.ndarray, reach: np.ndarr
     key = bound - reach
     order = np.argsort(key, kind="stable")
     vouched = np.full(len(poses), -np.inf)
-    span, gap = world.VOUCH_SPAN, world.VOUCH_GAP
-    rho = fp.bounding_radius
+    span, gap = 4 * world.VOUCH_SPAN, world.VOUCH_GAP
+    rho = 0.0 if fp.radius is not None else fp.bounding_radius      # a disc does not move when it turns
     best, best_k, best_c, evals = math.inf, -1, math.nan, 0
     for k in order:
         if key[k] >= best:
@@ -326,10 +327,9 @@ def certified_clearance(world, fp: Footprint, poses: np.ndarray, reach: np.ndarr
     return float(best), best_k, float(best_c), evals
 
 
-def failing_reach(world, fp: Footprint, poses: np.ndarray, reach: np.ndarray) -> float:
-    """The largest reach_k among the samples whose grown footprint is not clear (c_k < reach_k), or 0:
-    the margin that would make a nominal keeping it certify those samples. Samples the distance field
-    shows clear are not measured."""
+def failing_samples(world, fp: Footprint, poses: np.ndarray, reach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The samples whose grown footprint is not clear (c_k < reach_k), and their c_k - reach_k. Samples
+    the distance field shows clear are not measured."""
     from .clearance_field import disc_cover
 
     field = world.clearance_field()
@@ -341,13 +341,9 @@ def failing_reach(world, fp: Footprint, poses: np.ndarray, reach: np.ndarray) ->
         for (u, v), rad in zip(centres, radii):
             bound = np.minimum(bound, field.at(poses[:, 0] + cth * u - sth * v, poses[:, 1] + sth * u + cth * v) - rad)
         cand = np.flatnonzero(bound < reach)
-    worst = 0.0
-    for k in cand[np.argsort(-reach[cand], kind="stable")]:
-        if reach[k] <= worst:
-            break
-        if world.clearance(poses[k], fp) < reach[k]:
-            worst = float(reach[k])
-    return worst
+    gap = np.array([world.clearance(poses[k], fp) - reach[k] for k in cand])
+    bad = gap < 0.0
+    return cand[bad], gap[bad]
 
 
 def plan_with_auto_margin(plan_at, tube_of, world, fp: Footprint, *, cap: float,
@@ -357,58 +353,91 @@ def plan_with_auto_margin(plan_at, tube_of, world, fp: Footprint, *, cap: float,
     negative replan with the margin the failing samples need, a few rounds at most.
 
     ``plan_at(margin)`` -> (PlanResult, FeedbackLaw or None); ``tube_of(law)`` -> a :class:`Tube` with a
-    certified clearance against ``world``; ``cap``: the largest margin the request allows (the start's
-    and goal's clearance, less 1 mm). Round i + 1 uses margin max(m_i + slack, R_i + slack), capped,
-    with R_i the largest reach among the samples of round i whose grown footprint is not clear
-    (:func:`failing_reach`): a nominal that keeps that margin certifies them, if the tube stays as wide.
-    Stops when certified, when the margin cannot grow (the cap), or when a round finds no plan.
-    Returns (result, law, tube, record) for the plan with the largest certified clearance (result of
-    the first round and law None if that one failed); ``record`` says what happened."""
-    history, best, last = [], None, None
+    certified clearance against ``world`` (or None if the linearised loop diverges); ``cap``: the
+    largest margin the request allows (the start's and goal's clearance, less 1 mm).
+
+    After each plan, the samples whose grown footprint is not clear (:func:`failing_samples`) are split:
+    those whose reach exceeds cap - slack cannot be certified by any margin the request allows (a tube
+    wider than the start's or goal's own clearance, typically right at them); the others are fixable,
+    and the next margin is max(m + slack, their largest reach + slack), so that a nominal keeping it
+    certifies them if the tube stays as wide. A margin that finds no plan is bisected with the largest
+    margin that found one. The loop stops when no fixable sample fails, when the margin cannot grow, or
+    after ``rounds`` plans. The plan kept: the smallest margin with no fixable failure, else the one
+    whose fixable samples come closest to clear. Returns (result, law, tube, record) (the failed first
+    result and law None if no round found a plan); ``record`` says what happened."""
+    history, cands, last = [], [], None
     margin = min(start, cap)
+    ok_margin, fail_margin = None, None
     for i in range(rounds):
         result, law = plan_at(margin)
         entry = {"round": i, "margin_m": margin, "status": result.status}
         last = result
+        history.append(entry)
         if law is None:
             entry["message"] = result.message
-            history.append(entry)
-            break
+            if ok_margin is None:
+                break
+            fail_margin = margin if fail_margin is None else min(fail_margin, margin)
+            if fail_margin - ok_margin < 2 * slack:
+                entry["stopped"] = f"no plan at margin {fail_margin:.3g} m"
+                break
+            margin = 0.5 * (ok_margin + fail_margin)
+            continue
         tube = tube_of(law)
+        if tube is None:
+            entry["stopped"] = "no tube: the linearised closed loop diverges"
+            break
+        idx, gap = failing_samples(world, fp, tube.poses, tube.reach) if tube.certified_clearance < 0 else \
+            (np.zeros(0, dtype=int), np.zeros(0))
+        pinned = tube.reach[idx] + slack > cap
+        fix_gap = float(gap[~pinned].min()) if np.any(~pinned) else 0.0
         entry.update(certified_clearance_m=tube.certified_clearance,
                      nominal_min_clearance_m=result.metrics.get("min_clearance_m"),
-                     max_reach_m=float(tube.reach.max()))
-        history.append(entry)
-        if best is None or tube.certified_clearance > best[3].certified_clearance:
-            best = (margin, result, law, tube)
-        if tube.certified_clearance >= 0.0 or i == rounds - 1:
+                     max_reach_m=float(tube.reach.max()), failing_samples=int(len(idx)),
+                     failing_beyond_cap=int(pinned.sum()), fixable_clearance_m=fix_gap)
+        if pinned.any():
+            entry["beyond_cap_times_s"] = [float(tube.t[idx[pinned]].min()), float(tube.t[idx[pinned]].max())]
+            entry["beyond_cap_max_reach_m"] = float(tube.reach[idx[pinned]].max())
+        cands.append(((1, -margin) if fix_gap >= 0.0 else (0, fix_gap), margin, result, law, tube, entry))
+        if fix_gap >= 0.0 or i == rounds - 1:
             break
-        need = failing_reach(world, fp, tube.poses, tube.reach)
-        entry["failing_max_reach_m"] = need
-        nxt = min(cap, max(margin + slack, need + slack))
+        ok_margin = margin if ok_margin is None else max(ok_margin, margin)
+        nxt = min(cap, max(margin + slack, float(tube.reach[idx[~pinned]].max()) + slack))
+        if fail_margin is not None and nxt >= fail_margin:
+            if fail_margin - margin < 2 * slack:
+                entry["stopped"] = f"no plan at margin {fail_margin:.3g} m"
+                break
+            nxt = 0.5 * (margin + fail_margin)
         if nxt <= margin + 1e-9:
             entry["stopped"] = f"the margin cannot grow past {cap:.3g} m (the start's or goal's clearance)"
             break
         margin = nxt
     record = {"mode": "auto", "rounds": history, "start_margin_m": min(start, cap), "cap_m": cap,
               "max_rounds": rounds, "slack_m": slack}
-    if best is None:
+    if not cands:
         record.update(margin_m=None, certified=False,
-                      message=f"margin auto: no plan at margin {history[-1]['margin_m']:.3g} m")
+                      message="margin auto: " + (history[-1].get("stopped")
+                                                 or f"no plan at margin {history[-1]['margin_m']:.3g} m"))
         return last, None, None, record
-    margin, result, law, tube = best
+    _, margin, result, law, tube, chosen = max(cands, key=lambda c: c[0])
     ok = tube.certified_clearance >= 0.0
     trail = ", ".join(f"{h['margin_m']:.3g} m -> " + (f"{h['certified_clearance_m']:+.3f} m" if "certified_clearance_m" in h
                                                        else h["status"]) for h in history)
     if ok:
         text = (f"margin auto: certified at margin {margin:.3g} m (tube clearance {tube.certified_clearance:+.3f} m "
                 f"at p = {tube.probability:g}) after {len(history)} round(s): {trail}")
+    elif chosen["fixable_clearance_m"] >= 0.0:
+        a, b = chosen["beyond_cap_times_s"]
+        text = (f"margin auto: margin {margin:.3g} m certifies every sample it can; NOT certified at "
+                f"{chosen['failing_beyond_cap']} sample(s) in t = {a:.2f}-{b:.2f} s, where the tube reaches "
+                f"{chosen['beyond_cap_max_reach_m']:.3f} m but the start's or goal's clearance allows a margin of "
+                f"{cap:.3g} m at most (tube clearance {tube.certified_clearance:+.3f} m); rounds: {trail}")
     else:
-        why = history[-1].get("stopped") or ("no plan at the next margin" if history[-1]["status"] != "ok"
-                                             else f"{rounds} rounds used")
-        text = (f"margin auto: NOT certified ({why}); kept margin {margin:.3g} m, tube clearance "
+        why = next((h["stopped"] for h in reversed(history) if "stopped" in h), f"{len(history)} rounds used")
+        text = (f"margin auto: NOT certified ({why}); kept margin {margin:.3g} m, the closest to clear: tube clearance "
                 f"{tube.certified_clearance:+.3f} m at t = {tube.t[tube.certified_index]:.2f} s; rounds: {trail}")
-    record.update(margin_m=margin, certified=ok, certified_clearance_m=tube.certified_clearance, message=text)
+    record.update(margin_m=margin, certified=ok, certified_clearance_m=tube.certified_clearance,
+                  certified_where_possible=bool(chosen["fixable_clearance_m"] >= 0.0), message=text)
     return result, law, tube, record
 
 

@@ -60,7 +60,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtr, owens_t
 
-from ..errors import InputError
+from ..errors import InputError, NumericalError
 from ..models import Model
 
 
@@ -112,7 +112,7 @@ def plant_derivatives(model: Model, x: np.ndarray, u: np.ndarray, period: float,
 
     def stage(xs):
         A, B = model.linearize(xs, u)
-        return model.rhs(xs, u), A, B
+        return model.f(xs) + np.einsum("kij,kj->ki", B, u), A, B
 
     for _ in range(int(substeps)):
         f1, A1, B1 = stage(x)
@@ -208,10 +208,16 @@ def propagate(model: Model, t: np.ndarray, x0: np.ndarray, u_ff: np.ndarray, K: 
     M = np.einsum("kij,j,klj->kil", G, R, G) + np.diag(Q)[None]
     S0 = np.asarray(initial_cov, dtype=float)
     m0 = np.zeros(n)
-    if loop:
-        cov, mean = _loop(A, M, drift, S0, m0)
-    else:
-        cov, mean = _block_scan(A, M, drift, S0, m0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        if loop:
+            cov, mean = _loop(A, M, drift, S0, m0)
+        else:
+            cov, mean = _block_scan(A, M, drift, S0, m0)
+    bad = ~(np.all(np.isfinite(cov), axis=(1, 2)) & np.all(np.isfinite(mean), axis=1))
+    if bad.any() or np.abs(cov).max() > 1e12:
+        k = int(np.argmax(bad | (np.abs(cov).max(axis=(1, 2)) > 1e12)))
+        raise NumericalError(f"the linearised closed loop diverges: the error covariance is unbounded from "
+                             f"t = {float(np.asarray(t)[k]):.3g} s (the gains destabilise the sampled loop)")
     u_mean = u_ff - np.einsum("kij,kj->ki", K, mean[:-1])
     u_cov = K @ (cov[:-1] + np.diag(R)[None]) @ np.swapaxes(K, -1, -2)
     return CovariancePropagation(np.asarray(t, dtype=float), mean, cov, u_mean, u_cov, A, G, Phi, Gamma, drift,
@@ -291,10 +297,12 @@ def saturation(prop: CovariancePropagation, K: np.ndarray, limits: np.ndarray) -
             rho = np.where((sd[1:] > 0) & (sd[:-1] > 0), diag / (sd[1:] * sd[:-1]), 0.0)
         rho = np.clip(np.nan_to_num(rho), -1.0, 1.0)
         # P(beyond at k, not at k-1) = P(beyond at k) - P(beyond at both), per side:
-        # P(Z_k > z_k, Z_{k-1} > z_{k-1}) = Phi2(-z_k, -z_{k-1}; rho)
-        both_hi = bivariate_normal_cdf(-z_hi[1:], -z_hi[:-1], rho)
-        both_lo = bivariate_normal_cdf(-z_lo[1:], -z_lo[:-1], rho)
-        up = np.clip(p_hi[1:] - both_hi, 0.0, None) + np.clip(p_lo[1:] - both_lo, 0.0, None)
+        # P(Z_k > z_k, Z_{k-1} > z_{k-1}) = Phi2(-z_k, -z_{k-1}; rho); only where P(beyond at k) is not negligible
+        up = np.zeros_like(per_step[1:])
+        for p_side, z in ((p_hi, z_hi), (p_lo, z_lo)):
+            live = p_side[1:] > 1e-15
+            both = bivariate_normal_cdf(-z[1:][live], -z[:-1][live], rho[live])
+            up[live] += np.clip(p_side[1:][live] - both, 0.0, None)
         run = float(np.sum(per_step[0]) + np.sum(up))
     else:
         run = float(np.sum(per_step[0]))

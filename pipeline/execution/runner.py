@@ -248,7 +248,9 @@ class CompositeRun:
                     margin = attempt["margin"] = record["margin_m"]
             else:
                 result, law = self._plan_at(start_pose, seed, margin, attempt)
-                tube = self._tube_of(law) if law is not None else None
+                tube = self._tube_of(law)
+            if law is not None and tube is None:
+                attempt["tube"] = "none: the linearised closed loop diverges under these gains"
             if law is not None:
                 attempt.update(status="ok", message=result.message)
             else:
@@ -286,14 +288,21 @@ class CompositeRun:
         pause: sensor noise plus the pause's process noise (impulses are not included)."""
         from ..tubes import predict_tube
 
+        if law is None:
+            return None
         names = self.model.state_names
         initial = None
         if self.plans:
             initial = np.diag(self.opts.noise.vector("sensor", names) ** 2
                               + self.opts.noise.vector("process", names) ** 2 * self.opts.replan.pause_s)
-        return predict_tube(law, self.opts.noise, self.fp, self.robot_world if world else None,
-                            rate_hz=self.opts.rate_hz, substeps=self.opts.substeps, model=self.model,
-                            initial_cov=initial, impulses=not self.plans)
+        try:
+            return predict_tube(law, self.opts.noise, self.fp, self.robot_world if world else None,
+                                rate_hz=self.opts.rate_hz, substeps=self.opts.substeps, model=self.model,
+                                initial_cov=initial, impulses=not self.plans)
+        except NumericalError:
+            if not world:
+                raise                  # choose_gains skips the setting
+            return None                # no tube: the linearised loop diverges (the run says so)
 
     # ---- the loop -----------------------------------------------------------------------------
     def _record(self, t, x, y, x0, u, u0, plan_id, mode):
