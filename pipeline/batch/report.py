@@ -69,7 +69,7 @@ def cell_table(trials: list[dict]) -> list[dict]:
             k = sum(1 for t in done if pred(t))
             rate, lo, hi = wilson(k, len(done))
             row.update({f"{key}_count": k, f"{key}_rate": rate, f"{key}_lo": lo, f"{key}_hi": hi})
-        for key in ("min_clearance_m", "final_position_error_m", "replans", "max_error_norm"):
+        for key in ("min_clearance_m", "final_position_error_m", "replans", "max_error_norm", "margin_m"):
             vals = [_m(t, key) for t in done if _m(t, key) is not None]
             row[f"{key}_median"] = float(np.median(vals)) if vals else math.nan
         _tube_cells(row, done)
@@ -201,11 +201,13 @@ def tube_figure(trials, rows):
     shown = [r for r in rows if any((t.get("series") or {}).get("tube_std") for t in cells[r["cell"]])]
     if not shown:
         return None
-    names = next(t["series"]["state_names"] for t in cells[shown[0]["cell"]] if (t.get("series") or {}).get("tube_std"))
-    fig, axes = subplots(len(shown), len(names), figsize=(3.2 * len(names), 2.0 * len(shown) + 0.6), squeeze=False,
+    width = max(len(t["series"]["state_names"]) for r in shown for t in cells[r["cell"]]
+                if (t.get("series") or {}).get("tube_std"))
+    fig, axes = subplots(len(shown), width, figsize=(3.2 * width, 2.0 * len(shown) + 0.6), squeeze=False,
                          sharex="row", layout="constrained")
     for i, row in enumerate(shown):
         series = [t["series"] for t in cells[row["cell"]] if (t.get("series") or {}).get("tube_std")]
+        names = series[0]["state_names"]
         dt = series[0]["dt_s"]
         length = max(len(s["tube_std"]) for s in series)
         n = len(names)
@@ -214,6 +216,8 @@ def tube_figure(trials, rows):
             k = len(s["tube_std"])
             E[j, :k] = np.asarray(s["error_by_state"])[:k]
             P[j, :k] = np.asarray(s["tube_std"]) ** 2 + np.asarray(s["tube_mean"]) ** 2
+        for c in range(n, width):
+            axes[i, c].set_visible(False)
         count = np.sum(np.isfinite(E[:, :, 0]), axis=0)
         keep = count >= max(3, 0.5 * len(series))
         t = dt * np.arange(length)
@@ -375,11 +379,11 @@ def write_report(store_path, out_dir=None) -> list[Path]:
         "paired": "The same seeds under two controllers: each point is one trial.",
         "noise": "Success rate against the noise level, per controller.",
     }
-    header = ["cell", "trials", "success", "collision", "margin violation", "median min clearance [m]",
+    header = ["cell", "trials", "success", "collision", "margin violation", "median margin [m]", "median min clearance [m]",
               "median final error [m]", "median replans", "replan latency median / p95 [s]"]
     table_rows = [[_label(r), str(r["trials"]) + (f" ({r['errors']} errors)" if r["errors"] else ""),
                    _fmt_rate(r, "success"), _fmt_rate(r, "collision"), _fmt_rate(r, "margin_violation"),
-                   _fmt(r["min_clearance_m_median"]), _fmt(r["final_position_error_m_median"]),
+                   _fmt(r["margin_m_median"]), _fmt(r["min_clearance_m_median"]), _fmt(r["final_position_error_m_median"]),
                    _fmt(r["replans_median"]),
                    f"{_fmt(r['replan_latency_median_s'])} / {_fmt(r['replan_latency_p95_s'])}"] for r in rows]
     title = f"nhstab robustness report: {config.get('name', db.parent.name)}"

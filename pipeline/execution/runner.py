@@ -355,22 +355,38 @@ class CompositeRun:
     def _conflict(self, rec: PlanRecord, tau: float) -> dict | None:
         """The first pose of the remaining nominal within the horizon that is not clear of the
         discovered obstacles by the plan's margin (FCL), or None. Only poses within reach of a
-        discovered obstacle's bounding circle go to FCL."""
+        discovered obstacle's bounding circle go to FCL. With ``planning.margin: auto`` the margin at
+        each pose is the larger of the plan's margin and its error tube's reach there: a newly seen
+        obstacle must clear the tube, as the known ones were certified to."""
         if not self.discovered:
             return None
         nom = rec.nominal
         i0, i1 = np.searchsorted(nom.t, [tau, tau + self.opts.monitor.horizon_s])
-        poses = nom.x[max(i0 - 1, 0):i1 + 1][:, self.pose_idx]
+        lo = max(i0 - 1, 0)
+        poses = nom.x[lo:i1 + 1][:, self.pose_idx]
+        t_from = t_to = nom.t[lo:i1 + 1]             # the nominal's times at each pose (a span when interpolated)
         if len(poses) > 1:
             d = np.diff(poses, axis=0)
             if np.max(np.hypot(d[:, 0], d[:, 1])) > 0.05 or np.max(np.abs(wrap_angle(d[:, 2]))) > 0.05:
-                poses = interpolate_poses(poses, 0.05, 0.05)[0]
-        reach = self.fp.bounding_radius + rec.margin
+                times = t_from
+                poses, seg = interpolate_poses(poses, 0.05, 0.05)
+                t_from, t_to = times[seg], times[np.minimum(seg + 1, len(times) - 1)]
+        margins = np.full(len(poses), rec.margin)
+        tubed = self.opts.planning.margin == "auto" and rec.tube is not None
+        if tubed:
+            tb = rec.tube
+            reach = np.maximum(np.interp(t_from - nom.t[0], tb.t, tb.reach), np.interp(t_to - nom.t[0], tb.t, tb.reach))
+            margins = np.maximum(margins, reach)
         near = np.zeros(len(poses), dtype=bool)
         for centre, radius in self.discovered_discs:
-            near |= np.hypot(poses[:, 0] - centre[0], poses[:, 1] - centre[1]) <= radius + reach
+            near |= np.hypot(poses[:, 0] - centre[0], poses[:, 1] - centre[1]) <= radius + self.fp.bounding_radius + margins
         for k in np.flatnonzero(near):
-            if not self.discovered_world.is_free(poses[k], self.fp, rec.margin):
+            if tubed:
+                c = self.discovered_world.clearance(poses[k], self.fp)
+                if c < margins[k]:
+                    return {"pose": poses[k].tolist(), "clearance_m": c, "margin_m": float(margins[k]),
+                            "tube_reach": True}
+            elif not self.discovered_world.is_free(poses[k], self.fp, rec.margin):
                 return {"pose": poses[k].tolist(), "clearance_m": self.discovered_world.clearance(poses[k], self.fp),
                         "margin_m": rec.margin}
         return None
