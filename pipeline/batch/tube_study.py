@@ -222,7 +222,8 @@ def run_study(trials: int = TRIALS, root_seed: int = ROOT_SEED, cases=CASES, con
 
 # ---- figures -------------------------------------------------------------------------------------------
 
-def std_figure(curves: dict, robot: str, map_name: str, controllers=CONTROLLERS, noise_levels=NOISE_LEVELS):
+def std_figure(curves: dict, robot: str, map_name: str, trials: int, controllers=CONTROLLERS,
+               noise_levels=NOISE_LEVELS):
     """Rows: noise levels; columns: states. Observed std over trials (solid) against predicted (dashed)."""
     from ..report import subplots
 
@@ -250,8 +251,8 @@ def std_figure(curves: dict, robot: str, map_name: str, controllers=CONTROLLERS,
     axes[0, 0].legend(fontsize=6)
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
-    fig.suptitle(f"{map_name}, {robot}: predicted tube std vs {len(next(iter(curves.values()))['t'])}-sample "
-                 f"Monte Carlo of the run loop", fontsize=9)
+    fig.suptitle(f"{map_name}, {robot}: std of the tracking error, predicted by the tube (dashed) and over "
+                 f"{trials} trials of the run loop (solid)", fontsize=9)
     return fig
 
 
@@ -454,7 +455,7 @@ def write_study(out_dir, trials: int = TRIALS, root_seed: int = ROOT_SEED, gains
     written = []
     for case in result["cases"]:
         robot, map_name = case["robot"], case["map"]
-        written.append(save_figure(std_figure(extra["curves"], robot, map_name),
+        written.append(save_figure(std_figure(extra["curves"], robot, map_name, trials),
                                    out_dir / f"std_{robot}_{map_name}.png", dpi=80))
         written.append(save_figure(coverage_figure(extra["curves"], robot, map_name, result["probability"],
                                                    case["plan"]["cusp_times_s"]),
