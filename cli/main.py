@@ -63,6 +63,7 @@ def _register():
     from .plan import plan, sweep
     from .run import run
     from .batch import batch
+    from .tubes import tubes
 
     cli.add_command(examples)
     cli.add_command(map_group)
@@ -74,6 +75,7 @@ def _register():
     cli.add_command(gains.gains)
     cli.add_command(bench.bench)
     cli.add_command(parking)
+    cli.add_command(tubes)
 
 
 _register()

@@ -22,7 +22,9 @@ class ClearanceField:
 
     Cells of size r are marked occupied when an obstacle may touch them: cells whose centre lies in
     an obstacle, cells holding a point of its boundary sampled every r/2, then grown by one cell
-    (so a corner clipped between two samples is covered too); circles mark every cell within
+    (so a corner clipped between two samples is covered too); an axis-aligned box whose corners lie
+    on the raster's cell boundaries (the cells of an occupancy grid on its own raster) marks exactly
+    the cells it is made of, which hold all of its points; circles mark every cell within
     radius + r/sqrt(2) of their centre; everything outside the bounds counts as occupied (the
     walls). With D the Euclidean distance transform between cell centres, every point p satisfies
     dist(p, obstacles) >= D(cell of p) - sqrt(2) r: p and the obstacle point each lie within
@@ -37,8 +39,7 @@ class ClearanceField:
         """``bounds`` (xmin, ymin, xmax, ymax); ``resolutions``: the cell sizes of the map's grids (the
         raster uses the finest, else 1/512 of the larger side); ``outlines``: the obstacles, each
         ("poly", vertices (k, 2) convex part or polygon) or ("circle", centre, radius)."""
-        from matplotlib.path import Path as MplPath
-        from scipy.ndimage import binary_dilation, binary_erosion, distance_transform_edt
+        from scipy.ndimage import distance_transform_edt
 
         xmin, ymin, xmax, ymax = bounds
         r = min(resolutions, default=max(xmax - xmin, ymax - ymin) / 512)
@@ -54,6 +55,35 @@ class ClearanceField:
         ys = self.y0 + (np.arange(rows) + 0.5) * r
         occ[:, xs < xmin] = occ[:, xs > xmax] = True
         occ[ys < ymin, :] = occ[ys > ymax, :] = True
+        more, self.inside = self._mark(outlines, occ.shape)
+        self.lower_bound = distance_transform_edt(~(occ | more)) * r - math.sqrt(2) * r
+
+    def with_outlines(self, outlines) -> "ClearanceField":
+        """The field of these obstacles added to this one's, on the same raster: the distance to a union
+        is the smaller of the distances, so only the new obstacles are rasterised."""
+        from scipy.ndimage import distance_transform_edt
+
+        new = object.__new__(ClearanceField)
+        new.r, new.x0, new.y0 = self.r, self.x0, self.y0
+        occ, inside = new._mark(outlines, self.lower_bound.shape)
+        new.inside = self.inside | inside
+        if occ.any():
+            bound = distance_transform_edt(~occ) * self.r - math.sqrt(2) * self.r
+            new.lower_bound = np.minimum(self.lower_bound, bound)
+        else:
+            new.lower_bound = self.lower_bound
+        return new
+
+    def _mark(self, outlines, shape):
+        """(occupied, inside) rasters of the obstacles (see the class docstring)."""
+        from matplotlib.path import Path as MplPath
+        from scipy.ndimage import binary_dilation, binary_erosion
+
+        r = self.r
+        rows, cols = shape
+        occ = np.zeros(shape, dtype=bool)
+        xs = self.x0 + (np.arange(cols) + 0.5) * r
+        ys = self.y0 + (np.arange(rows) + 0.5) * r
         grown = np.zeros_like(occ)
         # cells certainly inside an obstacle: per convex part, cells whose 3 x 3 block of centres is
         # inside (by convexity the cell lies in the square those centres span); per circle, cells
@@ -74,14 +104,21 @@ class ClearanceField:
             if jb > ja and ib > ia:
                 X, Y = np.meshgrid(xs[ja:jb], ys[ia:ib])
                 inside = MplPath(v).contains_points(np.column_stack([X.ravel(), Y.ravel()])).reshape(X.shape)
-                grown[ia:ib, ja:jb] |= inside
                 if axis_aligned_box(v):
                     # exactly the cells whose whole square lies in the box
                     tol = 1e-9 * r
                     inx = (xs[ja:jb] - r / 2 >= v[:, 0].min() - tol) & (xs[ja:jb] + r / 2 <= v[:, 0].max() + tol)
                     iny = (ys[ia:ib] - r / 2 >= v[:, 1].min() - tol) & (ys[ia:ib] + r / 2 <= v[:, 1].max() + tol)
-                    self.inside[ia:ib, ja:jb] |= iny[:, None] & inx[None, :]
+                    cells = iny[:, None] & inx[None, :]
+                    self.inside[ia:ib, ja:jb] |= cells
+                    if _on_raster(v, self.x0, self.y0, r):
+                        # a box made of whole raster cells (an occupancy grid's cells): those cells
+                        # hold every point of it, so they alone are marked (the bound's premise)
+                        occ[ia:ib, ja:jb] |= cells
+                        continue
+                    grown[ia:ib, ja:jb] |= inside
                 else:
+                    grown[ia:ib, ja:jb] |= inside
                     self.inside[ia:ib, ja:jb] |= binary_erosion(inside, structure=np.ones((3, 3), dtype=bool),
                                                                 border_value=0)
             a, b = v, np.roll(v, -1, axis=0)
@@ -93,8 +130,9 @@ class ClearanceField:
             j = np.clip(np.floor((pts[:, 0] - self.x0) / r).astype(int), 0, cols - 1)
             i = np.clip(np.floor((pts[:, 1] - self.y0) / r).astype(int), 0, rows - 1)
             grown[i, j] = True
-        occ |= binary_dilation(grown, structure=np.ones((3, 3), dtype=bool))
-        self.lower_bound = distance_transform_edt(~occ) * r - math.sqrt(2) * r
+        if grown.any():
+            occ |= binary_dilation(grown, structure=np.ones((3, 3), dtype=bool))
+        return occ, self.inside
 
     def _span(self, lo, hi, origin, n):
         """Index range [a, b) of the cells whose centres may lie in [lo, hi]."""
@@ -169,6 +207,12 @@ def footprint_points(fp: Footprint, spacing: float | None) -> np.ndarray:
     n = np.maximum(1, np.ceil(np.hypot(*(b - v).T) / spacing)).astype(int)
     t = np.concatenate([np.arange(k) / k for k in n])
     return np.vstack([[0.0, 0.0], np.repeat(v, n, axis=0) + t[:, None] * np.repeat(b - v, n, axis=0)])
+
+
+def _on_raster(v: np.ndarray, x0: float, y0: float, r: float) -> bool:
+    """Do the corners of an axis-aligned box lie on the raster's cell boundaries?"""
+    u = np.concatenate([(v[:, 0] - x0) / r, (v[:, 1] - y0) / r])
+    return bool(np.all(np.abs(u - np.round(u)) <= 1e-9 * max(1.0, float(np.abs(u).max()))))
 
 
 def axis_aligned_box(v: np.ndarray) -> bool:

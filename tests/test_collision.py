@@ -238,3 +238,21 @@ def test_clearance_field_is_a_lower_bound(path, options, rng):
     for (x, y), lb in zip(pts, lower):
         true = world.distance((x, y, 0.0), dot) + 1e-4
         assert lb <= true + 1e-9
+
+
+@pytest.mark.parametrize("path", ["maps/scenarios/depot_blocked_aisle.yaml", "maps/ours/parking_lot.yaml",
+                                  "maps/ours/cluttered_room.yaml"])
+def test_distance_field_with_added_obstacles_equals_the_one_built_anew(path):
+    """A replan's world derives its distance field from the known world's: the same bound and the same
+    certainly-inside cells as building it from all the obstacles."""
+    from pathlib import Path
+
+    from nhstab.maps import load_map
+
+    m = load_map(Path(__file__).parent.parent / path)
+    known = CollisionWorld.from_map(m, "known")
+    known.clearance_field()
+    derived = known.with_obstacles(m.unknown_obstacles).clearance_field()
+    fresh = CollisionWorld(tuple(m.obstacles) + tuple(m.unknown_obstacles), m.grids, m.bounds).clearance_field()
+    np.testing.assert_array_equal(derived.lower_bound, fresh.lower_bound)
+    np.testing.assert_array_equal(derived.inside, fresh.inside)

@@ -91,7 +91,7 @@ def test_single_pose_queries_name_the_pose(world, query, bad):
 
 
 @pytest.mark.parametrize("bad", ["two numbers", "a car's full state", "NaN", "None", "text", "a (1, 2) array"])
-@pytest.mark.parametrize("query", ["free_many", "clearance_many", "min_clearance", "check_path"])
+@pytest.mark.parametrize("query", ["free_many", "motion_free", "clearance_many", "min_clearance", "check_path"])
 def test_many_pose_queries_name_the_poses(world, query, bad):
     _, w = world
     fp = default_robot("rwd_car").footprint

@@ -61,15 +61,16 @@ def test_quarter_arc_trap():
             pytest.approx(np.pi / 2, abs=1e-9)
 
 
-def test_plan_around_a_wall_is_clear_by_the_margin_and_seeded():
+@pytest.mark.parametrize("guide", [True, False])
+def test_plan_around_a_wall_is_clear_by_the_margin_and_seeded(guide):
     m = Map("wall", (0, 0, 20, 12), obstacles=(box_polygon(10, 4, 1.0, 8.0),))
     world = CollisionWorld.from_map(m)
     fp = Footprint.rectangle(1.0, 0.6, rear_overhang=0.2)
-    opts = PathOptions(turning_radius=1.0, time_limit_s=2.0, seed=11, margin=0.2)
+    opts = PathOptions(turning_radius=1.0, time_limit_s=2.0, seed=11, margin=0.2, guide=guide)
     g1 = plan_path(world, fp, (2, 3, 0), (18, 3, 0), opts)
     other = plan_path(world, fp, (2, 3, 0), (18, 3, 0), PathOptions(**{**opts.__dict__, "seed": 12}))
     g2 = plan_path(world, fp, (2, 3, 0), (18, 3, 0), opts)
-    assert g1.status == "exact" and g1.info["planner_used"] == "rrtconnect"
+    assert g1.status == "exact" and g1.info["planner_used"] == ("guided" if guide else "rrtconnect")
     np.testing.assert_array_equal(g1.waypoints, g2.waypoints)          # same seed, same plan, whatever ran between
     assert other.status == "exact"
     check = world.check_path(g1.samples, fp, margin=0.2, resolution=0.02)

@@ -18,6 +18,7 @@ was given. The format::
     headroom: 0.8                     # plan nominals within this fraction of the input limits
     max_time_s: 120                   # simulated time limit (default: 2 x the active plan + 30 s)
     controller: {kind: gramian, window: future, alpha: 0.1, delta: 6.0, gamma: 1.0, q: [..], r: [..]}
+                                      # gains: auto picks alpha, delta, gamma per plan (gramian; nhstab.tubes)
     noise:
       scale: 1.0                      # multiplies every noise level below (0: noiseless)
       initial: {distribution: gaussian, x: 0.1, y: 0.1, theta: 0.05}   # std (uniform: half-width)
@@ -26,8 +27,9 @@ was given. The format::
       impulses: [{time: 4.0, x: 0.0, y: 0.3}]                          # state jumps at given times
     sensor: {range_m: 8.0, fov_deg: 360, rate_hz: 10, resolution_deg: 0.5}
     monitor: {rate_hz: 10, horizon_s: 8.0}
-    planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.3, space: reeds_shepp}   # margin: the robot's
-    replan: {pause_s: 1.0, max_attempts: 3, max_replans: 10}
+    planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.3, space: reeds_shepp, guide: true}   # margin: the robot's;
+                                      # margin: auto plans with the error tube's clearance (nhstab.tubes)
+    replan: {pause_s: 1.0, max_attempts: 3, max_replans: 10, budget_growth: 4.0}
     tolerance: {position_m: 0.3, heading_rad: 0.2}
 
 Noise levels are given per state name; states not named get the robot's default (see
@@ -134,13 +136,16 @@ class MonitorOptions:
 class PlanningOptions:
     """The planner used for the first plan and every replan (see ``nhstab plan``). ``margin``: the
     clearance every nominal keeps from the obstacles the robot knows of; None for the robot's
-    (``Robot.margin``, see :mod:`nhstab.robot`)."""
+    (``Robot.margin``, see :mod:`nhstab.robot`); "auto" for the smallest margin whose error tube is
+    certified clear (:func:`nhstab.tubes.plan_with_auto_margin`). ``guide``: the guided search (a grid
+    shortest path sets the subgoals); false searches with OMPL's planner over the whole map."""
 
     planner: str = "rrtconnect"
     space: str = "reeds_shepp"
     time_limit_s: float = 2.0
-    margin: float | None = None
+    margin: float | str | None = None
     turning_radius: float | None = None
+    guide: bool = True
 
     def validated(self) -> "PlanningOptions":
         from ..planning import PLANNERS, SPACES
@@ -150,10 +155,15 @@ class PlanningOptions:
         if self.space not in SPACES:
             raise InputError("planning.space", "one of " + ", ".join(SPACES), self.space)
         check_number("planning.time_limit_s", self.time_limit_s, 0.0, lo_open=True)
-        if self.margin is not None:
+        if isinstance(self.margin, str):
+            if self.margin != "auto":
+                raise InputError("planning.margin", "a number >= 0 or auto", self.margin)
+        elif self.margin is not None:
             check_number("planning.margin", self.margin, 0.0)
         if self.turning_radius is not None:
             check_number("planning.turning_radius", self.turning_radius, 0.0, lo_open=True)
+        if not isinstance(self.guide, bool):
+            raise InputError("planning.guide", "true or false", self.guide)
         return self
 
 
@@ -162,15 +172,23 @@ class ReplanOptions:
     """While a replan runs the robot stops (u = 0) for ``pause_s`` of simulated time (a fixed,
     documented budget, so that runs are reproducible; the real planning latency is recorded next to
     it). A failed attempt is retried after another pause with a new seed, up to ``max_attempts`` in a
-    row; at most ``max_replans`` replans per run."""
+    row; the attempts after the second get ``budget_growth`` times the planning budget. The first plan
+    (before the robot moves, so without pauses) is retried the same way. At most ``max_replans``
+    replans per run."""
 
     pause_s: float = 1.0
     max_attempts: int = 3
     max_replans: int = 10
+    budget_growth: float = 4.0
+
+    def budget_factor(self, attempt: int) -> float:
+        """The planning budget of attempt ``attempt`` (0, 1, ...) relative to planning.time_limit_s."""
+        return 1.0 if attempt < 2 else float(self.budget_growth)
 
     def validated(self) -> "ReplanOptions":
         check_number("replan.pause_s", self.pause_s, 0.0)
         check_number("replan.max_attempts", self.max_attempts, 1.0, integer=True)
+        check_number("replan.budget_growth", self.budget_growth, 1.0)
         check_number("replan.max_replans", self.max_replans, 0.0, integer=True)
         return self
 
