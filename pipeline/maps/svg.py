@@ -11,7 +11,10 @@ Convention (Bench-MR's loader of the era of the stored files, see ``maps/bench-m
 * world coordinates are ``(x, -y) / 22`` of the SVG user coordinates (``BENCHMR_SCALE``); the
   ``transform`` attributes of groups and paths are ignored, as Bench-MR did;
 * a closing vertex that repeats the first one (to ``CLOSE_TOLERANCE`` = 1e-4 world units: relative
-  coordinates accumulate rounding) and consecutive duplicate vertices are dropped;
+  coordinates accumulate rounding) and consecutive repeated vertices (zero-length edges, to
+  ``REPEAT_TOLERANCE`` = 1e-9 world units) are dropped; the repeated ones are noted in
+  ``meta["notes"]`` (``nhstab map info`` shows them). Real drawings have them (a node placed twice);
+  they carry no shape, so they are cleaned, not refused;
 * Bench-MR replaced non-convex polygons by their convex hull. :func:`load_benchmr_svg` keeps the true
   shapes by default and offers the hull as ``convex_hull=True``;
 * the map bounds are the axis-aligned bounding box of all polygons (Bench-MR's world has no other
@@ -35,6 +38,9 @@ from .base import Map, MapError, Polygon, Pose, Problem, signed_area
 BENCHMR_SCALE = 1.0 / 22.0
 """World units per SVG user unit in the Bench-MR polygon worlds (``polygon.scaling`` = 0.0454545)."""
 
+REPEAT_TOLERANCE = 1e-9
+"""World units: consecutive vertices this close are one vertex (a zero-length edge is dropped)."""
+
 CLOSE_TOLERANCE = 1e-4
 """World units: a last vertex this close to the first one repeats it (Inkscape's relative coordinates
 accumulate rounding, so a path drawn back to its start without ``z`` misses it by ~1e-5)."""
@@ -57,12 +63,20 @@ def load_benchmr_svg(path: str | Path, convex_hull: bool = False) -> Map:
     raw = _read_svg_polygons(path)
     if not raw:
         raise MapError(str(path), "an SVG with at least one <path> obstacle", "no <path> element")
-    polygons = []
+    polygons, repeats = [], {}
     for k, v in enumerate(raw):
-        v = _clean_ring(v * np.array([BENCHMR_SCALE, -BENCHMR_SCALE]))
+        scaled = v * np.array([BENCHMR_SCALE, -BENCHMR_SCALE])
+        v = _clean_ring(scaled)
+        if _repeats(scaled):
+            repeats[k] = _repeats(scaled)
         if convex_hull:
             v = convex_hull_2d(v)
         polygons.append(_polygon(v, path, f"path #{k}"))
+    notes = []
+    if repeats:
+        which = ", ".join(f"#{k}" for k in list(repeats)[:8]) + (", ..." if len(repeats) > 8 else "")
+        notes.append(f"{path.name}: dropped {sum(repeats.values())} repeated consecutive vertex(es) (zero-length "
+                     f"edges) in {len(repeats)} of {len(raw)} paths ({which})")
     allv = np.concatenate([p.vertices for p in polygons])
     lo, hi = allv.min(axis=0), allv.max(axis=0)
     return Map(
@@ -71,7 +85,7 @@ def load_benchmr_svg(path: str | Path, convex_hull: bool = False) -> Map:
         obstacles=tuple(polygons),
         source=str(path),
         meta={"format": "benchmr_svg", "scale": BENCHMR_SCALE, "polygons": len(polygons),
-              "convex_hull": bool(convex_hull), "bounds_from": "bounding box of all polygons"},
+              "convex_hull": bool(convex_hull), "bounds_from": "bounding box of all polygons", "notes": notes},
     )
 
 
@@ -188,12 +202,23 @@ def _clean_ring(v: np.ndarray, close_tol: float = CLOSE_TOLERANCE) -> np.ndarray
     """Drop consecutive duplicate vertices and closing vertices within ``close_tol`` of the first one."""
     if len(v) == 0:
         return v
-    keep = np.ones(len(v), dtype=bool)
-    keep[1:] = np.any(np.abs(np.diff(v, axis=0)) > 1e-12, axis=1)
+    keep = [0]
+    for i in range(1, len(v)):
+        if np.any(np.abs(v[i] - v[keep[-1]]) > REPEAT_TOLERANCE):
+            keep.append(i)
     v = v[keep]
     while len(v) > 1 and np.all(np.abs(v[-1] - v[0]) <= close_tol):
         v = v[:-1]
     return v
+
+
+def _repeats(v: np.ndarray) -> int:
+    """How many vertices repeat the one before them (not counting a closing vertex that repeats the first)."""
+    if len(v) < 2:
+        return 0
+    same = ~np.any(np.abs(np.diff(v, axis=0)) > REPEAT_TOLERANCE, axis=1)
+    n = int(same.sum())
+    return n
 
 
 # ----------------------------------------------------------------------------------------------
