@@ -330,17 +330,17 @@ def options_from_mapping(data: dict, allowed=None, prefix: str = "") -> RunOptio
 
 
 def read_yaml_mapping(path: Path, argument: str, what: str) -> dict:
-    """A YAML file whose top level is a mapping; errors name ``argument`` (e.g. ``--config``)."""
-    import yaml
+    """A YAML file whose top level is a mapping, read by nhstab's one safe YAML loader
+    (:func:`nhstab.safe_io.load_yaml_file`: regular files only, bounded size, nesting and alias
+    expansion, duplicate keys refused); errors name ``argument`` (e.g. ``--config``)."""
+    from ..safe_io import load_yaml_file
 
-    try:
-        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(argument, f"an existing {what}", str(path)) from None
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise InputError(argument, "valid YAML", str(path), detail=" ".join(str(exc).split())[:200]) from None
+    data = load_yaml_file(path, argument, what)
     if not isinstance(data, dict):
         raise InputError(argument, "a YAML mapping at the top level", type(data).__name__)
+    for key in data:
+        if not isinstance(key, str):
+            raise InputError(argument, "a mapping with text keys", key)
     return data
 
 

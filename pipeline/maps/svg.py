@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..safe_io import read_bytes, read_text
 from .base import Map, MapError, Polygon, Pose, Problem, signed_area
 
 BENCHMR_SCALE = 1.0 / 22.0
@@ -93,10 +94,7 @@ def load_benchmr_scenarios(csv_path: str | Path) -> dict[str, tuple[Problem, ...
     Each :class:`Problem` is labelled ``"<environment>#<case>"``.
     """
     csv_path = Path(csv_path)
-    try:
-        lines = csv_path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MapError(str(csv_path), "a readable UTF-8 CSV file", detail=str(exc)) from None
+    lines = read_text(csv_path, what="UTF-8 CSV file", error=MapError).splitlines()
     numbered = [(n, line) for n, line in enumerate(lines, 1) if line.strip() and not line.lstrip().startswith("#")]
     if not numbered:
         raise MapError(str(csv_path), "a header line and scenario rows", "no data")
@@ -130,10 +128,7 @@ def load_benchmr_scenarios(csv_path: str | Path) -> dict[str, tuple[Problem, ...
 def benchmr_robot_shapes(csv_path: str | Path) -> dict[str, str]:
     """``{world name: footprint SVG file name}`` from the ``robot_shape`` column of ``polygon_scenarios.csv``."""
     csv_path = Path(csv_path)
-    try:
-        lines = csv_path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MapError(str(csv_path), "a readable UTF-8 CSV file", detail=str(exc)) from None
+    lines = read_text(csv_path, what="UTF-8 CSV file", error=MapError).splitlines()
     rows = list(csv.reader([ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]))
     if not rows or "environment" not in rows[0] or "robot_shape" not in rows[0]:
         raise MapError(f"{csv_path.name}: header", "the columns environment and robot_shape", rows[:1])
@@ -201,15 +196,10 @@ def _clean_ring(v: np.ndarray, close_tol: float = CLOSE_TOLERANCE) -> np.ndarray
 
 def _read_svg_polygons(path: Path) -> list[np.ndarray]:
     """Vertex arrays (SVG user units, SVG y-down) of every ``<path>`` element, in document order."""
+    data = read_bytes(path, what="SVG file", error=MapError)
     try:
-        exists = path.is_file()
-    except (OSError, ValueError):
-        exists = False
-    if not exists:
-        raise MapError(str(path), "an existing SVG file", "no such file")
-    try:
-        root = ET.parse(path).getroot()
-    except (ET.ParseError, OSError, UnicodeDecodeError) as exc:
+        root = ET.fromstring(data)
+    except (ET.ParseError, UnicodeDecodeError, ValueError) as exc:
         raise MapError(str(path), "a well-formed SVG (XML) file", detail=str(exc)) from None
     out = []
     for k, elem in enumerate(e for e in root.iter() if isinstance(e.tag, str)):
