@@ -40,8 +40,16 @@ def plan(map_file, robot, start, goal, problem, planner, space, turning_radius, 
     from nhstab.models import make_model
     from nhstab.planning import PathOptions, TimingOptions, default_turning_radius, plan as make_plan
 
+    from nhstab.errors import InputError
+    from nhstab.limits import MAX_PLANNER_SEED, check_int
+    from nhstab.planning import PLANNABLE
+
+    check_int("--seed", seed, 0, MAX_PLANNER_SEED, "an integer (OMPL's seed)")
     m = load(map_file, cell_size, unknown)
     name = robot or (m.robot or {}).get("model") or "unicycle"
+    if name not in PLANNABLE:
+        key = "--robot" if robot else f"robot.model of {map_file}"
+        raise InputError(key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)", name)
     model = make_model(name)
     fp = default_footprint(name)
     s, g = resolve_poses(m, parse_pose("--start", start), parse_pose("--goal", goal), problem,

@@ -73,7 +73,13 @@ def run(map_file, config_file, robot, start, goal, problem, controller, window, 
     """
     from nhstab.errors import InputError
     from nhstab.execution.config import RunOptions, load_run_config, merge
+    from nhstab.limits import MAX_RATE_HZ, MAX_SEED, MIN_RATE_HZ, check_int, check_range
 
+    # the flags are checked under their own names (the config's keys are checked when merged)
+    if seed is not None:
+        check_int("--seed", seed, 0, MAX_SEED, "a non-negative integer")
+    if rate_hz is not None:
+        check_range("--rate", rate_hz, MIN_RATE_HZ, MAX_RATE_HZ, "Hz")
     base, cfg_map = RunOptions(), None
     if config_file is not None:
         extra, base = load_run_config(config_file)
@@ -99,10 +105,12 @@ def run(map_file, config_file, robot, start, goal, problem, controller, window, 
     m = load(map_path, cell_size, unknown)
     s, g = resolve_poses(m, parse_pose("--start", start) or opts.start, parse_pose("--goal", goal) or opts.goal,
                          problem, names=("--start", "--goal", "--problem"))
-    return execute_and_write(m, str(map_path), opts, s, g, out_dir, animate)
+    robot_key = "--robot" if robot else (f"robot (in {config_file})" if base.robot else f"robot.model (in {map_path})")
+    return execute_and_write(m, str(map_path), opts, s, g, out_dir, animate, robot_key=robot_key)
 
 
-def execute_and_write(m, map_path: str, opts, start, goal, out_dir: Path, animate: bool) -> int:
+def execute_and_write(m, map_path: str, opts, start, goal, out_dir: Path, animate: bool, robot_key: str = "robot",
+                      extra_files: dict | None = None) -> int:
     import numpy as np
 
     from nhstab.execution import execute, write_run
@@ -114,9 +122,10 @@ def execute_and_write(m, map_path: str, opts, start, goal, out_dir: Path, animat
 
     name = opts.robot or (m.robot or {}).get("model") or "unicycle"
     if name not in PLANNABLE:
-        raise InputError("--robot", "one of " + ", ".join(PLANNABLE), name)
+        raise InputError(robot_key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)", name)
     model = make_model(name)
     fp = default_footprint(name)
+    opts.validated(model.state_names, model.m)          # every option checked before anything runs
     click.echo(f"running {opts.controller.kind} control of a {name} on {m.name} (seed {opts.seed}) ...", err=True)
     result = execute(m, model, fp, np.asarray(start, float), np.asarray(goal, float), opts)
     files = write_run(result, out_dir, map_path, animate=animate)

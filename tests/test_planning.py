@@ -137,7 +137,7 @@ def _one_line(res, code, *needles):
     (["--time-limit", "0"], ["'time_limit_s'"]),
     (["--turning-radius", "0"], ["'turning_radius'"]),
     (["--turning-radius", "-1"], ["'turning_radius'"]),
-    (["--robot", "hovercraft"], ["'model'", "hovercraft"]),
+    (["--robot", "hovercraft"], ["'--robot'", "hovercraft"]),
 ])
 def test_plan_cli_bad_requests(tmp_path, args, needles):
     _one_line(_cli(["plan", str(MAPS / "ours/cluttered_room.yaml"), "--out", str(tmp_path / "o"), *args]), 2, *needles)

@@ -174,8 +174,16 @@ class CompositeRun:
     """State of one run; :func:`execute` drives it."""
 
     def __init__(self, m: Map, model: Model, fp: Footprint, start, goal, opts: RunOptions):
+        from ..planning import check_map_budget, check_plan_arguments, check_pose_argument, check_start_goal
+
+        check_plan_arguments(m, model, fp)
+        if not isinstance(opts, RunOptions):
+            raise InputError("opts", "a RunOptions", type(opts).__name__)
+        start, goal = check_pose_argument("start", start), check_pose_argument("goal", goal)
+        check_start_goal(start, goal)
         self.m, self.model, self.fp = m, model, fp
         opts = opts.validated(model.state_names, model.m)
+        check_map_budget(m, opts.planning.time_limit_s)
         if opts.planning.margin is None:
             opts = dataclasses.replace(opts, planning=dataclasses.replace(opts.planning,
                                                                           margin=DEFAULT_MARGIN[model.name]))
@@ -330,7 +338,7 @@ class CompositeRun:
                            result, law)
         self.plans.append(first)
         if law is None:
-            raise _Stop("no_plan", f"no first plan: {attempt['message']}")
+            raise _Stop("no_plan", f"no first plan: {attempt['message']}{self._rate_hint(attempt)}")
         max_time = self._deadline(0.0, law)
         # the initial condition error, about the nominal's first state
         sigma0 = opts.noise.vector("initial", model.state_names)
@@ -372,12 +380,32 @@ class CompositeRun:
             self._record(t, x, y, x0, u, u_ff, rec.id, 0)
             x = self._advance(x, u, t)
 
+    def _rate_hint(self, attempt: dict) -> str:
+        """When a nominal failed its clearance check and the control period is long, say so: the
+        nominal is sampled once per period, and samples far apart cut corners."""
+        step = float(self.plan_model.input_limits()[0, 1]) * self.T
+        if attempt.get("status") == "not_clear" and step > 0.05:
+            return (f" (rate_hz = {self.opts.rate_hz:g}: the nominal is sampled every {self.T:g} s, up to "
+                    f"{step:.2g} m apart, and cuts corners between samples; a rate of at least "
+                    f"{math.ceil(float(self.plan_model.input_limits()[0, 1]) / 0.05):g} Hz keeps them within 5 cm)")
+        return ""
+
     def _deadline(self, t_start: float, law: FeedbackLaw) -> float:
         """The simulated time limit: ``max_time_s`` if given; else twice the active nominal's duration
         plus 30 s from when it began (each replan moves it)."""
+        from ..limits import MAX_CONTROL_PERIODS
+
         if self.opts.max_time_s is not None:
             return self.opts.max_time_s
-        return t_start + 2.0 * (law.t_end - law.t0) + 30.0
+        deadline = t_start + 2.0 * (law.t_end - law.t0) + 30.0
+        if deadline > MAX_CONTROL_PERIODS * self.T:
+            if not self.plans or len(self.plans) == 1 and t_start == 0.0:
+                raise InputError("max_time_s", f"given for a run this long: the default limit, 2 x the plan's "
+                                 f"{law.t_end - law.t0:.0f} s + 30 s, is more than the {MAX_CONTROL_PERIODS:,} "
+                                 f"control periods a run may simulate at rate_hz = {self.opts.rate_hz:g}", None,
+                                 detail="set max_time_s, or a lower rate_hz")
+            deadline = MAX_CONTROL_PERIODS * self.T
+        return deadline
 
     def _replan(self, x, t_detect: float, conflict: dict):
         """Stop; plan from the measured state until a plan is found or attempts run out. Returns the new

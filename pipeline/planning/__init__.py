@@ -42,10 +42,65 @@ MARGIN_PAD = {"unicycle": 0.02, "rwd_car": 0.15, "fwd_car": 0.15}
 PLANNABLE = ("unicycle", "rwd_car", "fwd_car")
 
 
+def check_map_budget(m: Map, time_limit_s: float, resolution: float = 0.05) -> None:
+    """Refuse, before anything is built, a map too large for the planning budget: one crossing of
+    its diagonal, checked every ``resolution`` m at the cost of a check that reaches FCL
+    (:data:`nhstab.limits.FCL_CHECK_S`), must fit in ``time_limit_s``. Below that, every stage
+    keeps within the budget (the distance field is bounded in cells, the search and the
+    simplification are given what is left of it)."""
+    from ..limits import FCL_CHECK_S
+
+    w, h = m.size
+    diagonal = math.hypot(w, h)
+    largest = time_limit_s * resolution / FCL_CHECK_S
+    if diagonal > largest:
+        raise InputError("map", f"a map at most {largest:,.0f} m across for a planning budget of {time_limit_s:g} s "
+                         f"(one crossing checked every {resolution:g} m costs up to {FCL_CHECK_S * 1e6:.0f} us per "
+                         "check)", f"{m.name}: {w:,.6g} x {h:,.6g} m, {diagonal:,.0f} m across",
+                         detail="crop its bounds or raise the time limit")
+
+
+def check_pose_argument(name: str, value) -> np.ndarray:
+    """A pose (x, y, theta) given to a library call, as a (3,) float array, or an InputError naming
+    ``name``: exactly three finite numbers (a list, tuple or array; not a string or None)."""
+    if isinstance(value, (str, bytes)) or value is None or isinstance(value, dict):
+        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value)
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value) from None
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value)
+    return arr
+
+
+def check_plan_arguments(m, model, fp) -> None:
+    """The types of a planning or run request's map, model and footprint (library calls)."""
+    if not isinstance(m, Map):
+        raise InputError("map", "a Map (nhstab.load_map(path))", type(m).__name__)
+    if not isinstance(model, Model):
+        raise InputError("model", "a robot model (nhstab.make_model(name))", type(model).__name__)
+    if not isinstance(fp, Footprint):
+        raise InputError("footprint", "a Footprint (nhstab.default_footprint(name))", type(fp).__name__)
+
+
 def pose_columns(model: Model) -> list[int]:
     """Indices of (x, y, theta) in the model's state."""
     names = list(model.state_names)
     return [names.index("x"), names.index("y"), names.index("theta")]
+
+
+#: start and goal closer than this (in position, and in heading) are the same pose: there is nothing
+#: to plan, and no trajectory along which the gramian could be invertible
+SAME_POSE_M, SAME_POSE_RAD = 1e-6, 1e-6
+
+
+def check_start_goal(start: np.ndarray, goal: np.ndarray) -> None:
+    from ..geometry import wrap_angle
+
+    if math.hypot(*(goal[:2] - start[:2])) <= SAME_POSE_M and abs(float(wrap_angle(goal[2] - start[2]))) <= SAME_POSE_RAD:
+        raise InputError("goal", "a pose different from the start (nothing to plan: the robot is there)",
+                         np.round(goal, 6).tolist())
 
 
 #: cars plan with this multiple of their minimum turning radius, so that the sinusoidal steering that
@@ -59,6 +114,9 @@ def min_turning_radius(model: Model) -> float:
 
 
 def default_turning_radius(model: Model) -> float:
+    if getattr(model, "name", None) not in PLANNABLE:
+        raise InputError("robot", "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)",
+                         getattr(model, "name", model))
     if model.name == "unicycle":
         return UNICYCLE_TURNING_RADIUS
     return CAR_RADIUS_FACTOR * min_turning_radius(model)
@@ -91,16 +149,23 @@ def plan(m: Map, model: Model, fp: Footprint, start, goal, path_opts: PathOption
     does not handle) raise :class:`InputError`; a request the planner cannot satisfy returns a result
     whose ``status`` says why.
     """
+    check_plan_arguments(m, model, fp)
     if model.name not in PLANNABLE:
         raise InputError("robot", "one of " + ", ".join(PLANNABLE), model.name)
+    start, goal = check_pose_argument("start", start), check_pose_argument("goal", goal)
+    for name, opts, cls in (("path_opts", path_opts, PathOptions), ("timing_opts", timing_opts, TimingOptions),
+                            ("stab_opts", stab_opts, StabilizerOptions)):
+        if opts is not None and not isinstance(opts, cls):
+            raise InputError(name, f"a {cls.__name__} or None", type(opts).__name__)
     path_opts = (path_opts or PathOptions(turning_radius=default_turning_radius(model))).validated()
     timing_opts = (timing_opts or TimingOptions()).validated()
     stab_opts = (stab_opts or StabilizerOptions(**DEFAULT_STABILIZER[model.name])).validated()
+    check_map_budget(m, path_opts.time_limit_s, path_opts.resolution)
+    check_start_goal(start, goal)
     if model.name != "unicycle" and path_opts.turning_radius < min_turning_radius(model) - 1e-9:
         raise InputError("turning_radius", f"at least the {model.name}'s minimum turning radius "
                          f"{min_turning_radius(model):.4g} m", path_opts.turning_radius)
     world = world or CollisionWorld.from_map(m, "known")
-    start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
     clearances = check_poses(m, fp, {"start": start, "goal": goal}, world=world)
     for key, c in clearances.items():
         if c <= path_opts.margin:
@@ -155,6 +220,14 @@ def plan(m: Map, model: Model, fp: Footprint, start, goal, path_opts: PathOption
                           path, nominal, metrics=metrics)
     try:
         schedule = compute_schedule(nominal, stab_opts)
+    except InputError as exc:
+        if exc.argument != "delta":
+            raise
+        apart = float(math.hypot(*(goal[:2] - start[:2])))
+        raise InputError("goal", f"far enough from the start for the stabilizer: the nominal to it lasts "
+                         f"{nominal.duration:.3g} s, shorter than the gain schedule's window delta = "
+                         f"{stab_opts.delta:g} s", np.round(goal, 4).tolist(),
+                         detail=f"start and goal are {apart:.3g} m apart; a smaller delta would fit") from None
     except SingularGramianError as exc:
         metrics["time_to_nominal_s"] = time.perf_counter() - started
         return PlanResult("not_stabilizable", str(exc), path, nominal, metrics=metrics)

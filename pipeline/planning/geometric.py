@@ -55,8 +55,9 @@ class PathOptions:
                 raise InputError(key, "a positive finite number", v)
         if not (math.isfinite(self.margin) and self.margin >= 0):
             raise InputError("margin", "a finite number >= 0", self.margin)
-        if not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
-            raise InputError("seed", "a non-negative integer", self.seed)
+        from ..limits import MAX_PLANNER_SEED, check_int
+
+        check_int("seed", self.seed, 0, MAX_PLANNER_SEED, "an integer (OMPL's seed)")
         return self
 
 
@@ -130,10 +131,11 @@ def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptio
     opts = opts.validated()
     if world.bounds is None:
         raise InputError("world", "a collision world with bounds", None)
+    deadline = time.perf_counter() + opts.time_limit_s
     world.clearance_field()                   # build once, in the parent: children inherit it
     _ompl()                                   # import once, in the parent (no generator is made)
     if not isolate:
-        return _plan_path(world, fp, start, goal, opts)
+        return _plan_path(world, fp, start, goal, opts, deadline)
     import multiprocessing as mp
 
     ctx = mp.get_context("fork")
@@ -141,7 +143,7 @@ def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptio
 
     def child():
         try:
-            send.send(("ok", _plan_path(world, fp, start, goal, opts)))
+            send.send(("ok", _plan_path(world, fp, start, goal, opts, deadline)))
         except BaseException as exc:           # sent back and re-raised in the parent
             send.send(("error", exc))
 
@@ -149,17 +151,30 @@ def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptio
     proc.start()
     send.close()
     try:
-        kind, value = recv.recv()
-    except EOFError:
+        try:
+            kind, value = recv.recv()
+        except EOFError:
+            proc.join()
+            raise RuntimeError(f"the planning process died (exit code {proc.exitcode})") from None
         proc.join()
-        raise RuntimeError(f"the planning process died (exit code {proc.exitcode})") from None
-    proc.join()
+    finally:
+        # interrupted (Ctrl-C, SIGTERM) while the child plans: it must not outlive the call
+        if proc.is_alive():
+            proc.terminate()
+            proc.join(5.0)
+        recv.close()
     if kind == "error":
         raise value
     return value
 
 
-def _plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptions) -> GeometricPath:
+def _plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptions,
+               deadline: float | None = None) -> GeometricPath:
+    """The search; everything from the distance field to the simplified path within the budget
+    (``deadline``, a ``time.perf_counter`` value): OMPL's solve gets what the field and the setup
+    left, the simplification what the solve left, or nothing."""
+    if deadline is None:
+        deadline = time.perf_counter() + opts.time_limit_s
     ob, og, ou = _ompl()
     ou.RNG.setSeed(int(opts.seed) + 1)      # before anything samples (OMPL refuses seed 0)
     space = make_space(opts, world.bounds)
@@ -186,21 +201,25 @@ def _plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOpti
         # the direct (shortest) local path is free: no search needed
         exact, have, status_text, used = True, True, "Exact solution (direct connection)", "direct"
         waypoints = np.array([[float(v) for v in start], [float(v) for v in goal]])
+        simplified = False
     else:
-        status = ss.solve(float(opts.time_limit_s))
+        status = ss.solve(max(deadline - time.perf_counter(), 1e-3))
         exact = bool(ss.haveExactSolutionPath())
         have = bool(ss.haveSolutionPath())
         status_text = status.asString() if hasattr(status, "asString") else str(status)
         used = opts.planner
         waypoints = None
+        simplified = False
         if have:
-            if opts.simplify:
-                ss.simplifySolution()
+            left = deadline - time.perf_counter()
+            if opts.simplify and left > 0:
+                ss.simplifySolution(left)          # 0 would mean "no limit" to OMPL
+                simplified = True
             path = ss.getSolutionPath()
             waypoints = np.array([[st.getX(), st.getY(), st.getYaw()]
                                   for st in (path.getState(i) for i in range(path.getStateCount()))])
     elapsed = time.perf_counter() - started
-    info = {"planner_used": used}
+    info = {"planner_used": used, "simplified": simplified}
     if not have:
         return GeometricPath("failed", status_text, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
                              0.0, 0, elapsed, counter["calls"], counter["time"], opts, info)
