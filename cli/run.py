@@ -128,7 +128,7 @@ def execute_and_write(m, map_path: str, opts, start, goal, out_dir: Path, animat
     opts.validated(model.state_names, model.m)          # every option checked before anything runs
     click.echo(f"running {opts.controller.kind} control of a {name} on {m.name} (seed {opts.seed}) ...", err=True)
     result = execute(m, model, fp, np.asarray(start, float), np.asarray(goal, float), opts)
-    files = write_run(result, out_dir, map_path, animate=animate)
+    files = write_run(result, out_dir, map_path, animate=animate, extra_files=extra_files)
     replans = sum(1 for p in result.plans if p.trigger != "initial")
     click.echo(f"{result.status}: {result.message}")
     click.echo(f"{replans} replan(s), {len(result.discovered)} obstacle(s) discovered, "
