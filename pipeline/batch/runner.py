@@ -18,11 +18,13 @@ config's fingerprint, which covers the content of every map file (base maps and 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import signal
 import sys
 import tempfile
+import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
@@ -135,9 +137,13 @@ def run_batch(config: BatchConfig, out_dir, workers: int = 1, scheduler: str | N
                 if client is not None:
                     _run_dask(todo, client, store, bar)
                 elif workers <= 1:
-                    for spec in todo:
-                        _store(store, run_trial(spec))
-                        bar.update(1)
+                    with _interrupt_flag() as interrupted:
+                        for spec in todo:
+                            record = run_trial(spec)
+                            if interrupted.is_set():     # a Ctrl-C the trial's code may have swallowed
+                                raise KeyboardInterrupt
+                            _store(store, record)
+                            bar.update(1)
                 else:
                     _run_local(todo, workers, store, bar)
             finally:
@@ -147,6 +153,27 @@ def run_batch(config: BatchConfig, out_dir, workers: int = 1, scheduler: str | N
     finally:
         if client is not None:
             client.close()
+
+
+@contextlib.contextmanager
+def _interrupt_flag():
+    """While trials run in this process: SIGINT raises KeyboardInterrupt as usual and also sets the
+    flag, so that a trial during which Ctrl-C was pressed is never stored, even if some library
+    code on the way caught the exception."""
+    flag = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield flag
+        return
+
+    def handler(signum, frame):
+        flag.set()
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield flag
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _store(store: Store, record: dict) -> None:
@@ -187,6 +214,17 @@ def _run_local(todo: list, workers: int, store: Store, bar) -> None:
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
     """Abandon the running trials: cancel what is queued, end the workers (SIGTERM, then SIGKILL
     after a grace period) and wait for them, so that no worker outlives the batch."""
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None     # a second Ctrl-C waits
+    try:
+        _end_workers(pool)
+    finally:
+        if main:
+            signal.signal(signal.SIGINT, previous)
+
+
+def _end_workers(pool: ProcessPoolExecutor) -> None:
+    # the executor has no public way to end its workers before Python 3.14: its process table
     procs = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
     for p in procs:

@@ -91,6 +91,8 @@ def _run(spec: dict) -> dict:
     robot = opts.robot or (m.robot or {}).get("model") or "unicycle"
     model, fp = make_model(robot), default_footprint(robot)
     result = execute(m, model, fp, np.asarray(opts.start, float), np.asarray(opts.goal, float), opts)
+    if result.status == "interrupted":         # Ctrl-C inside the run: no result, the batch stops
+        raise KeyboardInterrupt
     s = summary(result, cell["map_path"])
     first = result.plans[0]
     metrics = {
