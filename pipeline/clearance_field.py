@@ -59,6 +59,19 @@ class ClearanceField:
         # inside (by convexity the cell lies in the square those centres span); per circle, cells
         # whose farthest corner is inside.
         self.inside = np.zeros_like(occ)
+        # axis-aligned boxes (every merged cell block of a grid): all at once, as the loop below
+        # would mark them one by one
+        quads = [k for k, o in enumerate(outlines) if o[0] != "circle" and len(o[1]) == 4]
+        if quads:
+            v = np.stack([outlines[k][1] for k in quads])                       # (q, 4, 2)
+            d = np.roll(v, -1, axis=1) - v
+            aligned = np.all((np.abs(d[..., 0]) < 1e-12) | (np.abs(d[..., 1]) < 1e-12), axis=1)
+            if aligned.any():
+                va = v[aligned]
+                self._add_boxes(np.column_stack([va[..., 0].min(1), va[..., 1].min(1), va[..., 0].max(1),
+                                                 va[..., 1].max(1)]), grown, xs, ys)
+                done = {quads[k] for k in np.flatnonzero(aligned)}
+                outlines = [o for k, o in enumerate(outlines) if k not in done]
         for outline in outlines:
             if outline[0] == "circle":
                 (cx, cy), rad = outline[1], outline[2]
@@ -95,6 +108,26 @@ class ClearanceField:
             grown[i, j] = True
         occ |= binary_dilation(grown, structure=np.ones((3, 3), dtype=bool))
         self.lower_bound = distance_transform_edt(~occ) * r - math.sqrt(2) * r
+
+    def _add_boxes(self, b: np.ndarray, grown: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> None:
+        """Axis-aligned boxes (k, 4) = (xmin, ymin, xmax, ymax), with the same cells as the per-outline
+        loop marks for them: ``grown`` gets every cell the closed box touches (its boundary cells and
+        the cells whose centre it contains: together, the index rectangle of its corners, clipped to
+        the raster as the boundary samples are), ``inside`` the cells whose whole square lies in it.
+        Rectangles are filled through a 2-D difference array: O(cells + boxes)."""
+        rows, cols = grown.shape
+        r = self.r
+        j0 = np.clip(np.floor((b[:, 0] - self.x0) / r).astype(np.int64), 0, cols - 1)
+        i0 = np.clip(np.floor((b[:, 1] - self.y0) / r).astype(np.int64), 0, rows - 1)
+        j1 = np.clip(np.floor((b[:, 2] - self.x0) / r).astype(np.int64), 0, cols - 1)
+        i1 = np.clip(np.floor((b[:, 3] - self.y0) / r).astype(np.int64), 0, rows - 1)
+        grown |= _fill(rows, cols, i0, j0, i1 + 1, j1 + 1)
+        tol = 1e-9 * r
+        jlo = np.searchsorted(xs - r / 2, b[:, 0] - tol, side="left")
+        jhi = np.searchsorted(xs + r / 2, b[:, 2] + tol, side="right")
+        ilo = np.searchsorted(ys - r / 2, b[:, 1] - tol, side="left")
+        ihi = np.searchsorted(ys + r / 2, b[:, 3] + tol, side="right")
+        self.inside |= _fill(rows, cols, ilo, jlo, ihi, jhi)
 
     def _span(self, lo, hi, origin, n):
         """Index range [a, b) of the cells whose centres may lie in [lo, hi]."""
@@ -151,6 +184,18 @@ class ClearanceField:
             y = poses[:, 1] + s * u + c * v
             ok &= self.at(x, y) > rad + margin
         return ok
+
+
+def _fill(rows: int, cols: int, i0, j0, i1, j1) -> np.ndarray:
+    """The union of the index rectangles [i0, i1) x [j0, j1) (empty ones ignored), as a bool raster."""
+    keep = (i1 > i0) & (j1 > j0)
+    i0, j0, i1, j1 = i0[keep], j0[keep], i1[keep], j1[keep]
+    diff = np.zeros((rows + 1, cols + 1), dtype=np.int64)
+    np.add.at(diff, (i0, j0), 1)
+    np.add.at(diff, (i0, j1), -1)
+    np.add.at(diff, (i1, j0), -1)
+    np.add.at(diff, (i1, j1), 1)
+    return np.cumsum(np.cumsum(diff, axis=0), axis=1)[:rows, :cols] > 0
 
 
 def footprint_points(fp: Footprint, spacing: float | None) -> np.ndarray:

@@ -39,6 +39,12 @@ MAX_CELL_M = 1e3
 #: (about 40 bytes per cell while it is decoded), so this bounds a map's memory to about 0.7 GB
 MAX_GRID_CELLS = 4096 * 4096
 
+#: most FCL objects in one collision world (convex parts of the shapes, plus the rectangles a grid's
+#: occupied cells merge into): each costs about 40 us to build and the distance field's raster is
+#: drawn from them, so this bounds a world's construction to a few seconds. A grid that exceeds it
+#: is mostly isolated noise cells: clean or coarsen it
+MAX_WORLD_OBJECTS = 100_000
+
 # ---- runs ---------------------------------------------------------------------------------------
 #: controller rate [Hz]. Every control period runs the law, the plant's RK4 substeps and the
 #: monitors in Python (tens of microseconds); at 1 kHz a 60 s run is already 60,000 periods and the

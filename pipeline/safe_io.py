@@ -86,6 +86,7 @@ def read_bytes(path, argument: str | None = None, what: str = "file", limit: int
     the check cannot block: the file is opened non-blocking and checked again on the descriptor.
     """
     name = argument or str(path)
+    where = str(path) if argument else ""          # the path, when the error names an argument
     try:
         p = os.fspath(path)
     except TypeError:
@@ -98,9 +99,9 @@ def read_bytes(path, argument: str | None = None, what: str = "file", limit: int
         raise error(name, f"a readable {what}", str(path), detail=_oneline(getattr(exc, "strerror", None) or exc)) \
             from None
     if not stat.S_ISREG(st.st_mode):
-        raise error(name, f"a regular {what}", f"{path} ({_kind(st.st_mode)})")
+        raise error(name, f"a regular {what}", _kind(st.st_mode), detail=where)
     if st.st_size > limit:
-        raise error(name, f"a {what} of at most {limit:,} bytes", f"{path} ({st.st_size:,} bytes)")
+        raise error(name, f"a {what} of at most {limit:,} bytes", f"{st.st_size:,} bytes", detail=where)
     try:
         fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
     except OSError as exc:
@@ -108,7 +109,7 @@ def read_bytes(path, argument: str | None = None, what: str = "file", limit: int
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
-            raise error(name, f"a regular {what}", f"{path} ({_kind(st.st_mode)})")
+            raise error(name, f"a regular {what}", _kind(st.st_mode), detail=where)
         chunks, size = [], 0
         while size <= limit:
             chunk = os.read(fd, min(1 << 20, limit + 1 - size))
@@ -122,7 +123,7 @@ def read_bytes(path, argument: str | None = None, what: str = "file", limit: int
         os.close(fd)
     data = b"".join(chunks)
     if len(data) > limit:
-        raise error(name, f"a {what} of at most {limit:,} bytes", f"{path} (it grew while being read)")
+        raise error(name, f"a {what} of at most {limit:,} bytes", "more (it grew while being read)", detail=where)
     files = _RECORD.get()
     if files is not None:
         files.append({"path": str(Path(p).resolve()), "sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data)})
