@@ -69,7 +69,7 @@ MAX_PLANNER_SEED = 2**31 - 2
 MAX_BATCH_TRIALS = 1_000_000
 
 # ---- planning ---------------------------------------------------------------------------------
-#: the cost of one validity check that reaches FCL [s] (the slow case; measured about 64 us,
+#: the assumed cost of one validity check that reaches FCL [s] (the slow case: measured at about 64 us,
 #: see `nhstab bench planning`). A planning budget must afford one crossing of the map at the
 #: checking resolution at this cost, or the map is refused before anything is built
 FCL_CHECK_S = 64e-6

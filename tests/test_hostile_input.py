@@ -530,3 +530,43 @@ def test_a_report_leaves_no_figure_of_an_earlier_report(tmp_path):
     manifest = json.loads((report / MANIFEST).read_text())
     assert set(manifest["files"]) == {str(p.relative_to(report)) for p in report.rglob("*")
                                       if p.is_file() and p.name != MANIFEST}
+
+
+# ---- one loader, and the README's limits are the code's ---------------------------------------
+
+def test_every_yaml_read_goes_through_the_safe_loader():
+    """No module but nhstab.safe_io parses YAML (writing it, yaml.safe_dump, is fine)."""
+    offenders = []
+    for folder in ("pipeline", "cli"):
+        for path in (ROOT / folder).rglob("*.py"):
+            if path.name == "safe_io.py":
+                continue
+            text = path.read_text()
+            for needle in ("yaml.safe_load", "yaml.load(", "yaml.full_load", "yaml.unsafe_load", "yaml.compose"):
+                if needle in text:
+                    offenders.append(f"{path.relative_to(ROOT)}: {needle}")
+    assert not offenders, offenders
+
+
+def test_the_readme_limits_are_the_code_limits():
+    from nhstab import limits
+    from nhstab.clearance_field import ClearanceField
+
+    readme = (ROOT / "README.md").read_text()
+    section = readme[readme.index("### Limits"):readme.index("## Robot models") if "## Robot models" in
+                     readme[readme.index("### Limits"):] else None]
+    assert limits.MAX_YAML_BYTES == 2**20 and "1 MiB, nested 64 levels, 2,000,000 values" in section
+    assert limits.MAX_YAML_DEPTH == 64 and limits.MAX_YAML_NODES == 2_000_000
+    assert limits.MAX_FILE_BYTES == 256 * 2**20 and "256 MiB" in section
+    assert limits.MAX_GRID_CELLS == 4096**2 and "4096 x 4096 cells, cells of 0.1 mm to 1 km" in section
+    assert (limits.MIN_CELL_M, limits.MAX_CELL_M) == (1e-4, 1e3)
+    assert limits.MAX_COORD_M == 1e6 and "+-1,000 km" in section
+    assert limits.MAX_WORLD_OBJECTS == 100_000 and "100,000 objects" in section
+    assert limits.FCL_CHECK_S == 64e-6 and "64 us per FCL check" in section
+    assert round(2.0 * 0.05 / limits.FCL_CHECK_S / 100) / 10 == 1.6 and "1.6 km across for the default 2 s" in section
+    assert (limits.MIN_RATE_HZ, limits.MAX_RATE_HZ) == (1.0, 1000.0) and "1 to 1000 Hz" in section
+    assert limits.MAX_SUBSTEPS == 100 and limits.MAX_CONTROL_PERIODS == 2_000_000 and "2,000,000 control periods" in section
+    assert limits.MAX_SEED == 2**128 - 1 and limits.MAX_PLANNER_SEED == 2**31 - 2
+    assert "0 to 2**128 - 1" in section and "0 to 2**31 - 2" in section
+    assert limits.MAX_BATCH_TRIALS == 1_000_000 and "1,000,000 trials" in section
+    assert ClearanceField.MAX_CELLS == 4_000_000 and "4,000,000 cells" in section
