@@ -88,7 +88,7 @@ def open_store(config: BatchConfig, out_dir: Path, resume: bool) -> Store:
             store.set_meta("versions", versions())
             store.set_meta("created", time.time())
             store.db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
-        os.link(tmp, path)          # no-clobber: a store that appeared meanwhile is never replaced
+        _publish(tmp, path)
     except FileExistsError:
         raise InputError("--out", "a folder without a batch store (or --resume to continue it)", str(out_dir)) \
             from None
@@ -97,6 +97,19 @@ def open_store(config: BatchConfig, out_dir: Path, resume: bool) -> Store:
             if os.path.lexists(leftover):
                 os.unlink(leftover)
     return Store(path, writable=True, argument="--out")
+
+
+def _publish(tmp: str, path: Path) -> None:
+    """Give the finished new store its name without replacing one that appeared meanwhile: a hard
+    link (no-clobber), or where the file system has none, a rename after a last check."""
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise
+    except OSError:
+        if os.path.lexists(path):
+            raise FileExistsError(str(path)) from None
+        os.rename(tmp, path)
 
 
 def _difference(stored: dict, config: BatchConfig) -> str:

@@ -172,7 +172,12 @@ def convex_hull_2d(points: np.ndarray) -> np.ndarray:
 
 
 def _polygon(v: np.ndarray, path: Path, what: str) -> Polygon:
+    from ..limits import MAX_COORD_M
+
     v = _clean_ring(v)
+    if len(v) and not float(np.max(np.abs(v))) <= MAX_COORD_M:
+        raise MapError(f"{path.name}: {what}", f"coordinates within +-{MAX_COORD_M:g} m",
+                       f"{float(np.max(np.abs(v))):.6g} m")
     if len(v) < 3 or abs(signed_area(v)) <= 1e-12:
         raise MapError(f"{path.name}: {what}", "a polygon with at least 3 distinct vertices and non-zero area",
                        f"{len(v)} vertices")
