@@ -114,9 +114,12 @@ def replay(store_path, trial_id, out_dir, animate):
         extra, opts = load_run_config(cfg_path)
     cell = record["spec"]["cell_spec"]
     m = load(extra["map"], cell["cell_size"], None)
+    from nhstab.robot import resolve_robot
+
     click.echo(f"replaying {trial_id} (stored status: {record['status']})", err=True)
-    return execute_and_write(m, str(extra["map"]), opts, opts.start, opts.goal, out_dir, animate,
-                             robot_key=f"robot of trial {trial_id}", extra_files={"run_config.yaml": text})
+    robot = resolve_robot(opts.robot, m.robot, source="run config")
+    return execute_and_write(m, str(extra["map"]), opts, robot, opts.start, opts.goal, out_dir, animate,
+                             extra_files={"run_config.yaml": text})
 
 
 @batch.command("report")

@@ -43,9 +43,11 @@ SUBCOMMANDS = {
     "startup": "Import time: `nhstab --help` against `python -c pass`, whole processes.",
     "gains": "Gain schedule: N = 1e3, 1e4, 1e5 on the Hilare sinusoid, and the naive method at N = 1e3.",
     "collision": "FCL world build time and car pose checks per second on the Moving AI 512x512 and nav2 depot maps.",
-    "planning": "Time to a feasible, stabilizable nominal over 20 fixed start/goal pairs on two maps, two robots.",
+    "planning": "Time to a feasible, stabilizable nominal over 20 fixed start/goal pairs on two maps, two robots, "
+                "and the scale series on the Moving AI NewYork_1_512 scenarios.",
     "run": "Composite controller: replan latency on the depot and warehouse scenarios; cost of a control update.",
-    "batch": "Batch throughput: vectorised Hilare trials on one and two workers, a naive baseline, full map trials.",
+    "batch": "Batch throughput: vectorised Hilare trials on one and two workers against the competent per-trial "
+             "baseline (a naive one as an extra row), full map trials.",
 }
 
 

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from .options import robot_options
+
 
 def parse_pose(name: str, text: str | None):
     from nhstab.errors import InputError
@@ -58,11 +60,10 @@ def _arr(p):
     return None if p is None else p.as_array()
 
 
-def _footprint(m, robot):
-    from nhstab.geometry import default_footprint
+def _footprint(m, robot, robot_config=None):
+    from .options import cli_robot
 
-    model = robot or (m.robot or {}).get("model") or "unicycle"
-    return default_footprint(model)
+    return cli_robot(robot, robot_config, None, m.robot).footprint
 
 
 @click.group("map")
@@ -73,14 +74,14 @@ def map_group():
 @map_group.command("info")
 @click.argument("map_file", metavar="MAP", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-@click.option("--robot", default=None, help="Robot whose footprint checks the start/goal (default: the map's).")
+@robot_options
 @map_options
-def info(map_file, as_json, robot, cell_size, unknown):
+def info(map_file, as_json, robot, robot_config, cell_size, unknown):
     """Size, resolution, obstacle counts and free fraction of MAP."""
     from nhstab.report.maps import map_summary
 
     m = load(map_file, cell_size, unknown)
-    summary = map_summary(m, _footprint(m, robot))
+    summary = map_summary(m, _footprint(m, robot, robot_config))
     if as_json:
         from nhstab.records import to_jsonable
 
@@ -98,6 +99,8 @@ def info(map_file, as_json, robot, cell_size, unknown):
                f"(measured on {summary['free_fraction_cell_m']:.3g} m cells)")
     if summary["problems"]:
         click.echo(f"  problems    {summary['problems']} start/goal pairs")
+    for note in summary["notes"]:
+        click.echo(f"  note        {note}")
     for key in ("start", "goal"):
         if summary[key] is not None:
             x, y, th = summary[key]
@@ -111,11 +114,11 @@ def info(map_file, as_json, robot, cell_size, unknown):
               help="PNG to write (default: MAP's name with .png in the current folder).")
 @click.option("--start", default=None, help="Start pose x,y,theta (default: the map's).")
 @click.option("--goal", default=None, help="Goal pose x,y,theta (default: the map's).")
-@click.option("--robot", default=None, help="Robot whose footprint is drawn (default: the map's, else unicycle).")
+@robot_options
 @click.option("--problems", type=click.IntRange(min=0), default=0, show_default=True,
               help="Also draw this many of the map's start/goal problems.")
 @map_options
-def show(map_file, out, start, goal, robot, problems, cell_size, unknown):
+def show(map_file, out, start, goal, robot, robot_config, problems, cell_size, unknown):
     """Draw MAP: known obstacles solid, unknown dashed, bounds, start and goal with the footprint."""
     from nhstab.collision import check_poses
     from nhstab.records import save_figure
@@ -126,7 +129,7 @@ def show(map_file, out, start, goal, robot, problems, cell_size, unknown):
     if out is not None and (not str(out).strip() or str(out) in (".", "..") or str(out).endswith(("/", "\\"))):
         raise InputError("--out", "the path of a PNG file to write", str(out))
     m = load(map_file, cell_size, unknown)
-    fp = _footprint(m, robot)
+    fp = _footprint(m, robot, robot_config)
     s = parse_pose("--start", start) or _arr(m.start)
     g = parse_pose("--goal", goal) or _arr(m.goal)
     clear = check_poses(m, fp, {"start": s, "goal": g})

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 
@@ -34,3 +36,30 @@ def stabilizer_options(defaults: bool = True):
 def collect(**values) -> dict:
     """Drop the options left at None."""
     return {k: v for k, v in values.items() if v is not None}
+
+
+def robot_options(f):
+    """--robot NAME and --robot-config FILE (a robot description, see nhstab.robot)."""
+    f = click.option("--robot-config", "robot_config", type=click.Path(path_type=Path), default=None,
+                     help="Robot description (YAML: model, parameters, footprint, margin, ...); overrides --robot.")(f)
+    f = click.option("--robot", default=None,
+                     help="Robot model with its built-in description: unicycle, rwd_car, fwd_car "
+                          "(default: the config's, else the map's robot block, else unicycle).")(f)
+    return f
+
+
+def cli_robot(robot_name, robot_config, config_robot=None, map_robot=None):
+    """The robot of a command: --robot-config, else --robot, else the run config's, else the map's."""
+    from nhstab.errors import InputError
+    from nhstab.robot import load_robot, resolve_robot, robot_from_spec
+
+    if robot_config is not None:
+        return load_robot(robot_config)
+    if robot_name is not None:
+        try:
+            return robot_from_spec(robot_name, where="--robot", source="--robot")
+        except InputError as exc:
+            raise InputError("--robot", exc.expected, robot_name) from None
+    if config_robot is not None:
+        return robot_from_spec(config_robot, where="robot", source="run config")
+    return resolve_robot(None, map_robot)

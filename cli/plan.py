@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from .map import load, map_options, parse_pose
+from .options import cli_robot, robot_options
 
 #: exit code when the request is valid but no plan was found within the budget
 EXIT_NO_PLAN = 3
@@ -14,31 +15,36 @@ EXIT_NO_PLAN = 3
 
 @click.command()
 @click.argument("map_file", metavar="MAP", type=click.Path(path_type=Path))
-@click.option("--robot", default=None, help="unicycle, rwd_car or fwd_car (default: the map's, else unicycle).")
+@robot_options
 @click.option("--start", default=None, help="Start pose x,y,theta (default: the map's).")
 @click.option("--goal", default=None, help="Goal pose x,y,theta (default: the map's).")
 @click.option("--problem", type=int, default=None, help="Use the map's start/goal problem with this index.")
 @click.option("--planner", default="rrtconnect", show_default=True, help="OMPL planner: rrtconnect, rrtstar, bitstar, prmstar, ...")
 @click.option("--space", default="reeds_shepp", show_default=True, help="reeds_shepp (forward and reverse) or dubins.")
-@click.option("--turning-radius", type=float, default=None, help="[m] (default: the robot's minimum; unicycle 0.5).")
+@click.option("--turning-radius", type=float, default=None,
+              help="[m] (default: the robot's: unicycle 0.5, cars 1.25 x their minimum).")
 @click.option("--time-limit", type=float, default=2.0, show_default=True, help="Planning budget [s].")
 @click.option("--seed", type=int, default=0, show_default=True, help="OMPL's random seed for this call.")
-@click.option("--margin", type=float, default=0.1, show_default=True, help="Clearance to keep from known obstacles [m].")
+@click.option("--guide/--no-guide", default=True, show_default=True,
+              help="Guided search: a grid shortest path sets subgoals; --no-guide: OMPL over the whole map.")
+@click.option("--margin", type=float, default=None,
+              help="Clearance to keep from known obstacles [m] (default: the robot's margin).")
 @click.option("--max-speed", type=float, default=None, help="[m/s] (default: the robot's limit).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True)
 @map_options
-def plan(map_file, robot, start, goal, problem, planner, space, turning_radius, time_limit, seed, margin, max_speed,
-         out_dir, cell_size, unknown):
+def plan(map_file, robot, robot_config, start, goal, problem, planner, space, turning_radius, time_limit, seed, guide,
+         margin,
+         max_speed, out_dir, cell_size, unknown):
     """Plan on MAP and write trajectory.csv, trajectory.npz, plan.json and plan.png into OUT.
 
-    Exit code 2 for a bad request (start or goal out of bounds or in collision, unknown planner, zero
-    budget, ...), 3 when no plan was found within the budget (nothing is written then).
+    The robot (model, footprint, margin, turning radius, stabilizer) comes from --robot-config,
+    else --robot, else the map's robot block, else the unicycle. Exit code 2 for a bad request
+    (start or goal out of bounds or in collision, unknown planner, zero budget, ...), 3 when no plan
+    was found within the budget (nothing is written then).
     """
     from nhstab.execution import write_plan
-    from nhstab.geometry import default_footprint
     from nhstab.maps import resolve_poses
-    from nhstab.models import make_model
-    from nhstab.planning import PathOptions, TimingOptions, default_turning_radius, plan as make_plan
+    from nhstab.planning import PathOptions, TimingOptions, plan as make_plan
 
     from nhstab.errors import InputError
     from nhstab.limits import MAX_PLANNER_SEED, check_int
@@ -46,25 +52,23 @@ def plan(map_file, robot, start, goal, problem, planner, space, turning_radius, 
 
     check_int("--seed", seed, 0, MAX_PLANNER_SEED, "an integer (OMPL's seed)")
     m = load(map_file, cell_size, unknown)
-    name = robot or (m.robot or {}).get("model") or "unicycle"
-    if name not in PLANNABLE:
-        key = "--robot" if robot else f"robot.model of {map_file}"
-        raise InputError(key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)", name)
-    model = make_model(name)
-    fp = default_footprint(name)
+    rob = cli_robot(robot, robot_config, None, m.robot)
+    if rob.model.name not in PLANNABLE:
+        key = "--robot" if robot else ("--robot-config" if robot_config else f"robot.model (in {map_file})")
+        raise InputError(key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)", rob.model.name)
     s, g = resolve_poses(m, parse_pose("--start", start), parse_pose("--goal", goal), problem,
                          names=("--start", "--goal", "--problem"))
-    path_opts = PathOptions(space=space, turning_radius=default_turning_radius(model) if turning_radius is None else turning_radius, planner=planner,
-                            time_limit_s=time_limit, seed=seed, margin=margin)
-    result = make_plan(m, model, fp, s, g, path_opts, TimingOptions(max_speed=max_speed))
+    path_opts = PathOptions(space=space, turning_radius=turning_radius, planner=planner, time_limit_s=time_limit,
+                            seed=seed, margin=margin, guide=guide).for_robot(rob)
+    result = make_plan(m, rob, s, g, path_opts, TimingOptions(max_speed=max_speed))
     if not result.ok:
         click.echo(f"nhstab: no plan ({result.status}): {result.message}", err=True)
         return EXIT_NO_PLAN
-    write_plan(result, out_dir, m, str(map_file), model, fp, s, g, path_opts)
+    write_plan(result, out_dir, m, str(map_file), rob, s, g, path_opts)
     met = result.metrics
     cusps = met["cusps"]
-    click.echo(f"plan found: {met['length_m']:.2f} m, {cusps} cusp{'' if cusps == 1 else 's'}, "
-               f"{met['duration_s']:.1f} s, min clearance {met['min_clearance_m']:.3f} m, "
+    click.echo(f"plan found for {rob.name}: {met['length_m']:.2f} m, {cusps} cusp{'' if cusps == 1 else 's'}, "
+               f"{met['duration_s']:.1f} s, min clearance {met['min_clearance_m']:.3f} m (margin {path_opts.margin:g} m), "
                f"max gain {met['max_gain_norm']:.3g}")
     click.echo(f"wrote {out_dir}/trajectory.csv, trajectory.npz, plan.json, plan.png")
     return 0

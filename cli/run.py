@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from .map import load, map_options, parse_pose
+from .options import cli_robot, robot_options
 
 #: exit codes: the run ended but did not reach the goal (collision, replan failed, ...); no first plan
 EXIT_NOT_REACHED = 4
@@ -37,7 +38,7 @@ def parse_levels(name: str, text: str | None) -> dict | None:
 @click.argument("map_file", metavar="MAP", required=False, type=click.Path(path_type=Path))
 @click.option("--config", "config_file", type=click.Path(path_type=Path), default=None,
               help="Run config (YAML) giving any option; the command line overrides it.")
-@click.option("--robot", default=None, help="unicycle, rwd_car or fwd_car (default: the map's, else unicycle).")
+@robot_options
 @click.option("--start", default=None, help="Start pose x,y,theta (default: the map's).")
 @click.option("--goal", default=None, help="Goal pose x,y,theta (default: the map's).")
 @click.option("--problem", type=int, default=None, help="Use the map's start/goal problem with this index.")
@@ -55,15 +56,17 @@ def parse_levels(name: str, text: str | None) -> dict | None:
 @click.option("--seed", type=int, default=None, help="Root seed of the run (default 0).")
 @click.option("--planner", default=None, help="OMPL planner (default rrtconnect).")
 @click.option("--time-limit", type=float, default=None, help="Budget of each planning call [s] (default 2).")
-@click.option("--margin", type=float, default=None, help="Clearance nominals keep from known obstacles [m] (default: unicycle 0.1, rwd_car 0.3, fwd_car 0.2).")
+@click.option("--guide/--no-guide", default=None,
+              help="Guided search (default) or OMPL's planner over the whole map (planning.guide).")
+@click.option("--margin", type=float, default=None, help="Clearance nominals keep from known obstacles [m] (default: the robot's margin).")
 @click.option("--max-time", type=float, default=None, help="Simulated time limit [s].")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results/run"),
               show_default=True)
 @click.option("--animate", is_flag=True, help="Also write run.gif.")
 @map_options
-def run(map_file, config_file, robot, start, goal, problem, controller, window, alpha, delta, gamma, rate_hz,
-        noise_scale, initial_error, sensor_std, process_std, seed, planner, time_limit, margin, max_time, out_dir,
-        animate, cell_size, unknown):
+def run(map_file, config_file, robot, robot_config, start, goal, problem, controller, window, alpha, delta, gamma,
+        rate_hz, noise_scale, initial_error, sensor_std, process_std, seed, planner, time_limit, guide, margin, max_time,
+        out_dir, animate, cell_size, unknown):
     """Run the composite controller on MAP: plan, stabilize under noise, sense, monitor with FCL, replan.
 
     Writes run.json, trajectory.csv, run_map.png and run_tracking.png (and run.gif with --animate)
@@ -96,38 +99,33 @@ def run(map_file, config_file, robot, start, goal, problem, controller, window, 
     noise = replace(noise, **{k: {**getattr(noise, k), **v} for k, v in levels.items() if v is not None})
     if noise_scale is not None:
         noise = replace(noise, scale=noise_scale)
-    opts = merge(base, robot=robot, seed=seed, rate_hz=rate_hz, max_time_s=max_time, noise=noise,
+    opts = merge(base, seed=seed, rate_hz=rate_hz, max_time_s=max_time, noise=noise,
                  controller__kind=controller, controller__window=window, controller__alpha=alpha,
                  controller__delta=delta, controller__gamma=gamma, planning__planner=planner,
-                 planning__time_limit_s=time_limit, planning__margin=margin)
+                 planning__time_limit_s=time_limit, planning__margin=margin, planning__guide=guide)
     from nhstab.maps import resolve_poses
 
     m = load(map_path, cell_size, unknown)
+    rob = cli_robot(robot, robot_config, opts.robot, m.robot)
     s, g = resolve_poses(m, parse_pose("--start", start) or opts.start, parse_pose("--goal", goal) or opts.goal,
                          problem, names=("--start", "--goal", "--problem"))
-    robot_key = "--robot" if robot else (f"robot (in {config_file})" if base.robot else f"robot.model (in {map_path})")
-    return execute_and_write(m, str(map_path), opts, s, g, out_dir, animate, robot_key=robot_key)
+    robot_key = ("--robot" if robot else "--robot-config" if robot_config else
+                 f"robot (in {config_file})" if opts.robot is not None else f"robot.model (in {map_path})")
+    return execute_and_write(m, str(map_path), opts, rob, s, g, out_dir, animate, robot_key=robot_key)
 
 
-def execute_and_write(m, map_path: str, opts, start, goal, out_dir: Path, animate: bool, robot_key: str = "robot",
-                      extra_files: dict | None = None) -> int:
-    import numpy as np
-
-    from nhstab.execution import execute, write_run
-    from nhstab.geometry import default_footprint
-    from nhstab.models import make_model
-
+def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path, animate: bool,
+                      robot_key: str = "robot", extra_files: dict | None = None) -> int:
     from nhstab.errors import InputError
+    from nhstab.execution import execute, write_run
     from nhstab.planning import PLANNABLE
 
-    name = opts.robot or (m.robot or {}).get("model") or "unicycle"
-    if name not in PLANNABLE:
-        raise InputError(robot_key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)", name)
-    model = make_model(name)
-    fp = default_footprint(name)
-    opts.validated(model.state_names, model.m)          # every option checked before anything runs
-    click.echo(f"running {opts.controller.kind} control of a {name} on {m.name} (seed {opts.seed}) ...", err=True)
-    result = execute(m, model, fp, np.asarray(start, float), np.asarray(goal, float), opts)
+    if robot.model.name not in PLANNABLE:
+        raise InputError(robot_key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)",
+                         robot.model.name)
+    opts.validated(robot.model.state_names, robot.model.m)      # every option checked before anything runs
+    click.echo(f"running {opts.controller.kind} control of {robot.name} on {m.name} (seed {opts.seed}) ...", err=True)
+    result = execute(m, robot, start, goal, opts)
     files = write_run(result, out_dir, map_path, animate=animate, extra_files=extra_files)
     replans = sum(1 for p in result.plans if p.trigger != "initial")
     click.echo(f"{result.status}: {result.message}")

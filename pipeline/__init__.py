@@ -10,12 +10,14 @@ The names a user needs for the common jobs are here, at the top (each is documen
 =======================  ==========================================================================
 ``load_map(path)``       any supported map file, or ``"example:NAME"`` (a bundled one) -> ``Map``
 ``list_examples()``      the bundled maps and scenarios (``nhstab examples``)
-``make_model(name)``     a robot model by name (``unicycle``, ``rwd_car``, ``fwd_car``, ``heisenberg``)
-``default_footprint``    the footprint nhstab uses for a model by default
-``plan(...)``            map + robot + start/goal -> ``PlanResult`` with a feasible ``Nominal``
+``make_robot(model)``    a robot: model, parameters, footprint, margin, stabilizer defaults (``Robot``)
+``load_robot(path)``     a robot described in YAML (``--robot-config``); ``default_robot(name)``
+``make_model(name)``     a bare model by name (``unicycle``, ``rwd_car``, ``fwd_car``, ``heisenberg``)
+``default_footprint``    the footprint of a model's built-in robot
+``plan(m, robot, s, g)`` map + robot + start/goal -> ``PlanResult`` with a feasible ``Nominal``
 ``PathOptions``          options of the planning search (planner, budget, seed, margin)
 ``compute_schedule``     the gramian gain schedule along a nominal (``StabilizerOptions``)
-``execute(...)``         one run of the composite controller -> ``RunResult``
+``execute(m, robot)``    one run of the composite controller -> ``RunResult``
 ``RunOptions``           options of a run (controller, noise, sensing, replanning); ``load_run_config``
 ``write_run``            a run's files (run.json, trajectory.csv, figures)
 ``load_batch_config``    a Monte Carlo batch config; ``run_batch`` runs it into a store
@@ -39,7 +41,11 @@ _PUBLIC = {
     "Map": "nhstab.maps",
     "list_examples": "nhstab.examples",
     "make_model": "nhstab.models",
-    "default_footprint": "nhstab.geometry",
+    "make_robot": "nhstab.robot",
+    "load_robot": "nhstab.robot",
+    "default_robot": "nhstab.robot",
+    "Robot": "nhstab.robot",
+    "default_footprint": "nhstab.robot",
     "plan": "nhstab.planning",
     "PathOptions": "nhstab.planning",
     "PlanResult": "nhstab.planning",

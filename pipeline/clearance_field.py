@@ -22,7 +22,9 @@ class ClearanceField:
 
     Cells of size r are marked occupied when an obstacle may touch them: cells whose centre lies in
     an obstacle, cells holding a point of its boundary sampled every r/2, then grown by one cell
-    (so a corner clipped between two samples is covered too); circles mark every cell within
+    (so a corner clipped between two samples is covered too); an axis-aligned box whose corners lie
+    on the raster's cell boundaries (the cells of an occupancy grid on its own raster) marks exactly
+    the cells it is made of, which hold all of its points; circles mark every cell within
     radius + r/sqrt(2) of their centre; everything outside the bounds counts as occupied (the
     walls). With D the Euclidean distance transform between cell centres, every point p satisfies
     dist(p, obstacles) >= D(cell of p) - sqrt(2) r: p and the obstacle point each lie within
@@ -30,6 +32,9 @@ class ClearanceField:
     """
 
     MAX_CELLS = 4_000_000
+    #: mark axis-aligned boxes (a grid's cells) all at once (False: one by one, as other polygons;
+    #: the same cells, tests/test_collision.py compares them)
+    VECTORISED_BOXES = True
     #: elements of the (poses x footprint points) arrays of one vectorised block
     BLOCK = 1 << 16
 
@@ -37,8 +42,7 @@ class ClearanceField:
         """``bounds`` (xmin, ymin, xmax, ymax); ``resolutions``: the cell sizes of the map's grids (the
         raster uses the finest, else 1/512 of the larger side); ``outlines``: the obstacles, each
         ("poly", vertices (k, 2) convex part or polygon) or ("circle", centre, radius)."""
-        from matplotlib.path import Path as MplPath
-        from scipy.ndimage import binary_dilation, binary_erosion, distance_transform_edt
+        from scipy.ndimage import distance_transform_edt
 
         xmin, ymin, xmax, ymax = bounds
         r = min(resolutions, default=max(xmax - xmin, ymax - ymin) / 512)
@@ -54,6 +58,35 @@ class ClearanceField:
         ys = self.y0 + (np.arange(rows) + 0.5) * r
         occ[:, xs < xmin] = occ[:, xs > xmax] = True
         occ[ys < ymin, :] = occ[ys > ymax, :] = True
+        more, self.inside = self._mark(outlines, occ.shape)
+        self.lower_bound = distance_transform_edt(~(occ | more)) * r - math.sqrt(2) * r
+
+    def with_outlines(self, outlines) -> "ClearanceField":
+        """The field of these obstacles added to this one's, on the same raster: the distance to a union
+        is the smaller of the distances, so only the new obstacles are rasterised."""
+        from scipy.ndimage import distance_transform_edt
+
+        new = object.__new__(ClearanceField)
+        new.r, new.x0, new.y0 = self.r, self.x0, self.y0
+        occ, inside = new._mark(outlines, self.lower_bound.shape)
+        new.inside = self.inside | inside
+        if occ.any():
+            bound = distance_transform_edt(~occ) * self.r - math.sqrt(2) * self.r
+            new.lower_bound = np.minimum(self.lower_bound, bound)
+        else:
+            new.lower_bound = self.lower_bound
+        return new
+
+    def _mark(self, outlines, shape):
+        """(occupied, inside) rasters of the obstacles (see the class docstring)."""
+        from matplotlib.path import Path as MplPath
+        from scipy.ndimage import binary_dilation, binary_erosion
+
+        r = self.r
+        rows, cols = shape
+        occ = np.zeros(shape, dtype=bool)
+        xs = self.x0 + (np.arange(cols) + 0.5) * r
+        ys = self.y0 + (np.arange(rows) + 0.5) * r
         grown = np.zeros_like(occ)
         # cells certainly inside an obstacle: per convex part, cells whose 3 x 3 block of centres is
         # inside (by convexity the cell lies in the square those centres span); per circle, cells
@@ -61,7 +94,7 @@ class ClearanceField:
         self.inside = np.zeros_like(occ)
         # axis-aligned boxes (every merged cell block of a grid): all at once, as the loop below
         # would mark them one by one
-        quads = [k for k, o in enumerate(outlines) if o[0] != "circle" and len(o[1]) == 4]
+        quads = [k for k, o in enumerate(outlines) if o[0] != "circle" and len(o[1]) == 4] if self.VECTORISED_BOXES else []
         if quads:
             v = np.stack([outlines[k][1] for k in quads])                       # (q, 4, 2)
             d = np.roll(v, -1, axis=1) - v
@@ -69,7 +102,7 @@ class ClearanceField:
             if aligned.any():
                 va = v[aligned]
                 self._add_boxes(np.column_stack([va[..., 0].min(1), va[..., 1].min(1), va[..., 0].max(1),
-                                                 va[..., 1].max(1)]), grown, xs, ys)
+                                                 va[..., 1].max(1)]), occ, grown, xs, ys)
                 done = {quads[k] for k in np.flatnonzero(aligned)}
                 outlines = [o for k, o in enumerate(outlines) if k not in done]
         for outline in outlines:
@@ -87,14 +120,21 @@ class ClearanceField:
             if jb > ja and ib > ia:
                 X, Y = np.meshgrid(xs[ja:jb], ys[ia:ib])
                 inside = MplPath(v).contains_points(np.column_stack([X.ravel(), Y.ravel()])).reshape(X.shape)
-                grown[ia:ib, ja:jb] |= inside
                 if axis_aligned_box(v):
                     # exactly the cells whose whole square lies in the box
                     tol = 1e-9 * r
                     inx = (xs[ja:jb] - r / 2 >= v[:, 0].min() - tol) & (xs[ja:jb] + r / 2 <= v[:, 0].max() + tol)
                     iny = (ys[ia:ib] - r / 2 >= v[:, 1].min() - tol) & (ys[ia:ib] + r / 2 <= v[:, 1].max() + tol)
-                    self.inside[ia:ib, ja:jb] |= iny[:, None] & inx[None, :]
+                    cells = iny[:, None] & inx[None, :]
+                    self.inside[ia:ib, ja:jb] |= cells
+                    if _on_raster(v, self.x0, self.y0, r):
+                        # a box made of whole raster cells (an occupancy grid's cells): those cells
+                        # hold every point of it, so they alone are marked (the bound's premise)
+                        occ[ia:ib, ja:jb] |= cells
+                        continue
+                    grown[ia:ib, ja:jb] |= inside
                 else:
+                    grown[ia:ib, ja:jb] |= inside
                     self.inside[ia:ib, ja:jb] |= binary_erosion(inside, structure=np.ones((3, 3), dtype=bool),
                                                                 border_value=0)
             a, b = v, np.roll(v, -1, axis=0)
@@ -106,28 +146,46 @@ class ClearanceField:
             j = np.clip(np.floor((pts[:, 0] - self.x0) / r).astype(int), 0, cols - 1)
             i = np.clip(np.floor((pts[:, 1] - self.y0) / r).astype(int), 0, rows - 1)
             grown[i, j] = True
-        occ |= binary_dilation(grown, structure=np.ones((3, 3), dtype=bool))
-        self.lower_bound = distance_transform_edt(~occ) * r - math.sqrt(2) * r
+        if grown.any():
+            occ |= binary_dilation(grown, structure=np.ones((3, 3), dtype=bool))
+        return occ, self.inside
 
-    def _add_boxes(self, b: np.ndarray, grown: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> None:
-        """Axis-aligned boxes (k, 4) = (xmin, ymin, xmax, ymax), with the same cells as the per-outline
-        loop marks for them: ``grown`` gets every cell the closed box touches (its boundary cells and
-        the cells whose centre it contains: together, the index rectangle of its corners, clipped to
-        the raster as the boundary samples are), ``inside`` the cells whose whole square lies in it.
-        Rectangles are filled through a 2-D difference array: O(cells + boxes)."""
+    def _add_boxes(self, b: np.ndarray, occ: np.ndarray, grown: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> None:
+        """Axis-aligned boxes (k, 4) = (xmin, ymin, xmax, ymax), marked all at once with exactly the
+        cells the loop in :meth:`_mark` marks for them one by one: ``inside`` gets the cells whose
+        whole square lies in a box; a box made of whole raster cells (on the raster, and meeting it)
+        puts those cells in ``occ``; any other box puts in ``grown`` every cell it touches (its
+        boundary cells and the cells whose centre it contains: together, the index rectangle of its
+        corners, clipped to the raster as the boundary samples are). Rectangles are filled through a
+        2-D difference array: O(cells + boxes) instead of a Python loop per box (a grid's cells)."""
         rows, cols = grown.shape
         r = self.r
-        j0 = np.clip(np.floor((b[:, 0] - self.x0) / r).astype(np.int64), 0, cols - 1)
-        i0 = np.clip(np.floor((b[:, 1] - self.y0) / r).astype(np.int64), 0, rows - 1)
-        j1 = np.clip(np.floor((b[:, 2] - self.x0) / r).astype(np.int64), 0, cols - 1)
-        i1 = np.clip(np.floor((b[:, 3] - self.y0) / r).astype(np.int64), 0, rows - 1)
-        grown |= _fill(rows, cols, i0, j0, i1 + 1, j1 + 1)
         tol = 1e-9 * r
         jlo = np.searchsorted(xs - r / 2, b[:, 0] - tol, side="left")
         jhi = np.searchsorted(xs + r / 2, b[:, 2] + tol, side="right")
         ilo = np.searchsorted(ys - r / 2, b[:, 1] - tol, side="left")
         ihi = np.searchsorted(ys + r / 2, b[:, 3] + tol, side="right")
-        self.inside |= _fill(rows, cols, ilo, jlo, ihi, jhi)
+        cells = _fill(rows, cols, ilo, jlo, ihi, jhi)
+        self.inside |= cells
+        # the loop's span test (cells whose centres may lie in the box) and _on_raster, per box
+        ja = np.maximum(0, np.floor((b[:, 0] - self.x0) / r - 0.5)).astype(np.int64)
+        jb = np.minimum(cols, np.ceil((b[:, 2] - self.x0) / r + 0.5)).astype(np.int64)
+        ia = np.maximum(0, np.floor((b[:, 1] - self.y0) / r - 0.5)).astype(np.int64)
+        ib = np.minimum(rows, np.ceil((b[:, 3] - self.y0) / r + 0.5)).astype(np.int64)
+        u = np.column_stack([(b[:, 0] - self.x0) / r, (b[:, 2] - self.x0) / r, (b[:, 1] - self.y0) / r,
+                             (b[:, 3] - self.y0) / r])
+        on = np.all(np.abs(u - np.round(u)) <= 1e-9 * np.maximum(1.0, np.abs(u).max(axis=1))[:, None], axis=1)
+        exact = on & (jb > ja) & (ib > ia)
+        if exact.any():
+            occ |= _fill(rows, cols, ilo[exact], jlo[exact], ihi[exact], jhi[exact])
+        rest = ~exact
+        if rest.any():
+            c = b[rest]
+            j0 = np.clip(np.floor((c[:, 0] - self.x0) / r).astype(np.int64), 0, cols - 1)
+            i0 = np.clip(np.floor((c[:, 1] - self.y0) / r).astype(np.int64), 0, rows - 1)
+            j1 = np.clip(np.floor((c[:, 2] - self.x0) / r).astype(np.int64), 0, cols - 1)
+            i1 = np.clip(np.floor((c[:, 3] - self.y0) / r).astype(np.int64), 0, rows - 1)
+            grown |= _fill(rows, cols, i0, j0, i1 + 1, j1 + 1)
 
     def _span(self, lo, hi, origin, n):
         """Index range [a, b) of the cells whose centres may lie in [lo, hi]."""
@@ -214,6 +272,12 @@ def footprint_points(fp: Footprint, spacing: float | None) -> np.ndarray:
     n = np.maximum(1, np.ceil(np.hypot(*(b - v).T) / spacing)).astype(int)
     t = np.concatenate([np.arange(k) / k for k in n])
     return np.vstack([[0.0, 0.0], np.repeat(v, n, axis=0) + t[:, None] * np.repeat(b - v, n, axis=0)])
+
+
+def _on_raster(v: np.ndarray, x0: float, y0: float, r: float) -> bool:
+    """Do the corners of an axis-aligned box lie on the raster's cell boundaries?"""
+    u = np.concatenate([(v[:, 0] - x0) / r, (v[:, 1] - y0) / r])
+    return bool(np.all(np.abs(u - np.round(u)) <= 1e-9 * max(1.0, float(np.abs(u).max()))))
 
 
 def axis_aligned_box(v: np.ndarray) -> bool:

@@ -163,20 +163,3 @@ class Footprint:
         if self.radius is not None:
             return {"type": "disc", "radius": self.radius}
         return {"type": "polygon", "vertices": self.vertices.tolist(), "label": self.label}
-
-
-#: default footprints per robot model (reference point as documented above)
-DEFAULT_FOOTPRINTS = {
-    "unicycle": lambda: Footprint.disc(0.3),
-    "heisenberg": lambda: Footprint.disc(0.1),
-    "rwd_car": lambda: Footprint.rectangle(4.2, 1.8, rear_overhang=0.9),    # wheelbase 2.5 m
-    "fwd_car": lambda: Footprint.rectangle(1.6, 0.8, rear_overhang=0.3),    # wheelbase 1 m
-}
-
-
-def default_footprint(model_name: str) -> Footprint:
-    """The footprint nhstab uses for a model when none is given (see ``DEFAULT_FOOTPRINTS``)."""
-    try:
-        return DEFAULT_FOOTPRINTS[model_name]()
-    except KeyError:
-        raise InputError("model", "one of " + ", ".join(sorted(DEFAULT_FOOTPRINTS)), model_name) from None

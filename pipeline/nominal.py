@@ -166,17 +166,104 @@ class Nominal:
         return Nominal(self.model, t, x, u, x_func=self._x_func, u_func=self._u_func, source=self.source)
 
     def feasibility_residual(self, rtol: float = 1e-10, atol: float = 1e-12) -> float:
-        """max |x(t) - x0(t)| over the grid when the model is integrated from x0(t0) under u0 with an
-        adaptive integrator independent of how x0 was made (DOP853, at most one grid step per step so
-        that it cannot step over a short feature of u0; its error control handles the jumps of u0,
-        which a fixed-step method would not)."""
-        def rhs(tt, xx):
-            return self.model.rhs(xx, np.asarray(self._u_func(np.array([tt])), dtype=float)[0])
-        sol = solve_ivp(rhs, (self.t[0], self.t[-1]), self.x[0], method="DOP853", t_eval=self.t, rtol=rtol,
-                        atol=atol, max_step=float(np.min(np.diff(self.t))))
-        if not sol.success:
-            raise NumericalError(f"checking feasibility failed: {sol.message}")
-        return float(np.max(np.abs(sol.y.T - self.x)))
+        """max |x(t_k) - x0(t_k)| over the grid when the model is integrated from x0(t0) under u0,
+        independently of how x0 was made.
+
+        Computed by multiple shooting, vectorised over the grid: every interval [t_k, t_k+1] is
+        integrated from x0(t_k) under u0 with steps of the 8th-order Dormand-Prince tableau (scipy's
+        DOP853 coefficients), all intervals at once, u0 evaluated at every stage time in one call. An
+        interval whose end changes by more than atol + rtol |x| when its step is halved (u0 jumps
+        inside it, e.g. where a path's curvature does) is split into pieces, recursively, as an
+        adaptive integrator would refine its step there. The local defects d_k = x(t_k+1; x0(t_k)) -
+        x0(t_k+1) then give the deviation of one integration from the start, e_k+1 = Phi_k e_k + d_k,
+        with Phi_k the pieces' transition matrices (second order in the piece's length, plenty for a
+        correction to e, whose size is the residual itself), composed by a parallel prefix scan."""
+        model = self.model
+        n = model.n
+        t = self.t
+        shoot = _Shooting(model, self._u_func, rtol, atol)
+        t0, t1, x_start, x_end = t[:-1], t[1:], self.x[:-1], self.x[1:]
+        node = np.arange(1, len(t))            # the grid node each piece ends at (-1: an inner point)
+        pieces = []                             # (t0, t1, X - x0(t1), node) of the pieces that converged
+        for depth in range(shoot.MAX_DEPTH + 1):
+            X, bad = shoot.interval(t0, t1, x_start, last=depth == shoot.MAX_DEPTH)
+            good = ~bad
+            pieces.append((t0[good], t1[good], X[good] - x_end[good], node[good]))
+            if not bad.any():
+                break
+            # split each such interval into SPLIT pieces, each starting from x0 at its start
+            q = shoot.SPLIT
+            frac = np.arange(1, q) / q
+            inner = (t0[bad, None] + (t1[bad] - t0[bad])[:, None] * frac[None, :]).reshape(-1)
+            x_in = np.asarray(self._x_func(inner), dtype=float).reshape(-1, q - 1, n)
+            tt = np.concatenate([t0[bad, None], inner.reshape(-1, q - 1), t1[bad, None]], axis=1)
+            xs = np.concatenate([x_start[bad, None], x_in, x_end[bad, None]], axis=1)
+            nodes = np.concatenate([np.full((len(tt), q - 1), -1), node[bad, None]], axis=1)
+            t0, t1 = tt[:, :-1].reshape(-1), tt[:, 1:].reshape(-1)
+            x_start, x_end = xs[:, :-1].reshape(-1, n), xs[:, 1:].reshape(-1, n)
+            node = nodes.reshape(-1)
+        a, b, defect, node = (np.concatenate([p[i] for p in pieces]) for i in range(4))
+        order = np.argsort(a, kind="stable")
+        a, b, defect, node = a[order], b[order], defect[order], node[order]
+        if not np.all(np.isfinite(defect)):
+            raise NumericalError("checking feasibility failed: the integration is not finite")
+        # transition matrices of the pieces: exp(h A) to second order, A at the piece's middle
+        mid = 0.5 * (a + b)
+        x_mid, u_mid = self.at(mid)
+        hA = (b - a)[:, None, None] * model.linearize(x_mid, u_mid)[0]
+        Phi = np.eye(n) + hA + 0.5 * (hA @ hA)
+        # e after piece k: the composition (Phi, d)_k o ... o (Phi, d)_0 applied to 0 (Hillis-Steele scan)
+        P, D = Phi, defect
+        shift = 1
+        while shift < len(D):
+            D = np.concatenate([D[:shift], np.einsum("kij,kj->ki", P[shift:], D[:-shift]) + D[shift:]])
+            P = np.concatenate([P[:shift], P[shift:] @ P[:-shift]])
+            shift *= 2
+        at_nodes = D[node >= 0]
+        return float(np.max(np.abs(at_nodes))) if len(at_nodes) else 0.0
+
+
+class _Shooting:
+    """Many intervals integrated at once by DOP853 steps."""
+
+    #: steps per interval, against twice as many for the error estimate
+    SUBSTEPS = 1
+    #: an interval that does not converge is split into this many pieces, at most MAX_DEPTH times
+    SPLIT = 16
+    MAX_DEPTH = 12
+
+    def __init__(self, model: Model, u_func: ArrayFn, rtol: float, atol: float):
+        from scipy.integrate import DOP853
+
+        self.model, self.u_func, self.rtol, self.atol = model, u_func, rtol, atol
+        self.stages = DOP853.n_stages
+        self.A = np.asarray(DOP853.A, dtype=float)[: self.stages, : self.stages]
+        self.B = np.asarray(DOP853.B, dtype=float)
+        self.C = np.asarray(DOP853.C, dtype=float)[: self.stages]
+
+    def steps(self, t0, t1, x0, substeps: int):
+        model, K = self.model, len(t0)
+        h = (t1 - t0) / substeps
+        offsets = (np.arange(substeps)[:, None] + self.C[None, :]).reshape(-1)
+        taus = t0[:, None] + h[:, None] * offsets[None, :]
+        u_all = np.asarray(self.u_func(taus.reshape(-1)), dtype=float).reshape(K, -1, model.m)
+        X = x0.copy()
+        kx = np.empty((self.stages, K, model.n))
+        hh = h[:, None]
+        for j in range(substeps):
+            for i in range(self.stages):
+                Xi = X + hh * np.tensordot(self.A[i, :i], kx[:i], axes=1) if i else X
+                kx[i] = model.rhs(Xi, u_all[:, j * self.stages + i])
+            X = X + hh * np.tensordot(self.B, kx, axes=1)
+        return X
+
+    def interval(self, t0, t1, x0, last: bool = False):
+        """(X, bad): the state at the end of each interval, and where halving the step changed it by
+        more than the tolerance (never on the ``last`` refinement)."""
+        X1 = self.steps(t0, t1, x0, self.SUBSTEPS)
+        X2 = self.steps(t0, t1, x0, 2 * self.SUBSTEPS)
+        err = np.max(np.abs(X2 - X1) - self.rtol * np.abs(X2), axis=1)
+        return X2, (err > self.atol) & (not last)
 
 
 class _LinearInterpolant:

@@ -145,10 +145,10 @@ def read_text(path, argument: str | None = None, what: str = "file", limit: int 
 
 def load_yaml_file(path, argument: str | None = None, what: str = "YAML file", error=InputError):
     """Read ``path`` (:func:`read_text`, at most ``MAX_YAML_BYTES``) and :func:`load_yaml` it.
-    Errors about reading name ``argument`` (or the path); errors in the document name the path and
-    the key path inside it (e.g. ``run.yaml: noise.scale``)."""
+    Errors about reading name ``argument`` (or the path); errors in the document name the argument,
+    the path and the key path inside it (e.g. ``--config run.yaml: noise.scale``)."""
     text = read_text(path, argument, what, MAX_YAML_BYTES, error)
-    return load_yaml(text, str(path), error)
+    return load_yaml(text, f"{argument} {path}" if argument else str(path), error)
 
 
 def load_yaml(text: str, source: str, error=InputError):

@@ -13,7 +13,7 @@ from nhstab.errors import InputError
 from nhstab.execution import ControllerOptions, Plant, RunOptions, build_law, execute, summary
 from nhstab.execution.config import NoiseOptions
 from nhstab.execution.runner import seed_for
-from nhstab.geometry import default_footprint
+from nhstab.robot import default_footprint
 from nhstab.maps.base import Map, Pose, box_polygon
 from nhstab.models import make_model
 from nhstab.nominal import Nominal

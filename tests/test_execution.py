@@ -17,7 +17,7 @@ from nhstab.execution import ControllerOptions, Plant, RunOptions, build_law, ex
 from nhstab.execution.config import NoiseOptions, load_run_config, merge
 from nhstab.execution.outputs import nominal_cusps
 from nhstab.execution.runner import planner_seed
-from nhstab.geometry import default_footprint
+from nhstab.robot import default_footprint
 from nhstab.maps.base import Map, Pose, box_polygon
 from nhstab.models import make_model
 from nhstab.nominal import Nominal
@@ -250,3 +250,38 @@ def test_a_zero_margin_is_a_valid_request():
     """planning.margin = 0 plans (it used to be mistaken for a start in contact)."""
     r = _run(_open_map(), noise=NoiseOptions(scale=0.0), planning=replace(RunOptions().planning, margin=0.0))
     assert r.status == "reached" and r.plans[0].margin == 0.0
+
+
+def test_the_first_plan_is_retried_with_new_seeds_then_a_larger_budget(monkeypatch):
+    """The planner fails twice: the run retries the first plan (new seed each time, the third attempt
+    with budget_growth times the budget) and then reaches the goal; the attempts are recorded."""
+    import nhstab.execution.runner as runner
+    from nhstab.execution.config import PlanningOptions, ReplanOptions
+    from nhstab.planning import PlanResult
+
+    real, calls = runner.plan, []
+
+    def flaky(m, robot, start, goal, path_opts, *args, **kw):
+        calls.append(path_opts)
+        if len(calls) <= 2:
+            return PlanResult("no_path", "no collision-free path found (injected)", None)
+        return real(m, robot, start, goal, path_opts, *args, **kw)
+
+    monkeypatch.setattr(runner, "plan", flaky)
+    r = _run(_open_map(), seed=4, planning=PlanningOptions(time_limit_s=0.5), replan=ReplanOptions(budget_growth=3.0))
+    assert r.status == "reached"
+    first = r.plans[0]
+    assert [a["status"] for a in first.attempts] == ["no_path", "no_path", "ok"]
+    assert [c.time_limit_s for c in calls[:3]] == [0.5, 0.5, 1.5]
+    assert len({c.seed for c in calls[:3]}) == 3
+    assert r.seeds["planner_calls"][:3] == [c.seed for c in calls[:3]]
+
+
+def test_no_first_plan_after_every_attempt(monkeypatch):
+    import nhstab.execution.runner as runner
+    from nhstab.planning import PlanResult
+
+    monkeypatch.setattr(runner, "plan", lambda *a, **k: PlanResult("no_path", "none (injected)", None))
+    r = _run(_open_map(), seed=1)
+    assert r.status == "no_plan" and len(r.plans[0].attempts) == 3
+    assert "3 attempts" in r.message

@@ -255,7 +255,7 @@ unknown_obstacles:
   - circle: {center: [5, 5], radius: 0.3}
 start: [0.5, 5, 0]
 goal: [9, 9, 1.57]
-robot: {model: unicycle, radius: 0.5}
+robot: {model: unicycle, footprint: {radius: 0.5}}
 """
 
 
@@ -268,7 +268,7 @@ def test_valid_tiny_yaml(tmp_path):
     assert isinstance(m.obstacles[1], Circle) and m.obstacles[1].radius == 1.0
     box = sg.Polygon(m.obstacles[2].vertices)
     assert box.area == pytest.approx(2.0, abs=1e-12) and box.centroid.x == pytest.approx(7, abs=1e-12)
-    assert m.robot == {"model": "unicycle", "radius": 0.5}
+    assert m.robot == {"model": "unicycle", "footprint": {"radius": 0.5}}
     assert (m.start.x, m.start.y, m.start.theta) == (0.5, 5.0, 0.0)
     # no name -> file stem; a closing point equal to the first is dropped
     p2 = tmp_path / "other.yaml"
@@ -305,9 +305,12 @@ YAML_ERRORS = [
     ("goal_in_box", _mutate("goal: [9, 9, 1.57]", "goal: [7, 2, 0]"), "goal"),
     ("obstacles_not_list", _mutate("unknown_obstacles:\n  - circle: {center: [5, 5], radius: 0.3}",
                                    "unknown_obstacles: {circle: 1}"), "unknown_obstacles"),
-    ("robot_no_model", _mutate("robot: {model: unicycle, radius: 0.5}", "robot: {radius: 0.5}"), "robot.model"),
-    ("robot_nan", _mutate("robot: {model: unicycle, radius: 0.5}", "robot: {model: unicycle, radius: .nan}"),
-     "robot.radius"),
+    ("robot_no_model", _mutate("robot: {model: unicycle, footprint: {radius: 0.5}}", "robot: {footprint: {radius: 0.5}}"),
+     "robot.model"),
+    ("robot_nan", _mutate("robot: {model: unicycle, footprint: {radius: 0.5}}",
+                          "robot: {model: unicycle, footprint: {radius: .nan}}"), "robot.footprint.radius"),
+    ("robot_unknown_key", _mutate("robot: {model: unicycle, footprint: {radius: 0.5}}",
+                                  "robot: {model: unicycle, radius: 0.5}"), "robot.radius"),
     ("missing_base", VALID + "base: {format: ros, path: nowhere/depot.yaml}\n", "base.path"),
     ("base_unknown_format", VALID + "base: {format: gif, path: x.gif}\n", "base.format"),
     ("base_bad_unknown", VALID + "base: {format: ros, path: x.yaml, unknown: maybe}\n", "base.unknown"),

@@ -15,6 +15,43 @@ def test_integrated_nominal_is_feasible():
     assert nom.feasibility_residual() < 1e-9
 
 
+def test_feasibility_residual_of_a_known_deviation():
+    """x0 = the exact Hilare sinusoid plus a bump in y that starts at 0: the integration from x0(0)
+    under u0 is the exact trajectory, so the residual is the bump's largest value at the grid points."""
+    exact = hilare_sinusoid(2 * np.pi, hz=50)
+
+    def x_func(t):
+        x = exact.at(t)[0].copy()
+        x[..., 1] += 1e-4 * np.sin(0.5 * np.asarray(t)) ** 2
+        return x
+
+    nom = Nominal.from_functions(make_model("unicycle"), x_func, lambda t: exact.at(t)[1], exact.t)
+    bump = 1e-4 * np.sin(0.5 * exact.t) ** 2
+    assert nom.feasibility_residual() == pytest.approx(bump.max(), rel=1e-6)
+
+
+def test_feasibility_residual_refines_where_the_input_jumps():
+    """The turn rate jumps from 0 to 1 rad/s at t = 1.2345 s, inside a grid interval; x0 is the exact
+    solution (a straight line, then an arc). One fixed DOP853 step per interval would be off by about
+    1e-3 there; the refinement brings the residual to the integrator's tolerance."""
+    model = make_model("unicycle")
+    ts = 1.2345
+
+    def u_func(t):
+        t = np.asarray(t, dtype=float)
+        return np.stack([np.ones_like(t), (t >= ts).astype(float)], -1)
+
+    def x_func(t):
+        t = np.asarray(t, dtype=float)
+        tau = np.maximum(t - ts, 0.0)
+        return np.stack([np.minimum(t, ts) + np.sin(tau), 1.0 - np.cos(tau), tau], -1)
+
+    nom = Nominal.from_functions(model, x_func, u_func, np.linspace(0.0, 4.0, 201))
+    assert nom.feasibility_residual() < 1e-9
+    late = Nominal.from_functions(model, lambda t: x_func(np.asarray(t) - 0.01), u_func, np.linspace(0.0, 4.0, 201))
+    assert late.feasibility_residual() > 1e-3            # a genuinely infeasible x0 is reported
+
+
 def test_sampled_nominal_interpolates_between_samples():
     """Cubic Hermite with the model's slopes: 4th order, so a 100 Hz circle is exact to ~1e-9."""
     model = make_model("unicycle")

@@ -201,3 +201,14 @@ def _pip_has_python_option() -> bool:
     out = subprocess.run([sys.executable, "-m", "pip", "--version"], capture_output=True, text=True).stdout
     major, minor = map(int, re.match(r"pip (\d+)\.(\d+)", out).groups())
     return (major, minor) >= (22, 3)
+
+
+def test_the_readme_python_example_runs(tmp_path):
+    """The README's Python API example, executed as written (from another folder)."""
+    text = (ROOT / "README.md").read_text()
+    code = re.search(r"## Python API.*?```python\n(.*?)```", text, re.S).group(1)
+    res = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    lines = res.stdout.strip().splitlines()
+    assert lines[0].startswith("ok ") and lines[-1].startswith("reached")
+    assert (tmp_path / "run1" / "run.json").is_file()

@@ -12,7 +12,7 @@ from shapely.geometry import Polygon as SPolygon
 
 from nhstab.cli.main import cli
 from nhstab.collision import CollisionWorld
-from nhstab.geometry import default_footprint
+from nhstab.robot import default_footprint
 from nhstab.maps import load_map
 from nhstab.maps.base import Circle, Polygon
 from nhstab.models import make_model
@@ -207,10 +207,10 @@ def test_car_plans_on_real_maps(robot, where):
 
 def test_default_stabilizer_parameters_are_the_committed_sweeps_choice():
     """The per-robot defaults are what `nhstab sweep` chose (results/planning/sweep.json)."""
-    from nhstab.planning import DEFAULT_STABILIZER
+    from nhstab.robot import default_robot
 
     sweep = json.loads((Path(__file__).parent.parent / "results" / "planning" / "sweep.json").read_text())
-    assert sweep["chosen"] == DEFAULT_STABILIZER
+    assert sweep["chosen"] == {name: default_robot(name).stabilizer for name in sweep["chosen"]}
     for row in sweep["rows"]:
         chosen = sweep["chosen"][row["robot"]]
         if (row["alpha"], row["delta"]) == (chosen["alpha"], chosen["delta"]):
@@ -241,7 +241,7 @@ def synthetic_path(segments, step=0.005) -> GeometricPath:
     samples, sigma = np.vstack(samples), np.concatenate(sigmas)
     direction, cusps = path_directions(samples)
     return GeometricPath("exact", "synthetic", samples[[0, -1]], samples, sigma, direction, float(sigma[-1]), cusps,
-                         0.0, 0, 0.0, PathOptions())
+                         0.0, 0, 0.0, PathOptions(turning_radius=1.0, margin=0.1))
 
 
 # left 3 m, right 3 m (the inflection at a whole number of metres, where a waypoint would fall), a cusp,

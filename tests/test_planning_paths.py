@@ -61,15 +61,16 @@ def test_quarter_arc_trap():
             pytest.approx(np.pi / 2, abs=1e-9)
 
 
-def test_plan_around_a_wall_is_clear_by_the_margin_and_seeded():
+@pytest.mark.parametrize("guide", [True, False])
+def test_plan_around_a_wall_is_clear_by_the_margin_and_seeded(guide):
     m = Map("wall", (0, 0, 20, 12), obstacles=(box_polygon(10, 4, 1.0, 8.0),))
     world = CollisionWorld.from_map(m)
     fp = Footprint.rectangle(1.0, 0.6, rear_overhang=0.2)
-    opts = PathOptions(turning_radius=1.0, time_limit_s=2.0, seed=11, margin=0.2)
+    opts = PathOptions(turning_radius=1.0, time_limit_s=2.0, seed=11, margin=0.2, guide=guide)
     g1 = plan_path(world, fp, (2, 3, 0), (18, 3, 0), opts)
     other = plan_path(world, fp, (2, 3, 0), (18, 3, 0), PathOptions(**{**opts.__dict__, "seed": 12}))
     g2 = plan_path(world, fp, (2, 3, 0), (18, 3, 0), opts)
-    assert g1.status == "exact" and g1.info["planner_used"] == "rrtconnect"
+    assert g1.status == "exact" and g1.info["planner_used"] == ("guided" if guide else "rrtconnect")
     np.testing.assert_array_equal(g1.waypoints, g2.waypoints)          # same seed, same plan, whatever ran between
     assert other.status == "exact"
     check = world.check_path(g1.samples, fp, margin=0.2, resolution=0.02)
@@ -80,7 +81,7 @@ def test_plan_around_a_wall_is_clear_by_the_margin_and_seeded():
 def test_no_path_is_failed_not_an_exception():
     m = Map("closed", (0, 0, 20, 10), obstacles=(box_polygon(10, 5, 1.0, 10.0),))
     g = plan_path(CollisionWorld.from_map(m), Footprint.disc(0.2), (2, 5, 0), (18, 5, 0),
-                  PathOptions(turning_radius=1.0, time_limit_s=0.3))
+                  PathOptions(turning_radius=1.0, time_limit_s=0.3, margin=0.1))
     assert g.status in ("failed", "approximate")
     assert g.status != "exact"
 
@@ -92,5 +93,5 @@ def test_bad_options(kwargs, arg):
     from nhstab.errors import InputError
 
     with pytest.raises(InputError) as exc:
-        PathOptions(**kwargs).validated()
+        PathOptions(**{"turning_radius": 1.0, "margin": 0.1, **kwargs}).validated()
     assert exc.value.argument == arg

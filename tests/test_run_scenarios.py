@@ -13,7 +13,8 @@ from click.testing import CliRunner
 from nhstab.cli.main import cli
 from nhstab.collision import CollisionWorld
 from nhstab.execution import read_run_csv
-from nhstab.geometry import default_footprint, wrap_angle
+from nhstab.geometry import wrap_angle
+from nhstab.robot import default_footprint
 from nhstab.maps import load_map
 from nhstab.maps.base import Circle
 
@@ -93,8 +94,10 @@ def test_replanning_scenario_detects_replans_reaches_and_never_collides(tmp_path
 @pytest.mark.slow
 def test_gramian_keeps_the_margin_where_open_loop_does_not(tmp_path):
     """Same seeds, same noise (sensor noise, process disturbance, initial error) on the cluttered
-    room: the gramian law keeps every executed pose clear of every obstacle by the planning margin
-    on all seeds; open loop (u = u0) does not on most of them. Recomputed from trajectory.csv."""
+    room, planned by OMPL over the whole map (--no-guide: its paths pass close to the furniture; the
+    guided search's keep further off, where open loop's drift of about 0.3 m stays clear too): the
+    gramian law keeps every executed pose clear of every obstacle by the planning margin on all seeds;
+    open loop (u = u0) does not on most of them. Recomputed from trajectory.csv."""
     m = load_map(ROOT / "maps/ours/cluttered_room.yaml")
     fp = default_footprint("unicycle")
     truth = CollisionWorld.from_map(m, "all")
@@ -102,7 +105,7 @@ def test_gramian_keeps_the_margin_where_open_loop_does_not(tmp_path):
     for seed in (1, 2, 3):
         for controller in below:
             res, out = _run(tmp_path / f"{controller}{seed}", "maps/ours/cluttered_room.yaml", "--controller", controller,
-                            "--seed", str(seed))
+                            "--seed", str(seed), "--no-guide")
             assert res.exit_code in (0, 4), res.output
             csv = read_run_csv(out / "trajectory.csv")
             margin = json.loads((out / "run.json").read_text())["inputs"]["options"]["planning"]["margin"]

@@ -12,7 +12,10 @@ Format (paths relative to the config file)::
                                     # or {first: 0, count: 5}: the map's problems (e.g. from a
                                     # Moving AI .scen file given as the map's base scenarios)
         cell_size: 1.0              # optional: Moving AI maps only
-    robots: [unicycle]              # optional, default: each map's robot
+    robots: [unicycle]              # optional, default: each map's robot; each a model name or a
+                                    # robot description (the robot: block of nhstab.robot), e.g.
+                                    # [unicycle, {model: rwd_car, name: van, wheelbase: 3.0, margin: 0.2}]
+    robot: {model: rwd_car, ...}    # optional: one robot (the same as robots: [that]; not with robots)
     controllers: [gramian, open-loop, tvlqr]     # default [gramian]
     grid:                           # every combination is a cell; each list non-empty
       noise: [0.5, 1.0, 2.0]        # noise scale (multiplies every level of run.noise)
@@ -42,7 +45,7 @@ from ..execution.config import RunOptions, check_number, check_pose, options_fro
 from ..execution.controllers import CONTROLLERS
 from ..planning import PLANNABLE
 
-_TOP = ("name", "root_seed", "trials", "maps", "robots", "controllers", "grid", "run")
+_TOP = ("name", "root_seed", "trials", "maps", "robots", "robot", "controllers", "grid", "run")
 _MAP_KEYS = ("path", "problems", "cell_size")
 _GRID_KEYS = ("noise", "alpha", "delta", "gamma")
 _RUN_EXCLUDED = ("robot", "start", "goal", "seed")
@@ -131,8 +134,21 @@ class BatchConfig:
         return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
+def robot_label(robot) -> str:
+    """A cell's robot in ids and reports: the model name, a description's ``name``, or its model and
+    a short hash of the description."""
+    if robot is None:
+        return "default"
+    if isinstance(robot, str):
+        return robot
+    if isinstance(robot.get("name"), str):
+        return robot["name"]
+    digest = hashlib.sha256(json.dumps(robot, sort_keys=True, default=str).encode()).hexdigest()[:6]
+    return f"{robot.get('model')}-{digest}"
+
+
 def cell_id(cell: dict) -> str:
-    parts = [f"map={cell['map']}", f"problem={cell['problem']}", f"robot={cell['robot'] or 'default'}",
+    parts = [f"map={cell['map']}", f"problem={cell['problem']}", f"robot={robot_label(cell['robot'])}",
              f"controller={cell['controller']}"]
     for key in ("alpha", "delta", "gamma"):
         if cell[key] is not None:
@@ -152,7 +168,8 @@ def load_batch_config(path) -> BatchConfig:
     trial runs. Raises InputError naming the key."""
     from ..examples import resolve_map_path
     from ..maps import load_map
-    from ..models import make_model
+    from ..planning import PLANNABLE
+    from ..robot import robot_from_spec
 
     path = Path(path)
     data = read_yaml_mapping(path, "CONFIG", "batch config (YAML)")
@@ -193,12 +210,22 @@ def load_batch_config(path) -> BatchConfig:
     if len(set(labels)) != len(labels):
         raise InputError("maps", "maps with different names", labels)
     robots = None
+    if "robots" in data and "robot" in data:
+        raise InputError("robot", "either robot or robots, not both", "both given")
+    single = "robot" in data
+    if single:
+        data = {**data, "robots": [data["robot"]]}
     if "robots" in data:
         robots = _list("robots", data["robots"])
+        labels = []
         for j, r in enumerate(robots):
-            if r not in ("unicycle", "rwd_car", "fwd_car"):
-                raise InputError(f"robots[{j}]", "one of unicycle, rwd_car, fwd_car", r)
-            make_model(r)
+            where = "robot" if single else f"robots[{j}]"
+            rob = robot_from_spec(r, where=where)
+            if rob.model.name not in PLANNABLE:
+                raise InputError(f"{where}.model", "one of " + ", ".join(PLANNABLE), rob.model.name)
+            labels.append(robot_label(r))
+        if len(set(labels)) != len(labels):
+            raise InputError("robots", "robots with different names (give each description a name)", labels)
     controllers = _list("controllers", data.get("controllers", ["gramian"]))
     for j, c in enumerate(controllers):
         if c not in CONTROLLERS:
@@ -221,17 +248,17 @@ def load_batch_config(path) -> BatchConfig:
                 raise InputError(f"run.{key}", "set by the batch (maps, robots, trials), not in run", key)
     base = options_from_mapping(run, allowed, prefix="run.")
     for i, (m, spec) in enumerate(zip(loaded, maps)):
-        robot_names = robots or [(m.robot or {}).get("model") or "unicycle"]
-        for r in robot_names:
-            if r not in PLANNABLE:
+        for r in robots or [m.robot or "unicycle"]:
+            rob = robot_from_spec(r)
+            model = rob.model
+            if model.name not in PLANNABLE:
                 raise InputError(f"maps[{i}].path", f"a map whose robot nhstab plans for ({', '.join(PLANNABLE)})",
-                                 r, detail="or give robots")
-            model = make_model(r)
+                                 model.name, detail="or give robots")
             try:
                 opts = base.validated(model.state_names, model.m)
             except InputError as exc:
                 raise InputError("run." + exc.argument, exc.expected, exc.got) from None
-            _check_problems(f"maps[{i}].problems", m, spec.problems, r, opts)
+            _check_problems(f"maps[{i}].problems", m, spec.problems, rob, opts)
     config = BatchConfig(name, root_seed, trials, maps, robots, controllers, grid, run, str(path), base)
     n = len(config.cells()) * trials
     if n > MAX_BATCH_TRIALS:
@@ -240,16 +267,14 @@ def load_batch_config(path) -> BatchConfig:
     return config
 
 
-def _check_problems(key: str, m, problems, robot: str, opts) -> None:
+def _check_problems(key: str, m, problems, robot, opts) -> None:
     """Every start and goal inside the map's bounds and clear of its known obstacles by more than
     the planning margin, for the robot's footprint: what the first plan of every trial would
     refuse, refused once here instead of stored as an error in every trial."""
     from ..collision import CollisionWorld
-    from ..execution.config import DEFAULT_MARGIN
-    from ..geometry import default_footprint
 
-    fp = default_footprint(robot)
-    margin = opts.planning.margin if opts.planning.margin is not None else DEFAULT_MARGIN[robot]
+    fp = robot.footprint
+    margin = opts.planning.margin if opts.planning.margin is not None else robot.margin
     world = None
     for j, (start, goal) in enumerate(problems):
         for which, pose in (("start", start), ("goal", goal)):
@@ -260,7 +285,7 @@ def _check_problems(key: str, m, problems, robot: str, opts) -> None:
             c = world.clearance(np.asarray(pose, dtype=float), fp)
             if c <= margin:
                 raise InputError(where, f"a pose more than the planning margin {margin:g} m from the known "
-                                 f"obstacles of {m.name} for the {robot}", [round(float(v), 4) for v in pose],
+                                 f"obstacles of {m.name} for the {robot.name or robot.model.name}", [round(float(v), 4) for v in pose],
                                  detail=f"clearance {c:.3g} m")
 
 

@@ -82,15 +82,16 @@ def run_trial(spec: dict) -> dict:
 
 def _run(spec: dict) -> dict:
     from ..execution import execute, summary
-    from ..geometry import default_footprint
-    from ..models import make_model
+    from ..robot import resolve_robot
+    from .config import robot_label
 
     cell = spec["cell_spec"]
     m = _load(cell["map_path"], cell["cell_size"], cell.get("map_hash"))
     opts = trial_options(spec)
-    robot = opts.robot or (m.robot or {}).get("model") or "unicycle"
-    model, fp = make_model(robot), default_footprint(robot)
-    result = execute(m, model, fp, np.asarray(opts.start, float), np.asarray(opts.goal, float), opts)
+    rob = resolve_robot(opts.robot, m.robot, source="batch")
+    model = rob.model
+    robot = robot_label(opts.robot) if opts.robot is not None else robot_label(m.robot or "unicycle")
+    result = execute(m, rob, np.asarray(opts.start, float), np.asarray(opts.goal, float), opts)
     if result.status == "interrupted":         # Ctrl-C inside the run: no result, the batch stops
         raise KeyboardInterrupt
     s = summary(result, cell["map_path"])
@@ -128,6 +129,7 @@ def _run(spec: dict) -> dict:
                       "e0_norm": float(e[0])}
             metrics["e0_norm"] = float(e[0])
     timings = {"run_wall_s": result.wall_time_s, "replan_latencies_s": s["timing"]["replan_latencies_s"]}
+    metrics["robot_spec"] = rob.spec()          # the robot as used, in the store
     return {"status": result.status, "metrics": metrics, "series": series, "timings": timings,
             "error": None if result.status != "numerical_failure" else result.message}
 

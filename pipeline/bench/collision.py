@@ -12,7 +12,7 @@ def bench_collision(n_poses: int = 20_000, seed: int = 7) -> dict:
     """Build time of the FCL world and pose checks per second for a car footprint on the 512 x 512
     Moving AI rooms map (0.5 m cells) and the nav2 depot map; single calls and batched."""
     from ..collision import CollisionWorld
-    from ..geometry import default_footprint
+    from ..robot import default_footprint
     from ..maps import load_map
 
     maps = maps_dir()

@@ -7,6 +7,10 @@ import numpy as np
 
 from .common import _best, machine, maps_dir
 
+#: target of the replan latency's 95th percentile [s] (Nav2 replans at 1 Hz by default; issue 13 asks for
+#: half of that)
+REPLAN_P95_MAX_S = 0.5
+
 
 def bench_run(runs: int = 10) -> dict:
     """The composite controller in closed loop: replan latency (detection to the new gain schedule
@@ -14,10 +18,8 @@ def bench_run(runs: int = 10) -> dict:
     on the nav2 depot (unicycle) and our warehouse (rwd_car); and the cost of one control update
     (measure -> u, with the feedforward mean over the hold interval and saturation)."""
     from ..execution import ControllerOptions, RunOptions, build_law, execute
-    from ..geometry import default_footprint
+    from ..robot import default_footprint, default_robot
     from ..maps import load_map
-    from ..models import make_model
-    from ..planning import DEFAULT_STABILIZER
 
     maps = maps_dir()
     rows = []
@@ -26,10 +28,11 @@ def bench_run(runs: int = 10) -> dict:
                         ("ours warehouse (scenario warehouse_aisle_a2)", maps / "scenarios" / "warehouse_aisle_a2.yaml")]:
         m = load_map(path)
         robot = m.robot["model"]
-        model, fp = make_model(robot), default_footprint(robot)
+        rob = default_robot(robot)
+        model = rob.model
         latencies, statuses, replans, walls, sims = [], [], [], [], []
         for seed in range(runs):
-            r = execute(m, model, fp, m.start.as_array(), m.goal.as_array(), RunOptions(seed=seed))
+            r = execute(m, rob, m.start.as_array(), m.goal.as_array(), RunOptions(seed=seed))
             statuses.append(r.status)
             walls.append(r.wall_time_s)
             sims.append(float(r.log["t"][-1]) if len(r.log["t"]) else 0.0)
@@ -47,7 +50,7 @@ def bench_run(runs: int = 10) -> dict:
     for robot, (law, model) in laws.items():
         for kind in ("gramian", "tvlqr", "open-loop"):
             lw = law if kind == "gramian" else build_law(law.nominal, ControllerOptions(kind=kind),
-                                                         DEFAULT_STABILIZER[robot])
+                                                         default_robot(robot).stabilizer)
             lim = model.input_limits()
             T = lw.h
             taus = lw.t[:-1]
@@ -82,9 +85,9 @@ def bench_run(runs: int = 10) -> dict:
                       "scan_ms_p90": 1e3 * float(np.percentile(times, 90))})
     p95 = [r["replan_latency_p95_s"] for r in rows if r["replan_latency_p95_s"] is not None]
     return {"benchmark": "run", "machine": machine(), "scenarios": rows, "control_update": steps, "sensor_scan": scans,
-            "targets": {"replan_latency_p95_s_max": 1.0, "control_update_us_max": 1000.0},
+            "targets": {"replan_latency_p95_s_max": REPLAN_P95_MAX_S, "control_update_us_max": 1000.0},
             "met": {**{f"replan p95 {r['scenario']}": bool(r["replan_latency_p95_s"] is not None
-                                                          and r["replan_latency_p95_s"] < 1.0) for r in rows},
+                                                          and r["replan_latency_p95_s"] < REPLAN_P95_MAX_S) for r in rows},
                     "control update": bool(all(s["us_per_update"] < 1000.0 for s in steps)),
                     "every scenario replanned": bool(p95 and len(p95) == len(rows))}}
 
@@ -94,12 +97,12 @@ def summary_lines(rr: dict) -> list[str]:
     lines = []
     for r in rr["scenarios"]:
         if r["replan_latency_p95_s"] is None:
-            lines.append(f"| run | {r['scenario']}: replan latency | no replans in {r['runs']} runs | < 1 s | NO |")
+            lines.append(f"| run | {r['scenario']}: replan latency | no replans in {r['runs']} runs | < {REPLAN_P95_MAX_S:g} s | NO |")
             continue
         met = r["replan_latency_p95_s"] < rr["targets"]["replan_latency_p95_s_max"]
         lines.append(f"| run | {r['scenario']}, {r['robot']}: replan latency median / p95 over "
                      f"{len(r['replan_latencies_s'])} replans in {r['runs']} runs | "
-                     f"{r['replan_latency_median_s']:.2f} s / {r['replan_latency_p95_s']:.2f} s | p95 < 1 s | "
+                     f"{r['replan_latency_median_s']:.2f} s / {r['replan_latency_p95_s']:.2f} s | p95 < {REPLAN_P95_MAX_S:g} s | "
                      f"{'yes' if met else 'NO'} |")
         reached = sum(s == "reached" for s in r["statuses"])
         lines.append(f"| run | {r['scenario']}: runs reaching the goal | {reached} / {r['runs']} | - | - |")

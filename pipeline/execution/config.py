@@ -6,7 +6,9 @@ Every key is checked: an unknown key, a wrong type or a value out of range raise
 was given. The format::
 
     map: maps/scenarios/warehouse_pallets.yaml   # relative to the config file, or example:NAME
-    robot: rwd_car                    # unicycle | rwd_car | fwd_car (default: the map's)
+    robot: rwd_car                    # a model name, or a robot description (default: the map's):
+                                      #   {model: rwd_car, wheelbase: 2.7, footprint: {...}, margin: 0.1, ...}
+                                      #   (see nhstab.robot)
     start: [x, y, theta]              # default: the map's
     goal: [x, y, theta]
     seed: 0                           # root seed: initial error, sensor and process noise, planner
@@ -24,8 +26,8 @@ was given. The format::
       impulses: [{time: 4.0, x: 0.0, y: 0.3}]                          # state jumps at given times
     sensor: {range_m: 8.0, fov_deg: 360, rate_hz: 10, resolution_deg: 0.5}
     monitor: {rate_hz: 10, horizon_s: 8.0}
-    planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.3, space: reeds_shepp}   # margin: robot's default
-    replan: {pause_s: 1.0, max_attempts: 3, max_replans: 10}
+    planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.3, space: reeds_shepp, guide: true}   # margin: the robot's
+    replan: {pause_s: 1.0, max_attempts: 3, max_replans: 10, budget_growth: 4.0}
     tolerance: {position_m: 0.3, heading_rad: 0.2}
 
 Noise levels are given per state name; states not named get the robot's default (see
@@ -51,9 +53,6 @@ DEFAULT_NOISE = {
     "process": {"x": 0.02, "y": 0.02, "theta": 0.01, "phi": 0.0},
 }
 DISTRIBUTIONS = ("gaussian", "uniform")
-#: default planning margin per robot [m]: a car's body reaches 3.3 m ahead of its rear axle, where a
-#: heading error of 0.05 rad already moves it by 0.17 m, so cars keep more room than the unicycle
-DEFAULT_MARGIN = {"unicycle": 0.1, "rwd_car": 0.3, "fwd_car": 0.2}
 
 
 def check_number(key: str, v, lo: float = -math.inf, lo_open: bool = False, integer: bool = False):
@@ -150,13 +149,15 @@ class MonitorOptions:
 class PlanningOptions:
     """The planner used for the first plan and every replan (see ``nhstab plan``). ``margin``: the
     clearance every nominal keeps from the obstacles the robot knows of; None for the robot's
-    default (:data:`DEFAULT_MARGIN`)."""
+    (``Robot.margin``, see :mod:`nhstab.robot`). ``guide``: the guided search (a grid shortest path
+    sets the subgoals); false searches with OMPL's planner over the whole map."""
 
     planner: str = "rrtconnect"
     space: str = "reeds_shepp"
     time_limit_s: float = 2.0
     margin: float | None = None
     turning_radius: float | None = None
+    guide: bool = True
 
     def validated(self) -> "PlanningOptions":
         from ..planning import PLANNERS, SPACES
@@ -170,6 +171,8 @@ class PlanningOptions:
             check_number("planning.margin", self.margin, 0.0)
         if self.turning_radius is not None:
             check_number("planning.turning_radius", self.turning_radius, 0.0, lo_open=True)
+        if not isinstance(self.guide, bool):
+            raise InputError("planning.guide", "true or false", self.guide)
         return self
 
 
@@ -178,15 +181,23 @@ class ReplanOptions:
     """While a replan runs the robot stops (u = 0) for ``pause_s`` of simulated time (a fixed,
     documented budget, so that runs are reproducible; the real planning latency is recorded next to
     it). A failed attempt is retried after another pause with a new seed, up to ``max_attempts`` in a
-    row; at most ``max_replans`` replans per run."""
+    row; the attempts after the second get ``budget_growth`` times the planning budget. The first plan
+    (before the robot moves, so without pauses) is retried the same way. At most ``max_replans``
+    replans per run."""
 
     pause_s: float = 1.0
     max_attempts: int = 3
     max_replans: int = 10
+    budget_growth: float = 4.0
+
+    def budget_factor(self, attempt: int) -> float:
+        """The planning budget of attempt ``attempt`` (0, 1, ...) relative to planning.time_limit_s."""
+        return 1.0 if attempt < 2 else float(self.budget_growth)
 
     def validated(self) -> "ReplanOptions":
         check_number("replan.pause_s", self.pause_s, 0.0)
         check_number("replan.max_attempts", self.max_attempts, 1.0, integer=True)
+        check_number("replan.budget_growth", self.budget_growth, 1.0)
         check_number("replan.max_replans", self.max_replans, 0.0, integer=True)
         return self
 
@@ -207,7 +218,8 @@ class ToleranceOptions:
 
 @dataclass(frozen=True)
 class RunOptions:
-    robot: str | None = None
+    #: a model name or a robot spec mapping (the YAML form of :mod:`nhstab.robot`); None: the map's
+    robot: str | dict | None = None
     start: tuple | None = None
     goal: tuple | None = None
     seed: int = 0
@@ -361,6 +373,11 @@ def options_from_mapping(data: dict, allowed=None, prefix: str = "") -> RunOptio
                 kw[key] = _section(key, v)
             elif key in ("start", "goal"):
                 kw[key] = check_pose(key, v)
+            elif key == "robot":
+                from ..robot import robot_from_spec
+
+                robot_from_spec(v, where="robot")          # checked here, kept as plain data
+                kw[key] = v
             else:
                 kw[key] = v
         return RunOptions(**kw)

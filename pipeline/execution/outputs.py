@@ -16,6 +16,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import InputError
+from ..robot import make_robot
 from ..records import write_json, write_text
 from .runner import MODES, RunResult
 
@@ -171,13 +172,15 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
                   "saturated_fraction": float(np.mean(np.any(
                       np.isclose(np.abs(lg["u"]), model.input_limits()[:, 1], rtol=0, atol=1e-12), axis=1)))}
     plans, timings = zip(*(_plan_entry(p) for p in result.plans)) if result.plans else ((), ())
-    opts = dataclasses.asdict(result.options)
+    robot = result.robot if result.robot is not None else make_robot(model, footprint=result.footprint)
+    opts = dataclasses.asdict(dataclasses.replace(result.options, robot=None))
+    opts["robot"] = robot.spec()
     return {
         "status": result.status, "message": result.message,
-        "inputs": {"map": map_path, "map_name": result.map.name, "robot": model.describe(),
+        "inputs": {"map": map_path, "map_name": result.map.name, "robot": robot.describe(),
                    "footprint": result.footprint.describe(), "start": result.start, "goal": result.goal,
                    "options": opts, "noise": result.options.noise.describe(model.state_names),
-                   "controller": result.options.controller.describe(model.n, model.m, _defaults(model)),
+                   "controller": result.options.controller.describe(model.n, model.m, robot.stabilizer),
                    "nhstab_version": __version__},
         "seeds": result.seeds,
         "initial_state": result.info.get("x_initial"),
@@ -195,12 +198,6 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
                                           if p.trigger != "initial"],
                    "note": "wall-clock; everything outside this section is reproducible from the seed"},
     }
-
-
-def _defaults(model):
-    from ..planning import DEFAULT_STABILIZER
-
-    return DEFAULT_STABILIZER[model.name]
 
 
 #: every file ``nhstab run`` may write into its folder (an earlier run's are all replaced)
@@ -235,18 +232,18 @@ def write_run(result: RunResult, out_dir, map_path: str | None = None, figures: 
     return out.written
 
 
-def plan_record(result, map_label: str, model, footprint, start, goal, path_options) -> dict:
-    """The content of plan.json: status, message, inputs (map, robot, footprint, poses, options,
-    feasibility residual) and the plan's metrics."""
+def plan_record(result, map_label: str, robot, start, goal, path_options) -> dict:
+    """The content of plan.json: status, message, inputs (map, robot as used, footprint, poses,
+    options, feasibility residual) and the plan's metrics."""
     nom = result.nominal
-    inputs = {"map": map_label, "robot": model.describe(), "footprint": footprint.describe(),
+    inputs = {"map": map_label, "robot": robot.describe(), "footprint": robot.footprint.describe(),
               "start": [float(v) for v in start], "goal": [float(v) for v in goal],
               "path_options": dict(path_options.__dict__),
               "feasibility_residual_m": None if nom is None else nom.feasibility_residual()}
     return {"status": result.status, "message": result.message, "inputs": inputs, "metrics": result.metrics}
 
 
-def write_plan(result, out_dir, m, map_label: str, model, footprint, start, goal, path_options,
+def write_plan(result, out_dir, m, map_label: str, robot, start, goal, path_options,
                figures: bool = True) -> list[Path]:
     """Write trajectory.csv, trajectory.npz, plan.png and plan.json for a successful plan of
     :func:`nhstab.planning.plan` on map ``m``, as one output (:class:`nhstab.records.OutputFolder`)."""
@@ -259,6 +256,8 @@ def write_plan(result, out_dir, m, map_label: str, model, footprint, start, goal
         raise InputError("result", "a successful plan (result.ok)", result.status)
     from ..records import OutputFolder
 
+    model, footprint = robot.model, robot.footprint
+    path_options = path_options.for_robot(robot)
     nom = result.nominal
     with OutputFolder(out_dir, "plan", owned=PLAN_FILES) as out:
         write_trajectory(out.path("trajectory.csv"), nom)
@@ -273,5 +272,5 @@ def write_plan(result, out_dir, m, map_label: str, model, footprint, start, goal
             fig = plan_figure(m, nom.x[:, pose_columns(model)],
                               np.sign(nom.u[:, 0]), footprint, start, goal, title=title)
             out.save_figure(fig, "plan.png")
-        out.write_json("plan.json", plan_record(result, map_label, model, footprint, start, goal, path_options))
+        out.write_json("plan.json", plan_record(result, map_label, robot, start, goal, path_options))
     return out.written

@@ -20,8 +20,10 @@ One run, step by step at the controller rate 1/T (zero-order hold):
 5. **Replanning** from the measured state to the goal on the known + discovered obstacles. While it
    runs the robot stops (u = 0) for ``replan.pause_s`` of simulated time (a fixed budget, so that a
    run is reproducible; the real latency, detection to new gain schedule ready, is recorded). A
-   failed attempt is retried with the next seed after another pause; ``replan.max_attempts`` failures
-   in a row end the run ("replan_failed"). If the measured start is closer to an obstacle than the
+   failed attempt is retried with the next seed after another pause (from the third attempt on with
+   ``replan.budget_growth`` times the budget); ``replan.max_attempts`` failures in a row end the run
+   ("replan_failed"). The first plan is retried the same way (without pauses) before the run ends
+   "no_plan". If the measured start is closer to an obstacle than the
    margin (the robot came close before it saw the obstacle), the replan uses half its clearance as
    margin and records that.
 6. **End**: at the end of the last nominal the goal is "reached" if the position and heading errors
@@ -48,10 +50,11 @@ from ..errors import InputError, NumericalError, PipelineError
 from ..geometry import Footprint, wrap_angle
 from ..maps.base import Circle, Map
 from ..models import Model
-from ..planning import (DEFAULT_STABILIZER, PathOptions, PlanResult, TimingOptions, default_turning_radius, plan,
+from ..planning import (PathOptions, PlanResult, TimingOptions, plan,
                         pose_columns)
 from ..sensing import RangeSensor
-from .config import DEFAULT_MARGIN, RunOptions
+from ..robot import Robot, make_robot, resolve_robot
+from .config import RunOptions
 from .controllers import FeedbackLaw, build_law
 from .plant import Plant
 
@@ -124,6 +127,8 @@ class RunResult:
     info: dict = field(default_factory=dict)
     #: the FCL world of every real obstacle (known and unknown) the run was checked against
     world: CollisionWorld | None = None
+    #: the robot as used (model, footprint, margin, stabilizer defaults)
+    robot: Robot | None = None
 
     @property
     def ok(self) -> bool:
@@ -173,26 +178,23 @@ class _Stop(Exception):
 class CompositeRun:
     """State of one run; :func:`execute` drives it."""
 
-    def __init__(self, m: Map, model: Model, fp: Footprint, start, goal, opts: RunOptions):
-        from ..planning import check_map_budget, check_plan_arguments, check_pose_argument, check_start_goal
+    def __init__(self, m: Map, robot: Robot, start, goal, opts: RunOptions):
+        from ..planning import check_map_budget, check_start_goal
 
-        check_plan_arguments(m, model, fp)
-        if not isinstance(opts, RunOptions):
-            raise InputError("opts", "a RunOptions", type(opts).__name__)
-        start, goal = check_pose_argument("start", start), check_pose_argument("goal", goal)
-        check_start_goal(start, goal)
-        self.m, self.model, self.fp = m, model, fp
+        model, fp = robot.model, robot.footprint
+        check_start_goal(np.asarray(start, dtype=float), np.asarray(goal, dtype=float))
+        self.m, self.robot, self.model, self.fp = m, robot, model, fp
         opts = opts.validated(model.state_names, model.m)
         check_map_budget(m, opts.planning.time_limit_s)
         if opts.planning.margin is None:
-            opts = dataclasses.replace(opts, planning=dataclasses.replace(opts.planning,
-                                                                          margin=DEFAULT_MARGIN[model.name]))
+            opts = dataclasses.replace(opts, planning=dataclasses.replace(opts.planning, margin=robot.margin))
         self.opts = opts
         self.start = np.asarray(start, dtype=float)
         self.goal = np.asarray(goal, dtype=float)
         self.T = 1.0 / opts.rate_hz
         self.plant = Plant(model, self.T, opts.substeps)
         self.plan_model = derated(model, opts.headroom) if opts.headroom < 1.0 else model
+        self.plan_robot = robot.with_model(self.plan_model)
         self.pose_idx = pose_columns(model)
         self.known = CollisionWorld.from_map(m, "known")
         self.truth = CollisionWorld.from_map(m, "all")
@@ -207,7 +209,7 @@ class CompositeRun:
         self.impulses = opts.noise.impulse_list(model.state_names)
         lim = model.input_limits()
         self.u_lo, self.u_hi = lim[:, 0], lim[:, 1]
-        self.stab_defaults = dict(DEFAULT_STABILIZER[model.name])
+        self.stab_defaults = dict(robot.stabilizer)
         self.plans: list[PlanRecord] = []
         self.planning_calls = 0
         self.log = RunLog()
@@ -215,19 +217,21 @@ class CompositeRun:
         self.k = 0
 
     # ---- planning ---------------------------------------------------------------------------
-    def _path_options(self, seed: int, margin: float) -> PathOptions:
+    def _path_options(self, seed: int, margin: float, budget_factor: float = 1.0) -> PathOptions:
         p = self.opts.planning
-        radius = p.turning_radius if p.turning_radius is not None else default_turning_radius(self.plan_model)
-        return PathOptions(space=p.space, turning_radius=radius, planner=p.planner, time_limit_s=p.time_limit_s,
-                           seed=seed, margin=margin)
+        radius = p.turning_radius if p.turning_radius is not None else self.robot.turning_radius
+        return PathOptions(space=p.space, turning_radius=radius, planner=p.planner,
+                           time_limit_s=p.time_limit_s * budget_factor, seed=seed, margin=margin, guide=p.guide)
 
-    def _plan_once(self, start_pose: np.ndarray) -> tuple[dict, PlanResult | None, FeedbackLaw | None, float]:
-        """One planning call (path, nominal, gains) from start_pose; returns (attempt record, result,
-        law, margin used)."""
+    def _plan_once(self, start_pose: np.ndarray, attempt_index: int = 0
+                   ) -> tuple[dict, PlanResult | None, FeedbackLaw | None, float]:
+        """One planning call (path, nominal, gains) from start_pose, the ``attempt_index``-th in a row
+        (later attempts get a larger budget); returns (attempt record, result, law, margin used)."""
         seed = planner_seed(self.opts.seed, self.planning_calls)
         self.planning_calls += 1
         margin = self.opts.planning.margin
-        attempt = {"seed": seed, "margin": margin}
+        factor = self.opts.replan.budget_factor(attempt_index)
+        attempt = {"seed": seed, "margin": margin, "time_limit_s": self.opts.planning.time_limit_s * factor}
         started = time.perf_counter()
         clearance = math.inf
         if self.plans:
@@ -242,8 +246,8 @@ class CompositeRun:
             if clearance <= 0:
                 raise InputError("start", "a pose clear of the obstacles", start_pose.round(3).tolist(),
                                  detail=f"clearance {clearance:.3g} m")
-            result = plan(self.m, self.plan_model, self.fp, start_pose, self.goal, self._path_options(seed, margin),
-                          TimingOptions(dt=self.T), world=self.robot_world)
+            result = plan(self.m, self.plan_robot, start_pose, self.goal,
+                          self._path_options(seed, margin, factor), TimingOptions(dt=self.T), world=self.robot_world)
             if result.ok:
                 law = build_law(result.nominal, self.opts.controller, self.stab_defaults, result.schedule)
                 attempt.update(status="ok", message=result.message)
@@ -333,12 +337,20 @@ class CompositeRun:
         opts, model = self.opts, self.model
         every_sense = max(1, round(opts.rate_hz / opts.sensor.rate_hz))
         every_monitor = max(1, round(opts.rate_hz / opts.monitor.rate_hz))
-        attempt, result, law, margin = self._plan_once(self.start[:3])
-        first = PlanRecord(0, "initial", 0.0, 0.0, self.start[:3].copy(), attempt["seed"], margin, [attempt],
+        # the first plan, retried like a replan (a new seed, then a larger budget), without pauses: the
+        # robot has not moved yet
+        attempts = []
+        while True:
+            attempt, result, law, margin = self._plan_once(self.start[:3], len(attempts))
+            attempts.append(attempt)
+            if law is not None or len(attempts) >= opts.replan.max_attempts:
+                break
+        first = PlanRecord(0, "initial", 0.0, 0.0, self.start[:3].copy(), attempt["seed"], margin, attempts,
                            result, law)
         self.plans.append(first)
         if law is None:
-            raise _Stop("no_plan", f"no first plan: {attempt['message']}{self._rate_hint(attempt)}")
+            raise _Stop("no_plan", f"no first plan in {len(attempts)} attempt{'s' if len(attempts) > 1 else ''} "
+                                   f"(last: {attempt['status']}: {attempt['message']}){self._rate_hint(attempt)}")
         max_time = self._deadline(0.0, law)
         # the initial condition error, about the nominal's first state
         sigma0 = opts.noise.vector("initial", model.state_names)
@@ -417,7 +429,7 @@ class CompositeRun:
         while True:
             y = self._measure(x)
             start_pose = y[self.pose_idx]
-            attempt, result, law, margin = self._plan_once(start_pose)
+            attempt, result, law, margin = self._plan_once(start_pose, len(attempts))
             attempts.append(attempt)
             # the robot stands still for the pause (sensing goes on)
             t_pause_end = self.k * self.T + self.opts.replan.pause_s
@@ -454,12 +466,48 @@ class CompositeRun:
                                f"{tol.position_m:g} m, {tol.heading_rad:g} rad)")
 
 
-def execute(m: Map, model: Model, fp: Footprint, start, goal, opts: RunOptions) -> RunResult:
-    """Run the composite controller once. Never raises for what happens during the run (the status
-    says it); bad input raises :class:`InputError` before anything runs (a first plan that cannot be
-    requested, e.g. a start in collision, is bad input)."""
+def execute(m: Map, *args, **kwargs) -> RunResult:
+    """Run the composite controller once: ``execute(m, robot=None, start=None, goal=None, opts=None)``.
+
+    ``robot``: a :class:`~nhstab.robot.Robot`; None takes ``opts.robot`` (a model name or a robot
+    spec), else the map's ``robot:`` block, else the unicycle. ``start``/``goal``: poses; None takes
+    the map's. ``opts``: :class:`RunOptions` (default: all defaults). The older form
+    ``execute(m, model, footprint, start, goal, opts)`` is still accepted.
+
+    Never raises for what happens during the run (the status says it); bad input raises
+    :class:`InputError` before anything runs (a first plan that cannot be requested, e.g. a start in
+    collision, is bad input)."""
+    if args and isinstance(args[0], Model):
+        if len(args) < 2:
+            raise InputError("footprint", "a Footprint after the model (or pass a Robot)", None)
+        model, fp, *args = args
+        args = [make_robot(model, footprint=fp), *args]
+    names = ("robot", "start", "goal", "opts")
+    if len(args) > len(names):
+        raise InputError("execute", f"at most {len(names) + 1} positional arguments", len(args) + 1)
+    given = dict(zip(names, args))
+    for key, v in kwargs.items():
+        if key not in names or key in given:
+            raise InputError(f"execute {key}", "one of robot, start, goal, opts, given once", key)
+        given[key] = v
+    opts = given.get("opts") or RunOptions()
+    if not isinstance(opts, RunOptions):
+        raise InputError("opts", "a RunOptions", type(opts).__name__)
+    if not isinstance(m, Map):
+        raise InputError("map", "a Map (nhstab.load_map(path))", type(m).__name__)
+    robot = resolve_robot(given.get("robot") if given.get("robot") is not None else opts.robot, m.robot,
+                          source="run options" if given.get("robot") is None and opts.robot is not None else "")
+    from ..maps import resolve_poses
+
+    start, goal = resolve_poses(m, given.get("start") if given.get("start") is not None else opts.start,
+                                given.get("goal") if given.get("goal") is not None else opts.goal)
+    return _execute(m, robot, start, goal, opts)
+
+
+def _execute(m: Map, robot: Robot, start, goal, opts: RunOptions) -> RunResult:
+    model, fp = robot.model, robot.footprint
     started = time.perf_counter()
-    run = CompositeRun(m, model, fp, start, goal, opts)
+    run = CompositeRun(m, robot, start, goal, opts)
     run.final_errors = None
     try:
         status, message = run.run()
@@ -480,4 +528,4 @@ def execute(m: Map, model: Model, fp: Footprint, start, goal, opts: RunOptions) 
     return RunResult(status, message, model, fp, m, run.start, run.goal, run.opts, run.plans, log, run.discovered,
                      run.collision, seeds, time.perf_counter() - started,
                      {"final_errors": run.final_errors, "x_initial": getattr(run, "x_initial", None),
-                      "period_s": run.T}, run.truth)
+                      "period_s": run.T}, run.truth, robot)

@@ -20,16 +20,17 @@
 #   obstacles:                          # known a priori (in the robot's map)
 #     - polygon: [[x, y], [x, y], [x, y], ...]     # simple (convex or not), >= 3 distinct points,
 #                                                  # either orientation; a repeated closing point
-#                                                  # is dropped
+#                                                  # and repeated consecutive points are dropped
+#                                                  # (noted in `nhstab map info`)
 #     - circle: {center: [x, y], radius: r}        # r > 0
 #     - box: {center: [x, y], size: [length, width], yaw: 0.0}
 #                                                  # length along yaw (radians, optional, default 0)
 #   unknown_obstacles: [...]            # same shapes: present in the world, not in the robot's map
 #   start: [x, y, theta]                # optional; exactly three numbers
 #   goal: [x, y, theta]                 # optional; exactly three numbers
-#   robot: {model: rwd_car, wheelbase: 2.5}   # optional default robot, kept as a dict: `model` (a
-#                                       # string) is required; other keys are the model's business
-#                                       # (string keys, finite numbers, nested lists/mappings)
+#   robot: {model: rwd_car, wheelbase: 2.5}   # optional default robot: a robot description
+#                                       # (nhstab.robot: model, its parameters, footprint, margin,
+#                                       # stabilizer, turning_radius), checked strictly, kept as a dict
 #
 # A base map contributes its occupancy grids, obstacles, unknown obstacles, bounds and problems,
 # and its start, goal and robot where the YAML gives none; the YAML's obstacles are appended and
@@ -38,7 +39,7 @@
 # Validation is strict. Each failure raises one MapError (an InputError, a ValueError) on one line
 # that names the file and the key path (e.g. "parking_lot.yaml: obstacles[3].polygon"), what was
 # expected and what was given:
-#   * unknown keys at any level (except inside `robot`), missing required keys;
+#   * unknown keys at any level (`robot` is checked as a robot description), missing required keys;
 #   * wrong types (booleans and quoted numbers are not numbers), NaN or infinite numbers, numbers
 #     of magnitude above 1e6 (nhstab.limits.MAX_COORD_M);
 #   * a polygon with fewer than 3 distinct points, a self-intersecting, self-touching or
@@ -186,6 +187,8 @@ class _Reader:
     def __init__(self, path: Path):
         self.path = path
         self.file = str(path)
+        #: what the reader changed in the input (e.g. repeated polygon vertices dropped), for map info
+        self.notes: list[str] = []
 
     # -- errors and primitive checks -------------------------------------------------------------
     def err(self, key: str, expected: str, got: object = None, detail: str = "") -> MapError:
@@ -271,8 +274,10 @@ class _Reader:
             got = f"{len(spec)} points" if isinstance(spec, list) else _type_name(spec)
             raise self.err(key, "a list of at least 3 [x, y] points", got)
         v = np.array([self.numbers(p, f"{key}[{i}]", 2, "[x, y]") for i, p in enumerate(spec)], dtype=float)
-        if len(v) > 3 and np.array_equal(v[0], v[-1]):
-            v = v[:-1]
+        cleaned = _drop_repeats(v)
+        if len(cleaned) < len(v) - (1 if np.array_equal(v[0], v[-1]) else 0):
+            self.notes.append(f"{key}: dropped {len(v) - len(cleaned)} repeated consecutive vertex(es)")
+        v = cleaned
         if len(np.unique(v, axis=0)) < 3:
             raise self.err(key, "at least 3 distinct [x, y] points", f"{len(np.unique(v, axis=0))} distinct")
         if not is_simple_polygon(v):
@@ -294,13 +299,21 @@ class _Reader:
         return Pose(*self.numbers(value, key, 3, "[x, y, theta]"))
 
     def robot(self, value: Any) -> dict:
+        """The robot block, checked as a robot description (nhstab.robot) and kept as plain data."""
+        from ..robot import robot_from_spec
+
+        if isinstance(value, str):
+            value = {"model": value}
         spec = value if isinstance(value, dict) else None
         if spec is None:
             raise self.err("robot", "a mapping with at least the key model", _type_name(value))
-        if "model" not in spec:
-            raise self.err("robot.model", "present", "missing", detail="required in robot")
-        self.string(spec["model"], "robot.model")
         self.plain_data(spec, "robot", 0)
+        try:
+            robot = robot_from_spec(spec, where="robot")
+        except PipelineError as exc:
+            raise self.err(getattr(exc, "argument", "robot"), getattr(exc, "expected", str(exc)),
+                           getattr(exc, "got", None)) from None
+        self.notes.extend(robot.notes)
         return _deep_copy(spec)
 
     def plain_data(self, value: Any, key: str, depth: int) -> None:
@@ -415,6 +428,7 @@ class _Reader:
         m = Map(name=name, bounds=bounds, obstacles=obstacles, grids=grids, unknown_obstacles=unknown,
                 start=start, goal=goal, robot=robot, problems=problems, source=str(self.path),
                 meta={"format": "nhstab_yaml", "base": base_meta, "description": description,
+                      "notes": list(self.notes) + list((base.meta.get("notes") or []) if base is not None else []),
                       "own_obstacles": len(doc.get("obstacles") or ()),
                       "own_unknown_obstacles": len(doc.get("unknown_obstacles") or ())})
         for key, pose in (("start", start), ("goal", goal)):
@@ -444,6 +458,17 @@ def _type_name(value: Any) -> str:
         return "nothing (null)"
     return {dict: "a mapping", list: "a list", str: "a string", bool: "a boolean",
             int: "an integer", float: "a number"}.get(type(value), type(value).__name__)
+
+
+def _drop_repeats(v: np.ndarray) -> np.ndarray:
+    """A ring without repeated consecutive vertices, nor a repeated closing vertex (real data has them;
+    they carry no shape)."""
+    keep = np.ones(len(v), dtype=bool)
+    keep[1:] = np.any(v[1:] != v[:-1], axis=1)
+    v = v[keep]
+    while len(v) > 1 and np.array_equal(v[-1], v[0]):
+        v = v[:-1]
+    return v
 
 
 def _one_line(exc: BaseException) -> str:

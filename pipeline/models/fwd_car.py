@@ -42,6 +42,19 @@ class FwdCar(Model):
         out[..., 2, 1] = 1.0
         return out
 
+    def rhs(self, x, u):
+        """x' = g(x) u written out (the same values as the generic f + g u, without building g)."""
+        x = np.asarray(x, dtype=float)
+        u = np.asarray(u, dtype=float)
+        phi, th, u1 = x[..., 2], x[..., 3], u[..., 0]
+        out = np.empty(np.broadcast_shapes(x.shape[:-1], u.shape[:-1]) + (4,))
+        cphi = np.cos(phi)
+        out[..., 0] = (cphi * np.cos(th)) * u1
+        out[..., 1] = (cphi * np.sin(th)) * u1
+        out[..., 2] = u[..., 1]
+        out[..., 3] = (np.sin(phi) / self.wheelbase) * u1
+        return out
+
     def dgu_dx(self, x, u):
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)

@@ -29,6 +29,16 @@ class Heisenberg(Model):
         out[..., 2, 0] = x[..., 1]
         return out
 
+    def rhs(self, x, u):
+        """x' = g(x) u written out (the same values as the generic f + g u, without building g)."""
+        x = np.asarray(x, dtype=float)
+        u = np.asarray(u, dtype=float)
+        out = np.empty(np.broadcast_shapes(x.shape[:-1], u.shape[:-1]) + (3,))
+        out[..., 0] = u[..., 0]
+        out[..., 1] = u[..., 1]
+        out[..., 2] = x[..., 1] * u[..., 0]
+        return out
+
     def dgu_dx(self, x, u):
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)

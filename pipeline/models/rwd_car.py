@@ -47,6 +47,18 @@ class RwdCar(Model):
         out[..., 3, 1] = 1.0
         return out
 
+    def rhs(self, x, u):
+        """x' = g(x) u written out (the same values as the generic f + g u, without building g)."""
+        x = np.asarray(x, dtype=float)
+        u = np.asarray(u, dtype=float)
+        th, phi, v = x[..., 2], x[..., 3], u[..., 0]
+        out = np.empty(np.broadcast_shapes(x.shape[:-1], u.shape[:-1]) + (4,))
+        out[..., 0] = np.cos(th) * v
+        out[..., 1] = np.sin(th) * v
+        out[..., 2] = (np.tan(phi) / self.wheelbase) * v
+        out[..., 3] = u[..., 1]
+        return out
+
     def dgu_dx(self, x, u):
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)

@@ -33,6 +33,17 @@ class Unicycle(Model):
         out[..., 2, 1] = 1.0
         return out
 
+    def rhs(self, x, u):
+        """x' = g(x) u written out (the same values as the generic f + g u, without building g)."""
+        x = np.asarray(x, dtype=float)
+        u = np.asarray(u, dtype=float)
+        th, v = x[..., 2], u[..., 0]
+        out = np.empty(np.broadcast_shapes(x.shape[:-1], u.shape[:-1]) + (3,))
+        out[..., 0] = np.cos(th) * v
+        out[..., 1] = np.sin(th) * v
+        out[..., 2] = u[..., 1]
+        return out
+
     def dgu_dx(self, x, u):
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)

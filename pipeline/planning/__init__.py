@@ -16,23 +16,13 @@ import numpy as np
 from ..collision import CollisionWorld, check_poses
 from ..control import GainSchedule, StabilizerOptions, compute_schedule
 from ..errors import InputError, SingularGramianError
-from ..geometry import Footprint
 from ..maps.base import Map
 from ..models import Model
 from ..nominal import Nominal
+from ..robot import Robot, default_robot, make_robot
 from .geometric import PLANNERS, SPACES, GeometricPath, PathOptions, path_length, plan_path
 from .timing import TimingOptions, unicycle_nominal
 
-#: default stabilizer parameters per robot, chosen by ``nhstab sweep`` (results/planning/sweep.md): the
-#: largest guaranteed rate with max ||K|| <= 50 along a plan in the bundled parking lot
-DEFAULT_STABILIZER = {
-    "unicycle": {"alpha": 0.2, "delta": 2.0, "gamma": 1.0},
-    "rwd_car": {"alpha": 0.1, "delta": 6.0, "gamma": 1.0},
-    "fwd_car": {"alpha": 0.2, "delta": 3.0, "gamma": 1.0},
-}
-#: default Reeds-Shepp turning radius of the unicycle [m] (it could turn in place; a radius keeps the
-#: path smooth and the gramian well conditioned)
-UNICYCLE_TURNING_RADIUS = 0.5
 #: the geometric planner keeps this much more than the requested margin, so that the nominal still
 #: clears the margin: the unicycle's follows the sampled path to a few millimetres. Cars get more room
 #: for their steering pieces: the phased sinusoids wandered 0.1-0.5 m from the path (up to 1.1 m),
@@ -42,12 +32,18 @@ MARGIN_PAD = {"unicycle": 0.02, "rwd_car": 0.15, "fwd_car": 0.15}
 PLANNABLE = ("unicycle", "rwd_car", "fwd_car")
 
 
+def pose_columns(model: Model) -> list[int]:
+    """Indices of (x, y, theta) in the model's state."""
+    names = list(model.state_names)
+    return [names.index("x"), names.index("y"), names.index("theta")]
+
+
 def check_map_budget(m: Map, time_limit_s: float, resolution: float = 0.05) -> None:
     """Refuse, before anything is built, a map too large for the planning budget: one crossing of
     its diagonal, checked every ``resolution`` m at the cost of a check that reaches FCL
-    (:data:`nhstab.limits.FCL_CHECK_S`), must fit in ``time_limit_s``. Below that, every stage
-    keeps within the budget (the distance field is bounded in cells, the search and the
-    simplification are given what is left of it)."""
+    (:data:`nhstab.limits.FCL_CHECK_S`), must fit in ``time_limit_s``. Below that, the search and
+    its simplification keep within the budget, and the distance field and collision world are
+    bounded in size (:mod:`nhstab.limits`)."""
     from ..limits import FCL_CHECK_S
 
     w, h = m.size
@@ -60,52 +56,18 @@ def check_map_budget(m: Map, time_limit_s: float, resolution: float = 0.05) -> N
                          detail="crop its bounds or raise the time limit")
 
 
-def check_pose_argument(name: str, value) -> np.ndarray:
-    """A pose (x, y, theta) given to a library call, as a (3,) float array, or an InputError naming
-    ``name``: exactly three finite numbers (a list, tuple or array; not a string or None)."""
-    if isinstance(value, (str, bytes)) or value is None or isinstance(value, dict):
-        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value)
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError, OverflowError):
-        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value) from None
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value)
-    return arr
-
-
-def check_plan_arguments(m, model, fp) -> None:
-    """The types of a planning or run request's map, model and footprint (library calls)."""
-    if not isinstance(m, Map):
-        raise InputError("map", "a Map (nhstab.load_map(path))", type(m).__name__)
-    if not isinstance(model, Model):
-        raise InputError("model", "a robot model (nhstab.make_model(name))", type(model).__name__)
-    if not isinstance(fp, Footprint):
-        raise InputError("footprint", "a Footprint (nhstab.default_footprint(name))", type(fp).__name__)
-
-
-def pose_columns(model: Model) -> list[int]:
-    """Indices of (x, y, theta) in the model's state."""
-    names = list(model.state_names)
-    return [names.index("x"), names.index("y"), names.index("theta")]
-
-
 #: start and goal closer than this (in position, and in heading) are the same pose: there is nothing
 #: to plan, and no trajectory along which the gramian could be invertible
 SAME_POSE_M, SAME_POSE_RAD = 1e-6, 1e-6
 
 
 def check_start_goal(start: np.ndarray, goal: np.ndarray) -> None:
+    """Refuse a goal equal to the start (one line naming ``goal``)."""
     from ..geometry import wrap_angle
 
     if math.hypot(*(goal[:2] - start[:2])) <= SAME_POSE_M and abs(float(wrap_angle(goal[2] - start[2]))) <= SAME_POSE_RAD:
         raise InputError("goal", "a pose different from the start (nothing to plan: the robot is there)",
                          np.round(goal, 6).tolist())
-
-
-#: cars plan with this multiple of their minimum turning radius, so that the sinusoidal steering that
-#: makes the path feasible has room below the steering limit
-CAR_RADIUS_FACTOR = 1.25
 
 
 def min_turning_radius(model: Model) -> float:
@@ -114,12 +76,11 @@ def min_turning_radius(model: Model) -> float:
 
 
 def default_turning_radius(model: Model) -> float:
+    """The planning turning radius of the model's built-in robot (see :mod:`nhstab.robot`)."""
     if getattr(model, "name", None) not in PLANNABLE:
         raise InputError("robot", "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)",
                          getattr(model, "name", model))
-    if model.name == "unicycle":
-        return UNICYCLE_TURNING_RADIUS
-    return CAR_RADIUS_FACTOR * min_turning_radius(model)
+    return default_robot(model.name, **model.params()).turning_radius
 
 
 @dataclass
@@ -140,26 +101,47 @@ class PlanResult:
         return self.status == "ok"
 
 
-def plan(m: Map, model: Model, fp: Footprint, start, goal, path_opts: PathOptions | None = None,
-         timing_opts: TimingOptions | None = None, stab_opts: StabilizerOptions | None = None,
-         check_resolution: float = 0.05, world: CollisionWorld | None = None) -> PlanResult:
-    """Plan a nominal trajectory of ``model`` from start to goal on the map's known obstacles.
+def plan(m: Map, robot: Robot, *args, **kwargs) -> PlanResult:
+    """Plan a nominal trajectory of ``robot`` from start to goal on the map's known obstacles:
+    ``plan(m, robot, start, goal, path_opts=None, timing_opts=None, stab_opts=None,
+    check_resolution=0.05, world=None)``.
+
+    ``robot`` is a :class:`~nhstab.robot.Robot` (footprint, turning radius, margin and stabilizer
+    defaults come from it where the options leave them None). The older form
+    ``plan(m, model, footprint, start, goal, ...)`` is still accepted: the model's built-in robot
+    with that footprint.
 
     Bad requests (start or goal outside the bounds or in collision, bad options, a model this planner
     does not handle) raise :class:`InputError`; a request the planner cannot satisfy returns a result
     whose ``status`` says why.
     """
-    check_plan_arguments(m, model, fp)
+    if isinstance(robot, Model):
+        if not args:
+            raise InputError("footprint", "a Footprint after the model (or pass a Robot)", None)
+        fp, *args = args
+        robot = make_robot(robot, footprint=fp)
+    if not isinstance(robot, Robot):
+        raise InputError("robot", "a Robot (nhstab.robot.make_robot) or a Model and a Footprint",
+                         type(robot).__name__)
+    return _plan(m, robot, *args, **kwargs)
+
+
+def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = None,
+          timing_opts: TimingOptions | None = None, stab_opts: StabilizerOptions | None = None,
+          check_resolution: float = 0.05, world: CollisionWorld | None = None) -> PlanResult:
+    model, fp = robot.model, robot.footprint
+    if not isinstance(m, Map):
+        raise InputError("map", "a Map (nhstab.load_map(path))", type(m).__name__)
     if model.name not in PLANNABLE:
         raise InputError("robot", "one of " + ", ".join(PLANNABLE), model.name)
-    start, goal = check_pose_argument("start", start), check_pose_argument("goal", goal)
     for name, opts, cls in (("path_opts", path_opts, PathOptions), ("timing_opts", timing_opts, TimingOptions),
                             ("stab_opts", stab_opts, StabilizerOptions)):
         if opts is not None and not isinstance(opts, cls):
             raise InputError(name, f"a {cls.__name__} or None", type(opts).__name__)
-    path_opts = (path_opts or PathOptions(turning_radius=default_turning_radius(model))).validated()
+    path_opts = (path_opts or PathOptions()).for_robot(robot).validated()
     timing_opts = (timing_opts or TimingOptions()).validated()
-    stab_opts = (stab_opts or StabilizerOptions(**DEFAULT_STABILIZER[model.name])).validated()
+    stab_opts = (stab_opts or StabilizerOptions(**robot.stabilizer)).validated()
+    start, goal = _pose(start, "start", model), _pose(goal, "goal", model)
     check_map_budget(m, path_opts.time_limit_s, path_opts.resolution)
     check_start_goal(start, goal)
     if model.name != "unicycle" and path_opts.turning_radius < min_turning_radius(model) - 1e-9:
@@ -232,7 +214,7 @@ def plan(m: Map, model: Model, fp: Footprint, start, goal, path_opts: PathOption
         metrics["time_to_nominal_s"] = time.perf_counter() - started
         return PlanResult("not_stabilizable", str(exc), path, nominal, metrics=metrics)
     d = schedule.diagnostics
-    metrics.update({"stabilizer": stab_opts.describe(), "h_min_eigenvalue": d["h_min_eigenvalue"],
+    metrics.update({"robot": robot.name, "stabilizer": stab_opts.describe(), "h_min_eigenvalue": d["h_min_eigenvalue"],
                     "h_min_eigenvalue_time_s": d["h_min_eigenvalue_time_s"], "max_gain_norm": d["max_gain_norm"],
                     "p_m": d["p_m"], "p_M": d["p_M"], "rate_bound": d["rate_bound"],
                     "time_to_nominal_s": time.perf_counter() - started})
@@ -240,5 +222,22 @@ def plan(m: Map, model: Model, fp: Footprint, start, goal, path_opts: PathOption
                       path, nominal, schedule, metrics)
 
 
-__all__ = ["plan", "PlanResult", "PathOptions", "TimingOptions", "GeometricPath", "plan_path", "path_length",
-           "PLANNERS", "SPACES", "PLANNABLE", "DEFAULT_STABILIZER", "pose_columns", "default_turning_radius"]
+def _pose(value, name: str, model: Model) -> np.ndarray:
+    """A start or goal pose: (x, y, theta) finite numbers (a full state of the model is also
+    accepted: its pose columns are used)."""
+    if isinstance(value, (str, bytes, dict)) or value is None:
+        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value)
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value) from None
+    if arr.shape == (model.n,) and model.n != 3:
+        arr = arr[pose_columns(model)]
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise InputError(name, "a pose of three finite numbers (x, y, theta)",
+                         value if arr.size < 10 else f"shape {arr.shape}")
+    return arr
+
+
+__all__ = ["plan", "PlanResult", "check_map_budget", "check_start_goal", "PathOptions", "TimingOptions", "GeometricPath", "plan_path", "path_length",
+           "PLANNERS", "SPACES", "PLANNABLE", "pose_columns", "default_turning_radius", "min_turning_radius"]

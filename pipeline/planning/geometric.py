@@ -1,25 +1,45 @@
-"""Geometric planning in OMPL's Reeds-Shepp and Dubins state spaces, with FCL as validity checker.
+"""Geometric planning in Reeds-Shepp and Dubins spaces: a grid guide, exact local paths, OMPL's search.
 
-The only module that imports ``ompl``. OMPL's RNG is process-wide and can be seeded only before the
-first random number generator exists in the process. So that every planning call is reproducible
-from its own seed, whatever ran before it, :func:`plan_path` runs the search in a forked child
-process (which inherits the collision world) that seeds a fresh RNG, plans, and sends the path back;
-``isolate=False`` plans in-process (then only the first call of a process is seeded). The child
-exits without running interpreter finalisers, so nanobind's exit-time "leaked instances" report
-never reaches users. OMPL's own log output is switched off: the result carries the status.
+The only module that imports ``ompl``. A plan is a sequence of local paths (shortest Reeds-Shepp or
+Dubins paths, :mod:`nhstab.planning.local_paths`) between waypoints, each sampled every
+``resolution`` metres and checked against the collision world (the distance field decides most
+poses, FCL the rest: :meth:`nhstab.collision.CollisionWorld.motion_free`), so that the path is
+sampled and checked the same way wherever it came from.
+
+The search (``plan_path``):
+
+1. the direct local path from start to goal, if it is free;
+2. with ``guide`` (default), the **guided search**: a grid shortest path for the robot's inscribed
+   disc (:class:`nhstab.planning.guide.Guide`) sets subgoals; from the current pose the planner joins
+   the farthest subgoal within ``GUIDE_LOOKAHEAD_M`` whose local path is free (halving the distance
+   until one is), and where none is, runs OMPL's planner (RRTConnect by default) between the current
+   pose and a subgoal a few turning radii ahead, in a box around the two;
+3. otherwise, or if the guided search fails (it stops after ``GUIDED_SHARE`` of the budget), OMPL's
+   planner over the whole map for the rest of the budget.
+
+OMPL searches with its own discrete motion validator (in C++, a motion's states in bisection order, so
+a blocked motion costs a few checks) and nhstab's state validity checker (the distance field, then
+FCL); each edge of its solution is then checked as nhstab's local path (split at OMPL's midpoint where
+two Reeds-Shepp words of equal length made the two differ). Only exact solutions count. OMPL's RNG is process-wide, but in
+OMPL 2 ``RNG.setSeed`` reseeds the seed generator that every new RNG draws from, even after
+generators exist; each OMPL call here seeds it first and builds its planner afterwards, so the same
+seed gives the same plan in-process, whatever ran before (tested against a fresh process).
+``isolate=True`` still plans in a forked child process. OMPL's own log output is switched off: the
+result carries the status.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..collision import CollisionWorld
 from ..errors import InputError
 from ..geometry import Footprint, wrap_angle
+from . import local_paths
 
 PLANNERS = ("rrtconnect", "rrt", "rrtstar", "informedrrtstar", "bitstar", "prmstar", "prm", "kpiece", "fmt")
 SPACES = ("reeds_shepp", "dubins")
@@ -32,17 +52,24 @@ class PathOptions:
     space: "reeds_shepp" (forward and reverse) or "dubins" (forward only); turning_radius [m] > 0;
     planner: one of PLANNERS (default rrtconnect: fast first solution); time_limit_s > 0;
     seed: OMPL's RNG seed; margin [m]: obstacles inflated by it; resolution [m]: validity checking
-    step along motions; simplify: OMPL's path simplification (shortcutting) after solving.
+    step along motions; simplify: OMPL's path simplification (shortcutting) after an OMPL search;
+    guide: the guided search (a grid shortest path sets subgoals, see the module docstring).
     """
 
     space: str = "reeds_shepp"
-    turning_radius: float = 1.0
+    turning_radius: float | None = None      # None: the robot's (filled in by planning.plan)
     planner: str = "rrtconnect"
     time_limit_s: float = 1.0
     seed: int = 0
-    margin: float = 0.1
+    margin: float | None = None              # None: the robot's (filled in by planning.plan)
     resolution: float = 0.05
     simplify: bool = True
+    guide: bool = True
+
+    def for_robot(self, robot) -> "PathOptions":
+        """These options with the robot's turning radius and margin where they are None."""
+        return replace(self, turning_radius=robot.turning_radius if self.turning_radius is None else self.turning_radius,
+                       margin=robot.margin if self.margin is None else self.margin)
 
     def validated(self) -> "PathOptions":
         if self.space not in SPACES:
@@ -51,13 +78,21 @@ class PathOptions:
             raise InputError("planner", "one of " + ", ".join(PLANNERS), self.planner)
         for key in ("turning_radius", "time_limit_s", "resolution"):
             v = getattr(self, key)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            if v is not None and not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                                      and v > 0):
                 raise InputError(key, "a positive finite number", v)
-        if not (math.isfinite(self.margin) and self.margin >= 0):
+        if self.margin is not None and not (isinstance(self.margin, (int, float)) and not isinstance(self.margin, bool)
+                                            and math.isfinite(self.margin) and self.margin >= 0):
             raise InputError("margin", "a finite number >= 0", self.margin)
         from ..limits import MAX_PLANNER_SEED, check_int
 
         check_int("seed", self.seed, 0, MAX_PLANNER_SEED, "an integer (OMPL's seed)")
+        for key in ("simplify", "guide"):
+            if not isinstance(getattr(self, key), bool):
+                raise InputError(key, "true or false", getattr(self, key))
+        for key in ("turning_radius", "margin"):
+            if getattr(self, key) is None:
+                raise InputError(key, "a number (planning.plan takes it from the robot when not given)", None)
         return self
 
 
@@ -121,23 +156,20 @@ def path_length(opts: PathOptions, a, b) -> float:
 
 
 def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptions,
-              isolate: bool = True) -> GeometricPath:
+              isolate: bool = False) -> GeometricPath:
     """Plan a collision-free (by ``opts.margin``) path from start to goal; never raises for "no path".
 
-    Tries the direct local path first; otherwise runs the chosen OMPL planner for at most
-    ``opts.time_limit_s``. With ``isolate`` (default) the search runs in a forked child process
-    seeded with ``opts.seed`` (see the module docstring).
+    The direct local path if it is free, else the guided search (``opts.guide``), else OMPL's planner
+    over the map, within ``opts.time_limit_s`` in all (see the module docstring). With ``isolate``
+    the search runs in a forked child process.
     """
     opts = opts.validated()
     if world.bounds is None:
         raise InputError("world", "a collision world with bounds", None)
-    world.clearance_field()                   # build once, in the parent: children inherit it
-    _ompl()                                   # import once, in the parent (no generator is made)
-    # the budget covers the search and its simplification; the distance field (built once per
-    # world, at most ClearanceField.MAX_CELLS cells) and the one-time import are not in it
-    deadline = time.perf_counter() + opts.time_limit_s
+    world.clearance_field()                   # build once (in the parent, if a child plans)
+    _ompl()
     if not isolate:
-        return _plan_path(world, fp, start, goal, opts, deadline)
+        return _plan_path(world, fp, start, goal, opts)
     import multiprocessing as mp
 
     ctx = mp.get_context("fork")
@@ -145,7 +177,7 @@ def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptio
 
     def child():
         try:
-            send.send(("ok", _plan_path(world, fp, start, goal, opts, deadline)))
+            send.send(("ok", _plan_path(world, fp, start, goal, opts)))
         except BaseException as exc:           # sent back and re-raised in the parent
             send.send(("error", exc))
 
@@ -170,90 +202,231 @@ def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptio
     return value
 
 
-def _plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptions,
-               deadline: float | None = None) -> GeometricPath:
-    """The search and its simplification within the budget (``deadline``, a ``time.perf_counter``
-    value): OMPL's solve gets what the setup left, the simplification what the solve left, or
-    nothing (a simplification that converges earlier gives the same path as an unbounded one)."""
-    if deadline is None:
-        deadline = time.perf_counter() + opts.time_limit_s
-    ob, og, ou = _ompl()
-    ou.RNG.setSeed(int(opts.seed) + 1)      # before anything samples (OMPL refuses seed 0)
-    space = make_space(opts, world.bounds)
-    ss = og.SimpleSetup(space)
-    check = world.state_checker(fp, opts.margin)
-    counter = {"calls": 0, "time": 0.0}
+#: the guided search joins subgoals at most this far along the guide [m] (at least 10 turning radii)
+GUIDE_LOOKAHEAD_M = 40.0
+#: an OMPL search between two guide subgoals gets at most this fraction of the whole budget (and at least
+#: LOCAL_MIN_BUDGET_S, never more than what is left)
+LOCAL_BUDGET_FRACTION = 0.15
+LOCAL_MIN_BUDGET_S = 0.1
+#: the guided search stops after this fraction of the budget, so that the unguided search over the whole
+#: map keeps the rest (where the guide's corridor does not suit the robot, e.g. a car that must turn)
+GUIDED_SHARE = 0.5
 
-    def valid(state) -> bool:
+
+class _Search:
+    """One planning call: the local paths, the checks and their counts, the deadline, OMPL calls."""
+
+    def __init__(self, world: CollisionWorld, fp: Footprint, opts: PathOptions, start, goal):
+        self.world, self.fp, self.opts = world, fp, opts
+        self.radius = float(opts.turning_radius)
+        self.started = time.perf_counter()
+        self.deadline = self.started + float(opts.time_limit_s)
+        self.stats = {"states": 0, "fcl_states": 0, "time_s": 0.0}
+        self.counts = {"connections_tried": 0, "connections_free": 0, "ompl_calls": 0, "ompl_exact": 0}
+        self._check = world.state_checker(fp, opts.margin)
+        self.ompl_status = ""
+
+    def left(self) -> float:
+        return self.deadline - time.perf_counter()
+
+    def pose_free(self, pose) -> bool:
         t0 = time.perf_counter()
-        ok = check(state.getX(), state.getY(), state.getYaw())
-        counter["time"] += time.perf_counter() - t0
-        counter["calls"] += 1
+        ok = self._check(float(pose[0]), float(pose[1]), float(pose[2]))
+        self.stats["time_s"] += time.perf_counter() - t0
+        self.stats["states"] += 1
         return ok
 
-    ss.setStateValidityChecker(valid)
-    si = ss.getSpaceInformation()
-    si.setStateValidityCheckingResolution(min(0.5, opts.resolution / max(space.getMaximumExtent(), 1e-9)))
-    s_start, s_goal = _state(space, start), _state(space, goal)
-    ss.setStartAndGoalStates(s_start, s_goal)
-    ss.setPlanner(_planner(og, opts.planner, si))
-    ss.setup()
-    started = time.perf_counter()
-    if si.checkMotion(s_start, s_goal):
-        # the direct (shortest) local path is free: no search needed
-        exact, have, status_text, used = True, True, "Exact solution (direct connection)", "direct"
-        waypoints = np.array([[float(v) for v in start], [float(v) for v in goal]])
-        simplified = False
-    else:
-        status = ss.solve(max(deadline - time.perf_counter(), 1e-3))
-        exact = bool(ss.haveExactSolutionPath())
-        have = bool(ss.haveSolutionPath())
-        status_text = status.asString() if hasattr(status, "asString") else str(status)
-        used = opts.planner
-        waypoints = None
-        simplified = False
-        if have:
-            left = deadline - time.perf_counter()
-            if opts.simplify and left > 0:
-                ss.simplifySolution(left)          # 0 would mean "no limit" to OMPL
-                simplified = True
-            path = ss.getSolutionPath()
-            waypoints = np.array([[st.getX(), st.getY(), st.getYaw()]
-                                  for st in (path.getState(i) for i in range(path.getStateCount()))])
-    elapsed = time.perf_counter() - started
-    info = {"planner_used": used, "simplified": simplified}
-    if not have:
-        return GeometricPath("failed", status_text, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
-                             0.0, 0, elapsed, counter["calls"], counter["time"], opts, info)
-    length = float(sum(space.distance(_state(space, a), _state(space, b)) for a, b in zip(waypoints[:-1], waypoints[1:])))
-    samples, sigma = densify(space, waypoints, step=min(0.005, opts.resolution / 2))
+    def connect(self, a, b) -> bool:
+        """Is the local path from pose a to pose b free (sampled every ``resolution`` m)?"""
+        self.counts["connections_tried"] += 1
+        seg = local_paths.local_path(self.opts.space, a, b, self.radius)
+        poses = local_paths.sample_every(a, seg, self.radius, self.opts.resolution, include_start=False)
+        ok = self.world.motion_free(poses, self.fp, self.opts.margin, self.stats)
+        self.counts["connections_free"] += ok
+        return ok
+
+    def ompl(self, a, b, budget: float, bounds, seed: int):
+        """OMPL's planner from a to b within ``bounds`` for at most ``budget`` s: the waypoints of an
+        exact solution (simplified if asked), or None."""
+        ob, og, ou = _ompl()
+        ou.RNG.setSeed(int(seed))               # before anything in this call makes a generator
+        self.counts["ompl_calls"] += 1
+        space = make_space(self.opts, bounds)
+        ss = og.SimpleSetup(space)
+        ss.setStateValidityChecker(lambda st: self.pose_free((st.getX(), st.getY(), st.getYaw())))
+        si = ss.getSpaceInformation()
+        # OMPL's own discrete motion validator (C++: it visits a motion's states in bisection order, so
+        # a motion through an obstacle costs a few state checks, and most motions RRT tries are such)
+        si.setStateValidityCheckingResolution(min(0.5, self.opts.resolution / max(space.getMaximumExtent(), 1e-9)))
+        ss.setStartAndGoalStates(_state(space, a), _state(space, b))
+        ss.setPlanner(_planner(og, self.opts.planner, si))
+        ss.setup()
+        status = ss.solve(max(1e-3, float(budget)))
+        self.ompl_status = status.asString() if hasattr(status, "asString") else str(status)
+        if not ss.haveExactSolutionPath():
+            return None
+        self.counts["ompl_exact"] += 1
+        if self.opts.simplify:
+            ss.simplifySolution(max(0.05, min(self.left(), float(budget))))
+        path = ss.getSolutionPath()
+        states = [space.cloneState(path.getState(i)) for i in range(path.getStateCount())]
+        out = [np.asarray(a, dtype=float)]
+        for k in range(len(states) - 1):
+            piece = self._adopt(space, states[k], states[k + 1], 0)
+            if piece is None:
+                return None
+            out.extend(piece)
+        out[-1] = np.asarray(b, dtype=float)
+        return np.array(out)
+
+    def _adopt(self, space, sa, sb, depth: int):
+        """The poses after sa of the edge sa -> sb of an OMPL solution, checked as nhstab's local paths.
+        OMPL checked the edge along its own interpolation, which is the same local path except where two
+        Reeds-Shepp words tie in length; such an edge is split at OMPL's midpoint (sub-paths of a
+        shortest path are shortest) until nhstab's paths agree, or None."""
+        pa = (sa.getX(), sa.getY(), sa.getYaw())
+        pb = (sb.getX(), sb.getY(), sb.getYaw())
+        if self.connect(pa, pb):
+            return [np.array(pb)]
+        if depth >= 6:
+            return None
+        mid = space.allocState()
+        space.interpolate(sa, sb, 0.5, mid)
+        first = self._adopt(space, sa, mid, depth + 1)
+        second = None if first is None else self._adopt(space, mid, sb, depth + 1)
+        return None if second is None else first + second
+
+
+def _seed(seed: int, k: int) -> int:
+    """OMPL's seed for the k-th OMPL call of a planning call with ``seed`` (k = 0: seed + 1, as before)."""
+    if k == 0:
+        return int(seed) + 1                   # OMPL refuses seed 0
+    return int(np.random.SeedSequence([int(seed), int(k)]).generate_state(1)[0] % (2**31 - 2)) + 1
+
+
+def _plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptions) -> GeometricPath:
+    start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
+    search = _Search(world, fp, opts, start, goal)
+    info: dict = {}
+    waypoints, used, status_text = None, None, ""
+    if search.connect(start, goal):
+        waypoints, used, status_text = np.array([start, goal]), "direct", "Exact solution (direct connection)"
+    if waypoints is None and opts.guide:
+        waypoints = _guided(search, start, goal, info)
+        if waypoints is not None:
+            used, status_text = "guided", f"Exact solution (guided: {len(waypoints) - 1} local paths)"
+    if waypoints is None and search.left() > 0:
+        waypoints = search.ompl(start, goal, search.left(), world.bounds, _seed(opts.seed, 0))
+        used, status_text = opts.planner, search.ompl_status
+    elapsed = time.perf_counter() - search.started
+    st = search.stats
+    info.update({"planner_used": used, **search.counts, "fcl_states": st["fcl_states"],
+                 "fcl_fraction": st["fcl_states"] / max(st["states"], 1)})
+    if waypoints is None:
+        return GeometricPath("failed", status_text or "No solution (time limit)", np.zeros((0, 3)), np.zeros((0, 3)),
+                             np.zeros(0), np.zeros(0), 0.0, 0, elapsed, st["states"], st["time_s"], opts, info)
+    samples, sigma, length = densify(opts, waypoints, step=min(0.005, opts.resolution / 2))
     direction, cusps = path_directions(samples)
-    return GeometricPath("exact" if exact else "approximate", status_text, waypoints, samples, sigma, direction,
-                         length, cusps, elapsed, counter["calls"], counter["time"], opts, info)
+    return GeometricPath("exact", status_text, waypoints, samples, sigma, direction, length, cusps, elapsed,
+                         st["states"], st["time_s"], opts, info)
 
 
-def densify(space, waypoints: np.ndarray, step: float = 0.005):
-    """Sample the local (Reeds-Shepp / Dubins) paths between consecutive waypoints every ~step m.
+def _guided(search: _Search, start, goal, info: dict):
+    """The guided search (module docstring, step 2): waypoints (W, 3) joined by free local paths, or
+    None (no guide path, or a gap that OMPL did not bridge in its share of the budget)."""
+    from .guide import Guide
 
-    Returns the samples (S, 3), theta unwrapped, and their exact arc length: OMPL interpolates these
-    paths uniformly in arc length, so sample k of n on a local path of length d sits at k d / n."""
-    out, sig = [waypoints[:1]], [np.zeros(1)]
-    tmp = space.allocState()
+    opts, world = search.opts, search.world
+    guide = Guide(world.clearance_field(), search.fp, opts.margin, start, goal,
+                  cache=world.cache.setdefault("guide", {}))
+    info["guide"] = guide.info
+    if not guide.ok:
+        return None
+    info["guide"]["length_m"] = guide.length_m
+    R = search.radius
+    lookahead = max(GUIDE_LOOKAHEAD_M, 10.0 * R)
+    min_step = max(0.5, R)
+    window = max(1.0, R)
+    local_reach = max(3.0, 3.0 * R)
+    pad = max(2.0, 3.0 * R) + float(search.fp.bounding_radius)
+    budget_cap = max(LOCAL_MIN_BUDGET_S, LOCAL_BUDGET_FRACTION * float(opts.time_limit_s))
+
+    def subgoal(s: float):
+        return guide.reference_pose(guide.point_at(s), guide.heading_at(s, window))
+
+    pos, s_cur = start, guide.project(guide.start_xy)
+    out = [start]
+    k_ompl = 0
+    share_end = search.started + GUIDED_SHARE * float(opts.time_limit_s)
+
+    def left() -> float:
+        return min(search.left(), share_end - time.perf_counter())
+
+    while True:
+        if left() <= 0:
+            info["guide"]["failure"] = "its share of the time limit"
+            return None
+        rest = guide.length_m - s_cur
+        cands = []
+        if rest <= lookahead:
+            cands.append((goal, guide.length_m))
+        d = min(lookahead, rest)
+        while d >= min_step:
+            if s_cur + d < guide.length_m - 1e-9:
+                cands.append((None, s_cur + d))
+            d *= 0.5
+        nxt = None
+        for pose, s in cands:
+            pose = subgoal(s) if pose is None else pose
+            if (pose is goal or search.pose_free(pose)) and search.connect(pos, pose):
+                nxt = (pose, s, [pose])
+                break
+        if nxt is None:
+            # OMPL bridges the gap to a free subgoal a few turning radii ahead (or to the goal)
+            for s in ([guide.length_m] if rest <= local_reach else []) + \
+                     [s_cur + local_reach * f for f in (1.0, 1.5, 0.6, 2.0) if s_cur + local_reach * f < guide.length_m]:
+                pose = goal if s >= guide.length_m else subgoal(s)
+                if pose is not goal and not search.pose_free(pose):
+                    continue
+                lo = np.minimum(pos[:2], pose[:2]) - pad
+                hi = np.maximum(pos[:2], pose[:2]) + pad
+                b = world.bounds
+                box = (max(b[0], lo[0]), max(b[1], lo[1]), min(b[2], hi[0]), min(b[3], hi[1]))
+                k_ompl += 1
+                pts = search.ompl(pos, pose, min(left(), budget_cap), box, _seed(opts.seed, k_ompl))
+                if pts is not None:
+                    nxt = (pose, s, list(pts[1:]))
+                    break
+                if left() <= 0:
+                    break
+            if nxt is None:
+                info["guide"]["failure"] = f"no local path past guide arc length {s_cur:.2f} m"
+                return None
+        pos, s_cur = nxt[0], nxt[1]
+        out.extend(nxt[2])
+        if pos is goal:
+            return np.array(out)
+
+
+def densify(opts: PathOptions, waypoints: np.ndarray, step: float = 0.005):
+    """Sample the local paths between consecutive waypoints every ~step m, uniformly in arc length.
+
+    Returns the samples (S, 3), theta unwrapped, their exact arc length, and the path's length."""
+    R = float(opts.turning_radius)
+    out, sig = [np.asarray(waypoints[:1], dtype=float)], [np.zeros(1)]
     offset = 0.0
     for a, b in zip(waypoints[:-1], waypoints[1:]):
-        sa, sb = _state(space, a), _state(space, b)
-        d = float(space.distance(sa, sb))
+        seg = local_paths.local_path(opts.space, a, b, R)
+        d = local_paths.path_length(seg, R)
         n = max(1, int(math.ceil(d / step)))
-        pts = np.empty((n, 3))
-        for k in range(1, n + 1):
-            space.interpolate(sa, sb, k / n, tmp)
-            pts[k - 1] = (tmp.getX(), tmp.getY(), tmp.getYaw())
+        pts = local_paths.sample(a, seg, R, np.arange(1, n + 1) / n)
+        pts[-1] = b                                     # the waypoint itself (rounding)
         out.append(pts)
         sig.append(offset + d * np.arange(1, n + 1) / n)
         offset += d
     samples = np.vstack(out)
     samples[:, 2] = np.unwrap(samples[:, 2])
-    return samples, np.concatenate(sig)
+    return samples, np.concatenate(sig), offset
 
 
 def path_directions(samples: np.ndarray):

@@ -14,10 +14,9 @@ from __future__ import annotations
 
 from ..control import StabilizerOptions, compute_schedule
 from ..errors import SingularGramianError
-from ..geometry import default_footprint
+from ..robot import default_robot
 from ..maps import load_map
-from ..models import make_model
-from . import PathOptions, default_turning_radius, plan
+from . import PathOptions, plan
 
 GRID = {
     "unicycle": {"alpha": [0.1, 0.2, 0.5, 1.0], "delta": [0.5, 1.0, 2.0]},
@@ -31,9 +30,8 @@ def sweep(map_path, seed: int = 1) -> dict:
     m = load_map(map_path)
     rows = []
     for name, grid in GRID.items():
-        model, fp = make_model(name), default_footprint(name)
-        r = plan(m, model, fp, m.start.as_array(), m.goal.as_array(),
-                 PathOptions(turning_radius=default_turning_radius(model), time_limit_s=5.0, seed=seed))
+        r = plan(m, default_robot(name), m.start.as_array(), m.goal.as_array(),
+                 PathOptions(time_limit_s=5.0, seed=seed, margin=0.1))
         if r.nominal is None:
             rows.append({"robot": name, "error": r.message})
             continue

@@ -49,9 +49,13 @@ def map_figure(m: Map, start=None, goal=None, footprint=None, title: str | None 
             img = np.where(g.unknown & g.occupied, 0.55, img)
         H, W = g.shape
         ox, oy, yaw = g.origin
-        im = ax.imshow(img, cmap="gray", vmin=0, vmax=1, origin="lower", interpolation="nearest",
-                       extent=(0, W * g.resolution, 0, H * g.resolution))
-        im.set_transform(Affine2D().rotate(yaw).translate(ox, oy) + ax.transData)
+        if yaw == 0.0:       # the extent places it (a rotated image takes matplotlib's slow resampling)
+            ax.imshow(img, cmap="gray", vmin=0, vmax=1, origin="lower", interpolation="nearest",
+                      extent=(ox, ox + W * g.resolution, oy, oy + H * g.resolution))
+        else:
+            im = ax.imshow(img, cmap="gray", vmin=0, vmax=1, origin="lower", interpolation="nearest",
+                           extent=(0, W * g.resolution, 0, H * g.resolution))
+            im.set_transform(Affine2D().rotate(yaw).translate(ox, oy) + ax.transData)
     for s in m.obstacles:
         _draw_shape(ax, s, known=True)
     for s in m.unknown_obstacles:
@@ -98,6 +102,7 @@ def map_summary(m: Map, footprint=None) -> dict:
         "start": None if m.start is None else list(m.start.as_array()),
         "goal": None if m.goal is None else list(m.goal.as_array()),
         "robot": m.robot,
+        "notes": list(m.meta.get("notes") or []),
     }
     if footprint is not None and (m.start is not None or m.goal is not None):
         clear = check_poses(m, footprint, {"start": None if m.start is None else m.start.as_array(),

@@ -1,0 +1,381 @@
+"""A robot is one described value: model and parameters, footprint, limits, state layout, defaults.
+
+Every stage takes the robot from here: the planner (footprint, turning radius, margin), the gain
+schedule (stabilizer alpha, delta, gamma), the plant and its input limits, the collision monitor
+and the outputs, which record :meth:`Robot.describe`. Users describe their own robot in YAML, as
+``--robot-config FILE`` (a file whose top level is this block, or holds it under ``robot:``) or as
+the ``robot:`` block of map, run and batch files::
+
+    robot:
+      model: rwd_car            # heisenberg | unicycle | fwd_car | rwd_car
+      wheelbase: 2.7            # the model's parameters by their names: max_speed, max_steer,
+      max_steer: 0.7            #   max_steer_rate, max_turn_rate, ...
+      max_steer_rate: 0.6
+      max_speed: 2.0
+      footprint:                # one of: {radius: R} | {rectangle: {length, width, rear_overhang}} |
+        polygon: [[-0.9, -0.95], [3.6, -0.95], [3.6, 0.95], [-0.9, 0.95]]   # {polygon: [...]}
+      margin: 0.1               # planning margin [m]
+      stabilizer: {alpha: 0.1, delta: 6.0, gamma: 1.0}   # the gramian law's defaults
+      turning_radius: 5.0       # planning turning radius [m] (default: the rule below)
+
+Every key but ``model`` is optional; an unknown key, a wrong type, NaN or a value out of range is
+refused with one :class:`InputError` naming the key. A polygon footprint is in the robot's frame:
+x forward from the reference point (the rear axle of a car, the centre of the unicycle), y to the
+left; a rectangle's ``rear_overhang`` is how far the body reaches behind the reference point.
+
+Defaults per model (:data:`MODEL_DEFAULTS`): the footprint, the planning margin, the stabilizer
+parameters (chosen by ``nhstab sweep``, results/planning/sweep.md) and the turning-radius rule. The
+rule: the unicycle plans with a 0.5 m radius (it could turn in place; a radius keeps the path smooth
+and the gramian well conditioned); a car plans with 1.25 times its minimum turning radius
+R_min = L / tan(max_steer), so that the feedback keeps steering authority: on an arc of radius
+1.25 R_min the nominal steers at atan(tan(max_steer) / 1.25), 0.11 rad inside the default rwd_car's
+limit. Where a problem needs tighter turns the planner may go down to R_min (issue 11's parking);
+``turning_radius`` overrides the rule.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import InputError
+from .geometry import Footprint
+from .models import MODELS, Model, make_model
+
+#: per-model defaults: footprint (a YAML footprint spec), planning margin [m], stabilizer, turning
+#: radius rule (("fixed", metres) or ("factor", multiple of the minimum turning radius))
+MODEL_DEFAULTS: dict[str, dict] = {
+    "unicycle": {"footprint": {"radius": 0.3}, "margin": 0.1,
+                 "stabilizer": {"alpha": 0.2, "delta": 2.0, "gamma": 1.0}, "turning_radius": ("fixed", 0.5)},
+    # a car's body reaches 3.3 m ahead of its rear axle, where a heading error of 0.05 rad already
+    # moves it by 0.17 m, so cars keep more room than the unicycle
+    "rwd_car": {"footprint": {"rectangle": {"length": 4.2, "width": 1.8, "rear_overhang": 0.9}}, "margin": 0.3,
+                "stabilizer": {"alpha": 0.1, "delta": 6.0, "gamma": 1.0}, "turning_radius": ("factor", 1.25)},
+    "fwd_car": {"footprint": {"rectangle": {"length": 1.6, "width": 0.8, "rear_overhang": 0.3}}, "margin": 0.2,
+                "stabilizer": {"alpha": 0.2, "delta": 3.0, "gamma": 1.0}, "turning_radius": ("factor", 1.25)},
+    "heisenberg": {"footprint": {"radius": 0.1}, "margin": 0.1,
+                   "stabilizer": {"alpha": 1.0, "delta": 1.0, "gamma": 1.0}, "turning_radius": ("fixed", 0.5)},
+}
+#: the robot keys other than the model's parameters
+ROBOT_KEYS = ("model", "footprint", "margin", "stabilizer", "turning_radius", "name")
+STABILIZER_KEYS = ("alpha", "delta", "gamma")
+#: how close consecutive polygon vertices may be and still count as distinct [m]
+_SAME_POINT = 1e-9
+
+
+@dataclass(frozen=True)
+class Robot:
+    """One robot: its model (with parameters and limits), footprint, and defaults."""
+
+    model: Model
+    footprint: Footprint
+    margin: float
+    stabilizer: dict = field(default_factory=dict)      # alpha, delta, gamma
+    turning_radius: float = 0.5                          # planning radius [m]
+    name: str = ""                                       # a label (default: the model's name)
+    #: where the description came from ("default", a file, "map", "run config", ...)
+    source: str = "default"
+    #: what the description did to its input (e.g. repeated polygon vertices dropped)
+    notes: tuple = ()
+
+    # ---- layout -----------------------------------------------------------------------------
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return self.model.state_names
+
+    @property
+    def pose_columns(self) -> list[int]:
+        """Indices of (x, y, theta) in the state."""
+        names = list(self.model.state_names)
+        return [names.index("x"), names.index("y"), names.index("theta")]
+
+    @property
+    def steering_column(self) -> int | None:
+        """Index of the steering angle phi in the state, or None."""
+        names = list(self.model.state_names)
+        return names.index("phi") if "phi" in names else None
+
+    @property
+    def min_turning_radius(self) -> float:
+        """L / tan(max_steer) for the cars; 0 for robots that turn in place."""
+        if hasattr(self.model, "max_steer") and hasattr(self.model, "wheelbase"):
+            return float(self.model.wheelbase / math.tan(self.model.max_steer))
+        return 0.0
+
+    def input_limits(self) -> np.ndarray:
+        return self.model.input_limits()
+
+    def state_limits(self) -> np.ndarray:
+        return self.model.state_limits()
+
+    def with_model(self, model: Model) -> "Robot":
+        """The same robot with another model of the same kind (e.g. derated limits for planning)."""
+        return dataclasses.replace(self, model=model)
+
+    # ---- records ----------------------------------------------------------------------------
+    def spec(self) -> dict:
+        """The YAML form of this robot (every key explicit): ``robot_from_spec(r.spec())`` gives it back."""
+        fp = self.footprint
+        if fp.radius is not None:
+            fps = {"radius": float(fp.radius)}
+        else:
+            fps = {"polygon": [[float(a), float(b)] for a, b in fp.vertices]}
+        return {"model": self.model.name, **{k: float(v) for k, v in self.model.params().items()},
+                "footprint": fps, "margin": float(self.margin),
+                "stabilizer": {k: float(self.stabilizer[k]) for k in STABILIZER_KEYS},
+                "turning_radius": float(self.turning_radius), "name": self.name or self.model.name}
+
+    def describe(self) -> dict:
+        """What results record: the spec, the state layout, the limits and where it came from."""
+        return {**self.spec(), "state_names": list(self.model.state_names),
+                "input_names": list(self.model.input_names), "footprint_label": self.footprint.label,
+                "min_turning_radius_m": self.min_turning_radius, "source": self.source,
+                **({"notes": list(self.notes)} if self.notes else {})}
+
+
+def default_footprint(model_name: str) -> Footprint:
+    """The footprint of a model's built-in robot (:data:`MODEL_DEFAULTS`)."""
+    if model_name not in MODEL_DEFAULTS:
+        raise InputError("model", "one of " + ", ".join(sorted(MODEL_DEFAULTS)), model_name)
+    return parse_footprint(MODEL_DEFAULTS[model_name]["footprint"])
+
+
+def default_robot(model_name: str = "unicycle", **params) -> Robot:
+    """The built-in robot of a model, with optional model parameters (e.g. ``wheelbase=2.7``)."""
+    return robot_from_spec({"model": model_name, **params})
+
+
+def make_robot(model: str | Model = "unicycle", footprint: Footprint | dict | None = None,
+               margin: float | None = None, stabilizer: dict | None = None, turning_radius: float | None = None,
+               **params) -> Robot:
+    """A robot from Python values: ``make_robot("rwd_car", wheelbase=2.7, margin=0.1,
+    footprint={"rectangle": {"length": 4.5, "width": 1.9, "rear_overhang": 1.0}})``; a footprint
+    may also be a :class:`Footprint`. Validated like the YAML form."""
+    if isinstance(model, Model):
+        params = {**{k: v for k, v in model.params().items()}, **params}
+        model = model.name
+    spec: dict = {"model": model, **params}
+    fp_obj = None
+    if isinstance(footprint, Footprint):
+        fp_obj = footprint
+    elif footprint is not None:
+        spec["footprint"] = footprint
+    if margin is not None:
+        spec["margin"] = margin
+    if stabilizer is not None:
+        spec["stabilizer"] = stabilizer
+    if turning_radius is not None:
+        spec["turning_radius"] = turning_radius
+    robot = robot_from_spec(spec, source="python")
+    return robot if fp_obj is None else dataclasses.replace(robot, footprint=fp_obj)
+
+
+def robot_from_spec(spec, where: str = "robot", source: str = "default") -> Robot:
+    """Build and validate a robot from its YAML form (a mapping, or a model name as a string).
+    Errors name the key as ``<where>.<key>`` (e.g. ``robot.footprint.polygon[2]``)."""
+    if isinstance(spec, str):
+        spec = {"model": spec}
+    if not isinstance(spec, dict):
+        raise InputError(where, "a mapping with at least the key model (or a model name)", _kind(spec))
+    if "model" not in spec:
+        raise InputError(f"{where}.model", "present (one of " + ", ".join(sorted(MODELS)) + ")", "missing")
+    name = spec["model"]
+    if not isinstance(name, str) or name not in MODELS:
+        raise InputError(f"{where}.model", "one of " + ", ".join(sorted(MODELS)), name)
+    model_cls = MODELS[name]
+    param_names = [f.name for f in dataclasses.fields(model_cls) if f.init]
+    for key in spec:
+        if not isinstance(key, str) or (key not in ROBOT_KEYS and key not in param_names):
+            allowed = ", ".join([*ROBOT_KEYS, *param_names])
+            raise InputError(f"{where}.{key}", f"a {name} robot key: one of {allowed}", key)
+    params = {k: _number(f"{where}.{k}", spec[k], 0.0, lo_open=True) for k in param_names if k in spec}
+    try:
+        model = make_model(name, **params)
+    except InputError as exc:
+        arg = exc.argument if exc.argument.startswith(f"{where}.") else f"{where}.{exc.argument.split('.')[-1]}"
+        raise InputError(arg, exc.expected, exc.got) from None
+    defaults = MODEL_DEFAULTS[name]
+    notes: list[str] = []
+    fp = parse_footprint(spec.get("footprint", defaults["footprint"]), f"{where}.footprint", notes)
+    margin = _number(f"{where}.margin", spec.get("margin", defaults["margin"]), 0.0)
+    stab = dict(defaults["stabilizer"])
+    if "stabilizer" in spec:
+        given = spec["stabilizer"]
+        if not isinstance(given, dict):
+            raise InputError(f"{where}.stabilizer", "a mapping with alpha, delta, gamma", _kind(given))
+        for k, v in given.items():
+            if k not in STABILIZER_KEYS:
+                raise InputError(f"{where}.stabilizer.{k}", "one of " + ", ".join(STABILIZER_KEYS), k)
+            lo, lo_open = (0.5, False) if k == "gamma" else (0.0, True)
+            stab[k] = _number(f"{where}.stabilizer.{k}", v, lo, lo_open=lo_open)
+    r_min = float(model.wheelbase / math.tan(model.max_steer)) if hasattr(model, "max_steer") else 0.0
+    if "turning_radius" in spec:
+        radius = _number(f"{where}.turning_radius", spec["turning_radius"], 0.0, lo_open=True)
+        if radius < r_min - 1e-9:
+            raise InputError(f"{where}.turning_radius", f"at least the car's minimum turning radius "
+                             f"L / tan(max_steer) = {r_min:.4g} m", radius)
+    else:
+        kind, value = defaults["turning_radius"]
+        radius = value if kind == "fixed" else value * r_min
+    label = spec.get("name", name)
+    if not isinstance(label, str) or not label.strip():
+        raise InputError(f"{where}.name", "a non-empty string", label)
+    return Robot(model=model, footprint=fp, margin=margin, stabilizer=stab, turning_radius=float(radius),
+                 name=label, source=source, notes=tuple(notes))
+
+
+def parse_footprint(spec, where: str = "footprint", notes: list | None = None) -> Footprint:
+    """A footprint from ``{radius: R}``, ``{rectangle: {length, width, rear_overhang}}`` or
+    ``{polygon: [[x, y], ...]}``. Repeated consecutive polygon vertices (and a repeated closing
+    vertex) are dropped and noted; a polygon must keep >= 3 distinct vertices, be simple and have
+    area; the reference point need not lie inside it."""
+    from .geometry import polygon_area
+
+    if isinstance(spec, Footprint):
+        return spec
+    if not isinstance(spec, dict) or len(spec) != 1:
+        raise InputError(where, "one of {radius: R}, {rectangle: {length, width, rear_overhang}}, {polygon: [...]}",
+                         _kind(spec))
+    (kind, value), = spec.items()
+    if kind == "radius":
+        return Footprint.disc(_number(f"{where}.radius", value, 0.0, lo_open=True))
+    if kind == "rectangle":
+        if not isinstance(value, dict):
+            raise InputError(f"{where}.rectangle", "a mapping with length, width and optionally rear_overhang",
+                             _kind(value))
+        for k in value:
+            if k not in ("length", "width", "rear_overhang"):
+                raise InputError(f"{where}.rectangle.{k}", "one of length, width, rear_overhang", k)
+        for k in ("length", "width"):
+            if k not in value:
+                raise InputError(f"{where}.rectangle.{k}", "present", "missing")
+        length = _number(f"{where}.rectangle.length", value["length"], 0.0, lo_open=True)
+        width = _number(f"{where}.rectangle.width", value["width"], 0.0, lo_open=True)
+        back = None
+        if "rear_overhang" in value:
+            back = _number(f"{where}.rectangle.rear_overhang", value["rear_overhang"], 0.0)
+            if back > length:
+                raise InputError(f"{where}.rectangle.rear_overhang", f"at most the length {length:g} m", back)
+        return Footprint.rectangle(length, width, rear_overhang=back)
+    if kind == "polygon":
+        if not isinstance(value, list) or len(value) > 10_000:
+            raise InputError(f"{where}.polygon", "a list of [x, y] points (at most 10000)", _kind(value))
+        pts = []
+        for i, p in enumerate(value):
+            if not (isinstance(p, (list, tuple)) and len(p) == 2):
+                raise InputError(f"{where}.polygon[{i}]", "[x, y] (two numbers)", p)
+            pts.append([_number(f"{where}.polygon[{i}][{j}]", c) for j, c in enumerate(p)])
+        v = np.array(pts, dtype=float).reshape(-1, 2)
+        cleaned = clean_ring(v)
+        if notes is not None and len(cleaned) != len(v):
+            notes.append(f"{where}: dropped {len(v) - len(cleaned)} repeated vertex(es)")
+        if len(cleaned) < 3:
+            raise InputError(f"{where}.polygon", "at least 3 distinct points", f"{len(cleaned)} distinct")
+        if abs(polygon_area(cleaned)) < 1e-12:
+            raise InputError(f"{where}.polygon", "a polygon with area (not all points on a line)", pts)
+        if not _simple(cleaned):
+            raise InputError(f"{where}.polygon", "a simple polygon (edges must not cross)", pts)
+        fp = Footprint.polygon(cleaned)
+        return dataclasses.replace(fp, label=f"polygon {len(cleaned)} vertices")
+    raise InputError(where, "one of the keys radius, rectangle, polygon", kind)
+
+
+def clean_ring(v: np.ndarray, tol: float = _SAME_POINT) -> np.ndarray:
+    """A polygon ring without repeated consecutive vertices (including a repeated closing vertex)."""
+    if len(v) == 0:
+        return v
+    keep = [0]
+    for i in range(1, len(v)):
+        if np.max(np.abs(v[i] - v[keep[-1]])) > tol:
+            keep.append(i)
+    out = v[keep]
+    while len(out) > 1 and np.max(np.abs(out[-1] - out[0])) <= tol:
+        out = out[:-1]
+    return out
+
+
+def _simple(v: np.ndarray) -> bool:
+    """No two non-adjacent edges intersect (O(k^2); footprints are small)."""
+    k = len(v)
+    a, b = v, np.roll(v, -1, axis=0)
+
+    def orient(p, q, r):
+        return (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0])
+
+    for i in range(k):
+        for j in range(i + 1, k):
+            if j == i or (j + 1) % k == i or (i + 1) % k == j:
+                continue
+            p1, p2, q1, q2 = a[i], b[i], a[j], b[j]
+            d1, d2 = orient(q1, q2, p1), orient(q1, q2, p2)
+            d3, d4 = orient(p1, p2, q1), orient(p1, p2, q2)
+            if ((d1 > 0) != (d2 > 0)) and ((d3 > 0) != (d4 > 0)) and d1 * d2 < 0 and d3 * d4 < 0:
+                return False
+            if d1 == 0 and d2 == 0 and d3 == 0 and d4 == 0:      # collinear overlap
+                lo_p, hi_p = np.minimum(p1, p2), np.maximum(p1, p2)
+                lo_q, hi_q = np.minimum(q1, q2), np.maximum(q1, q2)
+                if np.all(lo_p <= hi_q) and np.all(lo_q <= hi_p):
+                    return False
+    return True
+
+
+def load_robot(path) -> Robot:
+    """Read a robot file (``--robot-config``): YAML whose top level is the robot block, or holds it
+    under ``robot:``. Errors name the file and the key."""
+    from pathlib import Path
+
+    from .execution.config import read_yaml_mapping     # the one YAML reader of configs
+
+    path = Path(path)
+    data = read_yaml_mapping(path, "--robot-config", "robot description (YAML)")
+    if set(data) == {"robot"}:
+        data = data["robot"]
+    try:
+        return robot_from_spec(data, where="robot", source=str(path))
+    except InputError as exc:
+        raise InputError(f"{path.name}: {exc.argument}", exc.expected, exc.got) from None
+
+
+def resolve_robot(robot=None, map_robot=None, default: str = "unicycle", source: str = "") -> Robot:
+    """The robot a command uses: ``robot`` (a :class:`Robot`, a model name or a spec mapping) if
+    given, else the map's ``robot:`` block, else the default model's built-in robot."""
+    if isinstance(robot, Robot):
+        return robot
+    if robot is not None:
+        return robot_from_spec(robot, source=source or "argument")
+    if map_robot is not None:
+        return robot_from_spec(map_robot, source="map")
+    return default_robot(default)
+
+
+def _number(key: str, v, lo: float = -math.inf, lo_open: bool = False) -> float:
+    ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+    try:
+        ok = ok and math.isfinite(v)
+    except OverflowError:            # an integer too large for a float (issue 12)
+        ok, v = False, f"an integer of {v.bit_length()} bits"
+    if ok:
+        ok = v > lo if lo_open else v >= lo
+    if not ok:
+        bound = "" if lo == -math.inf else f" {'>' if lo_open else '>='} {lo:g}"
+        hint = " (YAML reads 1e9 as a string: write 1.0e9)" if isinstance(v, str) and _looks_numeric(v) else ""
+        raise InputError(key, f"a finite number{bound}{hint}", v)
+    return float(v)
+
+
+def _looks_numeric(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def _kind(value) -> str:
+    if value is None:
+        return "nothing (null)"
+    return {dict: "a mapping", list: "a list", str: f"the string {value!r}", bool: "a boolean"}.get(
+        type(value), repr(value))
