@@ -554,9 +554,11 @@ def test_the_readme_limits_are_the_code_limits():
     from nhstab import limits
     from nhstab.clearance_field import ClearanceField
 
+    from nhstab.planning import guide
+
     readme = (ROOT / "README.md").read_text()
-    section = readme[readme.index("### Limits"):readme.index("## Robot models") if "## Robot models" in
-                     readme[readme.index("### Limits"):] else None]
+    start = readme.index("### Limits")
+    section = readme[start:readme.index("\n### ", start + 1)]
     assert limits.MAX_YAML_BYTES == 2**20 and "1 MiB, nested 64 levels, 2,000,000 values" in section
     assert limits.MAX_YAML_DEPTH == 64 and limits.MAX_YAML_NODES == 2_000_000
     assert limits.MAX_FILE_BYTES == 256 * 2**20 and "256 MiB" in section
@@ -572,3 +574,4 @@ def test_the_readme_limits_are_the_code_limits():
     assert "0 to 2**128 - 1" in section and "0 to 2**31 - 2" in section
     assert limits.MAX_BATCH_TRIALS == 1_000_000 and "1,000,000 trials" in section
     assert ClearanceField.MAX_CELLS == 4_000_000 and "4,000,000 cells" in section
+    assert guide.MAX_CELLS == 400_000 and "400,000 guide cells" in section
