@@ -124,6 +124,9 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
         raise InputError(robot_key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)",
                          robot.model.name)
     opts.validated(robot.model.state_names, robot.model.m)      # every option checked before anything runs
+    from nhstab.planning import check_map_budget
+
+    check_map_budget(m, opts.planning.time_limit_s)
     click.echo(f"running {opts.controller.kind} control of {robot.name} on {m.name} (seed {opts.seed}) ...", err=True)
     result = execute(m, robot, start, goal, opts)
     files = write_run(result, out_dir, map_path, animate=animate, extra_files=extra_files)
