@@ -48,6 +48,7 @@ SUBCOMMANDS = {
     "run": "Composite controller: replan latency on the depot and warehouse scenarios; cost of a control update.",
     "batch": "Batch throughput: vectorised Hilare trials on one and two workers against the competent per-trial "
              "baseline (a naive one as an extra row), full map trials.",
+    "tube": "Error tube: its time against the plan's on the bundled scenarios, and a per-step loop baseline.",
 }
 
 

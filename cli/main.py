@@ -62,6 +62,7 @@ def _register():
     from .plan import plan, sweep
     from .run import run
     from .batch import batch
+    from .tubes import tubes
 
     cli.add_command(examples)
     cli.add_command(map_group)
@@ -72,6 +73,7 @@ def _register():
     cli.add_command(paper.paper)
     cli.add_command(gains.gains)
     cli.add_command(bench.bench)
+    cli.add_command(tubes)
 
 
 _register()

@@ -25,6 +25,7 @@ Format (paths relative to the config file)::
     run:                            # base options of every trial: the run-config keys except map,
       rate_hz: 50                   # robot, start, goal and seed (see nhstab run --config)
       noise: {sensor: {x: 0.02}}
+      planning: {margin: auto}      # each plan's margin from its error tube (nhstab.tubes)
 
 Each trial k of a cell has the seed spawned as child k of ``root_seed``, the same in every cell, so
 controllers and noise levels are compared on the same seeds. Trial ids are ``<cell>#<k>``.

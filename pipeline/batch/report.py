@@ -5,6 +5,13 @@ Rates come with Wilson score 95% intervals. The tracking-error envelopes are per
 trials of ||e(t)|| while each trial follows its first plan, with the gramian bound of Proposition 1,
 ||e(0)|| sqrt(p_M / p_m) exp(-rate t), rate = 2 alpha p_m / p_M, drawn from each trial's own plan
 (median over trials).
+
+The error tubes (:mod:`nhstab.tubes`) held to reality: per cell, the coverage of each trial's first
+plan's p-tube, the fraction of its tracking samples inside it (the pose region the spatial tube is
+built from, and the full-state p-ellipsoid), with a Wilson 95% interval over samples (samples of one
+trial are correlated, so that interval is too narrow; the spread of the per-trial fractions is given
+beside it), and per state the observed RMS error over trials against the predicted one,
+sqrt(mean over trials of sigma^2 + m^2) of each trial's own tube, against time.
 """
 
 from __future__ import annotations
@@ -61,9 +68,10 @@ def cell_table(trials: list[dict]) -> list[dict]:
             k = sum(1 for t in done if pred(t))
             rate, lo, hi = wilson(k, len(done))
             row.update({f"{key}_count": k, f"{key}_rate": rate, f"{key}_lo": lo, f"{key}_hi": hi})
-        for key in ("min_clearance_m", "final_position_error_m", "replans", "max_error_norm"):
+        for key in ("min_clearance_m", "final_position_error_m", "replans", "max_error_norm", "margin_m"):
             vals = [_m(t, key) for t in done if _m(t, key) is not None]
             row[f"{key}_median"] = float(np.median(vals)) if vals else math.nan
+        _tube_cells(row, done)
         lat = [x for t in done for x in (t.get("timings") or {}).get("replan_latencies_s", [])]
         row["replan_latency_median_s"] = float(np.median(lat)) if lat else math.nan
         row["replan_latency_p95_s"] = float(np.percentile(lat, 95)) if lat else math.nan
@@ -71,11 +79,31 @@ def cell_table(trials: list[dict]) -> list[dict]:
     return rows
 
 
+def _tube_cells(row: dict, done: list[dict]) -> None:
+    """Coverage of the trials' first-plan tubes: pooled over samples (Wilson 95%) and per trial."""
+    with_tube = [t for t in done if _m(t, "tube_samples")]
+    n = sum(int(_m(t, "tube_samples")) for t in with_tube)
+    row["tube_samples"] = n
+    row["tube_probability"] = _m(with_tube[0], "tube_probability") if with_tube else None
+    for key in ("inside", "inside_state"):
+        k = sum(int(round(_m(t, "tube_samples") * _m(t, f"tube_{key}"))) for t in with_tube)
+        rate, lo, hi = wilson(k, n)
+        per = np.array([_m(t, f"tube_{key}") for t in with_tube], dtype=float)
+        row.update({f"tube_{key}_rate": rate, f"tube_{key}_lo": lo, f"tube_{key}_hi": hi,
+                    f"tube_{key}_trial_sd": float(per.std(ddof=1)) if len(per) > 1 else math.nan,
+                    f"tube_{key}_min_trial": float(per.min()) if len(per) else math.nan})
+    cert = [_m(t, "tube_certified_clearance_m") for t in with_tube]
+    sat = [_m(t, "tube_saturation_probability") for t in with_tube]
+    row["tube_certified_clearance_median_m"] = float(np.median(cert)) if cert else math.nan
+    row["tube_saturation_median"] = float(np.median(sat)) if sat else math.nan
+
+
 def trials_csv(trials: list[dict]) -> str:
     keys = ["status", "reached", "collision", "margin_violation", "min_clearance_m", "margin_m",
             "final_position_error_m", "final_heading_error_rad", "replans", "discovered", "rms_error_norm",
             "max_error_norm", "rms_position_error_m", "max_position_error_m", "duration_s", "e0_norm", "p_m", "p_M",
-            "rate_bound"]
+            "rate_bound", "tube_certified_clearance_m", "tube_saturation_probability", "tube_max_position_radius_m",
+            "tube_samples", "tube_inside", "tube_inside_state"]
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["id", "cell", "trial", "seed", "map", "robot", "controller", "alpha", "delta", "gamma", "noise",
@@ -161,6 +189,49 @@ def envelope_figure(trials, rows):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=6, loc="upper right")
     axes[-1, 0].set_xlabel("t [s] (while following the first plan)")
+    return fig
+
+
+def tube_figure(trials, rows):
+    """Per cell (rows) and state (columns): the observed RMS tracking error over trials against the
+    predicted sqrt(mean over trials of sigma^2 + m^2), from each trial's own first-plan tube, against
+    time (while the trials follow their first plan)."""
+    cells = _cells(trials)
+    shown = [r for r in rows if any((t.get("series") or {}).get("tube_std") for t in cells[r["cell"]])]
+    if not shown:
+        return None
+    width = max(len(t["series"]["state_names"]) for r in shown for t in cells[r["cell"]]
+                if (t.get("series") or {}).get("tube_std"))
+    fig, axes = subplots(len(shown), width, figsize=(3.2 * width, 2.0 * len(shown) + 0.6), squeeze=False,
+                         sharex="row", layout="constrained")
+    for i, row in enumerate(shown):
+        series = [t["series"] for t in cells[row["cell"]] if (t.get("series") or {}).get("tube_std")]
+        names = series[0]["state_names"]
+        dt = series[0]["dt_s"]
+        length = max(len(s["tube_std"]) for s in series)
+        n = len(names)
+        E, P = np.full((len(series), length, n), np.nan), np.full((len(series), length, n), np.nan)
+        for j, s in enumerate(series):
+            k = len(s["tube_std"])
+            E[j, :k] = np.asarray(s["error_by_state"])[:k]
+            P[j, :k] = np.asarray(s["tube_std"]) ** 2 + np.asarray(s["tube_mean"]) ** 2
+        for c in range(n, width):
+            axes[i, c].set_visible(False)
+        count = np.sum(np.isfinite(E[:, :, 0]), axis=0)
+        keep = count >= max(3, 0.5 * len(series))
+        t = dt * np.arange(length)
+        for c, name in enumerate(names):
+            ax = axes[i, c]
+            ax.plot(t[keep], np.sqrt(np.nanmean(E[:, keep, c] ** 2, axis=0)), color="k", lw=1.0, label="observed RMS")
+            ax.plot(t[keep], np.sqrt(np.nanmean(P[:, keep, c], axis=0)), color="tab:blue", lw=1.0, ls="--",
+                    label="predicted RMS (tube)")
+            ax.set_title(f"e_{name}", fontsize=8)
+            ax.grid(alpha=0.3)
+            if c == 0:
+                ax.set_ylabel(_label(row), fontsize=6)
+        axes[i, 0].legend(fontsize=6, loc="upper right")
+    for ax in axes[-1]:
+        ax.set_xlabel("t [s] (first plan)")
     return fig
 
 
@@ -258,6 +329,20 @@ def _fmt_rate(r, key):
     return f"{100 * r[key + '_rate']:.0f}% [{100 * r[key + '_lo']:.0f}, {100 * r[key + '_hi']:.0f}]"
 
 
+TUBE_HEADER = ["cell", "samples", "inside tube [Wilson 95%]", "per-trial sd / min", "inside state ellipsoid",
+               "median certified clearance [m]", "median saturation bound"]
+
+
+def _tube_row(r) -> list[str]:
+    def cov(key):
+        return (f"{100 * r[f'tube_{key}_rate']:.2f}% [{100 * r[f'tube_{key}_lo']:.2f}, "
+                f"{100 * r[f'tube_{key}_hi']:.2f}]")
+
+    return [_label(r), str(r["tube_samples"]), cov("inside"),
+            f"{100 * r['tube_inside_trial_sd']:.2f} / {100 * r['tube_inside_min_trial']:.1f}%", cov("inside_state"),
+            _fmt(r["tube_certified_clearance_median_m"]), _fmt(r["tube_saturation_median"])]
+
+
 def _fmt(v, digits=3):
     return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{digits}g}"
 
@@ -281,17 +366,18 @@ def write_report(store_path, out_dir=None) -> list[Path]:
         raise InputError("STORE", "a batch store whose config and versions are mappings", str(db))
     rows = cell_table(trials)
     figs = {"rates": rates_figure(rows), "envelopes": envelope_figure(trials, rows),
-            "distributions": distributions_figure(trials, rows), "paired": paired_figure(trials),
+            "distributions": distributions_figure(trials, rows), "tubes": tube_figure(trials, rows),
+            "paired": paired_figure(trials),
             "noise": noise_figure(rows)}
-    with OutputFolder(out_dir, "batch report", owned=REPORT_FILES, info={"store": str(db), "trials": len(trials)}) \
-            as out:
+    owned = REPORT_FILES + tuple(f"figures/{name}.png" for name in figs)     # those not drawn this time too
+    with OutputFolder(out_dir, "batch report", owned=owned, info={"store": str(db), "trials": len(trials)}) as out:
         _write_report(out, db, trials, config, vers, rows, figs)
     return out.written
 
 
-#: every file ``nhstab batch report`` may write (an earlier report's are all replaced)
-REPORT_FILES = ("report.html", "report.md", "trials.csv", "figures/rates.png", "figures/envelopes.png",
-                "figures/distributions.png", "figures/paired.png", "figures/noise.png")
+#: the files ``nhstab batch report`` writes besides its figures (figures/<name>.png; an earlier
+#: report's files are all replaced)
+REPORT_FILES = ("report.html", "report.md", "trials.csv")
 
 
 def _write_report(out, db, trials, config, vers, rows, figs) -> None:
@@ -306,14 +392,17 @@ def _write_report(out, db, trials, config, vers, rows, figs) -> None:
                      "trial's own plan (median over trials).",
         "distributions": "Minimum executed clearance (orange: the margin, red: contact), final position error, "
                          "replans and replan latency per cell.",
+        "tubes": "Predicted error tube against the observed error, per state: RMS over trials of e(t) while following "
+                 "the first plan (black) and the RMS each trial's own tube predicts, sqrt(mean of sigma^2 + m^2) "
+                 "(blue, dashed).",
         "paired": "The same seeds under two controllers: each point is one trial.",
         "noise": "Success rate against the noise level, per controller.",
     }
-    header = ["cell", "trials", "success", "collision", "margin violation", "median min clearance [m]",
+    header = ["cell", "trials", "success", "collision", "margin violation", "median margin [m]", "median min clearance [m]",
               "median final error [m]", "median replans", "replan latency median / p95 [s]"]
     table_rows = [[_label(r), str(r["trials"]) + (f" ({r['errors']} errors)" if r["errors"] else ""),
                    _fmt_rate(r, "success"), _fmt_rate(r, "collision"), _fmt_rate(r, "margin_violation"),
-                   _fmt(r["min_clearance_m_median"]), _fmt(r["final_position_error_m_median"]),
+                   _fmt(r["margin_m_median"]), _fmt(r["min_clearance_m_median"]), _fmt(r["final_position_error_m_median"]),
                    _fmt(r["replans_median"]),
                    f"{_fmt(r['replan_latency_median_s'])} / {_fmt(r['replan_latency_p95_s'])}"] for r in rows]
     title = f"nhstab robustness report: {config.get('name', db.parent.name)}"
@@ -324,6 +413,15 @@ def _write_report(out, db, trials, config, vers, rows, figs) -> None:
     md = [f"# {title}", "", intro, "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     md += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in table_rows]
     md.append("")
+    tube_rows = [r for r in rows if r.get("tube_samples")]
+    if tube_rows:
+        md += [f"**Error tubes.** Coverage: the fraction of the trials' tracking samples (first plan) inside their "
+               f"plan's p-tube (p = {tube_rows[0]['tube_probability']:g}; the pose region of the spatial tube, and the "
+               "full-state p-ellipsoid), Wilson 95% over samples (correlated within a trial, so too narrow: the "
+               "standard deviation of the per-trial fractions and the lowest one are beside it).", "",
+               "| " + " | ".join(TUBE_HEADER) + " |", "|" + "---|" * len(TUBE_HEADER)]
+        md += ["| " + " | ".join(c.replace("|", "/") for c in _tube_row(r)) + " |" for r in tube_rows]
+        md.append("")
     for name, fig in figs.items():
         if fig is not None:
             md += [f"![{name}](figures/{name}.png)", "", captions[name], ""]
@@ -338,6 +436,12 @@ def _write_report(out, db, trials, config, vers, rows, figs) -> None:
          "<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in header) + "</tr>"]
     h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in table_rows]
     h.append("</table>")
+    if tube_rows:
+        h.append("<h2>Error tubes</h2><p>Coverage of each trial's first-plan p-tube over its tracking samples; "
+                 "Wilson 95% over samples (correlated within a trial: too narrow), per-trial spread beside it.</p>")
+        h.append("<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in TUBE_HEADER) + "</tr>")
+        h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in _tube_row(r)) + "</tr>" for r in tube_rows]
+        h.append("</table>")
     for name, fig in figs.items():
         if fig is not None:
             h.append(f"<figure><img src='figures/{name}.png' alt='{name}'>"

@@ -109,6 +109,15 @@ def _run(spec: dict) -> dict:
         "max_position_error_m": s["tracking"].get("max_position_error_m"),
         "duration_s": s["duration_s"], "robot": robot,
     }
+    tube = (s["plans"][0].get("tube") or {}) if s["plans"] else {}
+    if tube:
+        observed = tube.get("observed") or {}
+        metrics.update({"tube_certified_clearance_m": tube["certified_clearance_m"],
+                        "tube_saturation_probability": tube["saturation_probability"],
+                        "tube_max_position_radius_m": tube["max_position_radius_m"],
+                        "tube_probability": tube["probability"], "tube_samples": observed.get("samples", 0),
+                        "tube_inside_state": observed.get("inside_state_ellipsoid"),
+                        "tube_inside": observed.get("inside_tube")})
     if first.result is not None:
         pm = first.result.metrics
         metrics.update({"first_plan_length_m": pm.get("length_m"), "first_plan_duration_s": first.law.t_end - first.law.t0})
@@ -128,6 +137,12 @@ def _run(spec: dict) -> dict:
             series = {"dt_s": step * result.info["period_s"], "error_norm": e[::step].tolist(),
                       "e0_norm": float(e[0])}
             metrics["e0_norm"] = float(e[0])
+            if first.tube is not None:
+                # per state: the observed error and the first plan's predicted mean and std, same samples
+                k = np.arange(0, min(last, len(first.tube.t)), step)
+                series.update({"state_names": list(model.state_names),
+                               "error_by_state": model.state_error(lg["x"][k], lg["x0"][k]).tolist(),
+                               "tube_mean": first.tube.mean[k].tolist(), "tube_std": first.tube.std[k].tolist()})
     timings = {"run_wall_s": result.wall_time_s, "replan_latencies_s": s["timing"]["replan_latencies_s"]}
     metrics["robot_spec"] = rob.spec()          # the robot as used, in the store
     return {"status": result.status, "metrics": metrics, "series": series, "timings": timings,

@@ -18,6 +18,7 @@ was given. The format::
     headroom: 0.8                     # plan nominals within this fraction of the input limits
     max_time_s: 120                   # simulated time limit (default: 2 x the active plan + 30 s)
     controller: {kind: gramian, window: future, alpha: 0.1, delta: 6.0, gamma: 1.0, q: [..], r: [..]}
+                                      # gains: auto picks alpha, delta, gamma per plan (gramian; nhstab.tubes)
     noise:
       scale: 1.0                      # multiplies every noise level below (0: noiseless)
       initial: {distribution: gaussian, x: 0.1, y: 0.1, theta: 0.05}   # std (uniform: half-width)
@@ -26,7 +27,8 @@ was given. The format::
       impulses: [{time: 4.0, x: 0.0, y: 0.3}]                          # state jumps at given times
     sensor: {range_m: 8.0, fov_deg: 360, rate_hz: 10, resolution_deg: 0.5}
     monitor: {rate_hz: 10, horizon_s: 8.0}
-    planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.3, space: reeds_shepp, guide: true}   # margin: the robot's
+    planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.3, space: reeds_shepp, guide: true}   # margin: the robot's;
+                                      # margin: auto plans with the error tube's clearance (nhstab.tubes)
     replan: {pause_s: 1.0, max_attempts: 3, max_replans: 10, budget_growth: 4.0}
     tolerance: {position_m: 0.3, heading_rad: 0.2}
 
@@ -149,13 +151,14 @@ class MonitorOptions:
 class PlanningOptions:
     """The planner used for the first plan and every replan (see ``nhstab plan``). ``margin``: the
     clearance every nominal keeps from the obstacles the robot knows of; None for the robot's
-    (``Robot.margin``, see :mod:`nhstab.robot`). ``guide``: the guided search (a grid shortest path
-    sets the subgoals); false searches with OMPL's planner over the whole map."""
+    (``Robot.margin``, see :mod:`nhstab.robot`); "auto" for the smallest margin whose error tube is
+    certified clear (:func:`nhstab.tubes.plan_with_auto_margin`). ``guide``: the guided search (a grid
+    shortest path sets the subgoals); false searches with OMPL's planner over the whole map."""
 
     planner: str = "rrtconnect"
     space: str = "reeds_shepp"
     time_limit_s: float = 2.0
-    margin: float | None = None
+    margin: float | str | None = None
     turning_radius: float | None = None
     guide: bool = True
 
@@ -167,7 +170,10 @@ class PlanningOptions:
         if self.space not in SPACES:
             raise InputError("planning.space", "one of " + ", ".join(SPACES), self.space)
         check_number("planning.time_limit_s", self.time_limit_s, 0.0, lo_open=True)
-        if self.margin is not None:
+        if isinstance(self.margin, str):
+            if self.margin != "auto":
+                raise InputError("planning.margin", "a number >= 0 or auto", self.margin)
+        elif self.margin is not None:
             check_number("planning.margin", self.margin, 0.0)
         if self.turning_radius is not None:
             check_number("planning.turning_radius", self.turning_radius, 0.0, lo_open=True)

@@ -24,13 +24,16 @@ from ..nominal import Nominal
 
 CONTROLLERS = ("gramian", "tvlqr", "open-loop")
 WINDOWS = ("future", "past")
+GAINS = ("default", "auto")
 
 
 @dataclass(frozen=True)
 class ControllerOptions:
     """kind: one of CONTROLLERS; window: the gramian's window ("future" = P_c, "past" = P_r);
     alpha, delta, gamma: the gramian law's parameters (None: the robot's defaults); q, r: the
-    diagonals of TVLQR's Q (per state) and R (per input), None for identity."""
+    diagonals of TVLQR's Q (per state) and R (per input), None for identity; gains: "default", or
+    "auto" (gramian only): alpha, delta and gamma chosen per plan from a small grid, the narrowest
+    error tube with a saturation bound under 1 % (:func:`nhstab.tubes.choose_gains`)."""
 
     kind: str = "gramian"
     window: str = "future"
@@ -39,6 +42,7 @@ class ControllerOptions:
     gamma: float | None = None
     q: tuple[float, ...] | None = None
     r: tuple[float, ...] | None = None
+    gains: str = "default"
 
     def validated(self, n: int, m: int) -> "ControllerOptions":
         if self.kind not in CONTROLLERS:
@@ -52,6 +56,11 @@ class ControllerOptions:
         if self.gamma is not None and not (isinstance(self.gamma, (int, float)) and math.isfinite(self.gamma)
                                            and self.gamma >= 0.5):
             raise InputError("controller.gamma", "a finite number >= 1/2", self.gamma)
+        if self.gains not in GAINS:
+            raise InputError("controller.gains", "one of " + ", ".join(GAINS), self.gains)
+        if self.gains == "auto" and self.kind != "gramian":
+            raise InputError("controller.gains", f"default for the {self.kind} controller (auto tunes the gramian law)",
+                             self.gains)
         for key, size in (("q", n), ("r", m)):
             v = getattr(self, key)
             if v is None:
@@ -70,6 +79,9 @@ class ControllerOptions:
 
     def describe(self, n: int, m: int, defaults: dict) -> dict:
         if self.kind == "gramian":
+            if self.gains == "auto":
+                return {"kind": self.kind, "gains": "auto: alpha, delta, gamma chosen per plan (plans[i].gains_auto)",
+                        "window": self.window}
             return {"kind": self.kind, **self.stabilizer(defaults).describe()}
         if self.kind == "tvlqr":
             return {"kind": self.kind, "Q_diagonal": list(self.q or (1.0,) * n),

@@ -117,7 +117,28 @@ def _cusps(result: RunResult, e: np.ndarray) -> list[dict]:
     return out
 
 
-def _plan_entry(rec) -> tuple[dict, dict]:
+def _observed_in_tube(result: RunResult, rec) -> dict | None:
+    """How the run's own samples sat in a plan's predicted tube: the tracking samples that followed
+    it, the fraction inside the full-state p-ellipsoid and inside the pose region of the spatial tube."""
+    lg, tube = result.log, rec.tube
+    sel = np.flatnonzero((lg["plan_id"] == rec.id) & (lg["mode"] == 0))
+    if tube is None or not len(sel):
+        return None
+    k = np.rint((lg["t"][sel] - rec.t_start) / result.info["period_s"]).astype(int)
+    ok = (k >= 0) & (k < len(tube.t))
+    sel, k = sel[ok], k[ok]
+    if not len(sel):
+        return None
+    e = np.zeros((len(tube.t), result.model.n))
+    e[k] = result.model.state_error(lg["x"][sel], lg["x0"][sel])
+    state, pose = tube.inside(e)
+    return {"samples": int(len(k)), "inside_state_ellipsoid": float(state[k].mean()),
+            "inside_tube": float(pose[k].mean()),
+            "note": "this run's tracking samples on this plan inside the predicted p-regions (full-state "
+                    "chi-square ellipsoid; position ellipse and heading band the spatial tube is built from)"}
+
+
+def _plan_entry(rec, result: RunResult | None = None) -> tuple[dict, dict]:
     entry = {"id": rec.id, "trigger": rec.trigger, "t_detect_s": rec.t_detect, "t_start_s": rec.t_start,
              "start_pose": rec.start, "margin_m": rec.margin, "seed": rec.seed, "conflict": rec.conflict,
              "attempts": [{k: v for k, v in a.items() if k != "latency_s"} for a in rec.attempts]}
@@ -129,6 +150,11 @@ def _plan_entry(rec) -> tuple[dict, dict]:
                 timing[key] = metrics.pop(key)
         entry["metrics"] = {**metrics, "duration_s": float(rec.law.t_end - rec.law.t0),
                             "controller_max_gain_norm": rec.law.info.get("max_gain_norm")}
+    if getattr(rec, "tube", None) is not None:
+        entry["tube"] = rec.tube.summary()
+        observed = _observed_in_tube(result, rec) if result is not None else None
+        if observed is not None:
+            entry["tube"]["observed"] = observed
     return entry, timing
 
 
@@ -159,6 +185,8 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
         truth = result.world if result.world is not None else CollisionWorld.from_map(result.map, "all")
         c_min, i_min = truth.min_clearance(poses, result.footprint)
         margin = result.options.planning.margin
+        if margin == "auto":           # the first plan's margin, as chosen by its tube
+            margin = result.plans[0].margin if result.plans else 0.0
         free = truth.free_many(poses, result.footprint, margin)
         clearance = {"min_executed_m": c_min, "time_s": float(lg["t"][i_min]), "pose": poses[i_min],
                      "margin_m": margin, "samples_below_margin": int((~free).sum()), "samples": len(poses),
@@ -171,7 +199,7 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
                                                         (np.sum((lg["u"] - lg["u0"]) ** 2, axis=0) * dt).tolist())),
                   "saturated_fraction": float(np.mean(np.any(
                       np.isclose(np.abs(lg["u"]), model.input_limits()[:, 1], rtol=0, atol=1e-12), axis=1)))}
-    plans, timings = zip(*(_plan_entry(p) for p in result.plans)) if result.plans else ((), ())
+    plans, timings = zip(*(_plan_entry(p, result) for p in result.plans)) if result.plans else ((), ())
     robot = result.robot if result.robot is not None else make_robot(model, footprint=result.footprint)
     opts = dataclasses.asdict(dataclasses.replace(result.options, robot=None))
     opts["robot"] = robot.spec()
@@ -190,6 +218,7 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
         "collision": result.collision,
         "final_error": result.info.get("final_errors"),
         "tracking": tracking,
+        "tube": plans[0].get("tube") if plans else None,
         "clearance": clearance,
         "control_effort": effort,
         "duration_s": float(lg["t"][-1]) if len(lg["t"]) else 0.0,
@@ -203,7 +232,7 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
 #: every file ``nhstab run`` may write into its folder (an earlier run's are all replaced)
 RUN_FILES = ("run.json", "trajectory.csv", "run_map.png", "run_tracking.png", "run.gif")
 #: every file ``nhstab plan`` may write into its folder
-PLAN_FILES = ("plan.json", "trajectory.csv", "trajectory.npz", "plan.png")
+PLAN_FILES = ("plan.json", "trajectory.csv", "trajectory.npz", "plan.png", "tube.npz")
 
 
 def write_run(result: RunResult, out_dir, map_path: str | None = None, figures: bool = True,
@@ -232,21 +261,29 @@ def write_run(result: RunResult, out_dir, map_path: str | None = None, figures: 
     return out.written
 
 
-def plan_record(result, map_label: str, robot, start, goal, path_options) -> dict:
+def plan_record(result, map_label: str, robot, start, goal, path_options, tube=None,
+                extra: dict | None = None) -> dict:
     """The content of plan.json: status, message, inputs (map, robot as used, footprint, poses,
-    options, feasibility residual) and the plan's metrics."""
+    options, feasibility residual), the plan's metrics, its error ``tube`` (a
+    :class:`nhstab.tubes.Tube`) and ``extra`` records (e.g. ``margin_auto``, ``gains_auto``, the
+    tube's noise model)."""
     nom = result.nominal
     inputs = {"map": map_label, "robot": robot.describe(), "footprint": robot.footprint.describe(),
               "start": [float(v) for v in start], "goal": [float(v) for v in goal],
               "path_options": dict(path_options.__dict__),
               "feasibility_residual_m": None if nom is None else nom.feasibility_residual()}
-    return {"status": result.status, "message": result.message, "inputs": inputs, "metrics": result.metrics}
+    out = {"status": result.status, "message": result.message, "inputs": inputs, "metrics": result.metrics}
+    if tube is not None:
+        out["tube"] = tube.summary()
+    out.update(extra or {})
+    return out
 
 
 def write_plan(result, out_dir, m, map_label: str, robot, start, goal, path_options,
-               figures: bool = True) -> list[Path]:
+               figures: bool = True, tube=None, extra: dict | None = None) -> list[Path]:
     """Write trajectory.csv, trajectory.npz, plan.png and plan.json for a successful plan of
-    :func:`nhstab.planning.plan` on map ``m``, as one output (:class:`nhstab.records.OutputFolder`)."""
+    :func:`nhstab.planning.plan` on map ``m``, as one output (:class:`nhstab.records.OutputFolder`).
+    With a ``tube``, plan.png draws it and tube.npz holds its per-sample arrays."""
     import numpy as np
 
     from ..planning import pose_columns
@@ -269,8 +306,17 @@ def write_plan(result, out_dir, m, map_label: str, robot, start, goal, path_opti
             cusps = met["cusps"]
             title = (f"{m.name}: {model.name}, {met['length_m']:.1f} m, {cusps} cusp{'' if cusps == 1 else 's'}, "
                      f"min clearance {met['min_clearance_m']:.2f} m")
+            if tube is not None:
+                title += (f"\n{tube.probability:g}-tube: reach up to {tube.reach.max():.2f} m, certified clearance "
+                          f"{tube.certified_clearance:+.3f} m")
             fig = plan_figure(m, nom.x[:, pose_columns(model)],
-                              np.sign(nom.u[:, 0]), footprint, start, goal, title=title)
+                              np.sign(nom.u[:, 0]), footprint, start, goal, title=title, tube=tube)
             out.save_figure(fig, "plan.png")
-        out.write_json("plan.json", plan_record(result, map_label, robot, start, goal, path_options))
+        if tube is not None:
+            out.write_npz("tube.npz", t=tube.t, poses=tube.poses, mean=tube.mean, cov=tube.cov,
+                          std=tube.std, position_radius=tube.position_radius,
+                          heading_spread=tube.heading_spread, reach=tube.reach, u_mean=tube.u_mean,
+                          u_std=tube.u_std, saturation_per_step=tube.saturation_per_step,
+                          probability=tube.probability)
+        out.write_json("plan.json", plan_record(result, map_label, robot, start, goal, path_options, tube, extra))
     return out.written
