@@ -31,27 +31,48 @@ def batch():
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 def run_cmd(config_file, out_dir, workers, scheduler, resume, no_progress):
     """Run every trial of CONFIG (strict YAML; see pipeline/batch/config.py), committing each to
-    OUT/trials.sqlite as it finishes. A trial that fails is recorded with its error."""
+    OUT/trials.sqlite as it finishes. A trial that fails is recorded with its error. Ctrl-C stops the
+    batch (exit code 130) without storing the trials that were running; --resume runs them."""
     import os
 
     from nhstab.batch.config import load_batch_config
-    from nhstab.batch.runner import run_batch
+    from nhstab.batch.runner import STORE_NAME, check_scheduler_address, run_batch
     from nhstab.errors import InputError
 
     if workers is not None and workers < 1:
         raise InputError("--workers", "an integer >= 1", workers)
+    if scheduler is not None:
+        check_scheduler_address(scheduler)
     config = load_batch_config(config_file)
-    n = len(config.trial_specs())
+    n = config.n_trials()
     click.echo(f"batch {config.name}: {len(config.cells())} cells x {config.trials} trials = {n} trials", err=True)
-    counts = run_batch(config, out_dir, workers=workers or os.cpu_count() or 1, scheduler=scheduler, resume=resume,
-                       progress=not no_progress)
+    try:
+        counts = run_batch(config, out_dir, workers=workers or os.cpu_count() or 1, scheduler=scheduler,
+                           resume=resume, progress=not no_progress)
+    except KeyboardInterrupt:
+        store = out_dir / STORE_NAME
+        stored = _stored_count(store)
+        click.echo(f"nhstab: interrupted: {stored} of {n} trials are stored in {store}; the running ones were "
+                   f"not; `nhstab batch {config_file} --out {out_dir} --resume` runs the rest", err=True)
+        return 130
     click.echo(f"ran {counts['ran']} trials in {counts['wall_s']:.1f} s ({counts['already_stored']} already stored); "
-               f"{counts['stored']} in {out_dir / 'trials.sqlite'}")
+               f"{counts['stored']} in {out_dir / STORE_NAME}")
     from nhstab.batch.report import write_report
 
     files = write_report(out_dir)
     click.echo(f"report: {out_dir / 'report.html'} (and {len(files) - 1} more files)")
     return 0
+
+
+def _stored_count(path: Path) -> str:
+    from nhstab.batch.store import Store
+    from nhstab.errors import PipelineError
+
+    try:
+        with Store(path) as s:
+            return str(s.count())
+    except PipelineError:
+        return "no"
 
 
 @batch.command("replay")
@@ -61,14 +82,15 @@ def run_cmd(config_file, out_dir, workers, scheduler, resume, no_progress):
 @click.option("--animate", is_flag=True, help="Also write run.gif.")
 def replay(store_path, trial_id, out_dir, animate):
     """Replay one stored trial with `nhstab run`: writes OUT/run_config.yaml (its exact options) and
-    the run's files. STORE is a batch folder or its trials.sqlite."""
+    the run's files. STORE is a batch folder or its trials.sqlite (opened read-only)."""
+    import tempfile
+
     import yaml
 
     from nhstab.batch.store import Store
     from nhstab.batch.trial import replay_config
     from nhstab.errors import InputError
     from nhstab.execution.config import load_run_config
-    from nhstab.records import write_text
 
     from .map import load
     from .run import execute_and_write
@@ -78,17 +100,26 @@ def replay(store_path, trial_id, out_dir, animate):
         record = store.trial(trial_id)
     if record is None:
         raise InputError("TRIAL_ID", "the id of a stored trial (see the report's CSV)", trial_id)
-    cfg = replay_config(record)
-    cfg_path = write_text(out_dir / "run_config.yaml", "# replays trial " + trial_id + " of " + str(path) + "\n"
-                          + yaml.safe_dump(cfg, sort_keys=False))
-    extra, opts = load_run_config(cfg_path)
+    try:
+        cfg = replay_config(record)
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        if isinstance(exc, InputError):
+            raise
+        raise InputError("TRIAL_ID", "a trial whose stored spec is complete", trial_id,
+                         detail=f"{type(exc).__name__}: {exc}") from None
+    text = "# replays trial " + trial_id + " of " + str(path) + "\n" + yaml.safe_dump(cfg, sort_keys=False)
+    with tempfile.TemporaryDirectory(prefix="nhstab-replay-") as tmp:
+        cfg_path = Path(tmp) / "run_config.yaml"
+        cfg_path.write_text(text, encoding="utf-8")
+        extra, opts = load_run_config(cfg_path)
     cell = record["spec"]["cell_spec"]
     m = load(extra["map"], cell["cell_size"], None)
     from nhstab.robot import resolve_robot
 
     click.echo(f"replaying {trial_id} (stored status: {record['status']})", err=True)
     robot = resolve_robot(opts.robot, m.robot, source="run config")
-    return execute_and_write(m, str(extra["map"]), opts, robot, opts.start, opts.goal, out_dir, animate)
+    return execute_and_write(m, str(extra["map"]), opts, robot, opts.start, opts.goal, out_dir, animate,
+                             extra_files={"run_config.yaml": text})
 
 
 @batch.command("report")

@@ -39,17 +39,17 @@ def gains(trajectory, model_name, params, alpha, delta, gamma, window, end_strat
     """
     from nhstab.control import StabilizerOptions, compute_schedule
     from nhstab.models import make_model
-    from nhstab.records import write_json, write_npz
+    from nhstab.records import OutputFolder
     from nhstab.trajectory_io import read_trajectory
 
     model = make_model(model_name, **_parse_params(params))
     opts = StabilizerOptions(alpha=alpha, delta=delta, gamma=gamma, window=window, end_strategy=end_strategy).validated()
     nominal = read_trajectory(trajectory, model)
     schedule = compute_schedule(nominal, opts)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_npz(out_dir / "gains.npz", t=schedule.t, P=schedule.P, K=schedule.K, H_eigenvalues=schedule.H_eigenvalues,
-              gamma=schedule.gamma, x0=schedule.nominal.x, u0=schedule.nominal.u)
-    write_json(out_dir / "gains.json", {"trajectory": str(trajectory), **model.describe(), **schedule.diagnostics})
+    with OutputFolder(out_dir, "gains", owned=("gains.npz", "gains.json")) as out:
+        out.write_npz("gains.npz", t=schedule.t, P=schedule.P, K=schedule.K, H_eigenvalues=schedule.H_eigenvalues,
+                      gamma=schedule.gamma, x0=schedule.nominal.x, u0=schedule.nominal.u)
+        out.write_json("gains.json", {"trajectory": str(trajectory), **model.describe(), **schedule.diagnostics})
     d = schedule.diagnostics
     click.echo(f"p_m = {d['p_m']:.4g}, p_M = {d['p_M']:.4g}, rate bound = {d['rate_bound']:.4g} 1/s, "
                f"min eig H = {d['h_min_eigenvalue']:.4g} at t = {d['h_min_eigenvalue_time_s']:.4g} s, "

@@ -69,8 +69,16 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     if not (0.0 < headroom <= 1.0):
         raise InputError("--headroom", "a number in (0, 1]", headroom)
 
+    from nhstab.errors import InputError
+    from nhstab.limits import MAX_PLANNER_SEED, check_int
+    from nhstab.planning import PLANNABLE
+
+    check_int("--seed", seed, 0, MAX_PLANNER_SEED, "an integer (OMPL's seed)")
     m = load(map_file, cell_size, unknown)
     rob = cli_robot(robot, robot_config, None, m.robot)
+    if rob.model.name not in PLANNABLE:
+        key = "--robot" if robot else ("--robot-config" if robot_config else f"robot.model (in {map_file})")
+        raise InputError(key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)", rob.model.name)
     s, g = resolve_poses(m, parse_pose("--start", start), parse_pose("--goal", goal), problem,
                          names=("--start", "--goal", "--problem"))
     path_opts = PathOptions(space=space, turning_radius=turning_radius, planner=planner, time_limit_s=time_limit,

@@ -82,9 +82,15 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     """
     from nhstab.errors import InputError
     from nhstab.execution.config import RunOptions, load_run_config, merge
+    from nhstab.limits import MAX_RATE_HZ, MAX_SEED, MIN_RATE_HZ, check_int, check_range
 
     from .plan import parse_margin
 
+    # the flags are checked under their own names (the config's keys are checked when merged)
+    if seed is not None:
+        check_int("--seed", seed, 0, MAX_SEED, "a non-negative integer")
+    if rate_hz is not None:
+        check_range("--rate", rate_hz, MIN_RATE_HZ, MAX_RATE_HZ, "Hz")
     margin = parse_margin("--margin", margin)
 
     base, cfg_map = RunOptions(), None
@@ -113,19 +119,27 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     rob = cli_robot(robot, robot_config, opts.robot, m.robot)
     s, g = resolve_poses(m, parse_pose("--start", start) or opts.start, parse_pose("--goal", goal) or opts.goal,
                          problem, names=("--start", "--goal", "--problem"))
-    return execute_and_write(m, str(map_path), opts, rob, s, g, out_dir, animate)
+    robot_key = ("--robot" if robot else "--robot-config" if robot_config else
+                 f"robot (in {config_file})" if opts.robot is not None else f"robot.model (in {map_path})")
+    return execute_and_write(m, str(map_path), opts, rob, s, g, out_dir, animate, robot_key=robot_key)
 
 
-def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path, animate: bool) -> int:
+def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path, animate: bool,
+                      robot_key: str = "robot", extra_files: dict | None = None) -> int:
     from nhstab.errors import InputError
     from nhstab.execution import execute, write_run
     from nhstab.planning import PLANNABLE
 
     if robot.model.name not in PLANNABLE:
-        raise InputError("robot", "a robot whose model is one of " + ", ".join(PLANNABLE), robot.model.name)
+        raise InputError(robot_key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)",
+                         robot.model.name)
+    opts.validated(robot.model.state_names, robot.model.m)      # every option checked before anything runs
+    from nhstab.planning import check_map_budget
+
+    check_map_budget(m, opts.planning.time_limit_s)
     click.echo(f"running {opts.controller.kind} control of {robot.name} on {m.name} (seed {opts.seed}) ...", err=True)
     result = execute(m, robot, start, goal, opts)
-    files = write_run(result, out_dir, map_path, animate=animate)
+    files = write_run(result, out_dir, map_path, animate=animate, extra_files=extra_files)
     replans = sum(1 for p in result.plans if p.trigger != "initial")
     click.echo(f"{result.status}: {result.message}")
     for rec in result.plans:

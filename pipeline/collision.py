@@ -130,11 +130,13 @@ class CollisionWorld:
             else:
                 raise InputError("obstacle", "a Polygon or a Circle", type(shape).__name__)
         self.n_grid_boxes = 0
-        for grid in self.grids:
+        rectangles = [grid_rectangles(grid.occupied) for grid in self.grids]
+        _check_world_size(len(objects) + sum(map(len, rectangles)))       # before any box is built
+        for grid, rects in zip(self.grids, rectangles):
             ox, oy, yaw = grid.origin
             r = grid.resolution
             c, s = math.cos(yaw), math.sin(yaw)
-            for i0, j0, i1, j1 in grid_rectangles(grid.occupied):
+            for i0, j0, i1, j1 in rects:
                 u, v = (j0 + j1) / 2 * r, (i0 + i1) / 2 * r          # centre in the grid frame
                 lx, ly = (j1 - j0) * r, (i1 - i0) * r
                 cx, cy = ox + c * u - s * v, oy + s * u + c * v
@@ -522,6 +524,15 @@ class CollisionWorld:
 
 _COLLIDE_REQUEST = fcl.CollisionRequest()
 _DISTANCE_REQUEST = fcl.DistanceRequest()
+
+
+def _check_world_size(n: int) -> None:
+    from .limits import MAX_WORLD_OBJECTS
+
+    if n > MAX_WORLD_OBJECTS:
+        raise InputError("map", f"obstacles that make at most {MAX_WORLD_OBJECTS:,} collision objects (convex parts "
+                         "and merged rectangles of occupied cells)", f"{n:,}",
+                         detail="a grid this fragmented is mostly isolated noise cells: clean or coarsen it")
 
 
 def _moved(a, b, reach: float) -> float:

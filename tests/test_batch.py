@@ -129,6 +129,63 @@ def test_a_batch_killed_with_sigkill_and_resumed_runs_each_trial_once(tmp_path):
     assert _records(db) == _records(tmp_path / "whole" / "trials.sqlite")
 
 
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    """The reference: the 4-trial batch of the Ctrl-C tests, run without interruption."""
+    d = tmp_path_factory.mktemp("whole")
+    run_batch(load_batch_config(_config(d, trials=2)), d / "b", workers=2, progress=False)
+    return _records(d / "b" / "trials.sqlite")
+
+
+def _stored(db) -> int:
+    try:
+        with sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5) as con:
+            return con.execute("SELECT COUNT(*) FROM trials").fetchone()[0]
+    except sqlite3.Error:
+        return 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("workers,target", [(1, "group"), (2, "group"), (2, "driver")])
+def test_ctrl_c_stops_the_batch_stores_no_interrupted_trial_and_resume_completes_it(tmp_path, uninterrupted,
+                                                                                    workers, target):
+    """SIGINT part-way (after the first stored trial), as a terminal's Ctrl-C (the whole process group)
+    or to the driving process only: exit 130, one line, only finished trials stored, no process left;
+    then --resume: the store equals an uninterrupted batch's, trial for trial (statuses, metrics,
+    series, seeds)."""
+    cfg_file = _config(tmp_path, trials=2)
+    out = tmp_path / "b"
+    db = out / "trials.sqlite"
+    cmd = [sys.executable, "-m", "nhstab.cli.main", "batch", str(cfg_file), "--out", str(out), "--workers",
+           str(workers), "--no-progress"]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, start_new_session=True, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 300
+    while time.time() < deadline and proc.poll() is None and _stored(db) < 1:
+        time.sleep(0.02)
+    assert proc.poll() is None, "the batch finished before it could be interrupted"
+    if target == "group":
+        os.killpg(proc.pid, signal.SIGINT)
+    else:
+        os.kill(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    lines = [ln for ln in err.splitlines() if ln.startswith("nhstab:")]
+    assert len(lines) == 1 and "interrupted" in lines[0] and "--resume" in lines[0] and "Traceback" not in err, err
+    time.sleep(0.5)
+    with pytest.raises(ProcessLookupError):       # no worker or planner process outlives the batch
+        os.killpg(proc.pid, 0)
+    with Store(db) as s:
+        part = s.trials()
+    assert 1 <= len(part) < 4
+    assert all(t["status"] not in ("interrupted", "error") for t in part), [t["status"] for t in part]
+    assert f"{len(part)} of 4 trials are stored" in lines[0]
+    res = subprocess.run(cmd + ["--resume"], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr
+    assert f"ran {4 - len(part)} trials" in res.stdout
+    assert _records(db) == uninterrupted
+
+
 def test_replay_reproduces_a_stored_trial(tmp_path, monkeypatch):
     """Also with the map given relative to the config and the batch run from another folder."""
     from click.testing import CliRunner

@@ -21,7 +21,7 @@ def _invoke(*args):
 
 @pytest.mark.parametrize("args,needle", [
     (["--noise", "-1"], "noise.scale"),
-    (["--rate", "0"], "rate_hz"),
+    (["--rate", "0"], "--rate"),
     (["--controller", "pid"], "controller"),
     (["--sensor-std", "x=-0.1"], "noise.sensor.x"),
     (["--sensor-std", "x:0.1"], "--sensor-std"),

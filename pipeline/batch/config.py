@@ -44,6 +44,7 @@ import numpy as np
 from ..errors import InputError
 from ..execution.config import RunOptions, check_number, check_pose, options_from_mapping, read_yaml_mapping
 from ..execution.controllers import CONTROLLERS
+from ..planning import PLANNABLE
 
 _TOP = ("name", "root_seed", "trials", "maps", "robots", "robot", "controllers", "grid", "run")
 _MAP_KEYS = ("path", "problems", "cell_size")
@@ -57,6 +58,9 @@ class MapSpec:
     label: str
     cell_size: float | None
     problems: tuple            # ((start, goal), ...) poses as tuples
+    #: SHA-256 of every file the map is built from (nhstab.maps.content_hash): a resumed batch and
+    #: every trial check it, so a store never mixes trials of two versions of a map
+    content_hash: str = ""
 
 
 @dataclass
@@ -73,7 +77,9 @@ class BatchConfig:
     base_options: RunOptions = field(default_factory=RunOptions)
 
     def seeds(self) -> list[int]:
-        """Trial k's seed: child k of root_seed (a 32-bit integer, usable as nhstab run --seed)."""
+        """Trial k's seed: child k of root_seed (a 32-bit integer, usable as nhstab run --seed). The
+        count is bounded by the config check (nhstab.limits.MAX_BATCH_TRIALS) before anything is
+        spawned."""
         children = np.random.SeedSequence(self.root_seed).spawn(self.trials)
         return [int(c.generate_state(1)[0]) for c in children]
 
@@ -89,7 +95,8 @@ class BatchConfig:
                                                    self.grid.get("gamma", [None]))) if ctrl == "gramian" \
                         else [(None, None, None)]
                     for (alpha, delta, gamma), level in itertools.product(gains, noise):
-                        cell = {"map": ms.label, "map_path": ms.path, "cell_size": ms.cell_size,
+                        cell = {"map": ms.label, "map_path": ms.path, "map_hash": ms.content_hash,
+                                "cell_size": ms.cell_size,
                                 "problem": p_index, "start": list(start), "goal": list(goal),
                                 "robot": robot, "controller": ctrl, "alpha": alpha, "delta": delta,
                                 "gamma": gamma, "noise": float(level)}
@@ -108,16 +115,23 @@ class BatchConfig:
 
     def describe(self) -> dict:
         return {"name": self.name, "root_seed": self.root_seed, "trials": self.trials,
-                "maps": [{"path": m.path, "label": m.label, "cell_size": m.cell_size, "problems": m.problems}
-                         for m in self.maps],
+                "maps": [{"path": m.path, "label": m.label, "cell_size": m.cell_size, "problems": m.problems,
+                          "content_hash": m.content_hash} for m in self.maps],
                 "robots": self.robots, "controllers": self.controllers, "grid": self.grid, "run": self.run,
                 "source": self.source}
 
+    def n_trials(self) -> int:
+        return len(self.cells()) * self.trials
+
     def fingerprint(self) -> str:
-        """A hash of everything that decides the trials (not the name): a resumed batch must match."""
+        """A hash of everything that decides the trials (not the name, nor where the map files are):
+        the options, seeds, problems and the content of every map file (base maps and images
+        included), so that a resumed batch must match."""
         d = self.describe()
         d.pop("name")
         d.pop("source")
+        for m in d["maps"]:
+            m.pop("path")
         return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
@@ -169,8 +183,10 @@ def load_batch_config(path) -> BatchConfig:
     name = data.get("name", path.stem)
     if not isinstance(name, str) or not name:
         raise InputError("name", "a non-empty string", name)
-    root_seed = check_number("root_seed", data["root_seed"], 0, integer=True)
-    trials = check_number("trials", data["trials"], 1, integer=True)
+    from ..limits import MAX_BATCH_TRIALS, MAX_SEED, check_int
+
+    root_seed = check_int("root_seed", data["root_seed"], 0, MAX_SEED, "a non-negative integer")
+    trials = check_int("trials", data["trials"], 1, MAX_BATCH_TRIALS, "a number of trials per cell")
     maps, loaded = [], []
     for i, entry in enumerate(_list("maps", data["maps"])):
         where = f"maps[{i}]"
@@ -189,7 +205,7 @@ def load_batch_config(path) -> BatchConfig:
         except InputError as exc:
             raise InputError(f"{where}.path", "a map that loads", str(entry["path"]), detail=str(exc)) from None
         problems = _problems(f"{where}.problems", entry.get("problems", "map"), m)
-        maps.append(MapSpec(str(mpath), m.name, cell, problems))
+        maps.append(MapSpec(str(mpath), m.name, cell, problems, m.meta["content_hash"]))
         loaded.append(m)
     labels = [m.label for m in maps]
     if len(set(labels)) != len(labels):
@@ -232,14 +248,46 @@ def load_batch_config(path) -> BatchConfig:
             if key in _RUN_EXCLUDED:
                 raise InputError(f"run.{key}", "set by the batch (maps, robots, trials), not in run", key)
     base = options_from_mapping(run, allowed, prefix="run.")
-    for m in loaded:
+    for i, (m, spec) in enumerate(zip(loaded, maps)):
         for r in robots or [m.robot or "unicycle"]:
-            model = robot_from_spec(r).model
+            rob = robot_from_spec(r)
+            model = rob.model
+            if model.name not in PLANNABLE:
+                raise InputError(f"maps[{i}].path", f"a map whose robot nhstab plans for ({', '.join(PLANNABLE)})",
+                                 model.name, detail="or give robots")
             try:
-                base.validated(model.state_names, model.m)
+                opts = base.validated(model.state_names, model.m)
             except InputError as exc:
                 raise InputError("run." + exc.argument, exc.expected, exc.got) from None
-    return BatchConfig(name, root_seed, trials, maps, robots, controllers, grid, run, str(path), base)
+            _check_problems(f"maps[{i}].problems", m, spec.problems, rob, opts)
+    config = BatchConfig(name, root_seed, trials, maps, robots, controllers, grid, run, str(path), base)
+    n = len(config.cells()) * trials
+    if n > MAX_BATCH_TRIALS:
+        raise InputError("trials", f"at most {MAX_BATCH_TRIALS:,} trials in the batch (cells x trials)",
+                         f"{len(config.cells())} cells x {trials} = {n:,}")
+    return config
+
+
+def _check_problems(key: str, m, problems, robot, opts) -> None:
+    """Every start and goal inside the map's bounds and clear of its known obstacles by more than
+    the planning margin, for the robot's footprint: what the first plan of every trial would
+    refuse, refused once here instead of stored as an error in every trial."""
+    from ..collision import CollisionWorld
+
+    fp = robot.footprint
+    margin = opts.planning.margin if opts.planning.margin is not None else robot.margin
+    world = None
+    for j, (start, goal) in enumerate(problems):
+        for which, pose in (("start", start), ("goal", goal)):
+            where = f"{key}[{j}].{which}"
+            if not m.contains(pose[0], pose[1]):
+                raise InputError(where, f"a pose inside the bounds of {m.name} {list(m.bounds)}", list(pose))
+            world = world or CollisionWorld.from_map(m, "known")
+            c = world.clearance(np.asarray(pose, dtype=float), fp)
+            if c <= margin:
+                raise InputError(where, f"a pose more than the planning margin {margin:g} m from the known "
+                                 f"obstacles of {m.name} for the {robot.name or robot.model.name}", [round(float(v), 4) for v in pose],
+                                 detail=f"clearance {c:.3g} m")
 
 
 def _problems(key: str, value, m) -> tuple:

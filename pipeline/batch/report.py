@@ -25,7 +25,6 @@ from pathlib import Path
 import numpy as np
 
 from ..report import subplots
-from ..records import save_figure, write_text
 from .store import Store
 
 Z95 = 1.959963984540054
@@ -350,22 +349,42 @@ def _fmt(v, digits=3):
 
 def write_report(store_path, out_dir=None) -> list[Path]:
     """Write report.html, report.md, trials.csv and figures/*.png next to the store (or in out_dir)."""
+    from ..errors import InputError
+    from ..records import OutputFolder
+
     store_path = Path(store_path)
     db = store_path / "trials.sqlite" if store_path.is_dir() else store_path
     out_dir = Path(out_dir) if out_dir is not None else db.parent
-    with Store(db) as store:
+    with Store(db) as store:            # read-only; refused unless it is a batch store
         trials = store.trials()
         config = store.meta("config", {})
         vers = store.meta("versions", {})
+    if not trials:
+        raise InputError("STORE", "a batch store with at least one finished trial", str(db),
+                         detail="no trial is stored yet")
+    if not isinstance(config, dict) or not isinstance(vers, dict):
+        raise InputError("STORE", "a batch store whose config and versions are mappings", str(db))
     rows = cell_table(trials)
     figs = {"rates": rates_figure(rows), "envelopes": envelope_figure(trials, rows),
             "distributions": distributions_figure(trials, rows), "tubes": tube_figure(trials, rows),
             "paired": paired_figure(trials),
             "noise": noise_figure(rows)}
-    written = [write_text(out_dir / "trials.csv", trials_csv(trials))]
+    owned = REPORT_FILES + tuple(f"figures/{name}.png" for name in figs)     # those not drawn this time too
+    with OutputFolder(out_dir, "batch report", owned=owned, info={"store": str(db), "trials": len(trials)}) as out:
+        _write_report(out, db, trials, config, vers, rows, figs)
+    return out.written
+
+
+#: the files ``nhstab batch report`` writes besides its figures (figures/<name>.png; an earlier
+#: report's files are all replaced)
+REPORT_FILES = ("report.html", "report.md", "trials.csv")
+
+
+def _write_report(out, db, trials, config, vers, rows, figs) -> None:
+    out.write_text("trials.csv", trials_csv(trials))
     for name, fig in figs.items():
         if fig is not None:
-            written.append(save_figure(fig, out_dir / "figures" / f"{name}.png", dpi=90))
+            out.save_figure(fig, f"figures/{name}.png", dpi=90)
     captions = {
         "rates": "Success (goal reached), collision and margin-violation rates per cell, with Wilson 95% intervals.",
         "envelopes": "Tracking error ||x - x0|| while following the first plan: median, 90th and 99th percentile "
@@ -408,7 +427,7 @@ def write_report(store_path, out_dir=None) -> list[Path]:
             md += [f"![{name}](figures/{name}.png)", "", captions[name], ""]
     md += ["Every trial, with its seed and metrics, is in `trials.csv`; replay one with "
            "`nhstab batch replay STORE TRIAL_ID --out DIR`.", ""]
-    written.append(write_text(out_dir / "report.md", "\n".join(md)))
+    out.write_text("report.md", "\n".join(md))
     h = ["<!doctype html><html><head><meta charset='utf-8'><title>" + html.escape(title) + "</title>",
          "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
          "table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px}"
@@ -428,5 +447,4 @@ def write_report(store_path, out_dir=None) -> list[Path]:
             h.append(f"<figure><img src='figures/{name}.png' alt='{name}'>"
                      f"<figcaption>{html.escape(captions[name])}</figcaption></figure>")
     h.append("<p>Every trial is in <a href='trials.csv'>trials.csv</a>.</p></body></html>")
-    written.append(write_text(out_dir / "report.html", "\n".join(h) + "\n"))
-    return written
+    out.write_text("report.html", "\n".join(h) + "\n")

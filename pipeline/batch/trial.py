@@ -11,18 +11,33 @@ import traceback
 
 import numpy as np
 
+from ..errors import InputError
+
 #: the error-norm series of a trial is sampled every this many seconds (for the envelopes)
 SERIES_DT = 0.2
 
 _MAPS: dict = {}
 
 
-def _load(path: str, cell_size):
+class MapChangedError(InputError):
+    """A map file changed while its batch ran (or since the batch was configured). Not recorded as
+    a trial's error: the batch stops, since its trials would mix two maps."""
+
+
+def _load(path: str, cell_size, content_hash: str | None = None):
+    """The trial's map (cached per worker), checked against the content hash the batch was
+    configured with."""
     from ..maps import load_map
 
-    key = (path, cell_size)
+    key = (path, cell_size, content_hash)
     if key not in _MAPS:
-        _MAPS[key] = load_map(path, **({"cell_size": cell_size} if cell_size else {}))
+        m = load_map(path, **({"cell_size": cell_size} if cell_size else {}))
+        if content_hash and m.meta["content_hash"] != content_hash:
+            raise MapChangedError(path, "the map the batch was configured with (its files unchanged)",
+                                  f"content hash {m.meta['content_hash'][:12]}",
+                                  detail=f"the batch's is {content_hash[:12]}; the stored trials used that one: "
+                                         "restore the map or start a new batch")
+        _MAPS[key] = m
     return _MAPS[key]
 
 
@@ -41,7 +56,10 @@ def trial_options(spec: dict):
 
 
 def run_trial(spec: dict) -> dict:
-    """Run one trial; never raises: an exception becomes a record with status "error"."""
+    """Run one trial. An exception becomes a record with status "error", except two that stop the
+    batch instead: a map that changed since the batch was configured (:class:`MapChangedError`),
+    and Ctrl-C (KeyboardInterrupt, also when the run reports itself "interrupted"): an interrupted
+    trial has no result and must not be stored."""
     from .store import versions
 
     started = time.perf_counter()
@@ -49,10 +67,14 @@ def run_trial(spec: dict) -> dict:
               "versions": versions()}
     try:
         record.update(_run(spec))
+    except MapChangedError:
+        raise
     except Exception as exc:          # recorded, never stops the batch
         record.update(status="error", error=f"{type(exc).__name__}: {' '.join(str(exc).split())}",
                       metrics=None, series=None,
                       timings={"traceback": traceback.format_exc(limit=8)})
+    if record.get("status") == "interrupted":
+        raise KeyboardInterrupt
     record.setdefault("timings", {})["trial_wall_s"] = time.perf_counter() - started
     record["finished_at"] = time.time()
     return record
@@ -64,12 +86,14 @@ def _run(spec: dict) -> dict:
     from .config import robot_label
 
     cell = spec["cell_spec"]
-    m = _load(cell["map_path"], cell["cell_size"])
+    m = _load(cell["map_path"], cell["cell_size"], cell.get("map_hash"))
     opts = trial_options(spec)
     rob = resolve_robot(opts.robot, m.robot, source="batch")
     model = rob.model
     robot = robot_label(opts.robot) if opts.robot is not None else robot_label(m.robot or "unicycle")
     result = execute(m, rob, np.asarray(opts.start, float), np.asarray(opts.goal, float), opts)
+    if result.status == "interrupted":         # Ctrl-C inside the run: no result, the batch stops
+        raise KeyboardInterrupt
     s = summary(result, cell["map_path"])
     first = result.plans[0]
     metrics = {

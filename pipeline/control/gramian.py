@@ -192,8 +192,13 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
     window gramian is singular, and :class:`InputError` for bad options or a trajectory shorter
     than delta.
     """
+    if not isinstance(nominal, Nominal):
+        raise InputError("nominal", "a Nominal (nhstab.Nominal.from_samples, or a plan's nominal)",
+                         type(nominal).__name__)
     if options is None:
         options = StabilizerOptions()
+    if not isinstance(options, StabilizerOptions):
+        raise InputError("options", "a StabilizerOptions or None", type(options).__name__)
     if overrides:
         options = StabilizerOptions(**{**options.__dict__, **overrides})
     opts = options.validated()

@@ -229,26 +229,36 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
     }
 
 
+#: every file ``nhstab run`` may write into its folder (an earlier run's are all replaced)
+RUN_FILES = ("run.json", "trajectory.csv", "run_map.png", "run_tracking.png", "run.gif")
+#: every file ``nhstab plan`` may write into its folder
+PLAN_FILES = ("plan.json", "trajectory.csv", "trajectory.npz", "plan.png", "tube.npz")
+
+
 def write_run(result: RunResult, out_dir, map_path: str | None = None, figures: bool = True,
-              animate: bool = False) -> list[Path]:
-    """Write trajectory.csv, run.json and the figures; each file atomically (a file that exists is
-    complete), run.json last."""
-    from ..records import save_figure
+              animate: bool = False, extra_files: dict | None = None) -> list[Path]:
+    """Write trajectory.csv, the figures, run.json (and ``extra_files``: {name: text}) into
+    ``out_dir`` as one output (:class:`nhstab.records.OutputFolder`): an earlier run's files there
+    are replaced as a whole, never mixed with these, and ``nhstab-manifest.json`` (last) names them.
+    Returns the paths written, the manifest last."""
+    from ..records import OutputFolder
 
-    out_dir = Path(out_dir)
-    written = [write_text(out_dir / "trajectory.csv", trajectory_csv(result))]
-    if figures:
-        from ..report.runs import run_map_figure, run_tracking_figure
+    with OutputFolder(out_dir, "run", owned=RUN_FILES + tuple(extra_files or ()),
+                      info={"status": result.status}) as out:
+        for name, text in (extra_files or {}).items():
+            out.write_text(name, text)
+        out.write_text("trajectory.csv", trajectory_csv(result))
+        if figures:
+            from ..report.runs import run_map_figure, run_tracking_figure
 
-        written.append(save_figure(run_map_figure(result), out_dir / "run_map.png"))
-        written.append(save_figure(run_tracking_figure(result), out_dir / "run_tracking.png"))
-    if animate:
-        from ..report.runs import write_animation
+            out.save_figure(run_map_figure(result), "run_map.png")
+            out.save_figure(run_tracking_figure(result), "run_tracking.png")
+        if animate:
+            from ..report.runs import write_animation
 
-        written.append(write_animation(result, out_dir / "run.gif"))
-    written.append(write_json(out_dir / "run.json", summary(result, map_path)))
-    return written
-
+            write_animation(result, out.path("run.gif"))
+        out.write_json("run.json", summary(result, map_path))
+    return out.written
 
 
 def plan_record(result, map_label: str, robot, start, goal, path_options, tube=None,
@@ -271,43 +281,42 @@ def plan_record(result, map_label: str, robot, start, goal, path_options, tube=N
 
 def write_plan(result, out_dir, m, map_label: str, robot, start, goal, path_options,
                figures: bool = True, tube=None, extra: dict | None = None) -> list[Path]:
-    """Write trajectory.csv, trajectory.npz, plan.png and plan.json (last) for a successful plan of
-    :func:`nhstab.planning.plan` on map ``m``; each file atomically. With a ``tube``, plan.png draws it
-    and tube.npz holds its per-sample arrays."""
+    """Write trajectory.csv, trajectory.npz, plan.png and plan.json for a successful plan of
+    :func:`nhstab.planning.plan` on map ``m``, as one output (:class:`nhstab.records.OutputFolder`).
+    With a ``tube``, plan.png draws it and tube.npz holds its per-sample arrays."""
     import numpy as np
 
     from ..planning import pose_columns
-    from ..records import save_figure
     from ..trajectory_io import write_trajectory
 
     if not result.ok:
         raise InputError("result", "a successful plan (result.ok)", result.status)
+    from ..records import OutputFolder
+
     model, footprint = robot.model, robot.footprint
     path_options = path_options.for_robot(robot)
-    out_dir = Path(out_dir)
     nom = result.nominal
-    written = [write_trajectory(out_dir / "trajectory.csv", nom), write_trajectory(out_dir / "trajectory.npz", nom)]
-    if figures:
-        from ..report.plans import plan_figure
+    with OutputFolder(out_dir, "plan", owned=PLAN_FILES) as out:
+        write_trajectory(out.path("trajectory.csv"), nom)
+        write_trajectory(out.path("trajectory.npz"), nom)
+        if figures:
+            from ..report.plans import plan_figure
 
-        met = result.metrics
-        cusps = met["cusps"]
-        title = (f"{m.name}: {model.name}, {met['length_m']:.1f} m, {cusps} cusp{'' if cusps == 1 else 's'}, "
-                 f"min clearance {met['min_clearance_m']:.2f} m")
+            met = result.metrics
+            cusps = met["cusps"]
+            title = (f"{m.name}: {model.name}, {met['length_m']:.1f} m, {cusps} cusp{'' if cusps == 1 else 's'}, "
+                     f"min clearance {met['min_clearance_m']:.2f} m")
+            if tube is not None:
+                title += (f"\n{tube.probability:g}-tube: reach up to {tube.reach.max():.2f} m, certified clearance "
+                          f"{tube.certified_clearance:+.3f} m")
+            fig = plan_figure(m, nom.x[:, pose_columns(model)],
+                              np.sign(nom.u[:, 0]), footprint, start, goal, title=title, tube=tube)
+            out.save_figure(fig, "plan.png")
         if tube is not None:
-            title += (f"\n{tube.probability:g}-tube: reach up to {tube.reach.max():.2f} m, certified clearance "
-                      f"{tube.certified_clearance:+.3f} m")
-        fig = plan_figure(m, nom.x[:, pose_columns(model)],
-                          np.sign(nom.u[:, 0]), footprint, start, goal, title=title, tube=tube)
-        written.append(save_figure(fig, out_dir / "plan.png"))
-    if tube is not None:
-        from ..records import write_npz
-
-        written.append(write_npz(out_dir / "tube.npz", t=tube.t, poses=tube.poses, mean=tube.mean, cov=tube.cov,
-                                 std=tube.std, position_radius=tube.position_radius,
-                                 heading_spread=tube.heading_spread, reach=tube.reach, u_mean=tube.u_mean,
-                                 u_std=tube.u_std, saturation_per_step=tube.saturation_per_step,
-                                 probability=tube.probability))
-    written.append(write_json(out_dir / "plan.json",
-                              plan_record(result, map_label, robot, start, goal, path_options, tube, extra)))
-    return written
+            out.write_npz("tube.npz", t=tube.t, poses=tube.poses, mean=tube.mean, cov=tube.cov,
+                          std=tube.std, position_radius=tube.position_radius,
+                          heading_spread=tube.heading_spread, reach=tube.reach, u_mean=tube.u_mean,
+                          u_std=tube.u_std, saturation_per_step=tube.saturation_per_step,
+                          probability=tube.probability)
+        out.write_json("plan.json", plan_record(result, map_label, robot, start, goal, path_options, tube, extra))
+    return out.written

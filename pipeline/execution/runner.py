@@ -180,9 +180,13 @@ class CompositeRun:
     """State of one run; :func:`execute` drives it."""
 
     def __init__(self, m: Map, robot: Robot, start, goal, opts: RunOptions):
+        from ..planning import check_map_budget, check_start_goal
+
         model, fp = robot.model, robot.footprint
+        check_start_goal(np.asarray(start, dtype=float), np.asarray(goal, dtype=float))
         self.m, self.robot, self.model, self.fp = m, robot, model, fp
         opts = opts.validated(model.state_names, model.m)
+        check_map_budget(m, opts.planning.time_limit_s)
         if opts.planning.margin is None:
             opts = dataclasses.replace(opts, planning=dataclasses.replace(opts.planning, margin=robot.margin))
         self.opts = opts
@@ -416,7 +420,7 @@ class CompositeRun:
         self.plans.append(first)
         if law is None:
             raise _Stop("no_plan", f"no first plan in {len(attempts)} attempt{'s' if len(attempts) > 1 else ''} "
-                                   f"(last: {attempt['status']}: {attempt['message']})")
+                                   f"(last: {attempt['status']}: {attempt['message']}){self._rate_hint(attempt)}")
         max_time = self._deadline(0.0, law)
         # the initial condition error, about the nominal's first state
         sigma0 = opts.noise.vector("initial", model.state_names)
@@ -458,12 +462,32 @@ class CompositeRun:
             self._record(t, x, y, x0, u, u_ff, rec.id, 0)
             x = self._advance(x, u, t)
 
+    def _rate_hint(self, attempt: dict) -> str:
+        """When a nominal failed its clearance check and the control period is long, say so: the
+        nominal is sampled once per period, and samples far apart cut corners."""
+        step = float(self.plan_model.input_limits()[0, 1]) * self.T
+        if attempt.get("status") == "not_clear" and step > 0.05:
+            return (f" (rate_hz = {self.opts.rate_hz:g}: the nominal is sampled every {self.T:g} s, up to "
+                    f"{step:.2g} m apart, and cuts corners between samples; a rate of at least "
+                    f"{math.ceil(float(self.plan_model.input_limits()[0, 1]) / 0.05):g} Hz keeps them within 5 cm)")
+        return ""
+
     def _deadline(self, t_start: float, law: FeedbackLaw) -> float:
         """The simulated time limit: ``max_time_s`` if given; else twice the active nominal's duration
         plus 30 s from when it began (each replan moves it)."""
+        from ..limits import MAX_CONTROL_PERIODS
+
         if self.opts.max_time_s is not None:
             return self.opts.max_time_s
-        return t_start + 2.0 * (law.t_end - law.t0) + 30.0
+        deadline = t_start + 2.0 * (law.t_end - law.t0) + 30.0
+        if deadline > MAX_CONTROL_PERIODS * self.T:
+            if not self.plans or len(self.plans) == 1 and t_start == 0.0:
+                raise InputError("max_time_s", f"given for a run this long: the default limit, 2 x the plan's "
+                                 f"{law.t_end - law.t0:.0f} s + 30 s, is more than the {MAX_CONTROL_PERIODS:,} "
+                                 f"control periods a run may simulate at rate_hz = {self.opts.rate_hz:g}", None,
+                                 detail="set max_time_s, or a lower rate_hz")
+            deadline = MAX_CONTROL_PERIODS * self.T
+        return deadline
 
     def _replan(self, x, t_detect: float, conflict: dict):
         """Stop; plan from the measured state until a plan is found or attempts run out. Returns the new
@@ -539,6 +563,8 @@ def execute(m: Map, *args, **kwargs) -> RunResult:
     opts = given.get("opts") or RunOptions()
     if not isinstance(opts, RunOptions):
         raise InputError("opts", "a RunOptions", type(opts).__name__)
+    if not isinstance(m, Map):
+        raise InputError("map", "a Map (nhstab.load_map(path))", type(m).__name__)
     robot = resolve_robot(given.get("robot") if given.get("robot") is not None else opts.robot, m.robot,
                           source="run options" if given.get("robot") is None and opts.robot is not None else "")
     from ..maps import resolve_poses

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..safe_io import read_bytes, read_text
 from .base import Map, MapError, Polygon, Pose, Problem, signed_area
 
 BENCHMR_SCALE = 1.0 / 22.0
@@ -107,10 +108,7 @@ def load_benchmr_scenarios(csv_path: str | Path) -> dict[str, tuple[Problem, ...
     Each :class:`Problem` is labelled ``"<environment>#<case>"``.
     """
     csv_path = Path(csv_path)
-    try:
-        lines = csv_path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MapError(str(csv_path), "a readable UTF-8 CSV file", detail=str(exc)) from None
+    lines = read_text(csv_path, what="UTF-8 CSV file", error=MapError).splitlines()
     numbered = [(n, line) for n, line in enumerate(lines, 1) if line.strip() and not line.lstrip().startswith("#")]
     if not numbered:
         raise MapError(str(csv_path), "a header line and scenario rows", "no data")
@@ -144,10 +142,7 @@ def load_benchmr_scenarios(csv_path: str | Path) -> dict[str, tuple[Problem, ...
 def benchmr_robot_shapes(csv_path: str | Path) -> dict[str, str]:
     """``{world name: footprint SVG file name}`` from the ``robot_shape`` column of ``polygon_scenarios.csv``."""
     csv_path = Path(csv_path)
-    try:
-        lines = csv_path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MapError(str(csv_path), "a readable UTF-8 CSV file", detail=str(exc)) from None
+    lines = read_text(csv_path, what="UTF-8 CSV file", error=MapError).splitlines()
     rows = list(csv.reader([ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]))
     if not rows or "environment" not in rows[0] or "robot_shape" not in rows[0]:
         raise MapError(f"{csv_path.name}: header", "the columns environment and robot_shape", rows[:1])
@@ -191,7 +186,12 @@ def convex_hull_2d(points: np.ndarray) -> np.ndarray:
 
 
 def _polygon(v: np.ndarray, path: Path, what: str) -> Polygon:
+    from ..limits import MAX_COORD_M
+
     v = _clean_ring(v)
+    if len(v) and not float(np.max(np.abs(v))) <= MAX_COORD_M:
+        raise MapError(f"{path.name}: {what}", f"coordinates within +-{MAX_COORD_M:g} m",
+                       f"{float(np.max(np.abs(v))):.6g} m")
     if len(v) < 3 or abs(signed_area(v)) <= 1e-12:
         raise MapError(f"{path.name}: {what}", "a polygon with at least 3 distinct vertices and non-zero area",
                        f"{len(v)} vertices")
@@ -226,15 +226,10 @@ def _repeats(v: np.ndarray) -> int:
 
 def _read_svg_polygons(path: Path) -> list[np.ndarray]:
     """Vertex arrays (SVG user units, SVG y-down) of every ``<path>`` element, in document order."""
+    data = read_bytes(path, what="SVG file", error=MapError)
     try:
-        exists = path.is_file()
-    except (OSError, ValueError):
-        exists = False
-    if not exists:
-        raise MapError(str(path), "an existing SVG file", "no such file")
-    try:
-        root = ET.parse(path).getroot()
-    except (ET.ParseError, OSError, UnicodeDecodeError) as exc:
+        root = ET.fromstring(data)
+    except (ET.ParseError, UnicodeDecodeError, ValueError) as exc:
         raise MapError(str(path), "a well-formed SVG (XML) file", detail=str(exc)) from None
     out = []
     for k, elem in enumerate(e for e in root.iter() if isinstance(e.tag, str)):

@@ -38,6 +38,38 @@ def pose_columns(model: Model) -> list[int]:
     return [names.index("x"), names.index("y"), names.index("theta")]
 
 
+def check_map_budget(m: Map, time_limit_s: float, resolution: float = 0.05) -> None:
+    """Refuse, before anything is built, a map too large for the planning budget: one crossing of
+    its diagonal, checked every ``resolution`` m at the cost of a check that reaches FCL
+    (:data:`nhstab.limits.FCL_CHECK_S`), must fit in ``time_limit_s``. Below that, the search and
+    its simplification keep within the budget, and the distance field and collision world are
+    bounded in size (:mod:`nhstab.limits`)."""
+    from ..limits import FCL_CHECK_S
+
+    w, h = m.size
+    diagonal = math.hypot(w, h)
+    largest = time_limit_s * resolution / FCL_CHECK_S
+    if diagonal > largest:
+        raise InputError("map", f"a map at most {largest:,.0f} m across for a planning budget of {time_limit_s:g} s "
+                         f"(one crossing checked every {resolution:g} m costs up to {FCL_CHECK_S * 1e6:.0f} us per "
+                         "check)", f"{m.name}: {w:,.6g} x {h:,.6g} m, {diagonal:,.0f} m across",
+                         detail="crop its bounds or raise the time limit")
+
+
+#: start and goal closer than this (in position, and in heading) are the same pose: there is nothing
+#: to plan, and no trajectory along which the gramian could be invertible
+SAME_POSE_M, SAME_POSE_RAD = 1e-6, 1e-6
+
+
+def check_start_goal(start: np.ndarray, goal: np.ndarray) -> None:
+    """Refuse a goal equal to the start (one line naming ``goal``)."""
+    from ..geometry import wrap_angle
+
+    if math.hypot(*(goal[:2] - start[:2])) <= SAME_POSE_M and abs(float(wrap_angle(goal[2] - start[2]))) <= SAME_POSE_RAD:
+        raise InputError("goal", "a pose different from the start (nothing to plan: the robot is there)",
+                         np.round(goal, 6).tolist())
+
+
 def min_turning_radius(model: Model) -> float:
     """Both cars: theta' = tan(phi) s / L for rear-axle speed s, so R_min = L / tan(max_steer)."""
     return float(model.wheelbase / math.tan(model.max_steer))
@@ -45,6 +77,9 @@ def min_turning_radius(model: Model) -> float:
 
 def default_turning_radius(model: Model) -> float:
     """The planning turning radius of the model's built-in robot (see :mod:`nhstab.robot`)."""
+    if getattr(model, "name", None) not in PLANNABLE:
+        raise InputError("robot", "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)",
+                         getattr(model, "name", model))
     return default_robot(model.name, **model.params()).turning_radius
 
 
@@ -95,12 +130,20 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
           timing_opts: TimingOptions | None = None, stab_opts: StabilizerOptions | None = None,
           check_resolution: float = 0.05, world: CollisionWorld | None = None) -> PlanResult:
     model, fp = robot.model, robot.footprint
+    if not isinstance(m, Map):
+        raise InputError("map", "a Map (nhstab.load_map(path))", type(m).__name__)
     if model.name not in PLANNABLE:
         raise InputError("robot", "one of " + ", ".join(PLANNABLE), model.name)
+    for name, opts, cls in (("path_opts", path_opts, PathOptions), ("timing_opts", timing_opts, TimingOptions),
+                            ("stab_opts", stab_opts, StabilizerOptions)):
+        if opts is not None and not isinstance(opts, cls):
+            raise InputError(name, f"a {cls.__name__} or None", type(opts).__name__)
     path_opts = (path_opts or PathOptions()).for_robot(robot).validated()
     timing_opts = (timing_opts or TimingOptions()).validated()
     stab_opts = (stab_opts or StabilizerOptions(**robot.stabilizer)).validated()
     start, goal = _pose(start, "start", model), _pose(goal, "goal", model)
+    check_map_budget(m, path_opts.time_limit_s, path_opts.resolution)
+    check_start_goal(start, goal)
     if model.name != "unicycle" and path_opts.turning_radius < min_turning_radius(model) - 1e-9:
         raise InputError("turning_radius", f"at least the {model.name}'s minimum turning radius "
                          f"{min_turning_radius(model):.4g} m", path_opts.turning_radius)
@@ -159,6 +202,14 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
                           path, nominal, metrics=metrics)
     try:
         schedule = compute_schedule(nominal, stab_opts)
+    except InputError as exc:
+        if exc.argument != "delta":
+            raise
+        apart = float(math.hypot(*(goal[:2] - start[:2])))
+        raise InputError("goal", f"far enough from the start for the stabilizer: the nominal to it lasts "
+                         f"{nominal.duration:.3g} s, shorter than the gain schedule's window delta = "
+                         f"{stab_opts.delta:g} s", np.round(goal, 4).tolist(),
+                         detail=f"start and goal are {apart:.3g} m apart; a smaller delta would fit") from None
     except SingularGramianError as exc:
         metrics["time_to_nominal_s"] = time.perf_counter() - started
         return PlanResult("not_stabilizable", str(exc), path, nominal, metrics=metrics)
@@ -174,10 +225,12 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
 def _pose(value, name: str, model: Model) -> np.ndarray:
     """A start or goal pose: (x, y, theta) finite numbers (a full state of the model is also
     accepted: its pose columns are used)."""
+    if isinstance(value, (str, bytes, dict)) or value is None:
+        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value)
     try:
         arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError(name, "a pose of three numbers (x, y, theta)", value) from None
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value) from None
     if arr.shape == (model.n,) and model.n != 3:
         arr = arr[pose_columns(model)]
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
@@ -186,5 +239,5 @@ def _pose(value, name: str, model: Model) -> np.ndarray:
     return arr
 
 
-__all__ = ["plan", "PlanResult", "PathOptions", "TimingOptions", "GeometricPath", "plan_path", "path_length",
+__all__ = ["plan", "PlanResult", "check_map_budget", "check_start_goal", "PathOptions", "TimingOptions", "GeometricPath", "plan_path", "path_length",
            "PLANNERS", "SPACES", "PLANNABLE", "pose_columns", "default_turning_radius", "min_turning_radius"]

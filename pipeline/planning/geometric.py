@@ -84,8 +84,9 @@ class PathOptions:
         if self.margin is not None and not (isinstance(self.margin, (int, float)) and not isinstance(self.margin, bool)
                                             and math.isfinite(self.margin) and self.margin >= 0):
             raise InputError("margin", "a finite number >= 0", self.margin)
-        if not isinstance(self.seed, (int, np.integer)) or isinstance(self.seed, bool) or self.seed < 0:
-            raise InputError("seed", "a non-negative integer", self.seed)
+        from ..limits import MAX_PLANNER_SEED, check_int
+
+        check_int("seed", self.seed, 0, MAX_PLANNER_SEED, "an integer (OMPL's seed)")
         for key in ("simplify", "guide"):
             if not isinstance(getattr(self, key), bool):
                 raise InputError(key, "true or false", getattr(self, key))
@@ -184,11 +185,18 @@ def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptio
     proc.start()
     send.close()
     try:
-        kind, value = recv.recv()
-    except EOFError:
+        try:
+            kind, value = recv.recv()
+        except EOFError:
+            proc.join()
+            raise RuntimeError(f"the planning process died (exit code {proc.exitcode})") from None
         proc.join()
-        raise RuntimeError(f"the planning process died (exit code {proc.exitcode})") from None
-    proc.join()
+    finally:
+        # interrupted (Ctrl-C, SIGTERM) while the child plans: it must not outlive the call
+        if proc.is_alive():
+            proc.terminate()
+            proc.join(5.0)
+        recv.close()
     if kind == "error":
         raise value
     return value
