@@ -130,12 +130,15 @@ def path_length(opts: PathOptions, a, b) -> float:
 
 
 def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptions,
-              isolate: bool = True) -> GeometricPath:
+              isolate: bool = True, more_starts=(), more_goals=()) -> GeometricPath:
     """Plan a collision-free (by ``opts.margin``) path from start to goal; never raises for "no path".
 
     Tries the direct local path first; otherwise runs the chosen OMPL planner for at most
     ``opts.time_limit_s``. With ``isolate`` (default) the search runs in a forked child process
-    seeded with ``opts.seed`` (see the module docstring).
+    seeded with ``opts.seed`` (see the module docstring). ``more_starts`` / ``more_goals``: further
+    poses the path may start / end at (OMPL's multiple start states and ``GoalStates``); the
+    result's ``info["start_index"]`` / ``info["goal_index"]`` say which (0: ``start`` / ``goal``,
+    k: the k-th further pose).
     """
     opts = opts.validated()
     if world.bounds is None:
@@ -143,7 +146,7 @@ def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptio
     world.clearance_field()                   # build once, in the parent: children inherit it
     _ompl()                                   # import once, in the parent (no generator is made)
     if not isolate:
-        return _plan_path(world, fp, start, goal, opts)
+        return _plan_path(world, fp, start, goal, opts, more_starts, more_goals)
     import multiprocessing as mp
 
     ctx = mp.get_context("fork")
@@ -151,7 +154,7 @@ def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptio
 
     def child():
         try:
-            send.send(("ok", _plan_path(world, fp, start, goal, opts)))
+            send.send(("ok", _plan_path(world, fp, start, goal, opts, more_starts, more_goals)))
         except BaseException as exc:           # sent back and re-raised in the parent
             send.send(("error", exc))
 
@@ -169,7 +172,8 @@ def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptio
     return value
 
 
-def _plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptions) -> GeometricPath:
+def _plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptions, more_starts=(),
+               more_goals=()) -> GeometricPath:
     ob, og, ou = _ompl()
     ou.RNG.setSeed(int(opts.seed) + 1)      # before anything samples (OMPL refuses seed 0)
     space = make_space(opts, world.bounds)
@@ -188,7 +192,18 @@ def _plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOpti
     si = ss.getSpaceInformation()
     si.setStateValidityCheckingResolution(min(0.5, opts.resolution / max(space.getMaximumExtent(), 1e-9)))
     s_start, s_goal = _state(space, start), _state(space, goal)
-    ss.setStartAndGoalStates(s_start, s_goal)
+    starts = [np.asarray(start, dtype=float), *(np.asarray(p, dtype=float) for p in more_starts)]
+    goals = [np.asarray(goal, dtype=float), *(np.asarray(p, dtype=float) for p in more_goals)]
+    if len(goals) == 1:
+        ss.setStartAndGoalStates(s_start, s_goal)
+    else:
+        ss.setStartState(s_start)
+        goal_set = ob.GoalStates(si)
+        for p in goals:
+            goal_set.addState(_state(space, p))
+        ss.setGoal(goal_set)
+    for p in starts[1:]:
+        ss.addStartState(_state(space, p))
     ss.setPlanner(_planner(og, opts.planner, si))
     ss.setup()
     started = time.perf_counter()
@@ -210,7 +225,13 @@ def _plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOpti
             waypoints = np.array([[st.getX(), st.getY(), st.getYaw()]
                                   for st in (path.getState(i) for i in range(path.getStateCount()))])
     elapsed = time.perf_counter() - started
-    info = {"planner_used": used}
+    info = {"planner_used": used, "start_index": 0, "goal_index": 0}
+    if waypoints is not None and (len(starts) > 1 or len(goals) > 1):
+        # which of the start / goal poses the path joins (OMPL stores the yaw wrapped)
+        for key, ends, w in (("start_index", starts, waypoints[0]), ("goal_index", goals, waypoints[-1])):
+            err = [math.hypot(*(p[:2] - w[:2])) + abs(float(wrap_angle(p[2] - w[2]))) for p in ends]
+            info[key] = int(np.argmin(err))
+        waypoints[0], waypoints[-1] = starts[info["start_index"]], goals[info["goal_index"]]
     if not have:
         return GeometricPath("failed", status_text, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
                              0.0, 0, elapsed, counter["calls"], counter["time"], opts, info)
@@ -219,6 +240,32 @@ def _plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOpti
     direction, cusps = path_directions(samples)
     return GeometricPath("exact" if exact else "approximate", status_text, waypoints, samples, sigma, direction,
                          length, cusps, elapsed, counter["calls"], counter["time"], opts, info)
+
+
+_LOCAL_SPACES: dict = {}
+
+
+def _local_space(opts: PathOptions):
+    key = (opts.space, float(opts.turning_radius))
+    space = _LOCAL_SPACES.get(key)
+    if space is None:
+        space = _LOCAL_SPACES[key] = make_space(opts, (-1e6, -1e6, 1e6, 1e6))
+    return space
+
+
+def local_length(opts: PathOptions, a, b) -> float:
+    """The length of the shortest local path from pose a to pose b (no obstacles)."""
+    space = _local_space(opts)
+    return float(space.distance(_state(space, a), _state(space, b)))
+
+
+def local_path(opts: PathOptions, a, b, step: float = 0.005):
+    """The shortest local path (Reeds-Shepp or Dubins at ``opts.turning_radius``, no obstacles) from
+    pose a to pose b, sampled every ~step m: (samples (S, 3) from a to b, theta unwrapped; their arc
+    length (S,); the length)."""
+    space = _local_space(opts)
+    samples, sigma = densify(space, np.array([a, b], dtype=float), step)
+    return samples, sigma, float(sigma[-1])
 
 
 def densify(space, waypoints: np.ndarray, step: float = 0.005):

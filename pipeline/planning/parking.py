@@ -1,0 +1,516 @@
+"""Car paths where parking is hard: unparking maneuvers at (almost) full lock, joined by OMPL's search.
+
+A car that parks in a tight slot or bay moves back and forth at full lock; a sampling planner in the
+Reeds-Shepp space hardly ever finds such a narrow passage. Following Paromtchik and Laugier
+(ICRA 1996), the planner instead *unparks*: from a confined end pose (the goal in its slot, or a
+start in one) it drives out with a small tree of maneuvers, and the search only has to join the
+open poses the maneuvers reach. The path to a confined goal is the time-reversed unparking path
+(a car's path driven backwards with the same steering is a path of the car).
+
+The unparking tree from a pose P (:func:`unparking_tree`):
+
+1. straight runs forward and backward from P, as far as they stay free by the margin (at most
+   ``straight_reach_m``); their poses every ``branch_spacing_m`` are branch points (P is one);
+2. from each branch point, for both lock sides and both first directions, alternating arcs at the
+   *lock* steering angle: forward with lock to one side, backward with lock to the other, ... (both
+   turn the car the same way, as in the parking maneuver of a driver), each as far as it stays free
+   (at most a quarter turn), at most ``max_arcs`` arcs; a sequence ends when an arc is blocked at
+   once, or when an arc runs its whole quarter turn: the car is out.
+3. Candidates: every pose where an arc ends (a cusp) and poses along the arcs that ran free,
+   kept if they are *open*: free by the search's margin (the margin plus the search's padding).
+
+The search then joins the start side's open poses with the goal side's (:func:`car_path`): the
+direct local path (Reeds-Shepp) for the cheapest pairs first, at the robot's planning turning
+radius and then at the lock radius; else OMPL's planner from all the start side's open poses to all
+the goal side's (several start states, ``GoalStates``), at the planning radius for part of the
+budget and then at the lock radius. Ends with room (clearance at least ``open_clearance_m``) are
+first planned for directly, as before.
+
+The maneuvers are exact: arcs and straights driven with the steering angle held (so the car follows
+them exactly, no sinusoidal approximation), with the steering changed while standing at the cusps.
+
+**Steering authority.** The maneuvers steer at phi_lock = max_steer - ``steering_reserve_rad``
+(default 0.05 rad: for the default rwd_car 0.55 rad, a turning radius of 4.07 m = 1.11 R_min), not
+at the end stop: the feedback law adds its own steering to the nominal's and the plant stops the
+steering angle at max_steer, so a nominal at the end stop would leave the feedback no way to turn
+tighter when the car drifts outwards. The reserve is sized to the steering the gramian law adds to
+the nominal under the default noise (measured in tests/test_parking.py). The searched connections
+keep the robot's planning radius (1.25 R_min) where they can, and go down to the lock radius only
+where the planning radius finds no path.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..collision import CollisionWorld
+from ..errors import InputError
+from ..geometry import Footprint, wrap_angle
+from ..models import Model
+from .geometric import GeometricPath, PathOptions, local_length, local_path, path_directions, plan_path
+
+#: samples of the exact maneuvers and of the joined path [m] (as the geometric paths are sampled)
+SAMPLE_STEP = 0.005
+
+
+@dataclass(frozen=True)
+class ParkingOptions:
+    """Options of the car planner's unparking maneuvers (see the module docstring).
+
+    steering_reserve_rad: the maneuvers steer at max_steer minus this; max_arcs: arcs per unparking
+    sequence; straight_reach_m: how far the straight runs reach (None: 1.5 car lengths);
+    branch_spacing_m: branch points along them; open_clearance_m: ends with at least this clearance
+    are planned for directly first (the search without maneuvers) with ``direct_share`` of the
+    budget; default_radius_share: the share of the remaining search budget spent at the planning
+    turning radius before the lock radius; candidates: open poses per side given to the search.
+    """
+
+    steering_reserve_rad: float = 0.05
+    max_arcs: int = 8
+    straight_reach_m: float | None = None
+    branch_spacing_m: float = 0.5
+    candidate_spacing_m: float = 0.5
+    open_clearance_m: float = 1.0
+    direct_share: float = 0.5
+    default_radius_share: float = 0.3
+    candidates: int = 48
+    direct_pairs: int = 24
+    arc_speed_mps: float | None = None
+    min_arc_m: float = 0.1
+    attempts: int = 4
+
+    def validated(self) -> "ParkingOptions":
+        def num(key, lo, hi=math.inf, lo_open=False):
+            v = getattr(self, key)
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            if not ok or (v <= lo if lo_open else v < lo) or v > hi:
+                raise InputError(f"parking.{key}", f"a finite number {'>' if lo_open else '>='} {lo:g}"
+                                 + ("" if hi == math.inf else f" and <= {hi:g}"), v)
+
+        num("steering_reserve_rad", 0.0)
+        num("branch_spacing_m", 0.0, lo_open=True)
+        num("candidate_spacing_m", 0.0, lo_open=True)
+        num("open_clearance_m", 0.0)
+        num("direct_share", 0.0, 1.0)
+        num("default_radius_share", 0.0, 1.0)
+        if self.straight_reach_m is not None:
+            num("straight_reach_m", 0.0)
+        if self.arc_speed_mps is not None:
+            num("arc_speed_mps", 0.0, lo_open=True)
+        num("min_arc_m", 0.0)
+        for key in ("max_arcs", "candidates", "direct_pairs", "attempts"):
+            v = getattr(self, key)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+                raise InputError(f"parking.{key}", "a positive integer", v)
+        return self
+
+
+# ---------------------------------------------------------------------------------------------
+# exact maneuvers: segments driven with the steering angle held
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Segment:
+    """A run with the steering angle ``phi`` held: ``direction`` +1 forward / -1 reverse, ``length`` [m]."""
+
+    direction: int
+    phi: float
+    length: float
+
+    def reversed(self) -> "Segment":
+        return Segment(-self.direction, self.phi, self.length)
+
+
+def segment_poses(pose, seg: Segment, wheelbase: float, s) -> np.ndarray:
+    """Rear-axle poses (..., 3) after driving distances ``s`` (>= 0) along ``seg`` from ``pose``:
+    theta = theta0 + kappa u, with u = direction s and kappa = tan(phi) / L; on an arc
+    x = x0 + (sin theta - sin theta0) / kappa, y = y0 - (cos theta - cos theta0) / kappa."""
+    x0, y0, th0 = (float(v) for v in pose)
+    u = seg.direction * np.asarray(s, dtype=float)
+    k = math.tan(seg.phi) / wheelbase
+    if abs(k) < 1e-12:
+        return np.stack([x0 + u * math.cos(th0), y0 + u * math.sin(th0), np.full_like(u, th0)], axis=-1)
+    th = th0 + k * u
+    return np.stack([x0 + (np.sin(th) - math.sin(th0)) / k, y0 - (np.cos(th) - math.cos(th0)) / k, th], axis=-1)
+
+
+@dataclass(frozen=True)
+class Maneuver:
+    """Segments driven one after the other from ``start``."""
+
+    start: np.ndarray
+    segments: tuple = ()
+    wheelbase: float = 1.0
+
+    @property
+    def end(self) -> np.ndarray:
+        pose = np.asarray(self.start, dtype=float)
+        for seg in self.segments:
+            pose = segment_poses(pose, seg, self.wheelbase, seg.length)
+        return pose
+
+    @property
+    def length(self) -> float:
+        return float(sum(seg.length for seg in self.segments))
+
+    @property
+    def cusps(self) -> int:
+        d = [seg.direction for seg in self.segments]
+        return int(sum(a != b for a, b in zip(d[:-1], d[1:])))
+
+    def then(self, seg: Segment) -> "Maneuver":
+        return replace(self, segments=self.segments + (seg,))
+
+    def reversed(self) -> "Maneuver":
+        """The same motion driven backwards in time: from the end to the start."""
+        return Maneuver(self.end, tuple(seg.reversed() for seg in reversed(self.segments)), self.wheelbase)
+
+    def sampled(self, step: float = SAMPLE_STEP):
+        """(samples (S, 3) from start to end, arc length (S,), runs [(i0, i1, phi, direction)]): each
+        segment's sample index range."""
+        out, sig, runs = [np.asarray(self.start, dtype=float)[None, :]], [np.zeros(1)], []
+        pose, offset, count = np.asarray(self.start, dtype=float), 0.0, 1
+        for seg in self.segments:
+            if seg.length <= 0:
+                continue
+            n = max(1, int(math.ceil(seg.length / step)))
+            s = seg.length * np.arange(1, n + 1) / n
+            pts = segment_poses(pose, seg, self.wheelbase, s)
+            out.append(pts)
+            sig.append(offset + s)
+            runs.append((count - 1, count - 1 + n, float(seg.phi), int(seg.direction)))
+            count += n
+            offset += seg.length
+            pose = pts[-1]
+        return np.vstack(out), np.concatenate(sig), runs
+
+
+# ---------------------------------------------------------------------------------------------
+# the unparking tree
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class Candidate:
+    """An open pose the unparking tree reached from its root, and how (``maneuver``)."""
+
+    pose: np.ndarray
+    maneuver: Maneuver
+    cost_s: float = 0.0                 # estimated time: driving at the speed limit, steering at each cusp
+
+
+@dataclass
+class Tree:
+    root: np.ndarray
+    candidates: list = field(default_factory=list)
+    arcs: int = 0
+    poses_checked: int = 0
+    time_s: float = 0.0
+
+
+class _Driver:
+    """Drives segments from a pose as far as they stay free (checked in chunks, stops at the first
+    blocked pose)."""
+
+    CHUNK = 24
+
+    def __init__(self, world: CollisionWorld, fp: Footprint, margin: float, wheelbase: float, step: float):
+        self.world, self.fp, self.margin, self.L, self.step = world, fp, margin, wheelbase, step
+        self.checked = 0
+
+    def free_length(self, pose, direction: int, phi: float, cap: float) -> float:
+        """The longest free distance (a multiple of ``step``, at most ``cap``) along the segment."""
+        n_total = int(math.floor(cap / self.step + 1e-9))
+        done = 0
+        while done < n_total:
+            n = min(self.CHUNK, n_total - done)
+            s = self.step * np.arange(done + 1, done + n + 1)
+            free = self.world.free_many(segment_poses(pose, Segment(direction, phi, 0.0), self.L, s), self.fp,
+                                        self.margin)
+            self.checked += n
+            if not free.all():
+                return self.step * (done + int(np.argmin(free)))
+            done += n
+        return self.step * n_total if n_total else 0.0
+
+
+def unparking_tree(world: CollisionWorld, fp: Footprint, model: Model, root, margin: float, open_margin: float,
+                   opts: ParkingOptions, speed: float, enough: int | None = None) -> Tree:
+    """The unparking tree from ``root`` (module docstring): its open candidates, cheapest first.
+    Branch points are expanded nearest first; the tree stops growing once it has ``enough`` open
+    candidates (default: ``opts.candidates``)."""
+    started = time.perf_counter()
+    enough = opts.candidates if enough is None else enough
+    L = float(model.wheelbase)
+    phi_lock = float(model.max_steer) - opts.steering_reserve_rad
+    r_lock = L / math.tan(phi_lock)
+    reach = fp.bounding_radius
+    # sample so that no footprint point moves more than ~5 cm between checked poses
+    step = min(0.05, 0.05 * r_lock / max(reach, 1e-9))
+    drive = _Driver(world, fp, margin, L, step)
+    length = float(np.ptp(fp.vertices[:, 0])) if fp.radius is None else 2 * fp.radius
+    straight_reach = opts.straight_reach_m if opts.straight_reach_m is not None else 1.5 * length
+    arc_cap = 0.5 * math.pi * r_lock
+    steer_time = 2 * phi_lock / float(model.max_steer_rate)
+    root = np.asarray(root, dtype=float)
+    tree = Tree(root)
+    base = Maneuver(root, (), L)
+    min_move = max(2 * step, opts.min_arc_m)
+
+    def cost(man: Maneuver) -> float:
+        return man.length / speed + man.cusps * steer_time + (steer_time if man.segments else 0.0)
+
+    def collect(found: list):
+        """Keep the open ones of the poses reached (pose, maneuver)."""
+        if not found:
+            return
+        P = np.array([f[0] for f in found])
+        ok = world.free_many(P, fp, open_margin)
+        drive.checked += len(P)
+        tree.candidates.extend(Candidate(P[k], found[k][1], cost(found[k][1])) for k in np.flatnonzero(ok))
+
+    # branch points along the straight runs, nearest first (the root first)
+    ahead = []
+    for d in (1, -1):
+        s_free = drive.free_length(root, d, 0.0, straight_reach)
+        n = int(math.floor(s_free / opts.branch_spacing_m + 1e-9))
+        dist = [k * opts.branch_spacing_m for k in range(1, n + 1)]
+        if s_free > n * opts.branch_spacing_m + min_move:
+            dist.append(s_free)
+        ahead += [(x, d) for x in dist]
+    branches = [base] + [base.then(Segment(d, 0.0, x)) for x, d in sorted(ahead)]
+    for b in branches:
+        found = [(b.end, b)]
+        for side in (1, -1):
+            for first in (1, -1):
+                man, pose = b, b.end
+                for k in range(opts.max_arcs):
+                    d = first * (-1) ** k
+                    phi = side * phi_lock * (-1) ** k
+                    s = drive.free_length(pose, d, phi, arc_cap)
+                    tree.arcs += 1
+                    if s < min_move:
+                        break
+                    # poses along the arc are candidates too (the open ones count), every ~candidate_spacing_m
+                    parts = max(1, int(round(s / opts.candidate_spacing_m)))
+                    for f in np.arange(1, parts) / parts:
+                        part = man.then(Segment(d, phi, f * s))
+                        found.append((part.end, part))
+                    man = man.then(Segment(d, phi, s))
+                    pose = man.end
+                    found.append((pose, man))
+                    if s >= arc_cap - step:            # ran free: the car is out
+                        break
+        collect(found)
+        tree.branches = getattr(tree, "branches", 0) + 1
+        if len(tree.candidates) >= enough:
+            break
+    tree.candidates.sort(key=lambda c: c.cost_s)
+    tree.poses_checked = drive.checked
+    tree.time_s = time.perf_counter() - started
+    return tree
+
+
+# ---------------------------------------------------------------------------------------------
+# the car planner's path: direct, unparking maneuvers, search
+# ---------------------------------------------------------------------------------------------
+def lock_radius(model: Model, opts: ParkingOptions) -> float:
+    """The maneuvers' turning radius L / tan(max_steer - reserve)."""
+    phi = float(model.max_steer) - opts.steering_reserve_rad
+    if phi <= 0:
+        raise InputError("parking.steering_reserve_rad", f"below the car's max_steer {model.max_steer:g} rad",
+                         opts.steering_reserve_rad)
+    return float(model.wheelbase / math.tan(phi))
+
+
+def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, opts: PathOptions, pad: float,
+              search_margin: float, clearances: dict, parking: ParkingOptions | None = None,
+              speed: float | None = None, info: dict | None = None):
+    """A car's geometric paths from start to goal, best guess first (module docstring): exact
+    maneuvers at the ends where needed, a searched connection between them. A generator: each next
+    path is another solution (the next direct pair, or a search with the next seed), for a caller
+    that wants a better one; it stops when ``opts.time_limit_s`` (from the first call) is spent.
+
+    ``opts.margin`` is the margin every pose keeps; the searched connections between open poses keep
+    ``pad`` more (the car's local planner strays a little from them); ``search_margin`` is the margin
+    the search keeps when it starts or ends at the given start or goal themselves
+    (:func:`nhstab.planning.search_margin`); ``clearances``: the start's and goal's clearance.
+    ``info`` (a dict) collects what was done: the stages, their times, the radii and margins."""
+    parking = (parking or ParkingOptions()).validated()
+    started = time.perf_counter()
+    deadline = started + float(opts.time_limit_s)
+    speed = speed or float(model.max_speed)
+    r_default = float(opts.turning_radius)
+    r_lock = min(lock_radius(model, parking), r_default)
+    radii = [r_default] if r_lock >= r_default - 1e-9 else [r_default, r_lock]
+    open_margin = float(opts.margin) + pad
+    info = {} if info is None else info
+    info.update({"stages": [], "lock_radius_m": r_lock, "search_margin_m": search_margin,
+                 "open_margin_m": open_margin, "validity_calls": 0, "validity_time_s": 0.0})
+    seeds = iter(range(opts.seed, opts.seed + 1_000_000))
+
+    def left() -> float:
+        return deadline - time.perf_counter()
+
+    def run_ompl(a, b, radius, budget, margin, more_starts=(), more_goals=()):
+        o = replace(opts, margin=margin, turning_radius=radius, time_limit_s=max(budget, 1e-3), seed=next(seeds))
+        p = plan_path(world, fp, a, b, o, more_starts=more_starts, more_goals=more_goals)
+        info["stages"].append({"stage": "search", "radius_m": radius, "margin_m": margin, "budget_s": budget,
+                               "seed": o.seed, "status": p.status, "planner_status": p.planner_status,
+                               "starts": 1 + len(more_starts), "goals": 1 + len(more_goals),
+                               "time_s": p.planning_time_s})
+        info["validity_calls"] += p.validity_calls
+        info["validity_time_s"] += p.validity_time_s
+        return p
+
+    # 1. ends with room: the search without maneuvers, as for any map
+    if min(clearances.values()) >= parking.open_clearance_m:
+        p = run_ompl(start, goal, r_default, parking.direct_share * float(opts.time_limit_s), search_margin)
+        if p.status == "exact":
+            yield _finish(p, None, None, info, started, "search")
+    # 2. unparking trees at the confined ends; an end with room is its own only candidate
+    sides = {}
+    for key, pose in (("start", start), ("goal", goal)):
+        root = np.asarray(pose, dtype=float)
+        if clearances[key] >= max(parking.open_clearance_m, open_margin) and \
+                world.free_many(root[None, :], fp, open_margin)[0]:
+            sides[key] = [Candidate(root, Maneuver(root, (), float(model.wheelbase)), 0.0)]
+            continue
+        t = unparking_tree(world, fp, model, root, opts.margin, open_margin, parking, speed)
+        info["stages"].append({"stage": f"unparking {key}", "branches": getattr(t, "branches", 0), "arcs": t.arcs,
+                               "poses_checked": t.poses_checked, "open_candidates": len(t.candidates),
+                               "time_s": t.time_s})
+        sides[key] = t.candidates[: parking.candidates]
+    # a side without open poses searches from its end itself, at the margin the end allows
+    margin = open_margin
+    for key, pose in (("start", start), ("goal", goal)):
+        if not sides[key]:
+            root = np.asarray(pose, dtype=float)
+            sides[key] = [Candidate(root, Maneuver(root, (), float(model.wheelbase)), 0.0)]
+            margin = search_margin
+    S, G = sides["start"], sides["goal"]
+    # 3. direct local paths between the cheapest pairs (maneuvers plus the local path's estimated
+    # time), at each radius; each free one is a solution
+    for radius in radii:
+        o = replace(opts, margin=margin, turning_radius=radius)
+        pairs = sorted((cs.cost_s + cg.cost_s + local_length(o, cs.pose, cg.pose) / speed, i, j)
+                       for i, cs in enumerate(S[: parking.direct_pairs]) for j, cg in enumerate(G[: parking.direct_pairs]))
+        tried = found = 0
+        t0 = time.perf_counter()
+        for _, i, j in pairs[: parking.direct_pairs]:
+            if left() <= 0:
+                return
+            samples, _, _ = local_path(o, S[i].pose, G[j].pose, step=min(0.05, o.resolution))
+            tried += 1
+            if _all_free(world, samples, fp, margin):
+                found += 1
+                p = _path_from_waypoints(o, np.array([S[i].pose, G[j].pose]), "Exact solution (direct connection)",
+                                         "direct")
+                info["stages"].append({"stage": "direct", "radius_m": radius, "pairs_tried": tried, "found": True,
+                                       "time_s": time.perf_counter() - t0})
+                yield _finish(p, S[i].maneuver, G[j].maneuver, info, started, "direct")
+                t0 = time.perf_counter()
+        info["stages"].append({"stage": "direct", "radius_m": radius, "pairs_tried": tried, "found": False,
+                               "time_s": time.perf_counter() - t0})
+    # 4. OMPL from all open start-side poses to all open goal-side poses, each radius in turn; then
+    # further searches with new seeds at the radius that worked
+    worked = None
+    for k, radius in enumerate(radii):
+        budget = left() * (parking.default_radius_share if k < len(radii) - 1 else 1.0)
+        if budget <= 0:
+            return
+        p = run_ompl(S[0].pose, G[0].pose, radius, budget, margin, [c.pose for c in S[1:]], [c.pose for c in G[1:]])
+        if p.status == "exact":
+            worked = radius
+            i, j = p.info["start_index"], p.info["goal_index"]
+            yield _finish(p, S[i].maneuver, G[j].maneuver, info, started, "search")
+            break
+    if worked is None:
+        info["failure"] = ("no connection between the open poses of the unparking maneuvers (turning radii "
+                           f"{', '.join(f'{r:.4g}' for r in radii)} m)")
+        return
+    while left() > 0:
+        p = run_ompl(S[0].pose, G[0].pose, worked, left(), margin, [c.pose for c in S[1:]], [c.pose for c in G[1:]])
+        if p.status != "exact":
+            return
+        i, j = p.info["start_index"], p.info["goal_index"]
+        yield _finish(p, S[i].maneuver, G[j].maneuver, info, started, "search")
+
+
+def failed_path(opts: PathOptions, info: dict, started: float) -> GeometricPath:
+    """The "no path" result of :func:`car_paths`, with what was tried."""
+    why = info.get("failure", "no path within the time limit")
+    last = [s for s in info.get("stages", []) if s.get("stage") == "search"]
+    status = last[-1]["planner_status"] if last else "no search"
+    return GeometricPath("failed", f"{why}; OMPL: {status}", np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
+                         np.zeros(0), 0.0, 0, time.perf_counter() - started, info.get("validity_calls", 0),
+                         info.get("validity_time_s", 0.0), opts, {**info, "planner_used": None})
+
+
+def _all_free(world: CollisionWorld, poses: np.ndarray, fp: Footprint, margin: float, chunk: int = 64) -> bool:
+    """Are all poses free by the margin? Checked in chunks, stopping at the first that is not."""
+    for k in range(0, len(poses), chunk):
+        if not world.free_many(poses[k:k + chunk], fp, margin).all():
+            return False
+    return True
+
+
+def _path_from_waypoints(opts: PathOptions, waypoints: np.ndarray, status: str, used: str) -> GeometricPath:
+    out, sig = [waypoints[:1].astype(float)], [np.zeros(1)]
+    offset = 0.0
+    for a, b in zip(waypoints[:-1], waypoints[1:]):
+        s, g, d = local_path(opts, a, b, SAMPLE_STEP)
+        out.append(s[1:])
+        sig.append(offset + g[1:])
+        offset += d
+    samples = np.vstack(out)
+    samples[:, 2] = np.unwrap(samples[:, 2])
+    direction, cusps = path_directions(samples)
+    return GeometricPath("exact", status, waypoints, samples, np.concatenate(sig), direction, offset, cusps,
+                         0.0, 0, 0.0, opts, {"planner_used": used})
+
+
+def _finish(p: GeometricPath, start_man, goal_man, info: dict, started: float, how: str) -> GeometricPath:
+    """The searched path with the start side's maneuver before it and the goal side's reversed after
+    it, as one sampled path; ``info["exact_runs"]``: the maneuvers' segments as sample index ranges
+    (i0, i1, phi, direction) for the car's local planner."""
+    parts = []        # (samples, sigma, runs)
+    if start_man is not None and start_man.segments:
+        parts.append(start_man.sampled())
+    parts.append((p.samples, p.sigma, []))
+    if goal_man is not None and goal_man.segments:
+        parts.append(goal_man.reversed().sampled())
+    out, sig, runs, waypoints = [], [], [], []
+    offset, count = 0.0, 0
+    for n, (s, g, r) in enumerate(parts):
+        first = 0 if n == 0 else 1                     # the junction pose once
+        if n > 0:
+            gap = np.abs(np.r_[s[0, :2] - out[-1][-1, :2], wrap_angle(s[0, 2] - out[-1][-1, 2])]).max()
+            if gap > 1e-6:
+                raise RuntimeError(f"the path's parts do not meet (gap {gap:.3g})")
+        out.append(s[first:])
+        sig.append(offset + g[first:] - g[0])
+        base = count - first
+        runs += [(base + i0, base + i1, phi, d) for i0, i1, phi, d in r]
+        count += len(s) - first
+        offset += float(g[-1] - g[0])
+    samples = np.vstack(out)
+    samples[:, 2] = np.unwrap(samples[:, 2])
+    sigma = np.concatenate(sig)
+    direction, cusps = path_directions(samples)
+    if start_man is not None and start_man.segments:
+        waypoints += [start_man.start] + [Maneuver(start_man.start, start_man.segments[:k + 1], start_man.wheelbase).end
+                                          for k in range(len(start_man.segments) - 1)]
+    waypoints += list(p.waypoints)
+    if goal_man is not None and goal_man.segments:
+        rev = goal_man.reversed()
+        waypoints += [Maneuver(rev.start, rev.segments[:k + 1], rev.wheelbase).end for k in range(len(rev.segments))]
+    maneuvers = {"start_maneuver_segments": len(start_man.segments) if start_man is not None else 0,
+                 "goal_maneuver_segments": len(goal_man.segments) if goal_man is not None else 0}
+    info = {**p.info, **info, "stages": [dict(st) for st in info.get("stages", [])], **maneuvers, "exact_runs": runs,
+            "how": how}
+    info.setdefault("validity_calls", p.validity_calls)
+    return GeometricPath("exact", p.planner_status, np.array(waypoints), samples, sigma, direction, float(sigma[-1]),
+                         cusps, time.perf_counter() - started, info.get("validity_calls", p.validity_calls),
+                         info.get("validity_time_s", p.validity_time_s), p.options, info)
