@@ -44,22 +44,39 @@ SUBCOMMANDS = {
     "gains": "Gain schedule: N = 1e3, 1e4, 1e5 on the Hilare sinusoid, and the naive method at N = 1e3.",
     "collision": "FCL world build time and car pose checks per second on the Moving AI 512x512 and nav2 depot maps.",
     "planning": "Time to a feasible, stabilizable nominal over 20 fixed start/goal pairs on two maps, two robots.",
+    "parking": "Planning on the parking suite: success within 5 s over 10 seeds, time, cusps, duration and gain "
+               "against their bounds, per case (about 10-25 minutes).",
     "run": "Composite controller: replan latency on the depot and warehouse scenarios; cost of a control update.",
     "batch": "Batch throughput: vectorised Hilare trials on one and two workers, a naive baseline, full map trials.",
 }
 
 
+#: options of some subcommands beyond --out, passed to bench_<name> as keywords when given
+EXTRA_OPTIONS = {
+    "parking": [
+        click.option("--seeds", type=int, default=None, help="Seeds per case (default 10)."),
+        click.option("--budget", "budget_s", type=float, default=None, help="Planning budget per call [s] (default 5)."),
+        click.option("--case", "cases", multiple=True,
+                     help="Only this case (repeatable; names as in `nhstab parking table`)."),
+    ],
+}
+
+
 def _subcommand(name: str, help_text: str):
-    @bench.command(name, help=help_text)
-    @click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
-                  default=Path(f"results/bench/{name}.json"), show_default=True)
-    def run(out):
+    def run(out, **extra):
         from nhstab.bench import BENCHMARKS
 
-        _emit(BENCHMARKS[name](), out)
+        kwargs = {k: v for k, v in extra.items() if v not in (None, ())}
+        if name in EXTRA_OPTIONS:
+            kwargs["progress"] = lambda line: click.echo(line, err=True)
+        _emit(BENCHMARKS[name](**kwargs), out)
         return 0
 
-    return run
+    for opt in reversed(EXTRA_OPTIONS.get(name, [])):
+        run = opt(run)
+    run = click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
+                       default=Path(f"results/bench/{name}.json"), show_default=True)(run)
+    return bench.command(name, help=help_text)(run)
 
 
 for _name, _help in SUBCOMMANDS.items():

@@ -59,6 +59,7 @@ def _register():
     from . import bench, gains, paper
     from .examples import examples
     from .map import map_group
+    from .parking import parking
     from .plan import plan, sweep
     from .run import run
     from .batch import batch
@@ -72,6 +73,7 @@ def _register():
     cli.add_command(paper.paper)
     cli.add_command(gains.gains)
     cli.add_command(bench.bench)
+    cli.add_command(parking)
 
 
 _register()
