@@ -29,7 +29,11 @@ from .timing import TimingOptions, unicycle_nominal
 #: for their steering pieces: the phased sinusoids wandered 0.1-0.5 m from the path (up to 1.1 m),
 #: the constant-v1 pieces used first now stay within about 0.012 m (measured on the bundled warehouse,
 #: parking lot and 10 Bench-MR parking3 problems), but a piece may still fall back to the phased ones
-MARGIN_PAD = {"unicycle": 0.02, "rwd_car": 0.15, "fwd_car": 0.15}
+MARGIN_PAD = {"unicycle": 0.02, "rwd_car": 0.05, "fwd_car": 0.05}
+#: a car that drives its path exactly (held steering, steering in place where the curvature changes)
+#: needs no room to stray; the search keeps this much more than the margin only so that poses between
+#: the search's checked samples and the nominal's keep the margin too
+EXACT_PAD = 0.01
 PLANNABLE = ("unicycle", "rwd_car", "fwd_car")
 
 
@@ -134,8 +138,9 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
             raise InputError(key, f"a pose at least the margin {path_opts.margin:g} m from the known obstacles",
                              np.round(ends[key], 4).tolist(), detail=f"clearance {c:.3g} m")
     started = time.perf_counter()
-    search_m = search_margin(world, fp, path_opts.margin, MARGIN_PAD[model.name], [start, goal], clearances)
     parking_opts = (parking_opts or ParkingOptions()).validated()
+    pad = EXACT_PAD if model.name != "unicycle" and parking_opts.exact else MARGIN_PAD[model.name]
+    search_m = search_margin(world, fp, path_opts.margin, pad, [start, goal], clearances)
     base = {"planner": path_opts.planner, "start_clearance_m": clearances["start"],
             "goal_clearance_m": clearances["goal"]}
     if model.name == "unicycle":
@@ -149,7 +154,7 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
     # usable one otherwise
     info: dict = {}
     best, attempts = None, 0
-    for path in car_paths(world, fp, model, start, goal, path_opts, MARGIN_PAD[model.name], search_m, clearances,
+    for path in car_paths(world, fp, model, start, goal, path_opts, pad, search_m, clearances,
                           parking_opts, speed=timing_opts.max_speed, info=info):
         attempts += 1
         result = _from_path(path, robot, world, path_opts, timing_opts, stab_opts, parking_opts, check_resolution,
@@ -214,11 +219,14 @@ def _from_path(path: GeometricPath, robot: Robot, world: CollisionWorld, path_op
     if model.name == "unicycle":
         nominal, tinfo = unicycle_nominal(model, path, timing_opts)
     else:
-        from .cars import CarPlanningError, car_nominal
+        from .cars import CarPlanningError, car_nominal, exact_nominal
 
         try:
-            nominal, tinfo = car_nominal(model, path, timing_opts, world, fp, path_opts.margin,
-                                         arc_speed=parking_opts.arc_speed_mps)
+            if parking_opts.exact:
+                nominal, tinfo = exact_nominal(model, path, timing_opts, arc_speed=parking_opts.arc_speed_mps)
+            else:
+                nominal, tinfo = car_nominal(model, path, timing_opts, world, fp, path_opts.margin,
+                                             arc_speed=parking_opts.arc_speed_mps)
         except CarPlanningError as exc:
             metrics["time_to_nominal_s"] = time.perf_counter() - started
             return PlanResult("infeasible", f"the path was found but could not be made feasible for the car: {exc}",

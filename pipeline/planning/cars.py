@@ -450,3 +450,58 @@ def car_nominal(model: Model, path: GeometricPath, timing: TimingOptions, world:
                      "direction_reversals": direction_reversals(nominal.x[:, _pose_cols(model)]),
                      "waypoint_spacing_m": spacing, "dt_s": float(t[1] - t[0]),
                      "path_deviation_m": float(max(np.linalg.norm(p.final_error[:2]) for p in pieces))}
+
+
+def exact_nominal(model: Model, path: GeometricPath, timing: TimingOptions,
+                  arc_speed: float | None = None) -> tuple[Nominal, dict]:
+    """The car driving its path exactly: every segment of ``path.info["segments"]`` ((direction,
+    steering angle, length), the path's arcs and straights) with its steering angle held, at the
+    speed limit (or ``arc_speed``), the car stopping to steer in place at the rate limit wherever the
+    steering angle changes (at cusps, where an arc meets a straight or the opposite arc, and at the
+    ends, where the wheels are straight). Each piece starts where the previous one ended, so the
+    nominal is the model's exact solution; ``path_deviation_m`` is how far its end lies from the
+    path's end (round-off and the segments' recovery, ~1e-7 m)."""
+    if model.name not in ("rwd_car", "fwd_car"):
+        raise InputError("model", "rwd_car or fwd_car", model.name)
+    if "segments" not in path.info:
+        raise InputError("path", "a car path with its segments (nhstab.planning.parking)", "no segments")
+    lim = float(model.max_steer)
+    segs = []
+    for d, phi, length in path.info["segments"]:
+        if length <= 1e-9:
+            continue
+        if abs(phi) > lim + 1e-9:
+            raise InputError("path", f"segments steering within the limit {lim:g} rad", phi)
+        phi = float(np.clip(phi, -lim, lim))
+        if segs and segs[-1][0] == d and abs(segs[-1][1] - phi) < 1e-9:
+            segs[-1][2] += length
+        else:
+            segs.append([int(d), phi, float(length)])
+    speed = arc_speed or timing.max_speed or float(model.input_limits()[0, 1])
+    speed = min(speed, float(model.input_limits()[0, 1]))
+    pose = np.asarray(path.samples[0], dtype=float)
+    pieces, phi_now, stops = [], 0.0, 0
+    for d, phi, length in segs:
+        if abs(phi - phi_now) > 1e-12:
+            pieces.append(_SteerInPlace(model, pose, phi_now, phi))
+            stops += 1
+        arc = _Arc(model, pose, phi, d, length, speed)
+        pieces.append(arc)
+        end = arc.states_at(arc.t[-1])
+        pose = end[_pose_cols(model)]
+        phi_now = phi
+    if abs(phi_now) > 1e-12:
+        pieces.append(_SteerInPlace(model, pose, phi_now, 0.0))
+        stops += 1
+    if not pieces:
+        raise InputError("path", "a path that moves", "length 0")
+    joined = _Joined(model, pieces)
+    duration = joined.duration
+    npts = max(2, int(math.ceil(duration / timing.dt)) + 1)
+    t = np.linspace(0.0, duration, npts)
+    nominal = Nominal.from_functions(model, joined.states, joined.inputs, t)
+    deviation = float(np.hypot(*(pose[:2] - path.samples[-1, :2])))
+    return nominal, {"duration_s": duration, "pieces": len(pieces), "held_steering_arcs": len(segs),
+                     "steer_in_place": stops, "phased_pieces": 0, "subdivisions": 0,
+                     "direction_reversals": direction_reversals(nominal.x[:, _pose_cols(model)]),
+                     "dt_s": float(t[1] - t[0]), "path_deviation_m": deviation}

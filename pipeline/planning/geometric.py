@@ -259,6 +259,81 @@ def local_length(opts: PathOptions, a, b) -> float:
     return float(space.distance(_state(space, a), _state(space, b)))
 
 
+def local_segments(opts: PathOptions, a, b, tol: float = 1e-8) -> list[tuple[int, float, float]]:
+    """The local path from pose a to pose b as its segments of constant curvature: [(direction +1/-1,
+    curvature dtheta/dsigma [1/m], length [m]), ...]. OMPL does not expose a Reeds-Shepp path's
+    segments, so they are recovered from its exact interpolation: from the current point, a short
+    probe gives the segment's curvature (snapped to 0 or +-1/R) and direction, and a bisection on the
+    arc length finds where the interpolated poses stop matching that segment's closed form (to
+    ``tol`` m and rad); the next segment starts there."""
+    space = _local_space(opts)
+    sa, sb = _state(space, a), _state(space, b)
+    d = float(space.distance(sa, sb))
+    tmp = space.allocState()
+    R = float(opts.turning_radius)
+
+    def pose(f):
+        space.interpolate(sa, sb, min(max(f, 0.0), 1.0), tmp)
+        return np.array([tmp.getX(), tmp.getY(), tmp.getYaw()])
+
+    def drive(p, direction, k, s):
+        u = direction * s
+        th = p[2] + k * s
+        if abs(k) < 1e-12:
+            return np.array([p[0] + u * math.cos(p[2]), p[1] + u * math.sin(p[2]), p[2]])
+        # heading advances by k per metre of path; position along the arc driven in `direction`
+        kk = k * direction            # signed curvature of the motion: theta' = kk * u'
+        return np.array([p[0] + (math.sin(p[2] + kk * u) - math.sin(p[2])) / kk,
+                         p[1] - (math.cos(p[2] + kk * u) - math.cos(p[2])) / kk, th])
+
+    def matches(p, direction, k, s, q):
+        e = drive(p, direction, k, s)
+        return (abs(e[0] - q[0]) <= tol and abs(e[1] - q[1]) <= tol
+                and abs(float(wrap_angle(e[2] - q[2]))) <= tol)
+
+    out = []
+    if d <= tol:
+        return out
+    f, p = 0.0, np.asarray(a, dtype=float)
+    p = np.array([p[0], p[1], float(wrap_angle(p[2]))])
+    while f < 1.0 - 1e-15 and len(out) < 64:
+        h = min(1e-4 / d, 1.0 - f)
+        q = pose(f + h)
+        step = d * h
+        along = (q[0] - p[0]) * math.cos(p[2]) + (q[1] - p[1]) * math.sin(p[2])
+        direction = 1 if along >= 0 else -1
+        k = float(wrap_angle(q[2] - p[2])) / step
+        for snap in (0.0, 1.0 / R, -1.0 / R):
+            if abs(k - snap) < 1e-4:
+                k = snap
+        # the segment reaches at least fraction lo; find where it ends (exponential search, bisection)
+        lo, hi = f + h, None
+        g = h
+        while hi is None:
+            g *= 2
+            cand = min(f + g, 1.0)
+            if matches(p, direction, k, d * (cand - f), pose(cand)):
+                lo = cand
+                if cand >= 1.0:
+                    hi = 1.0
+            else:
+                hi = cand
+        if lo < 1.0:
+            for _ in range(60):
+                if hi - lo <= 1e-15:
+                    break
+                mid = 0.5 * (lo + hi)
+                if matches(p, direction, k, d * (mid - f), pose(mid)):
+                    lo = mid
+                else:
+                    hi = mid
+        length = d * (lo - f)
+        out.append((direction, k, length))
+        f = lo
+        p = pose(f)         # the next segment starts from OMPL's own pose (no drift)
+    return out
+
+
 def local_path(opts: PathOptions, a, b, step: float = 0.005):
     """The shortest local path (Reeds-Shepp or Dubins at ``opts.turning_radius``, no obstacles) from
     pose a to pose b, sampled every ~step m: (samples (S, 3) from a to b, theta unwrapped; their arc

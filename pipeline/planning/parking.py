@@ -51,7 +51,7 @@ from ..collision import CollisionWorld
 from ..errors import InputError
 from ..geometry import Footprint, wrap_angle
 from ..models import Model
-from .geometric import GeometricPath, PathOptions, local_length, local_path, path_directions, plan_path
+from .geometric import GeometricPath, PathOptions, local_length, local_path, local_segments, path_directions, plan_path
 
 #: samples of the exact maneuvers and of the joined path [m] (as the geometric paths are sampled)
 SAMPLE_STEP = 0.005
@@ -74,14 +74,17 @@ class ParkingOptions:
     straight_reach_m: float | None = None
     branch_spacing_m: float = 0.5
     candidate_spacing_m: float = 0.5
-    open_clearance_m: float = 1.0
+    open_clearance_m: float = 0.75
     direct_share: float = 0.5
     default_radius_share: float = 0.3
     candidates: int = 48
-    direct_pairs: int = 24
+    escaped_enough: int = 12
+    max_tree_poses: int = 4000
+    direct_pairs: int = 8
     arc_speed_mps: float | None = None
     min_arc_m: float = 0.1
     attempts: int = 4
+    exact: bool = True
 
     def validated(self) -> "ParkingOptions":
         def num(key, lo, hi=math.inf, lo_open=False):
@@ -102,7 +105,7 @@ class ParkingOptions:
         if self.arc_speed_mps is not None:
             num("arc_speed_mps", 0.0, lo_open=True)
         num("min_arc_m", 0.0)
-        for key in ("max_arcs", "candidates", "direct_pairs", "attempts"):
+        for key in ("max_arcs", "candidates", "escaped_enough", "max_tree_poses", "direct_pairs", "attempts"):
             v = getattr(self, key)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
                 raise InputError(f"parking.{key}", "a positive integer", v)
@@ -198,6 +201,8 @@ class Candidate:
     pose: np.ndarray
     maneuver: Maneuver
     cost_s: float = 0.0                 # estimated time: driving at the speed limit, steering at each cusp
+    #: on a run that got out: an arc that ran its whole quarter turn, or a straight of a car length
+    escaped: bool = False
 
 
 @dataclass
@@ -213,18 +218,20 @@ class _Driver:
     """Drives segments from a pose as far as they stay free (checked in chunks, stops at the first
     blocked pose)."""
 
-    CHUNK = 24
+    CHUNK = 12
 
     def __init__(self, world: CollisionWorld, fp: Footprint, margin: float, wheelbase: float, step: float):
         self.world, self.fp, self.margin, self.L, self.step = world, fp, margin, wheelbase, step
         self.checked = 0
 
     def free_length(self, pose, direction: int, phi: float, cap: float) -> float:
-        """The longest free distance (a multiple of ``step``, at most ``cap``) along the segment."""
+        """The longest free distance (a multiple of ``step``, at most ``cap``) along the segment. The
+        poses are checked in chunks that double in size (a run blocked at once costs one small check,
+        a long free one few calls)."""
         n_total = int(math.floor(cap / self.step + 1e-9))
-        done = 0
+        done, chunk = 0, self.CHUNK
         while done < n_total:
-            n = min(self.CHUNK, n_total - done)
+            n = min(chunk, n_total - done)
             s = self.step * np.arange(done + 1, done + n + 1)
             free = self.world.free_many(segment_poses(pose, Segment(direction, phi, 0.0), self.L, s), self.fp,
                                         self.margin)
@@ -232,16 +239,17 @@ class _Driver:
             if not free.all():
                 return self.step * (done + int(np.argmin(free)))
             done += n
+            chunk *= 2
         return self.step * n_total if n_total else 0.0
 
 
 def unparking_tree(world: CollisionWorld, fp: Footprint, model: Model, root, margin: float, open_margin: float,
                    opts: ParkingOptions, speed: float, enough: int | None = None) -> Tree:
-    """The unparking tree from ``root`` (module docstring): its open candidates, cheapest first.
-    Branch points are expanded nearest first; the tree stops growing once it has ``enough`` open
-    candidates (default: ``opts.candidates``)."""
+    """The unparking tree from ``root`` (module docstring): its open candidates, those that got out
+    first, each group cheapest first. Branch points are expanded nearest first; the tree stops
+    growing once ``enough`` candidates got out (default: ``opts.escaped_enough``)."""
     started = time.perf_counter()
-    enough = opts.candidates if enough is None else enough
+    enough = opts.escaped_enough if enough is None else enough
     L = float(model.wheelbase)
     phi_lock = float(model.max_steer) - opts.steering_reserve_rad
     r_lock = L / math.tan(phi_lock)
@@ -262,13 +270,20 @@ def unparking_tree(world: CollisionWorld, fp: Footprint, model: Model, root, mar
         return man.length / speed + man.cusps * steer_time + (steer_time if man.segments else 0.0)
 
     def collect(found: list):
-        """Keep the open ones of the poses reached (pose, maneuver)."""
+        """Keep the open ones of the poses reached (pose, maneuver, escaped)."""
         if not found:
             return
         P = np.array([f[0] for f in found])
         ok = world.free_many(P, fp, open_margin)
         drive.checked += len(P)
-        tree.candidates.extend(Candidate(P[k], found[k][1], cost(found[k][1])) for k in np.flatnonzero(ok))
+        tree.candidates.extend(Candidate(P[k], found[k][1], cost(found[k][1]), found[k][2]) for k in np.flatnonzero(ok))
+
+    def along(found: list, man: Maneuver, d: int, phi: float, s: float, escaped: bool):
+        """Poses along a run every ~candidate_spacing_m (its end included) are candidates."""
+        parts = max(1, int(round(s / opts.candidate_spacing_m)))
+        for f in np.arange(1, parts + 1) / parts:
+            part = man.then(Segment(d, phi, f * s))
+            found.append((part.end, part, escaped))
 
     # branch points along the straight runs, nearest first (the root first)
     ahead = []
@@ -280,8 +295,9 @@ def unparking_tree(world: CollisionWorld, fp: Footprint, model: Model, root, mar
             dist.append(s_free)
         ahead += [(x, d) for x in dist]
     branches = [base] + [base.then(Segment(d, 0.0, x)) for x, d in sorted(ahead)]
+    escape_straight = length                  # a free straight run this long gets the car out
     for b in branches:
-        found = [(b.end, b)]
+        found = [(b.end, b, False)]
         for side in (1, -1):
             for first in (1, -1):
                 man, pose = b, b.end
@@ -292,21 +308,33 @@ def unparking_tree(world: CollisionWorld, fp: Footprint, model: Model, root, mar
                     tree.arcs += 1
                     if s < min_move:
                         break
-                    # poses along the arc are candidates too (the open ones count), every ~candidate_spacing_m
-                    parts = max(1, int(round(s / opts.candidate_spacing_m)))
-                    for f in np.arange(1, parts) / parts:
-                        part = man.then(Segment(d, phi, f * s))
-                        found.append((part.end, part))
+                    out = s >= arc_cap - step              # ran its whole quarter turn: the car is out
+                    along(found, man, d, phi, s, out)
                     man = man.then(Segment(d, phi, s))
                     pose = man.end
-                    found.append((pose, man))
-                    if s >= arc_cap - step:            # ran free: the car is out
+                    if out:
                         break
+                    # from the cusp, a straight run of a car length that ends with room (along an aisle
+                    # or a lane) gets it out
+                    for ds in (-d, d):
+                        run = drive.free_length(pose, ds, 0.0, straight_reach)
+                        if run >= escape_straight:
+                            end = segment_poses(pose, Segment(ds, 0.0, run), L, run)
+                            if world.clearance(end, fp) >= opts.open_clearance_m:
+                                along(found, man, ds, 0.0, run, True)
+                                out = True
+                    if out or drive.checked > opts.max_tree_poses:
+                        break
+                if drive.checked > opts.max_tree_poses:
+                    break
+            if drive.checked > opts.max_tree_poses:
+                break
         collect(found)
         tree.branches = getattr(tree, "branches", 0) + 1
-        if len(tree.candidates) >= enough:
+        if sum(c.escaped for c in tree.candidates) >= enough or drive.checked > opts.max_tree_poses:
             break
-    tree.candidates.sort(key=lambda c: c.cost_s)
+    # the candidates that got out first, each group cheapest first
+    tree.candidates.sort(key=lambda c: (not c.escaped, c.cost_s))
     tree.poses_checked = drive.checked
     tree.time_s = time.perf_counter() - started
     return tree
@@ -353,6 +381,15 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
     def left() -> float:
         return deadline - time.perf_counter()
 
+    def shortcut(a, b):
+        """A free local path a -> b (a Leg) at the planning radius, else the lock radius; or None."""
+        for radius in radii:
+            o = replace(opts, margin=search_margin, turning_radius=radius)
+            coarse, _, _ = local_path(o, a, b, step=min(0.05, o.resolution))
+            if _all_free(world, coarse, fp, search_margin):
+                return _local_leg(o, a, b, float(model.wheelbase), "shortcut")
+        return None
+
     def run_ompl(a, b, radius, budget, margin, more_starts=(), more_goals=()):
         o = replace(opts, margin=margin, turning_radius=radius, time_limit_s=max(budget, 1e-3), seed=next(seeds))
         p = plan_path(world, fp, a, b, o, more_starts=more_starts, more_goals=more_goals)
@@ -368,27 +405,42 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
     if min(clearances.values()) >= parking.open_clearance_m:
         p = run_ompl(start, goal, r_default, parking.direct_share * float(opts.time_limit_s), search_margin)
         if p.status == "exact":
-            yield _finish(p, None, None, info, started, "search")
-    # 2. unparking trees at the confined ends; an end with room is its own only candidate
-    sides = {}
+            yield _finish(p, p.waypoints, None, None, info, started, "search", model)
+    # 2. the candidates of each side. An end with room (clearance open_clearance_m) is its own only
+    # candidate; an end on a corridor (a free straight run of 1.5 car lengths ahead or behind) too at
+    # first, with its unparking tree grown only if the search from it fails; a confined end gets its
+    # unparking tree at once.
+    L = float(model.wheelbase)
+    length = float(np.ptp(fp.vertices[:, 0])) if fp.radius is None else 2 * fp.radius
+    sides, lazy = {}, set()
     for key, pose in (("start", start), ("goal", goal)):
         root = np.asarray(pose, dtype=float)
-        if clearances[key] >= max(parking.open_clearance_m, open_margin) and \
-                world.free_many(root[None, :], fp, open_margin)[0]:
-            sides[key] = [Candidate(root, Maneuver(root, (), float(model.wheelbase)), 0.0)]
+        sides[key] = [Candidate(root, Maneuver(root, (), L), 0.0, True)]
+        is_open = bool(world.free_many(root[None, :], fp, open_margin)[0])
+        if is_open and clearances[key] >= parking.open_clearance_m:
             continue
-        t = unparking_tree(world, fp, model, root, opts.margin, open_margin, parking, speed)
+        if is_open:
+            runs = [_Driver(world, fp, opts.margin, L, 0.05).free_length(root, d, 0.0, 1.5 * length) for d in (1, -1)]
+            if max(runs) >= 1.5 * length - 0.05:
+                lazy.add(key)
+                continue
+        sides[key] = None
+
+    def grow(key):
+        pose = start if key == "start" else goal
+        t = unparking_tree(world, fp, model, np.asarray(pose, dtype=float), opts.margin, open_margin, parking, speed)
         info["stages"].append({"stage": f"unparking {key}", "branches": getattr(t, "branches", 0), "arcs": t.arcs,
                                "poses_checked": t.poses_checked, "open_candidates": len(t.candidates),
                                "time_s": t.time_s})
-        sides[key] = t.candidates[: parking.candidates]
-    # a side without open poses searches from its end itself, at the margin the end allows
-    margin = open_margin
-    for key, pose in (("start", start), ("goal", goal)):
-        if not sides[key]:
-            root = np.asarray(pose, dtype=float)
-            sides[key] = [Candidate(root, Maneuver(root, (), float(model.wheelbase)), 0.0)]
-            margin = search_margin
+        root = np.asarray(pose, dtype=float)
+        # a side without open poses searches from its end itself, at the margin the end allows
+        return t.candidates[: parking.candidates] or [Candidate(root, Maneuver(root, (), L), 0.0, True)]
+
+    for key in ("start", "goal"):
+        if sides[key] is None:
+            sides[key] = grow(key)
+    margin = open_margin if all(world.free_many(np.array([c.pose for c in sides[k]]), fp, open_margin).all()
+                                for k in sides) else search_margin
     S, G = sides["start"], sides["goal"]
     # 3. direct local paths between the cheapest pairs (maneuvers plus the local path's estimated
     # time), at each radius; each free one is a solution
@@ -409,33 +461,61 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
                                          "direct")
                 info["stages"].append({"stage": "direct", "radius_m": radius, "pairs_tried": tried, "found": True,
                                        "time_s": time.perf_counter() - t0})
-                yield _finish(p, S[i].maneuver, G[j].maneuver, info, started, "direct")
+                yield _finish(p, p.waypoints, S[i].maneuver, G[j].maneuver, info, started, "direct", model, shortcut)
                 t0 = time.perf_counter()
         info["stages"].append({"stage": "direct", "radius_m": radius, "pairs_tried": tried, "found": False,
                                "time_s": time.perf_counter() - t0})
-    # 4. OMPL from all open start-side poses to all open goal-side poses, each radius in turn; then
-    # further searches with new seeds at the radius that worked
+    # 4. OMPL between the two sides' open poses, each radius in turn; then further searches with new
+    # seeds at the radius that worked. RRTConnect puts every start state in its tree at once but
+    # takes goal states in one by one, growing the goal tree from each before it takes the next, so
+    # a first goal state in a slot can stall it: the side with more candidates (the confined end's)
+    # gives the start states, and the search runs backwards when that is the goal side (a
+    # Reeds-Shepp path driven backwards is one; a Dubins path is not, so Dubins searches run
+    # forwards). The goal states are ordered by clearance, the most open first.
+    def search(radius, budget):
+        S, G = sides["start"], sides["goal"]
+        backwards = opts.space == "reeds_shepp" and len(G) > len(S)
+        A, B = (G, S) if backwards else (S, G)
+        B = sorted(B, key=lambda c: -world.clearance(c.pose, fp)) if len(B) > 1 else B
+        p = run_ompl(A[0].pose, B[0].pose, radius, budget, margin, [c.pose for c in A[1:]], [c.pose for c in B[1:]])
+        if p.status != "exact":
+            return None
+        a_end, b_end = A[p.info["start_index"]], B[p.info["goal_index"]]
+        if backwards:
+            return _finish(p, p.waypoints[::-1], b_end.maneuver, a_end.maneuver, info, started, "search", model, shortcut,
+                           backwards=True)
+        return _finish(p, p.waypoints, a_end.maneuver, b_end.maneuver, info, started, "search", model, shortcut)
+
     worked = None
-    for k, radius in enumerate(radii):
-        budget = left() * (parking.default_radius_share if k < len(radii) - 1 else 1.0)
-        if budget <= 0:
-            return
-        p = run_ompl(S[0].pose, G[0].pose, radius, budget, margin, [c.pose for c in S[1:]], [c.pose for c in G[1:]])
-        if p.status == "exact":
-            worked = radius
-            i, j = p.info["start_index"], p.info["goal_index"]
-            yield _finish(p, S[i].maneuver, G[j].maneuver, info, started, "search")
-            break
+    if lazy:        # the corridor ends as they are, with a share of the budget, before their trees
+        found = search(r_default, left() * parking.default_radius_share)
+        if found is not None:
+            worked = r_default
+            yield found
+        else:
+            for key in sorted(lazy):
+                sides[key] = grow(key)
+            margin = open_margin if all(world.free_many(np.array([c.pose for c in sides[k]]), fp, open_margin).all()
+                                        for k in sides) else search_margin
+    if worked is None:
+        for k, radius in enumerate(radii):
+            budget = left() * (parking.default_radius_share if k < len(radii) - 1 else 1.0)
+            if budget <= 0:
+                return
+            found = search(radius, budget)
+            if found is not None:
+                worked = radius
+                yield found
+                break
     if worked is None:
         info["failure"] = ("no connection between the open poses of the unparking maneuvers (turning radii "
                            f"{', '.join(f'{r:.4g}' for r in radii)} m)")
         return
     while left() > 0:
-        p = run_ompl(S[0].pose, G[0].pose, worked, left(), margin, [c.pose for c in S[1:]], [c.pose for c in G[1:]])
-        if p.status != "exact":
+        found = search(worked, left())
+        if found is None:
             return
-        i, j = p.info["start_index"], p.info["goal_index"]
-        yield _finish(p, S[i].maneuver, G[j].maneuver, info, started, "search")
+        yield found
 
 
 def failed_path(opts: PathOptions, info: dict, started: float) -> GeometricPath:
@@ -457,60 +537,130 @@ def _all_free(world: CollisionWorld, poses: np.ndarray, fp: Footprint, margin: f
 
 
 def _path_from_waypoints(opts: PathOptions, waypoints: np.ndarray, status: str, used: str) -> GeometricPath:
-    out, sig = [waypoints[:1].astype(float)], [np.zeros(1)]
-    offset = 0.0
+    """A path known by its waypoints only (the legs are sampled by :func:`_finish`)."""
+    return GeometricPath("exact", status, np.asarray(waypoints, dtype=float), np.zeros((0, 3)), np.zeros(0),
+                         np.zeros(0), 0.0, 0, 0.0, 0, 0.0, opts, {"planner_used": used})
+
+
+@dataclass
+class Leg:
+    """A piece of a car path between two poses where a shortcut may join: one segment of a maneuver,
+    or one local path (Reeds-Shepp / Dubins) of the search. ``samples`` (S, 3) from its start to its
+    end pose, ``sigma`` their arc length from 0, ``segments`` its exact segments."""
+
+    samples: np.ndarray
+    sigma: np.ndarray
+    segments: list
+    kind: str               # "maneuver" | "search" | "shortcut"
+
+
+def _segments_of(opts: PathOptions, a, b, wheelbase: float) -> list:
+    """The local path a -> b as Segments (direction, steering angle, length)."""
+    return [Segment(int(d), math.atan(wheelbase * k * d), float(length))
+            for d, k, length in local_segments(opts, a, b) if length > 0]
+
+
+def _local_leg(opts: PathOptions, a, b, wheelbase: float, kind: str) -> Leg:
+    """The local path a -> b as a Leg, sampled from its exact segments (closed forms)."""
+    segments = _segments_of(opts, a, b, wheelbase)
+    samples, sigma, _ = Maneuver(np.asarray(a, dtype=float), tuple(segments), wheelbase).sampled()
+    samples[-1] = b if abs(float(wrap_angle(samples[-1, 2] - b[2]))) < 1e-6 else samples[-1]
+    return Leg(samples, sigma, segments, kind)
+
+
+def _maneuver_legs(man) -> list:
+    legs = []
+    if man is None:
+        return legs
+    pose = np.asarray(man.start, dtype=float)
+    for seg in man.segments:
+        if seg.length <= 0:
+            continue
+        one = Maneuver(pose, (seg,), man.wheelbase)
+        samples, sigma, _ = one.sampled()
+        legs.append(Leg(samples, sigma, [seg], "maneuver"))
+        pose = samples[-1]
+    return legs
+
+
+def _finish(p: GeometricPath, waypoints, start_man, goal_man, info: dict, started: float, how: str, model,
+            shortcut=None, backwards: bool = False) -> GeometricPath:
+    """One car path: the start side's maneuver, the searched local paths through ``waypoints`` (in the
+    direction of travel; ``backwards``: the search ran from the goal side, so each local path is the
+    reverse of the one it checked), the goal side's maneuver reversed. ``info["segments"]`` holds the
+    whole path's exact segments (direction, steering angle, length) for the car's nominal, and
+    ``info["exact_runs"]`` the maneuvers' sample index ranges (i0, i1, phi, direction).
+
+    ``shortcut(a, b)``: a free local path's Leg from pose a to pose b, or None. Where a maneuver was
+    used, the path is shortened with it: the earliest pose where a leg starts (a waypoint of the
+    search or a cusp of the goal side's maneuver) from which a free local path reaches the goal's
+    final straight run (or the goal) replaces what lies between, and likewise at the start side. A
+    maneuver is kept only where the search's local paths cannot do its work; a final (first) straight
+    run into the goal (out of the start) is kept, so that the car drives into the goal, not only steers."""
+    L = float(model.wheelbase)
+    o = p.options
+    legs = _maneuver_legs(start_man)
+    n_start = len(legs)
+    search_legs = []
     for a, b in zip(waypoints[:-1], waypoints[1:]):
-        s, g, d = local_path(opts, a, b, SAMPLE_STEP)
-        out.append(s[1:])
-        sig.append(offset + g[1:])
-        offset += d
-    samples = np.vstack(out)
-    samples[:, 2] = np.unwrap(samples[:, 2])
-    direction, cusps = path_directions(samples)
-    return GeometricPath("exact", status, waypoints, samples, np.concatenate(sig), direction, offset, cusps,
-                         0.0, 0, 0.0, opts, {"planner_used": used})
-
-
-def _finish(p: GeometricPath, start_man, goal_man, info: dict, started: float, how: str) -> GeometricPath:
-    """The searched path with the start side's maneuver before it and the goal side's reversed after
-    it, as one sampled path; ``info["exact_runs"]``: the maneuvers' segments as sample index ranges
-    (i0, i1, phi, direction) for the car's local planner."""
-    parts = []        # (samples, sigma, runs)
-    if start_man is not None and start_man.segments:
-        parts.append(start_man.sampled())
-    parts.append((p.samples, p.sigma, []))
-    if goal_man is not None and goal_man.segments:
-        parts.append(goal_man.reversed().sampled())
-    out, sig, runs, waypoints = [], [], [], []
-    offset, count = 0.0, 0
-    for n, (s, g, r) in enumerate(parts):
-        first = 0 if n == 0 else 1                     # the junction pose once
-        if n > 0:
-            gap = np.abs(np.r_[s[0, :2] - out[-1][-1, :2], wrap_angle(s[0, 2] - out[-1][-1, 2])]).max()
-            if gap > 1e-6:
-                raise RuntimeError(f"the path's parts do not meet (gap {gap:.3g})")
-        out.append(s[first:])
-        sig.append(offset + g[first:] - g[0])
-        base = count - first
-        runs += [(base + i0, base + i1, phi, d) for i0, i1, phi, d in r]
-        count += len(s) - first
-        offset += float(g[-1] - g[0])
+        if backwards:         # the checked local path is b -> a: drive it backwards
+            leg = _local_leg(o, b, a, L, "search")
+            leg = Leg(leg.samples[::-1].copy(), leg.sigma[-1] - leg.sigma[::-1],
+                      [seg.reversed() for seg in reversed(leg.segments)], "search")
+        else:
+            leg = _local_leg(o, a, b, L, "search")
+        search_legs.append(leg)
+    legs += search_legs
+    goal_legs = _maneuver_legs(goal_man.reversed() if goal_man is not None and goal_man.segments else None)
+    legs += goal_legs
+    cut = {"goal": False, "start": False}
+    if shortcut is not None and goal_legs:
+        tail = len(legs) - 1 if abs(legs[-1].segments[0].phi) < 1e-12 else len(legs)
+        target = legs[tail].samples[0] if tail < len(legs) else legs[-1].samples[-1]
+        for i in range(n_start, tail):
+            leg = shortcut(legs[i].samples[0], target)
+            if leg is not None:
+                legs = legs[:i] + [leg] + legs[tail:]
+                cut["goal"] = True
+                break
+    if shortcut is not None and n_start:
+        head = 1 if abs(legs[0].segments[0].phi) < 1e-12 else 0
+        source = legs[head].samples[0]
+        last = len(legs) - (0 if cut["goal"] or not goal_legs else len(goal_legs))
+        for i in range(last, head, -1):
+            end = legs[i - 1].samples[-1]
+            leg = shortcut(source, end)
+            if leg is not None:
+                legs = legs[:head] + [leg] + legs[i:]
+                cut["start"] = True
+                break
+    # one sampled path
+    out, sig, runs, segments = [legs[0].samples[:1]], [np.zeros(1)], [], []
+    offset, count = 0.0, 1
+    for leg in legs:
+        gap = np.abs(np.r_[leg.samples[0, :2] - out[-1][-1, :2], wrap_angle(leg.samples[0, 2] - out[-1][-1, 2])]).max()
+        if gap > 1e-6:
+            raise RuntimeError(f"the path's legs do not meet (gap {gap:.3g})")
+        out.append(leg.samples[1:])
+        sig.append(offset + leg.sigma[1:])
+        if leg.kind == "maneuver":
+            seg = leg.segments[0]
+            runs.append((count - 1, count - 1 + len(leg.samples) - 1, float(seg.phi), int(seg.direction)))
+        count += len(leg.samples) - 1
+        offset += float(leg.sigma[-1])
+        segments += leg.segments
     samples = np.vstack(out)
     samples[:, 2] = np.unwrap(samples[:, 2])
     sigma = np.concatenate(sig)
     direction, cusps = path_directions(samples)
-    if start_man is not None and start_man.segments:
-        waypoints += [start_man.start] + [Maneuver(start_man.start, start_man.segments[:k + 1], start_man.wheelbase).end
-                                          for k in range(len(start_man.segments) - 1)]
-    waypoints += list(p.waypoints)
-    if goal_man is not None and goal_man.segments:
-        rev = goal_man.reversed()
-        waypoints += [Maneuver(rev.start, rev.segments[:k + 1], rev.wheelbase).end for k in range(len(rev.segments))]
-    maneuvers = {"start_maneuver_segments": len(start_man.segments) if start_man is not None else 0,
-                 "goal_maneuver_segments": len(goal_man.segments) if goal_man is not None else 0}
-    info = {**p.info, **info, "stages": [dict(st) for st in info.get("stages", [])], **maneuvers, "exact_runs": runs,
-            "how": how}
+    starts = [0] + list(np.cumsum([len(leg.samples) - 1 for leg in legs]))
+    waypoints_out = samples[starts]
+    info = {**p.info, **info, "stages": [dict(st) for st in info.get("stages", [])],
+            "start_maneuver_segments": len(start_man.segments) if start_man is not None else 0,
+            "goal_maneuver_segments": len(goal_man.segments) if goal_man is not None else 0,
+            "shortcut": cut, "exact_runs": runs, "how": how,
+            "segments": [(int(seg.direction), float(seg.phi), float(seg.length)) for seg in segments]}
     info.setdefault("validity_calls", p.validity_calls)
-    return GeometricPath("exact", p.planner_status, np.array(waypoints), samples, sigma, direction, float(sigma[-1]),
+    return GeometricPath("exact", p.planner_status, waypoints_out, samples, sigma, direction, float(sigma[-1]),
                          cusps, time.perf_counter() - started, info.get("validity_calls", p.validity_calls),
                          info.get("validity_time_s", p.validity_time_s), p.options, info)
