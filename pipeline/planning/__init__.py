@@ -157,12 +157,17 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
     for path in car_paths(world, fp, model, start, goal, path_opts, pad, search_m, clearances,
                           parking_opts, speed=timing_opts.max_speed, info=info):
         attempts += 1
+        t0 = time.perf_counter()
         result = _from_path(path, robot, world, path_opts, timing_opts, stab_opts, parking_opts, check_resolution,
                             base, started)
+        # what a nominal costs: the searches for another path leave this much of the budget
+        info["reserve_s"] = max(info.get("reserve_s", 0.0), 1.2 * (time.perf_counter() - t0))
         result.metrics["attempts"] = attempts
         if best is None or _better(result, best):
             best = result
         if best.ok and best.metrics["tracking"]["worth_tracking"] or attempts >= parking_opts.attempts:
+            break
+        if time.perf_counter() - started > float(path_opts.time_limit_s) - info["reserve_s"]:
             break
     if best is not None:
         best.metrics["attempts"] = attempts

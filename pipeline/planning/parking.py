@@ -79,6 +79,12 @@ class ParkingOptions:
     default_radius_share: float = 0.3
     candidates: int = 48
     escaped_enough: int = 12
+    first_candidates: int = 8
+    shuffle_step_m: float = 0.1
+    shuffle_grid_m: float = 0.03
+    shuffle_cusp_s: float = 0.5
+    shuffle_expansions: int = 3000
+    shuffle_guidance_s_per_m: float = 20.0
     max_tree_poses: int = 4000
     direct_pairs: int = 8
     arc_speed_mps: float | None = None
@@ -97,6 +103,10 @@ class ParkingOptions:
         num("steering_reserve_rad", 0.0)
         num("branch_spacing_m", 0.0, lo_open=True)
         num("candidate_spacing_m", 0.0, lo_open=True)
+        num("shuffle_step_m", 0.0, lo_open=True)
+        num("shuffle_grid_m", 0.0, lo_open=True)
+        num("shuffle_cusp_s", 0.0)
+        num("shuffle_guidance_s_per_m", 0.0)
         num("open_clearance_m", 0.0)
         num("direct_share", 0.0, 1.0)
         num("default_radius_share", 0.0, 1.0)
@@ -105,7 +115,8 @@ class ParkingOptions:
         if self.arc_speed_mps is not None:
             num("arc_speed_mps", 0.0, lo_open=True)
         num("min_arc_m", 0.0)
-        for key in ("max_arcs", "candidates", "escaped_enough", "max_tree_poses", "direct_pairs", "attempts"):
+        for key in ("max_arcs", "candidates", "escaped_enough", "first_candidates", "max_tree_poses", "direct_pairs",
+                    "attempts", "shuffle_expansions"):
             v = getattr(self, key)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
                 raise InputError(f"parking.{key}", "a positive integer", v)
@@ -340,6 +351,112 @@ def unparking_tree(world: CollisionWorld, fp: Footprint, model: Model, root, mar
     return tree
 
 
+def shuffle_search(world: CollisionWorld, fp: Footprint, model: Model, root, margin: float, open_margin: float,
+                   opts: ParkingOptions, speed: float, deadline: float = math.inf) -> Tree:
+    """Unparking by short moves, where the full-lock tree finds no way out (slots shorter than the
+    single-maneuver length): a best-first search over moves of ``shuffle_step_m`` forward or
+    backward with the steering at the lock angle to either side, from ``root``, poses
+    merged on a grid of ``shuffle_grid_m`` and 0.02 rad. A move's cost is its time at ``speed`` plus
+    the time to steer in place to its angle at the rate limit, plus ``shuffle_cusp_s`` per reversal.
+    The search stops at ``escaped_enough`` poses where the car is out (open by ``open_margin`` and
+    with clearance ``open_clearance_m``: surely so by the distance field), or after
+    ``shuffle_expansions`` poses. Its moves include changing the lock while driving on (the sideways
+    shuffle drivers use in tight slots: forward left, forward right), which the alternating tree
+    never does. Candidates: the poses that got out, each with its merged moves as its maneuver."""
+    import heapq
+
+    started = time.perf_counter()
+    L = float(model.wheelbase)
+    phi_lock = float(model.max_steer) - opts.steering_reserve_rad
+    rate = float(model.max_steer_rate)
+    h = opts.shuffle_step_m
+    n_sub = max(1, int(math.ceil(h / 0.05 - 1e-9)))
+    sub = h * np.arange(1, n_sub + 1) / n_sub
+    # lock moves only: straight moves are the unparking tree's (its branches)
+    prims = [(d, p) for d in (1, -1) for p in (phi_lock, -phi_lock)]
+    root = np.asarray(root, dtype=float)
+    tree = Tree(root)
+    field = world.clearance_field()
+    g = opts.shuffle_grid_m
+
+    def key(p):
+        return (int(round(p[0] / g)), int(round(p[1] / g)), int(round(p[2] / 0.02)))
+
+    from ..clearance_field import disc_cover
+
+    centres, radii = disc_cover(fp)
+    centres, radii = np.asarray(centres, dtype=float).reshape(-1, 2), np.asarray(radii, dtype=float)
+    target = max(open_margin, opts.open_clearance_m)
+
+    def lower_clearance(p):
+        """A lower bound of the footprint's clearance at pose p (distance field, disc cover)."""
+        if field is None:
+            return 0.0
+        c, s_ = math.cos(p[2]), math.sin(p[2])
+        xs = p[0] + c * centres[:, 0] - s_ * centres[:, 1]
+        ys = p[1] + s_ * centres[:, 0] + c * centres[:, 1]
+        return float(np.min(field.at(xs, ys) - radii))
+
+    def h_cost(p):
+        # greedy guidance towards room: the clearance still missing, in seconds (A* with an
+        # inadmissible heuristic: a way out, not the shortest one)
+        return opts.shuffle_guidance_s_per_m * max(0.0, target - lower_clearance(p))
+
+    best = {key(root): 0.0}
+    parent = {}                                  # key -> (parent key, pose, d, phi)
+    heap = [(h_cost(root), 0, key(root), tuple(root), 0, 0.0, 0.0)]
+    counter = 1
+    expanded = 0
+    while heap and expanded < opts.shuffle_expansions and len(tree.candidates) < opts.escaped_enough \
+            and time.perf_counter() < deadline:
+        _, _, k, pose, last_d, last_phi, cost = heapq.heappop(heap)
+        if best.get(k, math.inf) < cost - 1e-12:
+            continue
+        expanded += 1
+        p = np.array(pose)
+        if k != key(root):
+            out = field.surely_free(p[None, :], fp, max(open_margin, opts.open_clearance_m))[0] \
+                if field is not None else world.clearance(p, fp) >= opts.open_clearance_m
+            if out:
+                moves = []
+                kk = k
+                while kk in parent:
+                    pk, _, d, ph = parent[kk]
+                    moves.append(Segment(d, ph, h))
+                    kk = pk
+                segs = []
+                for seg in reversed(moves):
+                    if segs and segs[-1].direction == seg.direction and segs[-1].phi == seg.phi:
+                        segs[-1] = Segment(seg.direction, seg.phi, segs[-1].length + seg.length)
+                    else:
+                        segs.append(seg)
+                man = Maneuver(root, tuple(segs), L)
+                tree.candidates.append(Candidate(man.end, man, cost, True))
+                continue
+        poses = np.concatenate([segment_poses(p, Segment(d, ph, 0.0), L, sub) for d, ph in prims])
+        ends = poses.reshape(len(prims), len(sub), 3)[:, -1]
+        free = world.free_many(ends, fp, margin)            # the moves' ends first, then the way there
+        if free.any():
+            inner = poses.reshape(len(prims), len(sub), 3)[free, :-1].reshape(-1, 3)
+            if len(inner):
+                free[free] = world.free_many(inner, fp, margin).reshape(int(free.sum()), len(sub) - 1).all(axis=1)
+        tree.poses_checked += len(poses)
+        for (d, ph), ok, q in zip(prims, free, poses.reshape(len(prims), len(sub), 3)[:, -1]):
+            if not ok:
+                continue
+            c = cost + h / speed + abs(ph - last_phi) / rate + (opts.shuffle_cusp_s if last_d and d != last_d else 0.0)
+            kq = key(q)
+            if c < best.get(kq, math.inf) - 1e-12:
+                best[kq] = c
+                parent[kq] = (k, q, d, ph)
+                heapq.heappush(heap, (c + h_cost(q), counter, kq, tuple(q), d, ph, c))
+                counter += 1
+    tree.arcs = expanded
+    tree.candidates.sort(key=lambda c: c.cost_s)
+    tree.time_s = time.perf_counter() - started
+    return tree
+
+
 # ---------------------------------------------------------------------------------------------
 # the car planner's path: direct, unparking maneuvers, search
 # ---------------------------------------------------------------------------------------------
@@ -367,19 +484,22 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
     ``info`` (a dict) collects what was done: the stages, their times, the radii and margins."""
     parking = (parking or ParkingOptions()).validated()
     started = time.perf_counter()
-    deadline = started + float(opts.time_limit_s)
+    # the searches end early enough for the caller to make a nominal of what they found: the caller
+    # may set info["reserve_s"] (default: 15 % of the budget, at most 1 s) and update it as it learns
+    info = {} if info is None else info
+    info.setdefault("reserve_s", min(0.15 * float(opts.time_limit_s), 1.0))
+    end_of_budget = started + float(opts.time_limit_s)
     speed = speed or float(model.max_speed)
     r_default = float(opts.turning_radius)
     r_lock = min(lock_radius(model, parking), r_default)
     radii = [r_default] if r_lock >= r_default - 1e-9 else [r_default, r_lock]
     open_margin = float(opts.margin) + pad
-    info = {} if info is None else info
     info.update({"stages": [], "lock_radius_m": r_lock, "search_margin_m": search_margin,
                  "open_margin_m": open_margin, "validity_calls": 0, "validity_time_s": 0.0})
     seeds = iter(range(opts.seed, opts.seed + 1_000_000))
 
     def left() -> float:
-        return deadline - time.perf_counter()
+        return end_of_budget - info["reserve_s"] - time.perf_counter()
 
     def shortcut(a, b):
         """A free local path a -> b (a Leg) at the planning radius, else the lock radius; or None."""
@@ -431,7 +551,14 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
         t = unparking_tree(world, fp, model, np.asarray(pose, dtype=float), opts.margin, open_margin, parking, speed)
         info["stages"].append({"stage": f"unparking {key}", "branches": getattr(t, "branches", 0), "arcs": t.arcs,
                                "poses_checked": t.poses_checked, "open_candidates": len(t.candidates),
-                               "time_s": t.time_s})
+                               "escaped": sum(c.escaped for c in t.candidates), "time_s": t.time_s})
+        if not any(c.escaped for c in t.candidates):
+            # the search gets at most half of what is left (the connection needs the rest)
+            sh = shuffle_search(world, fp, model, np.asarray(pose, dtype=float), opts.margin, open_margin, parking,
+                                speed, deadline=time.perf_counter() + 0.5 * max(left(), 0.0))
+            info["stages"].append({"stage": f"shuffle {key}", "expanded": sh.arcs, "poses_checked": sh.poses_checked,
+                                   "escaped": len(sh.candidates), "time_s": sh.time_s})
+            t.candidates = sh.candidates + t.candidates
         root = np.asarray(pose, dtype=float)
         # a side without open poses searches from its end itself, at the margin the end allows
         return t.candidates[: parking.candidates] or [Candidate(root, Maneuver(root, (), L), 0.0, True)]
@@ -472,8 +599,10 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
     # gives the start states, and the search runs backwards when that is the goal side (a
     # Reeds-Shepp path driven backwards is one; a Dubins path is not, so Dubins searches run
     # forwards). The goal states are ordered by clearance, the most open first.
-    def search(radius, budget):
+    def search(radius, budget, few: int | None = None):
         S, G = sides["start"], sides["goal"]
+        if few is not None:          # the cheapest candidates only (those that got out first)
+            S, G = S[:few], G[:few]
         backwards = opts.space == "reeds_shepp" and len(G) > len(S)
         A, B = (G, S) if backwards else (S, G)
         B = sorted(B, key=lambda c: -world.clearance(c.pose, fp)) if len(B) > 1 else B
@@ -497,6 +626,13 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
                 sides[key] = grow(key)
             margin = open_margin if all(world.free_many(np.array([c.pose for c in sides[k]]), fp, open_margin).all()
                                         for k in sides) else search_margin
+    if worked is None and max(len(sides["start"]), len(sides["goal"])) > parking.first_candidates:
+        # the cheapest candidates first: the search joins whichever it reaches, and these make the
+        # shortest maneuvers
+        found = search(r_default, left() * parking.default_radius_share * 0.5, parking.first_candidates)
+        if found is not None:
+            worked = r_default
+            yield found
     if worked is None:
         for k, radius in enumerate(radii):
             budget = left() * (parking.default_radius_share if k < len(radii) - 1 else 1.0)
