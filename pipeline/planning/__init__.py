@@ -21,7 +21,7 @@ from ..models import Model
 from ..nominal import Nominal
 from ..robot import Robot, default_robot, make_robot
 from .geometric import PLANNERS, SPACES, GeometricPath, PathOptions, path_length, plan_path
-from .parking import ParkingOptions, car_paths, failed_path
+from .parking import CarOptions, car_paths, failed_path
 from .timing import TimingOptions, unicycle_nominal
 
 #: the geometric planner keeps this much more than the requested margin, so that the nominal still
@@ -118,7 +118,7 @@ def search_margin(world: CollisionWorld, fp, margin: float, pad: float, poses, c
 def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = None,
           timing_opts: TimingOptions | None = None, stab_opts: StabilizerOptions | None = None,
           check_resolution: float = 0.05, world: CollisionWorld | None = None,
-          parking_opts: ParkingOptions | None = None) -> PlanResult:
+          car_opts: CarOptions | None = None) -> PlanResult:
     model, fp = robot.model, robot.footprint
     if model.name not in PLANNABLE:
         raise InputError("robot", "one of " + ", ".join(PLANNABLE), model.name)
@@ -138,8 +138,8 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
             raise InputError(key, f"a pose at least the margin {path_opts.margin:g} m from the known obstacles",
                              np.round(ends[key], 4).tolist(), detail=f"clearance {c:.3g} m")
     started = time.perf_counter()
-    parking_opts = (parking_opts or ParkingOptions()).validated()
-    pad = EXACT_PAD if model.name != "unicycle" and parking_opts.exact else MARGIN_PAD[model.name]
+    car_opts = (car_opts or CarOptions()).validated()
+    pad = EXACT_PAD if model.name != "unicycle" and car_opts.nominal == "exact" else MARGIN_PAD[model.name]
     search_m = search_margin(world, fp, path_opts.margin, pad, [start, goal], clearances)
     base = {"planner": path_opts.planner, "start_clearance_m": clearances["start"],
             "goal_clearance_m": clearances["goal"]}
@@ -147,7 +147,7 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
         path = plan_path(world, fp, start, goal, replace(path_opts, margin=search_m))
         if path.status != "exact":
             return _no_path(path, path_opts, base, f"OMPL: {path.planner_status}")
-        return _from_path(path, robot, world, path_opts, timing_opts, stab_opts, parking_opts, check_resolution,
+        return _from_path(path, robot, world, path_opts, timing_opts, stab_opts, car_opts, check_resolution,
                           base, started)
     # cars: the paths the car planner offers, best guess first, until a nominal worth tracking (item 4
     # of issue 11: duration, steering, gains within their bounds) or the budget is spent; the best
@@ -155,17 +155,17 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
     info: dict = {}
     best, attempts = None, 0
     for path in car_paths(world, fp, model, start, goal, path_opts, pad, search_m, clearances,
-                          parking_opts, speed=timing_opts.max_speed, info=info):
+                          car_opts, speed=timing_opts.max_speed, info=info):
         attempts += 1
         t0 = time.perf_counter()
-        result = _from_path(path, robot, world, path_opts, timing_opts, stab_opts, parking_opts, check_resolution,
+        result = _from_path(path, robot, world, path_opts, timing_opts, stab_opts, car_opts, check_resolution,
                             base, started)
         # what a nominal costs: the searches for another path leave this much of the budget
         info["reserve_s"] = max(info.get("reserve_s", 0.0), 1.2 * (time.perf_counter() - t0))
         result.metrics["attempts"] = attempts
         if best is None or _better(result, best):
             best = result
-        if best.ok and best.metrics["tracking"]["worth_tracking"] or attempts >= parking_opts.attempts:
+        if best.ok and best.metrics["tracking"]["worth_tracking"] or attempts >= car_opts.attempts:
             break
         if time.perf_counter() - started > float(path_opts.time_limit_s) - info["reserve_s"]:
             break
@@ -216,7 +216,7 @@ def _path_metrics(path: GeometricPath) -> dict:
 
 
 def _from_path(path: GeometricPath, robot: Robot, world: CollisionWorld, path_opts: PathOptions,
-               timing_opts: TimingOptions, stab_opts: StabilizerOptions, parking_opts: ParkingOptions,
+               timing_opts: TimingOptions, stab_opts: StabilizerOptions, car_opts: CarOptions,
                check_resolution: float, base: dict, started: float) -> PlanResult:
     """The nominal along an exact path, its clearance check and its gain schedule."""
     model, fp = robot.model, robot.footprint
@@ -227,11 +227,11 @@ def _from_path(path: GeometricPath, robot: Robot, world: CollisionWorld, path_op
         from .cars import CarPlanningError, car_nominal, exact_nominal
 
         try:
-            if parking_opts.exact:
-                nominal, tinfo = exact_nominal(model, path, timing_opts, arc_speed=parking_opts.arc_speed_mps)
+            if car_opts.nominal == "exact":
+                nominal, tinfo = exact_nominal(model, path, timing_opts, arc_speed=car_opts.arc_speed_mps)
             else:
                 nominal, tinfo = car_nominal(model, path, timing_opts, world, fp, path_opts.margin,
-                                             arc_speed=parking_opts.arc_speed_mps)
+                                             arc_speed=car_opts.arc_speed_mps)
         except CarPlanningError as exc:
             metrics["time_to_nominal_s"] = time.perf_counter() - started
             return PlanResult("infeasible", f"the path was found but could not be made feasible for the car: {exc}",
@@ -346,6 +346,6 @@ def _pose(value, name: str, model: Model) -> np.ndarray:
     return arr
 
 
-__all__ = ["plan", "PlanResult", "PathOptions", "TimingOptions", "ParkingOptions", "GeometricPath", "plan_path",
+__all__ = ["plan", "PlanResult", "PathOptions", "TimingOptions", "CarOptions", "GeometricPath", "plan_path",
            "path_length", "search_margin", "tracking_metrics", "DURATION_FACTOR",
            "PLANNERS", "SPACES", "PLANNABLE", "pose_columns", "default_turning_radius", "min_turning_radius"]

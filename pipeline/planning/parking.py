@@ -55,10 +55,13 @@ from .geometric import GeometricPath, PathOptions, local_length, local_path, loc
 
 #: samples of the exact maneuvers and of the joined path [m] (as the geometric paths are sampled)
 SAMPLE_STEP = 0.005
+#: how a car's nominal follows its path: "exact" (each segment with its steering held, steering in
+#: place between) or "sinusoidal" (Laumond-Murray chained-form pieces, :func:`nhstab.planning.cars.car_nominal`)
+NOMINALS = ("exact", "sinusoidal")
 
 
 @dataclass(frozen=True)
-class ParkingOptions:
+class CarOptions:
     """Options of the car planner's unparking maneuvers (see the module docstring).
 
     steering_reserve_rad: the maneuvers steer at max_steer minus this; max_arcs: arcs per unparking
@@ -89,18 +92,21 @@ class ParkingOptions:
     direct_pairs: int = 8
     arc_speed_mps: float | None = None
     min_arc_m: float = 0.1
+    maneuver_buffer_m: float = 0.1
     attempts: int = 4
-    exact: bool = True
+    nominal: str = "exact"
 
-    def validated(self) -> "ParkingOptions":
+    def validated(self) -> "CarOptions":
         def num(key, lo, hi=math.inf, lo_open=False):
             v = getattr(self, key)
             ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
             if not ok or (v <= lo if lo_open else v < lo) or v > hi:
-                raise InputError(f"parking.{key}", f"a finite number {'>' if lo_open else '>='} {lo:g}"
+                raise InputError(f"car.{key}", f"a finite number {'>' if lo_open else '>='} {lo:g}"
                                  + ("" if hi == math.inf else f" and <= {hi:g}"), v)
 
         num("steering_reserve_rad", 0.0)
+        if self.nominal not in NOMINALS:
+            raise InputError("car.nominal", "one of " + ", ".join(NOMINALS), self.nominal)
         num("branch_spacing_m", 0.0, lo_open=True)
         num("candidate_spacing_m", 0.0, lo_open=True)
         num("shuffle_step_m", 0.0, lo_open=True)
@@ -115,11 +121,12 @@ class ParkingOptions:
         if self.arc_speed_mps is not None:
             num("arc_speed_mps", 0.0, lo_open=True)
         num("min_arc_m", 0.0)
+        num("maneuver_buffer_m", 0.0)
         for key in ("max_arcs", "candidates", "escaped_enough", "first_candidates", "max_tree_poses", "direct_pairs",
                     "attempts", "shuffle_expansions"):
             v = getattr(self, key)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
-                raise InputError(f"parking.{key}", "a positive integer", v)
+                raise InputError(f"car.{key}", "a positive integer", v)
         return self
 
 
@@ -235,7 +242,7 @@ class _Driver:
         self.world, self.fp, self.margin, self.L, self.step = world, fp, margin, wheelbase, step
         self.checked = 0
 
-    def free_length(self, pose, direction: int, phi: float, cap: float) -> float:
+    def free_length(self, pose, direction: int, phi: float, cap: float, margin: float | None = None) -> float:
         """The longest free distance (a multiple of ``step``, at most ``cap``) along the segment. The
         poses are checked in chunks that double in size (a run blocked at once costs one small check,
         a long free one few calls)."""
@@ -245,7 +252,7 @@ class _Driver:
             n = min(chunk, n_total - done)
             s = self.step * np.arange(done + 1, done + n + 1)
             free = self.world.free_many(segment_poses(pose, Segment(direction, phi, 0.0), self.L, s), self.fp,
-                                        self.margin)
+                                        self.margin if margin is None else margin)
             self.checked += n
             if not free.all():
                 return self.step * (done + int(np.argmin(free)))
@@ -255,7 +262,7 @@ class _Driver:
 
 
 def unparking_tree(world: CollisionWorld, fp: Footprint, model: Model, root, margin: float, open_margin: float,
-                   opts: ParkingOptions, speed: float, enough: int | None = None) -> Tree:
+                   opts: CarOptions, speed: float, enough: int | None = None) -> Tree:
     """The unparking tree from ``root`` (module docstring): its open candidates, those that got out
     first, each group cheapest first. Branch points are expanded nearest first; the tree stops
     growing once ``enough`` candidates got out (default: ``opts.escaped_enough``)."""
@@ -307,6 +314,51 @@ def unparking_tree(world: CollisionWorld, fp: Footprint, model: Model, root, mar
         ahead += [(x, d) for x in dist]
     branches = [base] + [base.then(Segment(d, 0.0, x)) for x, d in sorted(ahead)]
     escape_straight = length                  # a free straight run this long gets the car out
+    field = world.clearance_field()
+    k_lock = math.tan(phi_lock) / L
+    room = max(open_margin, opts.open_clearance_m)
+
+    def in_open(P):
+        if field is None:
+            return np.array([world.clearance(q, fp) >= room for q in P])
+        return field.surely_free(P, fp, room)
+
+    def aligned(found: list, man: Maneuver, d: int, phi: float, s: float):
+        """Poses in the open where the arc's heading is aligned with the root's or turned from it by a
+        multiple of 45 degrees (along a lane or an aisle), and, from up to three open poses along the
+        arc, the arc of the opposite lock in the same direction that turns the car back to the root's
+        heading (the S-shaped way out of a parallel slot): the car is out there."""
+        start = man.end
+        rate = d * math.tan(phi) / L                       # dtheta / dsigma along this arc
+        dev0 = float(wrap_angle(start[2] - root[2]))
+        hits = []
+        for q in range(-2, 3):
+            target = q * math.pi / 4
+            sigma = (target - dev0) / rate if abs(rate) > 1e-12 else -1.0
+            if 0.0 < sigma <= s:
+                hits.append(sigma)
+        if hits:
+            P = segment_poses(start, Segment(d, phi, 0.0), L, np.array(hits))
+            for sig, ok in zip(hits, in_open(P)):
+                if ok:
+                    part = man.then(Segment(d, phi, sig))
+                    found.append((part.end, part, True))
+        parts = max(1, int(round(s / opts.candidate_spacing_m)))
+        sig = s * np.arange(1, parts + 1) / parts
+        P = segment_poses(start, Segment(d, phi, 0.0), L, sig)
+        tried = 0
+        for sg, p_, ok in zip(sig, P, in_open(P)):
+            dev = float(wrap_angle(p_[2] - root[2]))
+            if not ok or abs(dev) < 0.05 or abs(dev) > 0.5 * math.pi or tried >= 3:
+                continue
+            tried += 1
+            back = abs(dev) / k_lock                        # the opposite lock, same direction: dev -> 0
+            run = drive.free_length(p_, d, -phi, back)
+            if run >= back - step:
+                first_part = man.then(Segment(d, phi, float(sg)))
+                along(found, first_part, d, -phi, back, True)
+
+
     for b in branches:
         found = [(b.end, b, False)]
         for side in (1, -1):
@@ -315,12 +367,17 @@ def unparking_tree(world: CollisionWorld, fp: Footprint, model: Model, root, mar
                 for k in range(opts.max_arcs):
                     d = first * (-1) ** k
                     phi = side * phi_lock * (-1) ** k
-                    s = drive.free_length(pose, d, phi, arc_cap)
+                    # stop short of what blocks the arc where there is room (a cusp pose at the margin
+                    # leaves the feedback nothing), else as far as the margin allows
+                    s = drive.free_length(pose, d, phi, arc_cap, margin + opts.maneuver_buffer_m)
+                    if s < min_move and opts.maneuver_buffer_m > 0:
+                        s = drive.free_length(pose, d, phi, arc_cap)
                     tree.arcs += 1
                     if s < min_move:
                         break
                     out = s >= arc_cap - step              # ran its whole quarter turn: the car is out
                     along(found, man, d, phi, s, out)
+                    aligned(found, man, d, phi, s)
                     man = man.then(Segment(d, phi, s))
                     pose = man.end
                     if out:
@@ -352,7 +409,7 @@ def unparking_tree(world: CollisionWorld, fp: Footprint, model: Model, root, mar
 
 
 def shuffle_search(world: CollisionWorld, fp: Footprint, model: Model, root, margin: float, open_margin: float,
-                   opts: ParkingOptions, speed: float, deadline: float = math.inf) -> Tree:
+                   opts: CarOptions, speed: float, deadline: float = math.inf) -> Tree:
     """Unparking by short moves, where the full-lock tree finds no way out (slots shorter than the
     single-maneuver length): a best-first search over moves of ``shuffle_step_m`` forward or
     backward with the steering at the lock angle to either side, from ``root``, poses
@@ -460,17 +517,17 @@ def shuffle_search(world: CollisionWorld, fp: Footprint, model: Model, root, mar
 # ---------------------------------------------------------------------------------------------
 # the car planner's path: direct, unparking maneuvers, search
 # ---------------------------------------------------------------------------------------------
-def lock_radius(model: Model, opts: ParkingOptions) -> float:
+def lock_radius(model: Model, opts: CarOptions) -> float:
     """The maneuvers' turning radius L / tan(max_steer - reserve)."""
     phi = float(model.max_steer) - opts.steering_reserve_rad
     if phi <= 0:
-        raise InputError("parking.steering_reserve_rad", f"below the car's max_steer {model.max_steer:g} rad",
+        raise InputError("car.steering_reserve_rad", f"below the car's max_steer {model.max_steer:g} rad",
                          opts.steering_reserve_rad)
     return float(model.wheelbase / math.tan(phi))
 
 
 def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, opts: PathOptions, pad: float,
-              search_margin: float, clearances: dict, parking: ParkingOptions | None = None,
+              search_margin: float, clearances: dict, parking: CarOptions | None = None,
               speed: float | None = None, info: dict | None = None):
     """A car's geometric paths from start to goal, best guess first (module docstring): exact
     maneuvers at the ends where needed, a searched connection between them. A generator: each next
@@ -482,7 +539,7 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
     the search keeps when it starts or ends at the given start or goal themselves
     (:func:`nhstab.planning.search_margin`); ``clearances``: the start's and goal's clearance.
     ``info`` (a dict) collects what was done: the stages, their times, the radii and margins."""
-    parking = (parking or ParkingOptions()).validated()
+    parking = (parking or CarOptions()).validated()
     started = time.perf_counter()
     # the searches end early enough for the caller to make a nominal of what they found: the caller
     # may set info["reserve_s"] (default: 15 % of the budget, at most 1 s) and update it as it learns
