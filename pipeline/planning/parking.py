@@ -294,7 +294,9 @@ def unparking_tree(world: CollisionWorld, fp: Footprint, model: Model, root, mar
         P = np.array([f[0] for f in found])
         ok = world.free_many(P, fp, open_margin)
         drive.checked += len(P)
-        tree.candidates.extend(Candidate(P[k], found[k][1], cost(found[k][1]), found[k][2]) for k in np.flatnonzero(ok))
+        out = in_open(P)         # in the open: out, however it got there
+        tree.candidates.extend(Candidate(P[k], found[k][1], cost(found[k][1]), bool(found[k][2] or out[k]))
+                               for k in np.flatnonzero(ok))
 
     def along(found: list, man: Maneuver, d: int, phi: float, s: float, escaped: bool):
         """Poses along a run every ~candidate_spacing_m (its end included) are candidates."""
@@ -312,7 +314,9 @@ def unparking_tree(world: CollisionWorld, fp: Footprint, model: Model, root, mar
         if s_free > n * opts.branch_spacing_m + min_move:
             dist.append(s_free)
         ahead += [(x, d) for x in dist]
-    branches = [base] + [base.then(Segment(d, 0.0, x)) for x, d in sorted(ahead)]
+    # the root, then the branch points farthest out first (out of a bay the car drives straight
+    # before it turns; in a slot the straight runs are short anyway)
+    branches = [base] + [base.then(Segment(d, 0.0, x)) for x, d in sorted(ahead, reverse=True)]
     escape_straight = length                  # a free straight run this long gets the car out
     field = world.clearance_field()
     k_lock = math.tan(phi_lock) / L
@@ -325,9 +329,10 @@ def unparking_tree(world: CollisionWorld, fp: Footprint, model: Model, root, mar
 
     def aligned(found: list, man: Maneuver, d: int, phi: float, s: float):
         """Poses in the open where the arc's heading is aligned with the root's or turned from it by a
-        multiple of 45 degrees (along a lane or an aisle), and, from up to three open poses along the
-        arc, the arc of the opposite lock in the same direction that turns the car back to the root's
-        heading (the S-shaped way out of a parallel slot): the car is out there."""
+        multiple of 45 degrees (along a lane or an aisle), and, from up to two open poses along the
+        arc turned less than 54 degrees from the root, the arc of the opposite lock in the same
+        direction that turns the car back to the root's heading (the S-shaped way out of a parallel
+        slot): the car is out there."""
         start = man.end
         rate = d * math.tan(phi) / L                       # dtheta / dsigma along this arc
         dev0 = float(wrap_angle(start[2] - root[2]))
@@ -339,17 +344,26 @@ def unparking_tree(world: CollisionWorld, fp: Footprint, model: Model, root, mar
                 hits.append(sigma)
         if hits:
             P = segment_poses(start, Segment(d, phi, 0.0), L, np.array(hits))
-            for sig, ok in zip(hits, in_open(P)):
+            for sig, ok, p_ in zip(hits, in_open(P), P):
+                part = man.then(Segment(d, phi, sig))
                 if ok:
-                    part = man.then(Segment(d, phi, sig))
                     found.append((part.end, part, True))
+                    continue
+                # aligned with a corridor (an aisle narrower than the open room): a free straight run
+                # of 1.5 car lengths along it
+                for ds in (1, -1):
+                    run = drive.free_length(p_, ds, 0.0, straight_reach)
+                    if run >= straight_reach - step:
+                        found.append((part.end, part, True))
+                        along(found, part, ds, 0.0, run, True)
+                        break
         parts = max(1, int(round(s / opts.candidate_spacing_m)))
         sig = s * np.arange(1, parts + 1) / parts
         P = segment_poses(start, Segment(d, phi, 0.0), L, sig)
         tried = 0
         for sg, p_, ok in zip(sig, P, in_open(P)):
             dev = float(wrap_angle(p_[2] - root[2]))
-            if not ok or abs(dev) < 0.05 or abs(dev) > 0.5 * math.pi or tried >= 3:
+            if not ok or abs(dev) < 0.05 or abs(dev) > 0.3 * math.pi or tried >= 2:
                 continue
             tried += 1
             back = abs(dev) / k_lock                        # the opposite lock, same direction: dev -> 0
@@ -382,14 +396,16 @@ def unparking_tree(world: CollisionWorld, fp: Footprint, model: Model, root, mar
                     pose = man.end
                     if out:
                         break
-                    # from the cusp, a straight run of a car length that ends with room (along an aisle
-                    # or a lane) gets it out
+                    # from the cusp, a straight run that reaches the open, or runs free for 1.5 car
+                    # lengths (along an aisle or a lane, however narrow), gets it out
                     for ds in (-d, d):
                         run = drive.free_length(pose, ds, 0.0, straight_reach)
                         if run >= escape_straight:
-                            end = segment_poses(pose, Segment(ds, 0.0, run), L, run)
-                            if world.clearance(end, fp) >= opts.open_clearance_m:
-                                along(found, man, ds, 0.0, run, True)
+                            parts = max(1, int(round(run / opts.candidate_spacing_m)))
+                            sig = run * np.arange(1, parts + 1) / parts
+                            along_free = run >= straight_reach - step
+                            if along_free or in_open(segment_poses(pose, Segment(ds, 0.0, 0.0), L, sig)).any():
+                                along(found, man, ds, 0.0, run, along_free)
                                 out = True
                     if out or drive.checked > opts.max_tree_poses:
                         break
@@ -787,7 +803,8 @@ def _finish(p: GeometricPath, waypoints, start_man, goal_man, info: dict, starte
     ``shortcut(a, b)``: a free local path's Leg from pose a to pose b, or None. Where a maneuver was
     used, the path is shortened with it: the earliest pose where a leg starts (a waypoint of the
     search or a cusp of the goal side's maneuver) from which a free local path reaches the goal's
-    final straight run (or the goal) replaces what lies between, and likewise at the start side. A
+    final straight run (or the goal) faster (driving at the speed limit, steering in place at the
+    rate limit) replaces what lies between, and likewise at the start side. A
     maneuver is kept only where the search's local paths cannot do its work; a final (first) straight
     run into the goal (out of the start) is kept, so that the car drives into the goal, not only steers."""
     L = float(model.wheelbase)
@@ -807,12 +824,33 @@ def _finish(p: GeometricPath, waypoints, start_man, goal_man, info: dict, starte
     goal_legs = _maneuver_legs(goal_man.reversed() if goal_man is not None and goal_man.segments else None)
     legs += goal_legs
     cut = {"goal": False, "start": False}
+    speed, rate = float(model.max_speed), float(model.max_steer_rate)
+
+    def cost(segs, phi_in, phi_out):
+        """Time to drive segments at the speed limit, steering in place between them at the rate limit."""
+        t, phi = 0.0, phi_in
+        for seg in segs:
+            t += seg.length / speed + abs(seg.phi - phi) / rate
+            phi = seg.phi
+        return t + abs(phi_out - phi) / rate
+
+    def phi_before(i):
+        return legs[i - 1].segments[-1].phi if i > 0 else 0.0
+
+    def phi_after(j):
+        return legs[j].segments[0].phi if j < len(legs) else 0.0
+
+    def worth(i, j, leg):
+        """Is ``leg`` a faster way than legs[i:j]?"""
+        old = [seg for lg in legs[i:j] for seg in lg.segments]
+        return cost(leg.segments, phi_before(i), phi_after(j)) < cost(old, phi_before(i), phi_after(j)) - 1e-9
+
     if shortcut is not None and goal_legs:
         tail = len(legs) - 1 if abs(legs[-1].segments[0].phi) < 1e-12 else len(legs)
         target = legs[tail].samples[0] if tail < len(legs) else legs[-1].samples[-1]
         for i in range(n_start, tail):
             leg = shortcut(legs[i].samples[0], target)
-            if leg is not None:
+            if leg is not None and worth(i, tail, leg):
                 legs = legs[:i] + [leg] + legs[tail:]
                 cut["goal"] = True
                 break
@@ -823,7 +861,7 @@ def _finish(p: GeometricPath, waypoints, start_man, goal_man, info: dict, starte
         for i in range(last, head, -1):
             end = legs[i - 1].samples[-1]
             leg = shortcut(source, end)
-            if leg is not None:
+            if leg is not None and worth(head, i, leg):
                 legs = legs[:head] + [leg] + legs[i:]
                 cut["start"] = True
                 break
