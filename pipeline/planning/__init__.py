@@ -33,7 +33,7 @@ MARGIN_PAD = {"unicycle": 0.02, "rwd_car": 0.05, "fwd_car": 0.05}
 #: a car that drives its path exactly (held steering, steering in place where the curvature changes)
 #: needs no room to stray; the search keeps this much more than the margin only so that poses between
 #: the search's checked samples and the nominal's keep the margin too
-EXACT_PAD = 0.1
+EXACT_PAD = 0.01
 PLANNABLE = ("unicycle", "rwd_car", "fwd_car")
 
 

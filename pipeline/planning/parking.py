@@ -93,6 +93,7 @@ class CarOptions:
     arc_speed_mps: float | None = None
     min_arc_m: float = 0.1
     maneuver_buffer_m: float = 0.1
+    far_branches_first: bool = True
     attempts: int = 4
     nominal: str = "exact"
 
@@ -316,7 +317,7 @@ def unparking_tree(world: CollisionWorld, fp: Footprint, model: Model, root, mar
         ahead += [(x, d) for x in dist]
     # the root, then the branch points farthest out first (out of a bay the car drives straight
     # before it turns; in a slot the straight runs are short anyway)
-    branches = [base] + [base.then(Segment(d, 0.0, x)) for x, d in sorted(ahead, reverse=True)]
+    branches = [base] + [base.then(Segment(d, 0.0, x)) for x, d in sorted(ahead, reverse=opts.far_branches_first)]
     escape_straight = length                  # a free straight run this long gets the car out
     field = world.clearance_field()
     k_lock = math.tan(phi_lock) / L
@@ -619,13 +620,17 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
                 continue
         sides[key] = None
 
-    def grow(key):
+    grown = set()
+
+    def grow(key, options=None):
         pose = start if key == "start" else goal
-        t = unparking_tree(world, fp, model, np.asarray(pose, dtype=float), opts.margin, open_margin, parking, speed)
+        grown.add(key)
+        t = unparking_tree(world, fp, model, np.asarray(pose, dtype=float), opts.margin, open_margin,
+                           options or parking, speed)
         info["stages"].append({"stage": f"unparking {key}", "branches": getattr(t, "branches", 0), "arcs": t.arcs,
                                "poses_checked": t.poses_checked, "open_candidates": len(t.candidates),
                                "escaped": sum(c.escaped for c in t.candidates), "time_s": t.time_s})
-        if not any(c.escaped for c in t.candidates):
+        if not any(c.escaped for c in t.candidates) and options is None:
             # the search gets at most half of what is left (the connection needs the rest)
             sh = shuffle_search(world, fp, model, np.asarray(pose, dtype=float), opts.margin, open_margin, parking,
                                 speed, deadline=time.perf_counter() + 0.5 * max(left(), 0.0))
@@ -720,6 +725,19 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
         info["failure"] = ("no connection between the open poses of the unparking maneuvers (turning radii "
                            f"{', '.join(f'{r:.4g}' for r in radii)} m)")
         return
+    # another path was asked for (the last was not worth tracking): the trees again with their branch
+    # points nearest first (shorter straight runs at the ends, which keep the end of the gain schedule
+    # low), searched first on their own, then together with the first trees' candidates
+    if grown and left() > 0:
+        other = replace(parking, far_branches_first=not parking.far_branches_first)
+        first = {k: list(sides[k]) for k in sides}
+        for key in sorted(grown):
+            sides[key] = [c for c in grow(key, other) if c.escaped] or first[key]
+        found = search(worked, left() * 0.5)
+        if found is not None:
+            yield found
+        for key in sorted(grown):
+            sides[key] = (sides[key] + first[key])[: 2 * parking.candidates]
     while left() > 0:
         found = search(worked, left())
         if found is None:
