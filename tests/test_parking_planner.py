@@ -289,3 +289,27 @@ def test_lock_radius_and_options_are_validated():
         CarOptions(nominal="smooth").validated()
     with pytest.raises(InputError, match="car.max_arcs"):
         CarOptions(max_arcs=0).validated()
+
+
+RUNS = [("parallel_rwd_car_105", 0), ("parallel_rwd_car_105", 1), ("parallel_rwd_car_110", 2),
+        ("parallel_van_110", 0)]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name,seed", RUNS, ids=[f"{n}-{s}" for n, s in RUNS])
+def test_parks_under_default_noise(name, seed):
+    """The composite controller (gramian law, default noise and headroom) parks the car: it ends within
+    the goal tolerance, the executed poses never touch anything (shapely on the map's polygons), and
+    the wheels sit at their end stop in a small part of the run only (the lock rule's reserve)."""
+    from nhstab.execution import RunOptions, execute
+
+    m = load_map(MAPS / f"parking/{name}.yaml")
+    robot = robot_from_spec(m.robot)
+    run = execute(m, robot, None, None, RunOptions(seed=seed))
+    x = run.log["x"]
+    assert run.status == "reached", run.message
+    goal = m.goal.as_array()
+    assert np.hypot(*(x[-1, :2] - goal[:2])) <= 0.3 and abs(math.remainder(x[-1, 2] - goal[2], 2 * math.pi)) <= 0.2
+    assert shapely_clearance(m, robot.footprint, x[::5, :3]) > 0.0
+    at_stop = np.mean(np.abs(x[:, 3]) >= robot.model.max_steer - 1e-9)
+    assert at_stop <= 0.05

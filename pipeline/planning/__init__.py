@@ -1,8 +1,11 @@
 """Planning: map + robot + start/goal -> a feasible, collision-free, stabilizable nominal trajectory.
 
 Stages: geometric path in OMPL's Reeds-Shepp / Dubins space (``geometric``, the only module importing
-ompl) with the FCL world as validity checker; time-parameterisation into x0(t), u0(t) (``timing``);
-a clearance re-check of the nominal with FCL; the gain schedule of the stabilizer along it.
+ompl) with the FCL world as validity checker, for cars with unparking maneuvers where an end is
+confined (``parking``); time-parameterisation into x0(t), u0(t) (``timing`` for the unicycle,
+``cars`` for the cars, which drive their path exactly); a clearance re-check of the nominal with FCL;
+the gain schedule of the stabilizer along it; for cars, the verdicts of issue 11's item 4 (duration,
+steering, gains within their bounds), with further paths tried while the budget lasts.
 """
 
 from __future__ import annotations
@@ -74,7 +77,8 @@ class PlanResult:
 def plan(m: Map, robot: Robot, *args, **kwargs) -> PlanResult:
     """Plan a nominal trajectory of ``robot`` from start to goal on the map's known obstacles:
     ``plan(m, robot, start, goal, path_opts=None, timing_opts=None, stab_opts=None,
-    check_resolution=0.05, world=None)``.
+    check_resolution=0.05, world=None, car_opts=None)``; ``car_opts``: the car planner's
+    :class:`CarOptions` (:mod:`nhstab.planning.parking`).
 
     ``robot`` is a :class:`~nhstab.robot.Robot` (footprint, turning radius, margin and stabilizer
     defaults come from it where the options leave them None). The older form

@@ -1,4 +1,10 @@
-"""Exactly feasible car trajectories along a Reeds-Shepp path (Laumond, Jacobs, Taix, Murray).
+"""Exactly feasible car trajectories along a Reeds-Shepp path.
+
+Two ways. :func:`exact_nominal` (the planner's default) drives the path's arcs and straights as
+they are, each with its steering angle held, the car standing still to steer at the rate limit
+where the angle changes: the nominal lies on the path. :func:`car_nominal` follows Laumond, Jacobs,
+Taix and Murray, smoothing the path with sinusoidal steering (described below); it strays a little
+from the path and needs the search to keep room for that.
 
 A Reeds-Shepp path's curvature jumps where its arcs and straights meet, so a car with the steering
 angle as a state cannot follow it. Take waypoints along the path (at every cusp, and at most

@@ -1,44 +1,48 @@
-"""Car paths where parking is hard: unparking maneuvers at (almost) full lock, joined by OMPL's search.
+"""Car paths where parking is hard: unparking maneuvers at the lock angle, joined by OMPL's search.
 
 A car that parks in a tight slot or bay moves back and forth at full lock; a sampling planner in the
 Reeds-Shepp space hardly ever finds such a narrow passage. Following Paromtchik and Laugier
 (ICRA 1996), the planner instead *unparks*: from a confined end pose (the goal in its slot, or a
-start in one) it drives out with a small tree of maneuvers, and the search only has to join the
-open poses the maneuvers reach. The path to a confined goal is the time-reversed unparking path
-(a car's path driven backwards with the same steering is a path of the car).
+start in one) it drives out with maneuvers of its own, and the search only has to join the poses
+where the car is out. The path to a confined goal is the time-reversed unparking path (a car's path
+driven backwards with the same steering is a path of the car).
 
 The unparking tree from a pose P (:func:`unparking_tree`):
 
-1. straight runs forward and backward from P, as far as they stay free by the margin (at most
-   ``straight_reach_m``); their poses every ``branch_spacing_m`` are branch points (P is one);
+1. straight runs forward and backward from P, as far as they stay free by the margin (at most 1.5
+   car lengths); their poses every ``branch_spacing_m`` are branch points, P first, then the
+   farthest (``far_branches_first``);
 2. from each branch point, for both lock sides and both first directions, alternating arcs at the
    *lock* steering angle: forward with lock to one side, backward with lock to the other, ... (both
-   turn the car the same way, as in the parking maneuver of a driver), each as far as it stays free
-   (at most a quarter turn), at most ``max_arcs`` arcs; a sequence ends when an arc is blocked at
-   once, or when an arc runs its whole quarter turn: the car is out.
-3. Candidates: every pose where an arc ends (a cusp) and poses along the arcs that ran free,
-   kept if they are *open*: free by the search's margin (the margin plus the search's padding).
+   turn the car the same way), each as far as it stays free (stopping ``maneuver_buffer_m`` short of
+   what blocks it where there is room; at most a quarter turn), at most ``max_arcs`` arcs;
+3. a pose is *out* when it is in the open (clearance ``open_clearance_m``, surely so by the distance
+   field), or on a corridor (a free straight run of 1.5 car lengths from a cusp, or from where an
+   arc has turned a multiple of 45 degrees from P's heading), or at the end of the opposite-lock arc
+   that turns the car back to P's heading from a pose in the open (the S-shaped way out of a
+   parallel slot). A sequence ends when the car is out or an arc is blocked at once; the tree stops
+   when ``escaped_enough`` poses are out or after ``max_tree_poses`` checked poses.
 
-The search then joins the start side's open poses with the goal side's (:func:`car_path`): the
-direct local path (Reeds-Shepp) for the cheapest pairs first, at the robot's planning turning
-radius and then at the lock radius; else OMPL's planner from all the start side's open poses to all
-the goal side's (several start states, ``GoalStates``), at the planning radius for part of the
-budget and then at the lock radius. Ends with room (clearance at least ``open_clearance_m``) are
-first planned for directly, as before.
+Where the tree gets nowhere (slots shorter than the single-maneuver length L1), the shuffle search
+(:func:`shuffle_search`) looks for a way out with short lock moves, including a change of lock while
+driving on, the sideways shuffle.
 
-The maneuvers are exact: arcs and straights driven with the steering angle held (so the car follows
-them exactly, no sinusoidal approximation), with the steering changed while standing at the cusps.
+:func:`car_paths` joins the two sides: ends with room are searched for directly first; then direct
+local paths between the cheapest pairs of candidates; then OMPL with several start states and a
+``GoalStates`` goal (backwards from the confined side), the cheapest candidates first, at the
+robot's planning turning radius and then at the lock radius; further paths on request (new seeds,
+trees with the other branch order). :func:`_finish` joins the legs, shortens the result with free
+local paths where that is faster, and records the whole path's exact segments for the car's nominal
+(:func:`nhstab.planning.cars.exact_nominal`).
 
 **Steering authority.** The maneuvers steer at phi_lock = max_steer - ``steering_reserve_rad``
-(default 0.05 rad: for the default rwd_car 0.55 rad, a turning radius of 4.07 m = 1.11 R_min), not
+(default 0.05 rad: for the default rwd_car 0.55 rad, a turning radius of 4.08 m = 1.12 R_min), not
 at the end stop: the feedback law adds its own steering to the nominal's and the plant stops the
 steering angle at max_steer, so a nominal at the end stop would leave the feedback no way to turn
-tighter when the car drifts outwards. The reserve is sized to the steering the gramian law adds to
-the nominal under the default noise (measured in tests/test_parking.py). The searched connections
-keep the robot's planning radius (1.25 R_min) where they can, and go down to the lock radius only
-where the planning radius finds no path.
+tighter when the car drifts outwards. The searched connections keep the robot's planning radius
+(1.25 R_min) where they can, and go down to the lock radius only where the planning radius finds
+no path.
 """
-
 from __future__ import annotations
 
 import math
@@ -123,6 +127,7 @@ class CarOptions:
             num("arc_speed_mps", 0.0, lo_open=True)
         num("min_arc_m", 0.0)
         num("maneuver_buffer_m", 0.0)
+
         for key in ("max_arcs", "candidates", "escaped_enough", "first_candidates", "max_tree_poses", "direct_pairs",
                     "attempts", "shuffle_expansions"):
             v = getattr(self, key)
