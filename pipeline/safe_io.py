@@ -256,7 +256,7 @@ _MERGE = "tag:yaml.org,2002:merge"
 def _check_graph(root, source: str, error) -> None:
     """Before construction: expanded size and depth (aliases counted as copies), no recursive alias,
     no duplicate key. Memoised per node, so an alias bomb is measured in time linear in the text."""
-    from yaml.nodes import MappingNode, ScalarNode, SequenceNode
+    from yaml.nodes import ScalarNode, SequenceNode
 
     memo: dict[int, tuple[int, int]] = {}
     active: set[int] = set()

@@ -11,8 +11,6 @@ deadline is generous because the machine is shared), never hang, never exhaust m
 from __future__ import annotations
 
 import io
-import json
-import sqlite3
 from datetime import timedelta
 from pathlib import Path
 

@@ -169,7 +169,6 @@ def load_batch_config(path) -> BatchConfig:
     trial runs. Raises InputError naming the key."""
     from ..examples import resolve_map_path
     from ..maps import load_map
-    from ..planning import PLANNABLE
     from ..robot import robot_from_spec
 
     path = Path(path)

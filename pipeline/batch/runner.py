@@ -32,7 +32,7 @@ from pathlib import Path
 from ..errors import InputError
 from .config import BatchConfig
 from .store import Store, versions
-from .trial import MapChangedError, run_trial
+from .trial import run_trial
 
 STORE_NAME = "trials.sqlite"
 

@@ -17,7 +17,6 @@ import numpy as np
 from .. import __version__
 from ..errors import InputError
 from ..robot import make_robot
-from ..records import write_json, write_text
 from .runner import MODES, RunResult
 
 #: a cusp's neighbourhood for the per-cusp error statistics [s]
