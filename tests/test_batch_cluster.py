@@ -313,6 +313,38 @@ def test_a_map_bundle_travels_and_loads_the_same_map(tmp_path):
     assert (m.start, m.goal, m.robot) == (m0.start, m0.goal, m0.robot)
 
 
+def _same_map(a, b) -> bool:
+    def shapes(m, key):
+        return [getattr(o, "vertices", None).tolist() if hasattr(o, "vertices") else (o.center, o.radius)
+                for o in getattr(m, key)]
+
+    return (a.name == b.name and a.bounds == b.bounds and a.meta == b.meta and a.robot == b.robot
+            and (a.start, a.goal) == (b.start, b.goal) and a.problems == b.problems
+            and shapes(a, "obstacles") == shapes(b, "obstacles")
+            and shapes(a, "unknown_obstacles") == shapes(b, "unknown_obstacles")
+            and len(a.grids) == len(b.grids)
+            and all(np.array_equal(g.occupied, h.occupied) and g.origin == h.origin and g.resolution == h.resolution
+                    for g, h in zip(a.grids, b.grids)))
+
+
+def test_every_bundled_map_travels_in_every_format(tmp_path):
+    """ROS map_server, Moving AI (with its .scen), Bench-MR SVG (with polygon_scenarios.csv), nhstab
+    YAML with base maps of each kind: from the bundle, the same map as from the files."""
+    from nhstab.examples import list_examples
+
+    formats = set()
+    for ex in list_examples():
+        b = MapBundle.from_path(ex.path)
+        formats.update(Path(f).suffix for f in b.files)
+        assert _same_map(MapBundle.unpack(b.packed).load(), nhstab.load_map(ex.path)), ex.name
+    assert {".yaml", ".pgm", ".map", ".scen", ".svg", ".csv"} <= formats
+    # a Moving AI map at another cell size: another map from the same bundle
+    ex = next(e for e in list_examples() if e.path.suffix == ".map")
+    b = MapBundle.from_path(ex.path, cell_size=0.5)
+    assert _same_map(b.load(0.5), nhstab.load_map(ex.path, cell_size=0.5))
+    assert b.load(0.5).bounds != b.load().bounds
+
+
 def test_a_map_that_reaches_outside_its_files_cannot_travel_and_is_refused(tmp_path):
     scen = make_room(tmp_path / "maps")
     text = scen.read_text().replace("../nav2/room.yaml", str(tmp_path / "maps" / "nav2" / "room.yaml"))
@@ -358,6 +390,9 @@ def test_hostile_map_bundles_are_refused_in_one_line_and_write_nothing(tmp_path,
     h = json.loads(json.dumps(head))
     h["files"][0]["sha256"] = "0" * 64
     bad(repack(h), "corrupt")
+    h = json.loads(json.dumps(head))
+    h["files"] = [dict(h["files"][0], path=f"f{i}") for i in range(65)]
+    bad(repack(h), "1 to 64 files")
     h = json.loads(json.dumps(head))
     h["version"] = 99
     bad(repack(h), "another version")
@@ -426,8 +461,16 @@ def test_an_old_store_is_reported_replayed_from_the_files_or_refused_in_one_line
 
 
 def test_the_committed_old_store_replay_names_what_is_missing(tmp_path):
-    # (its report: test_hostile_input.py::test_a_read_only_store_is_read_without_writing)
-    one_line(invoke("batch", "replay", OLD_STORE, "map=depot-blocked-aisle|problem=0|robot=default|controller="
+    """results/robustness/trials.sqlite was made before stores kept maps or content hashes (its
+    report: test_hostile_input.py::test_a_read_only_store_is_read_without_writing). Made schema 1
+    here in case it has been regenerated since."""
+    old = tmp_path / "old.sqlite"
+    shutil.copy(OLD_STORE, old)
+    with Store(old) as s:
+        regenerated = s.schema >= 2
+    if regenerated:
+        _as_schema_1(old)
+    one_line(invoke("batch", "replay", old, "map=depot-blocked-aisle|problem=0|robot=default|controller="
                     "gramian|noise=0.5#0", "--out", tmp_path / "r", cwd=tmp_path), 2,
              "schema 1", "depot_blocked_aisle.yaml", "not a file here")
 
@@ -492,18 +535,56 @@ def test_a_batch_whose_trials_all_error_exits_non_zero_with_one_line(tmp_path, m
     one_line(invoke("batch", cfg, "--out", tmp_path / "d", "--retry-errors"), 2, "--retry-errors", "--resume")
 
 
+def test_a_trial_that_kills_its_dask_worker_is_stored_as_an_error(tmp_path, monkeypatch):
+    """Dask gives up on a task whose worker died (KilledWorker): the trial is stored as an error
+    (what it did), the batch goes on and says so."""
+    pytest.importorskip("distributed")
+    import dask
+    from distributed import LocalCluster
+
+    from nhstab.batch import runner
+
+    cfg = make_batch(tmp_path, trials=1, controllers=("open-loop",))
+
+    def crash(spec, bundle, version):          # defined here: shipped by value to the worker
+        os._exit(3)
+
+    monkeypatch.setattr(runner, "_dask_trial", crash)
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None,
+                          host="127.0.0.1") as cluster:
+            counts = run_batch(load_batch_config(cfg), tmp_path / "b", scheduler=cluster.scheduler_address,
+                               progress=False)
+    assert counts["errors"] == counts["ran"] == 1 and counts["outcomes"] == {"error": 1}
+    assert counts["first_error"][1].startswith("KilledWorker: the worker running it died")
+    with Store(tmp_path / "b" / "trials.sqlite") as s:
+        assert [t["status"] for t in s.trials()] == ["error"]
+
+
 def test_a_worker_with_another_nhstab_is_refused_naming_the_scheduler(tmp_path, monkeypatch):
+    """Checked before the store exists for the workers connected at the start; and by every trial
+    for a worker that joins later (the batch stops, its trial not stored)."""
     pytest.importorskip("distributed")
     from distributed import LocalCluster
 
     from nhstab.batch import runner
 
     cfg = make_batch(tmp_path, trials=1, controllers=("open-loop",))
-    monkeypatch.setattr(runner, "_worker_versions", lambda: {"nhstab": "0.0.1"})
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+    config = load_batch_config(cfg)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None,
+                      host="127.0.0.1") as cluster:
+        with monkeypatch.context() as mp:
+            mp.setattr(runner, "_worker_versions", lambda: {"nhstab": "0.0.1"})     # shipped by value
+            with pytest.raises(InputError) as err:
+                run_batch(config, tmp_path / "b", scheduler=cluster.scheduler_address, progress=False)
+        assert "--scheduler" in str(err.value) and "nhstab 0.0.1" in str(err.value)
+        assert not (tmp_path / "b").exists()            # refused before the store is made
+        # a worker the start-up check did not see: this machine says 9.9.9, the worker its own
+        monkeypatch.setattr(runner, "check_workers", lambda client, scheduler: {})
+        monkeypatch.setattr(nhstab, "__version__", "9.9.9")
         with pytest.raises(InputError) as err:
-            run_batch(load_batch_config(cfg), tmp_path / "b", scheduler=cluster.scheduler_address, progress=False)
-    assert "--scheduler" in str(err.value) and "nhstab 0.0.1" in str(err.value)
-    assert not (tmp_path / "b").exists()            # refused before the store is made
-    with pytest.raises(runner.WorkerMismatch):      # and a worker that joins later refuses its trial
-        runner._dask_trial({}, b"", "0.0.1")
+            run_batch(config, tmp_path / "c", scheduler=cluster.scheduler_address, progress=False)
+    assert "--scheduler" in str(err.value) and "nhstab 9.9.9" in str(err.value)
+    assert f"a worker runs nhstab {nhstab._version.__version__}" in str(err.value)
+    with Store(tmp_path / "c" / "trials.sqlite") as s:
+        assert s.count() == 0

@@ -100,7 +100,11 @@ class MapBundle:
         paths = [Path(r["path"]) for r in records]
         if entry_abs not in paths:            # pragma: no cover - load_map reads the map file first
             raise BundleError(str(given), "a map file that its loader reads", str(entry_abs))
-        root = Path(os.path.commonpath([str(p.parent) for p in paths]))
+        try:
+            root = Path(os.path.commonpath([str(p.parent) for p in paths]))
+        except ValueError:                    # Windows: files on different drives
+            raise BundleError(str(given), "a map whose files can travel together (on one drive)",
+                              ", ".join(sorted({p.anchor for p in paths}))) from None
         files: dict = {}
         with not_recorded():
             for rec in records:
