@@ -129,6 +129,7 @@ def replay(store_path, trial_id, out_dir, animate):
         cell = _cell_spec(record, trial_id)
         bundle = store.map_bundle(cell.get("map_bundle"), cell.get("map_hash"))
         schema = store.schema
+    from_store = bundle is not None
     if bundle is None:
         bundle = _bundle_at_recorded_path(cell, path, schema)
     map_rel = "map/" + bundle.entry
@@ -149,7 +150,7 @@ def replay(store_path, trial_id, out_dir, animate):
     from nhstab.robot import resolve_robot
 
     click.echo(f"replaying {trial_id} (stored status: {record['status']}) on {m.name} from "
-               f"{'the store' if schema >= 2 and cell.get('map_bundle') else bundle.source}", err=True)
+               f"{'the store' if from_store else bundle.source}", err=True)
     robot = resolve_robot(opts.robot, m.robot, source="run config")
     extra = {"run_config.yaml": text, **{f"map/{rel}": data for rel, data in bundle.files.items()}}
     return execute_and_write(m, str(out_dir / map_rel), opts, robot, opts.start, opts.goal, out_dir, animate,

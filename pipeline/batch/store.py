@@ -279,6 +279,8 @@ class Store:
 
         if self.schema < 2:
             return None
+        bundle_id = bundle_id if isinstance(bundle_id, str) else None       # a spec is data from the file
+        content_hash = content_hash if isinstance(content_hash, str) else None
         if bundle_id is not None:
             rows = self._query("SELECT id, content_hash, packed FROM maps WHERE id = ?", (bundle_id,))
         elif content_hash:
