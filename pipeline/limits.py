@@ -67,6 +67,13 @@ MAX_PLANNER_SEED = 2**31 - 2
 #: most trials in one batch (cells x trials per cell): each is a full run of seconds, and the batch
 #: keeps every trial's spec and the stored ids in memory (about 1 kB each)
 MAX_BATCH_TRIALS = 1_000_000
+#: a map as data (nhstab.batch.bundle: every file it is built from, shipped to the workers and kept
+#: in the store): at most this many bytes unpacked, and this many files. A map reads at most a few
+#: files (YAML, base maps nested 4 deep, one image or scenario list each); the byte bound is an
+#: image at the file limit with its YAML files, and stops a "zip bomb" in a store before it is
+#: unpacked
+MAX_BUNDLE_BYTES = 2 * MAX_FILE_BYTES
+MAX_BUNDLE_FILES = 64
 
 # ---- planning ---------------------------------------------------------------------------------
 #: the assumed cost of one validity check that reaches FCL [s] (the slow case: measured at about 64 us,

@@ -444,11 +444,15 @@ def test_resume_after_the_map_changed_is_refused(tmp_path):
     before = tree(out)
     one_line(invoke("batch", cfg, "--out", out, "--resume"), 2, "CONFIG", "maps[0]", "has changed")
     assert tree(out) == before
-    # and a trial whose map changed after the batch was configured stops the batch: never stored
-    from nhstab.batch.trial import MapChangedError, run_trial
+    # a trial runs on the map the batch was configured with (its bundle: the files' bytes as they
+    # were read), whatever happens to the files later; a trial given another map stops the batch
+    from nhstab.batch.bundle import MapBundle
+    from nhstab.batch.trial import MapChangedError, run_trial, trial_map
 
+    spec = config.trial_specs()[0]
+    assert trial_map(spec).meta["content_hash"] == stored["maps"][0]["content_hash"]
     with pytest.raises(MapChangedError):
-        run_trial(config.trial_specs()[0])
+        run_trial(spec, MapBundle.from_path(room))
     assert run_batch is not None
 
 

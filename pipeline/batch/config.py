@@ -44,7 +44,6 @@ import numpy as np
 from ..errors import InputError
 from ..execution.config import RunOptions, check_number, check_pose, options_from_mapping, read_yaml_mapping
 from ..execution.controllers import CONTROLLERS
-from ..planning import PLANNABLE
 
 _TOP = ("name", "root_seed", "trials", "maps", "robots", "robot", "controllers", "grid", "run")
 _MAP_KEYS = ("path", "problems", "cell_size")
@@ -61,6 +60,9 @@ class MapSpec:
     #: SHA-256 of every file the map is built from (nhstab.maps.content_hash): a resumed batch and
     #: every trial check it, so a store never mixes trials of two versions of a map
     content_hash: str = ""
+    #: the map as data (every file's bytes, nhstab.batch.bundle): what the trials load their map
+    #: from, wherever they run, and what the store keeps for replays
+    bundle: object = field(default=None, repr=False, compare=False)
 
 
 @dataclass
@@ -96,6 +98,7 @@ class BatchConfig:
                         else [(None, None, None)]
                     for (alpha, delta, gamma), level in itertools.product(gains, noise):
                         cell = {"map": ms.label, "map_path": ms.path, "map_hash": ms.content_hash,
+                                "map_bundle": ms.bundle.id if ms.bundle is not None else None,
                                 "cell_size": ms.cell_size,
                                 "problem": p_index, "start": list(start), "goal": list(goal),
                                 "robot": robot, "controller": ctrl, "alpha": alpha, "delta": delta,
@@ -119,6 +122,10 @@ class BatchConfig:
                           "content_hash": m.content_hash} for m in self.maps],
                 "robots": self.robots, "controllers": self.controllers, "grid": self.grid, "run": self.run,
                 "source": self.source}
+
+    def bundles(self) -> dict:
+        """The maps as data, by bundle id (see nhstab.batch.bundle)."""
+        return {m.bundle.id: m.bundle for m in self.maps if m.bundle is not None}
 
     def n_trials(self) -> int:
         return len(self.cells()) * self.trials
@@ -166,9 +173,14 @@ def _list(key, v, minimum=1):
 
 def load_batch_config(path) -> BatchConfig:
     """Read and check a batch config; every map is loaded (and its poses checked) here, before any
-    trial runs. Raises InputError naming the key."""
+    trial runs. Raises InputError naming the key.
+
+    Each map is read into a bundle (its files' bytes, :mod:`nhstab.batch.bundle`) and loaded from
+    that bundle, exactly as every trial will load it, wherever it runs: a map that cannot travel
+    (it names a base map or image by an absolute path) is refused here, naming ``maps[i].path``."""
     from ..examples import resolve_map_path
-    from ..maps import load_map
+    from ..planning import PLANNABLE
+    from .bundle import MapBundle
     from ..robot import robot_from_spec
 
     path = Path(path)
@@ -200,11 +212,14 @@ def load_batch_config(path) -> BatchConfig:
         mpath = mpath if mpath.is_absolute() else path.parent / mpath
         cell = check_number(f"{where}.cell_size", entry["cell_size"], 0, lo_open=True) if "cell_size" in entry else None
         try:
-            m = load_map(mpath, **({"cell_size": cell} if cell is not None else {}))
+            bundle = MapBundle.from_path(mpath, **({"cell_size": cell} if cell is not None else {}))
+            m = bundle.load(cell, argument=f"{where}.path")
         except InputError as exc:
+            if exc.argument == f"{where}.path":
+                raise
             raise InputError(f"{where}.path", "a map that loads", str(entry["path"]), detail=str(exc)) from None
         problems = _problems(f"{where}.problems", entry.get("problems", "map"), m)
-        maps.append(MapSpec(str(mpath), m.name, cell, problems, m.meta["content_hash"]))
+        maps.append(MapSpec(str(mpath), m.name, cell, problems, m.meta["content_hash"], bundle))
         loaded.append(m)
     labels = [m.label for m in maps]
     if len(set(labels)) != len(labels):

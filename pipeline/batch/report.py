@@ -359,6 +359,7 @@ def write_report(store_path, out_dir=None) -> list[Path]:
         trials = store.trials()
         config = store.meta("config", {})
         vers = store.meta("versions", {})
+        runs = store.meta("runs", [])
     if not trials:
         raise InputError("STORE", "a batch store with at least one finished trial", str(db),
                          detail="no trial is stored yet")
@@ -371,8 +372,29 @@ def write_report(store_path, out_dir=None) -> list[Path]:
             "noise": noise_figure(rows)}
     owned = REPORT_FILES + tuple(f"figures/{name}.png" for name in figs)     # those not drawn this time too
     with OutputFolder(out_dir, "batch report", owned=owned, info={"store": str(db), "trials": len(trials)}) as out:
-        _write_report(out, db, trials, config, vers, rows, figs)
+        _write_report(out, db, trials, config, vers, rows, figs, runs)
     return out.written
+
+
+ERROR_HEADER = ["error", "trials", "cells", "first trial"]
+
+
+def error_table(trials: list[dict]) -> list[dict]:
+    """The trials stored with status "error", grouped by message (most frequent first)."""
+    groups: dict = {}
+    for t in trials:
+        if t["status"] != "error":
+            continue
+        g = groups.setdefault(t.get("error") or "(no message)", {"trials": 0, "cells": set(), "first": t["id"]})
+        g["trials"] += 1
+        g["cells"].add(t["cell"])
+    return [{"error": msg, "trials": g["trials"], "cells": len(g["cells"]), "first": g["first"]}
+            for msg, g in sorted(groups.items(), key=lambda kv: -kv[1]["trials"])]
+
+
+def _error_row(e: dict) -> list[str]:
+    msg = e["error"] if len(e["error"]) <= 300 else e["error"][:297] + "..."
+    return [msg, str(e["trials"]), str(e["cells"]), e["first"]]
 
 
 #: the files ``nhstab batch report`` writes besides its figures (figures/<name>.png; an earlier
@@ -380,7 +402,33 @@ def write_report(store_path, out_dir=None) -> list[Path]:
 REPORT_FILES = ("report.html", "report.md", "trials.csv")
 
 
-def _write_report(out, db, trials, config, vers, rows, figs) -> None:
+def runs_text(runs) -> str:
+    """The store's meta ``runs`` (one entry per invocation of the batch) as one sentence each."""
+    if not isinstance(runs, list):
+        return ""
+    out = []
+    for i, r in enumerate(runs, 1):
+        if not isinstance(r, dict):
+            continue
+        t = r.get("transfer") if isinstance(r.get("transfer"), dict) else {}
+        where = (f"on the Dask cluster at {r.get('scheduler')}" if r.get("executor") == "dask"
+                 else f"on {r.get('workers')} local worker process(es)")
+        text = f"{i}. {where}: {r.get('stored')} trials stored ({r.get('errors')} failed by error)"
+        if isinstance(r.get("wall_s"), (int, float)):
+            text += f" in {r['wall_s']:.1f} s"
+        if t.get("trials"):
+            text += (f"; shipped: map bundles {_kbytes(t.get('bundles_sent_bytes'))} in "
+                     f"{t.get('bundle_copies')} copies, per trial {_kbytes(t.get('spec_bytes_per_trial'))} sent "
+                     f"(the pickled spec) and {_kbytes(t.get('record_bytes_per_trial'))} received (the pickled record)")
+        out.append(text + ".")
+    return " ".join(out)
+
+
+def _kbytes(n) -> str:
+    return f"{n / 1000:.1f} kB" if isinstance(n, (int, float)) else "-"
+
+
+def _write_report(out, db, trials, config, vers, rows, figs, runs=()) -> None:
     out.write_text("trials.csv", trials_csv(trials))
     for name, fig in figs.items():
         if fig is not None:
@@ -406,10 +454,17 @@ def _write_report(out, db, trials, config, vers, rows, figs) -> None:
                    _fmt(r["replans_median"]),
                    f"{_fmt(r['replan_latency_median_s'])} / {_fmt(r['replan_latency_p95_s'])}"] for r in rows]
     title = f"nhstab robustness report: {config.get('name', db.parent.name)}"
-    intro = (f"{len(trials)} trials in {len(rows)} cells, root seed {config.get('root_seed')}, "
+    errors = error_table(trials)
+    n_err = sum(e["trials"] for e in errors)
+    outcome = (f" ({len(trials) - n_err} with an outcome, {n_err} failed by error: not counted in any rate, "
+               "see Errors)" if n_err else "")
+    intro = (f"{len(trials)} trials{outcome} in {len(rows)} cells, root seed {config.get('root_seed')}, "
              f"{config.get('trials')} trials per cell (trial k has the same seed in every cell). "
              f"Every number here is read from `{db.name}`; rates carry Wilson 95% intervals. "
              f"Versions: " + ", ".join(f"{k} {v}" for k, v in vers.items()) + ".")
+    ran = runs_text(runs)
+    if ran:
+        intro += " Runs: " + ran
     md = [f"# {title}", "", intro, "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     md += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in table_rows]
     md.append("")
@@ -421,6 +476,12 @@ def _write_report(out, db, trials, config, vers, rows, figs) -> None:
                "standard deviation of the per-trial fractions and the lowest one are beside it).", "",
                "| " + " | ".join(TUBE_HEADER) + " |", "|" + "---|" * len(TUBE_HEADER)]
         md += ["| " + " | ".join(c.replace("|", "/") for c in _tube_row(r)) + " |" for r in tube_rows]
+        md.append("")
+    if errors:
+        md += ["## Errors", "", "Trials that failed by error (an exception, not an outcome such as a collision), by "
+               "message; each is in `trials.csv` with status `error`.", "",
+               "| " + " | ".join(ERROR_HEADER) + " |", "|" + "---|" * len(ERROR_HEADER)]
+        md += ["| " + " | ".join(c.replace("|", "/") for c in _error_row(e)) + " |" for e in errors]
         md.append("")
     for name, fig in figs.items():
         if fig is not None:
@@ -441,6 +502,12 @@ def _write_report(out, db, trials, config, vers, rows, figs) -> None:
                  "Wilson 95% over samples (correlated within a trial: too narrow), per-trial spread beside it.</p>")
         h.append("<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in TUBE_HEADER) + "</tr>")
         h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in _tube_row(r)) + "</tr>" for r in tube_rows]
+        h.append("</table>")
+    if errors:
+        h.append("<h2>Errors</h2><p>Trials that failed by error (an exception, not an outcome such as a collision), "
+                 "by message; each is in trials.csv with status error.</p>")
+        h.append("<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in ERROR_HEADER) + "</tr>")
+        h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in _error_row(e)) + "</tr>" for e in errors]
         h.append("</table>")
     for name, fig in figs.items():
         if fig is not None:

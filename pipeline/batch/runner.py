@@ -14,12 +14,30 @@ SIGINT to the driving process alone behave the same: the driver stops the worker
 Before anything is created in ``--out``, the config, the scheduler address and the connection to
 it are checked, so a refused request leaves nothing behind; a resumed batch must match the stored
 config's fingerprint, which covers the content of every map file (base maps and images included).
+
+What a trial needs travels with it, as data: its spec (robot description, run options, seed,
+poses) and its map as a :class:`~nhstab.batch.bundle.MapBundle` (the bytes of every file the map
+is built from). No worker reads a path of the submitting machine. On Dask, each map's packed bundle
+is scattered once per batch to every worker (``broadcast=True``) and passed to the map's trials as
+a shared future; local workers receive the bundles when they start. Every worker loads a map once
+(cached by bundle id) from a private copy of its files. The store keeps the bundles (its ``maps``
+table), so replays need the store alone. The bytes each invocation ships (bundles and copies,
+pickled specs sent, pickled records received) are returned in the counts and appended to the
+store's meta ``runs``.
+
+A trial that fails by error (an exception, not an outcome such as a collision) is stored with its
+message and does not stop the batch; the counts say how many of this run's trials did, with the
+first message (``nhstab batch`` prints them, and exits 1 when every trial errored). Problems of
+the cluster itself are not trial errors: a worker without nhstab (or with another version) stops
+the batch with one line naming ``--scheduler``; a trial whose worker died (Dask's ``KilledWorker``)
+is stored as an error.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import pickle
 import re
 import signal
 import sys
@@ -32,7 +50,7 @@ from pathlib import Path
 from ..errors import InputError
 from .config import BatchConfig
 from .store import Store, versions
-from .trial import run_trial
+from .trial import MapChangedError, provide_bundles, run_trial, withdraw_bundles
 
 STORE_NAME = "trials.sqlite"
 
@@ -44,7 +62,9 @@ def _progress(total: int, initial: int, enabled: bool):
                 dynamic_ncols=True, smoothing=0.1)
 
 
-def _worker_init():
+def _worker_init(bundles: dict | None = None):
+    if bundles:
+        provide_bundles(bundles)
     # one core per worker: no nested threading in numpy's BLAS
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = "1"
@@ -76,7 +96,14 @@ def open_store(config: BatchConfig, out_dir: Path, resume: bool) -> Store:
         if stored != config.fingerprint():
             raise InputError("CONFIG", "the config the store was made with (to resume it)", str(config.source),
                              detail=_difference(stored_config, config))
-        return Store(path, writable=True, argument="--resume")
+        store = Store(path, writable=True, argument="--resume")
+        try:
+            for bundle in config.bundles().values():     # a store of schema 1 gains its maps
+                store.add_map(bundle)
+        except BaseException:
+            store.close()
+            raise
+        return store
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{STORE_NAME}.", suffix=".new", dir=path.parent)
     os.close(fd)
@@ -87,6 +114,8 @@ def open_store(config: BatchConfig, out_dir: Path, resume: bool) -> Store:
             store.set_meta("fingerprint", config.fingerprint())
             store.set_meta("versions", versions())
             store.set_meta("created", time.time())
+            for bundle in config.bundles().values():
+                store.add_map(bundle)
             store.db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
         _publish(tmp, path)
     except FileExistsError:
@@ -130,42 +159,119 @@ def _difference(stored: dict, config: BatchConfig) -> str:
 
 
 def run_batch(config: BatchConfig, out_dir, workers: int = 1, scheduler: str | None = None, resume: bool = False,
-              progress: bool = True) -> dict:
-    """Run every trial of ``config`` missing from the store in ``out_dir``. Returns counts.
+              progress: bool = True, retry_errors: bool = False) -> dict:
+    """Run every trial of ``config`` missing from the store in ``out_dir``. Returns counts: trials,
+    ran, already_stored, stored, wall_s, outcomes ({status: count} of this run's trials), errors
+    and first_error (this run's trials that failed by error, and the first one's id and message),
+    stored_errors (in the whole store) and transfer (the bytes shipped, see the module docstring).
+    With ``retry_errors`` (and ``resume``), the trials stored with an error are removed and run again.
 
     A KeyboardInterrupt stops the batch (see the module docstring) and propagates; the trials stored
     until then stay stored."""
     out_dir = Path(out_dir)
     client = None
+    if retry_errors and not resume:
+        raise InputError("--retry-errors", "used with --resume (it reruns the errors of a stored batch)", "alone")
     if scheduler is not None:
         client = connect_dask(scheduler)     # before the store is made: a refused request leaves nothing behind
     try:
+        if client is not None:
+            check_workers(client, scheduler)
         specs = config.trial_specs()
         with open_store(config, out_dir, resume) as store:
+            if retry_errors:
+                store.remove_errors()
             done = store.done_ids()
             todo = [s for s in specs if s["id"] not in done]
             bar = _progress(len(specs), len(specs) - len(todo), progress)
+            tally = _Tally(config.bundles())
             started = time.perf_counter()
             try:
                 if client is not None:
-                    _run_dask(todo, client, store, bar)
+                    _run_dask(todo, client, store, bar, config.bundles(), tally)
                 elif workers <= 1:
-                    with _interrupt_flag() as interrupted:
-                        for spec in todo:
-                            record = run_trial(spec)
-                            if interrupted.is_set():     # a Ctrl-C the trial's code may have swallowed
-                                raise KeyboardInterrupt
-                            _store(store, record)
-                            bar.update(1)
+                    _run_serial(todo, store, bar, config.bundles(), tally)
                 else:
-                    _run_local(todo, workers, store, bar)
+                    _run_local(todo, workers, store, bar, config.bundles(), tally)
             finally:
                 bar.close()
+                wall = time.perf_counter() - started
+                _record_run(store, tally, "dask" if client is not None else "local",
+                            scheduler if client is not None else workers, wall)
+            errors = store.errors()
             return {"trials": len(specs), "ran": len(todo), "already_stored": len(specs) - len(todo),
-                    "stored": store.count(), "wall_s": time.perf_counter() - started}
+                    "stored": store.count(), "wall_s": wall, "outcomes": dict(tally.outcomes),
+                    "errors": tally.errors, "first_error": tally.first_error, "stored_errors": len(errors),
+                    "transfer": tally.transfer()}
     finally:
         if client is not None:
             client.close()
+
+
+class _Tally:
+    """What this run stored: outcomes, errors (the first with its trial id), and the bytes shipped:
+    each map's packed bundle and how many copies were sent, and every trial's pickled spec (sent)
+    and record (received), the objects the executor serialises with pickle."""
+
+    def __init__(self, bundles: dict):
+        self.outcomes: dict = {}
+        self.errors = 0
+        self.first_error: tuple[str, str] | None = None
+        self.bundle_bytes = {key: len(b.packed) for key, b in bundles.items()}
+        self.bundle_copies = 0
+        self.bundles_sent = 0
+        self.sent = 0
+        self.received = 0
+        self.trials = 0
+
+    def spec(self, spec: dict) -> None:
+        self.sent += len(pickle.dumps(spec, protocol=pickle.HIGHEST_PROTOCOL))
+
+    def record(self, record: dict) -> None:
+        self.trials += 1
+        self.received += len(pickle.dumps(record, protocol=pickle.HIGHEST_PROTOCOL))
+        status = record.get("status")
+        self.outcomes[status] = self.outcomes.get(status, 0) + 1
+        if status == "error":
+            self.errors += 1
+            if self.first_error is None:
+                self.first_error = (record["id"], record.get("error") or "")
+
+    def transfer(self) -> dict:
+        n = max(self.trials, 1)
+        return {"bundle_bytes": dict(self.bundle_bytes), "bundle_copies": self.bundle_copies,
+                "bundles_sent_bytes": self.bundles_sent, "specs_sent_bytes": self.sent, "records_received_bytes": self.received, "trials": self.trials,
+                "spec_bytes_per_trial": self.sent / n if self.trials else None,
+                "record_bytes_per_trial": self.received / n if self.trials else None}
+
+
+def _record_run(store: Store, tally: _Tally, executor: str, where, wall: float) -> None:
+    """Append this invocation to the store's meta ``runs`` (executor, workers or scheduler, trials
+    stored, wall time, bytes shipped)."""
+    try:
+        runs = store.meta("runs", []) or []
+        if not isinstance(runs, list):
+            runs = []
+        runs.append({"executor": executor, "workers": where if executor == "local" else None,
+                     "scheduler": where if executor == "dask" else None, "stored": tally.trials,
+                     "errors": tally.errors, "wall_s": wall, "finished": time.time(), "transfer": tally.transfer()})
+        store.set_meta("runs", runs)
+    except Exception:        # bookkeeping must never cost the stored trials (e.g. during Ctrl-C)
+        pass
+
+
+def _run_serial(todo: list, store: Store, bar, bundles: dict, tally: _Tally) -> None:
+    provide_bundles(bundles)
+    try:
+        with _interrupt_flag() as interrupted:
+            for spec in todo:
+                record = run_trial(spec)
+                if interrupted.is_set():     # a Ctrl-C the trial's code may have swallowed
+                    raise KeyboardInterrupt
+                _store(store, record, tally)
+                bar.update(1)
+    finally:
+        withdraw_bundles(bundles)
 
 
 @contextlib.contextmanager
@@ -189,35 +295,42 @@ def _interrupt_flag():
         signal.signal(signal.SIGINT, previous)
 
 
-def _store(store: Store, record: dict) -> None:
+def _store(store: Store, record: dict, tally: _Tally) -> None:
     """Commit a finished trial. An interrupted one is not a result: the batch stops (the user
     pressed Ctrl-C while it ran in this process) and the trial will run again on --resume."""
     if record.get("status") == "interrupted":
         raise KeyboardInterrupt
-    store.add(record)
+    if store.add(record):
+        tally.record(record)
 
 
-def _run_local(todo: list, workers: int, store: Store, bar) -> None:
+def _run_local(todo: list, workers: int, store: Store, bar, bundles: dict, tally: _Tally) -> None:
     import multiprocessing as mp
 
-    # fork keeps the already imported modules; the planner forks its own child per call
+    # fork keeps the already imported modules (and the maps the config loaded); the workers get the
+    # bundles as their initializer's argument, so that any start method gives them the same maps
     ctx = mp.get_context("fork")
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=(bundles,))
     try:
         pending = set()
         queue = iter(todo)
-        for spec in queue:
+
+        def submit(spec):
+            tally.spec(spec)
             pending.add(pool.submit(run_trial, spec))
+
+        for spec in queue:
+            submit(spec)
             if len(pending) >= 2 * workers:
                 break
         while pending:
             finished, pending = wait(pending, return_when=FIRST_COMPLETED)
             for fut in finished:
-                _store(store, fut.result())
+                _store(store, fut.result(), tally)
                 bar.update(1)
                 nxt = next(queue, None)
                 if nxt is not None:
-                    pending.add(pool.submit(run_trial, nxt))
+                    submit(nxt)
     except BaseException:
         _stop_pool(pool)
         raise
@@ -251,14 +364,64 @@ def _end_workers(pool: ProcessPoolExecutor) -> None:
             p.join(5.0)
 
 
-def _dask_trial(spec: dict) -> dict:
-    """run_trial in a Dask worker. Dask runs tasks in daemonic processes, which multiprocessing
-    forbids to start children; the planner forks one child per call (to seed OMPL) and joins it
-    before returning, so the flag is lifted for the task."""
+def _dask_trial(spec: dict, bundle: bytes, version: str) -> dict:
+    """run_trial in a Dask worker, with the map's packed bundle (a scattered future, resolved by Dask
+    to the bytes held by this worker) and the submitting nhstab's version, which this worker's must
+    equal. Dask runs tasks in daemonic processes, which multiprocessing forbids to start children;
+    the planner may fork one child per call (``isolate``) and joins it before returning, so the flag
+    is lifted for the task."""
     import multiprocessing
 
+    from .. import __version__
+
+    if version != __version__:
+        raise WorkerMismatch(version, __version__)
     multiprocessing.current_process()._config.pop("daemon", None)
-    return run_trial(spec)
+    return run_trial(spec, bundle)
+
+
+class WorkerMismatch(Exception):
+    """A Dask worker runs another nhstab than the submitting machine."""
+
+    def __init__(self, wanted: str, found: str):
+        super().__init__(wanted, found)
+        self.wanted, self.found = wanted, found
+
+    def __str__(self) -> str:
+        return f"a worker runs nhstab {self.found}, this machine {self.wanted}"
+
+
+def _worker_versions() -> dict:
+    from .. import __version__
+    from .store import versions
+
+    return {**versions(), "nhstab": __version__}
+
+
+def check_workers(client, scheduler: str) -> dict:
+    """The workers connected now, each checked to run this nhstab version (one line naming
+    ``--scheduler`` otherwise: install ``nhstab[cluster]`` of the same version on every worker).
+    Returns their versions by address. A cluster without workers yet (e.g. an adaptive one) is
+    not refused: its trials wait for workers, each checked when it runs one."""
+    from .. import __version__
+
+    expected = f"Dask workers with nhstab {__version__} installed (the version of this machine)"
+    try:
+        found = client.run(_worker_versions)
+    except Exception as exc:          # e.g. ModuleNotFoundError: nhstab is not installed there
+        raise InputError("--scheduler", expected, scheduler,
+                         detail=f"a worker could not run nhstab: {type(exc).__name__}: {_one_line(exc)}"[:240]) \
+            from None
+    wrong = {addr: v.get("nhstab") for addr, v in found.items() if v.get("nhstab") != __version__}
+    if wrong:
+        addr, v = next(iter(wrong.items()))
+        raise InputError("--scheduler", expected, scheduler,
+                         detail=f"{len(wrong)} of {len(found)} workers run another: {addr} has nhstab {v}")
+    return found
+
+
+def _one_line(exc) -> str:
+    return " ".join(str(exc).split())
 
 
 _SCHEMES = ("tcp", "tls", "inproc", "ucx", "ws", "wss")
@@ -313,15 +476,57 @@ def require_dask(scheduler: str) -> None:
                          detail="local batches need no Dask: drop --scheduler and use --workers")
 
 
-def _run_dask(todo: list, client, store: Store, bar) -> None:
+def _run_dask(todo: list, client, store: Store, bar, bundles: dict, tally: _Tally) -> None:
+    """Each map's packed bundle scattered once to every worker, then every trial with its map's
+    future; records stored as they come back (see the module docstring)."""
     from distributed import as_completed
 
-    futures = client.map(_dask_trial, todo, key=[f"nhstab-{s['id']}" for s in todo], pure=False)
+    from .. import __version__
+
+    if not todo:
+        return
+    needed = sorted({s["cell_spec"]["map_bundle"] for s in todo})
+    shared = {}
+    for key in needed:
+        shared[key] = client.scatter(bundles[key].packed, broadcast=True, hash=False)
+    tally.bundle_copies = len(client.nthreads())          # one copy per worker connected now
+    tally.bundles_sent = tally.bundle_copies * sum(tally.bundle_bytes[key] for key in needed)
+    for spec in todo:
+        tally.spec(spec)
+    by_key = {f"nhstab-{s['id']}": s for s in todo}
+    futures = client.map(_dask_trial, todo, [shared[s["cell_spec"]["map_bundle"]] for s in todo],
+                         [__version__] * len(todo), key=list(by_key), pure=False)
     try:
         for fut in as_completed(futures):
-            _store(store, fut.result())
+            try:
+                record = fut.result()
+            except (KeyboardInterrupt, MapChangedError):
+                raise
+            except WorkerMismatch as exc:
+                raise InputError("--scheduler", f"Dask workers with nhstab {exc.wanted} installed (the version of "
+                                 "this machine)", str(exc)) from None
+            except Exception as exc:
+                if type(exc).__name__ != "KilledWorker":
+                    raise InputError("--scheduler", "Dask workers that can run nhstab trials", type(exc).__name__,
+                                     detail=_one_line(exc)[:240]) from None
+                record = _lost_trial(by_key[fut.key], exc)
+            _store(store, record, tally)
             bar.update(1)
             fut.release()
     except BaseException:
         client.cancel(futures)
         raise
+    finally:
+        for f in shared.values():
+            f.release()
+
+
+def _lost_trial(spec: dict, exc) -> dict:
+    """The record of a trial whose worker died running it (Dask gave up on it: ``KilledWorker``):
+    an error, the crash being what the trial did."""
+    from .store import versions
+
+    return {"id": spec["id"], "cell": spec["cell"], "trial": spec["trial"], "seed": spec["seed"], "spec": spec,
+            "versions": versions(), "status": "error", "metrics": None, "series": None,
+            "error": f"{type(exc).__name__}: the worker running it died ({_one_line(exc)[:160]})",
+            "timings": {}, "finished_at": time.time()}

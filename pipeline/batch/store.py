@@ -14,10 +14,21 @@ database, or an empty one is refused with one line (:class:`StoreError`, exit co
 
 Tables:
     meta(key TEXT PRIMARY KEY, value TEXT)          -- the batch config (JSON), versions, created,
-                                                       schema version
+                                                       schema version, runs (one entry per
+                                                       invocation: executor, workers, bytes shipped)
     trials(id TEXT PRIMARY KEY, cell TEXT, trial INTEGER, seed INTEGER, spec TEXT, status TEXT,
            metrics TEXT, series TEXT, timings TEXT, error TEXT, versions TEXT, finished_at REAL)
-``spec``, ``metrics``, ``series``, ``timings`` and ``versions`` hold JSON.
+    maps(id TEXT PRIMARY KEY, content_hash TEXT, entry TEXT, source TEXT, bytes INTEGER,
+         packed BLOB)                               -- schema 2: every map of the batch as data
+``spec``, ``metrics``, ``series``, ``timings`` and ``versions`` hold JSON; ``maps.packed`` is a
+packed :class:`~nhstab.batch.bundle.MapBundle` (the bytes of every file the map is built from,
+compressed; ``bytes`` is their size unpacked), keyed by the bundle id that each trial's
+``spec.cell_spec.map_bundle`` names, so that ``nhstab batch replay`` needs the store alone.
+
+Schemas: 2 (this version: with ``maps``) and 1 (stores made before maps were stored) are read; a
+store of schema 1 has no map to replay from (a replay then needs the map files at the path the
+trial records, with the same content), and is upgraded to schema 2 (its ``maps`` table made and
+filled) when a batch resumes it.
 """
 
 from __future__ import annotations
@@ -32,7 +43,9 @@ from pathlib import Path
 from ..errors import InputError
 from ..records import to_jsonable
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: the schemas this version reads (1: before the maps table)
+READABLE_SCHEMAS = (1, 2)
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -52,9 +65,20 @@ CREATE TABLE IF NOT EXISTS trials (
 );
 CREATE INDEX IF NOT EXISTS trials_cell ON trials(cell);
 """
+_MAPS_SCHEMA = """
+CREATE TABLE IF NOT EXISTS maps (
+    id TEXT PRIMARY KEY,
+    content_hash TEXT NOT NULL,
+    entry TEXT NOT NULL,
+    source TEXT,
+    bytes INTEGER NOT NULL,
+    packed BLOB NOT NULL
+);
+"""
 _COLUMNS = {"meta": ("key", "value"),
             "trials": ("id", "cell", "trial", "seed", "spec", "status", "metrics", "series", "timings", "error",
-                       "versions", "finished_at")}
+                       "versions", "finished_at"),
+            "maps": ("id", "content_hash", "entry", "source", "bytes", "packed")}
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 #: statuses that are results; "interrupted" is not one (the trial did not finish)
 NOT_A_RESULT = ("interrupted",)
@@ -101,7 +125,7 @@ class Store:
                 self.db.execute("PRAGMA journal_mode=WAL")
                 self.db.execute("PRAGMA synchronous=NORMAL")
                 if new:
-                    self.db.executescript(_SCHEMA)
+                    self.db.executescript(_SCHEMA + _MAPS_SCHEMA)
                     with self.db:
                         self.db.execute("INSERT OR REPLACE INTO meta(key, value) VALUES ('schema', ?)",
                                         (json.dumps(SCHEMA_VERSION),))
@@ -204,6 +228,78 @@ class Store:
     def count(self) -> int:
         return int(self._query("SELECT COUNT(*) FROM trials")[0][0])
 
+    def errors(self) -> list[tuple[str, str]]:
+        """(id, error) of every trial stored with status "error", by cell and trial."""
+        return [(r[0], r[1] or "") for r in
+                self._query("SELECT id, error FROM trials WHERE status = 'error' ORDER BY cell, trial")]
+
+    def remove_errors(self) -> int:
+        """Delete the trials stored with status "error" (to run them again); returns how many."""
+        if not self.writable:
+            raise RuntimeError("the store was opened read-only")
+        try:
+            with self.db:
+                return self.db.execute("DELETE FROM trials WHERE status = 'error'").rowcount
+        except sqlite3.DatabaseError as exc:
+            raise self._error(exc) from None
+
+    # ---- maps -----------------------------------------------------------------------------------
+    @property
+    def schema(self) -> int:
+        """The store's schema (1 for stores made before the schema was recorded)."""
+        return int(self.meta("schema", 1))
+
+    def add_map(self, bundle) -> bool:
+        """Keep a map (a :class:`~nhstab.batch.bundle.MapBundle`) in the store, once per bundle id;
+        a store of schema 1 is upgraded to schema 2 first."""
+        if not self.writable:
+            raise RuntimeError("the store was opened read-only")
+        try:
+            if self.schema < SCHEMA_VERSION:
+                self.db.executescript(_MAPS_SCHEMA)
+                self.set_meta("schema", SCHEMA_VERSION)
+            with self.db:
+                cur = self.db.execute("INSERT OR IGNORE INTO maps VALUES (?, ?, ?, ?, ?, ?)",
+                                      (bundle.id, bundle.content_hash, bundle.entry, bundle.source, bundle.nbytes,
+                                       sqlite3.Binary(bundle.packed)))
+        except sqlite3.DatabaseError as exc:
+            raise self._error(exc) from None
+        return cur.rowcount == 1
+
+    def map_ids(self) -> list[str]:
+        if self.schema < 2:
+            return []
+        return [r[0] for r in self._query("SELECT id FROM maps ORDER BY id")]
+
+    def map_bundle(self, bundle_id: str | None = None, content_hash: str | None = None):
+        """The map stored under ``bundle_id`` (or, for trials that name none, the one map with
+        ``content_hash``), unpacked and checked; None if the store has no such map (or, schema 1,
+        none at all). A stored map that is not intact raises :class:`StoreError`."""
+        from .bundle import BundleError, MapBundle
+
+        if self.schema < 2:
+            return None
+        bundle_id = bundle_id if isinstance(bundle_id, str) else None       # a spec is data from the file
+        content_hash = content_hash if isinstance(content_hash, str) else None
+        if bundle_id is not None:
+            rows = self._query("SELECT id, content_hash, packed FROM maps WHERE id = ?", (bundle_id,))
+        elif content_hash:
+            rows = self._query("SELECT id, content_hash, packed FROM maps WHERE content_hash = ?", (content_hash,))
+        else:
+            return None
+        if len(rows) != 1:
+            return None
+        key, digest, packed = rows[0]
+        try:
+            bundle = MapBundle.unpack(packed, source=f"{self.argument} {self.path}: maps[{key}]")
+        except BundleError as exc:
+            raise StoreError(self.argument, "a batch store whose maps are intact", str(self.path),
+                             detail=str(exc)) from None
+        if bundle.id != key or bundle.content_hash != digest:
+            raise StoreError(self.argument, "a batch store whose maps are intact", str(self.path),
+                             detail=f"map {key} holds another map ({bundle.id})")
+        return bundle
+
 
 def _uri(path: Path, **params) -> str:
     return "file:" + urllib.parse.quote(str(path.resolve())) + "?" + urllib.parse.urlencode(params)
@@ -243,7 +339,17 @@ def check_store_file(path: Path, argument: str = "STORE") -> None:
         con = _connect_read_only(path)
         try:
             tables = {name for (name,) in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+            schema = json.dumps(1)
             for table, columns in _COLUMNS.items():
+                if table == "maps":
+                    row = con.execute("SELECT value FROM meta WHERE key = 'schema'").fetchone()
+                    schema = row[0] if row is not None else json.dumps(1)       # none recorded: schema 1
+                    if schema not in [json.dumps(v) for v in READABLE_SCHEMAS]:
+                        raise StoreError(argument, "a batch store of schema "
+                                         + " or ".join(str(v) for v in READABLE_SCHEMAS), str(path),
+                                         detail=f"schema {schema}: made by another version of nhstab")
+                    if schema == json.dumps(1):
+                        continue                    # schema 1: made before maps were stored
                 if table not in tables:
                     raise StoreError(argument, expected, str(path),
                                      detail=f"it has no {table!r} table"
@@ -253,10 +359,6 @@ def check_store_file(path: Path, argument: str = "STORE") -> None:
                 if missing:
                     raise StoreError(argument, expected, str(path),
                                      detail=f"its {table!r} table lacks {', '.join(missing)}")
-            row = con.execute("SELECT value FROM meta WHERE key = 'schema'").fetchone()
-            if row is not None and row[0] != json.dumps(SCHEMA_VERSION):
-                raise StoreError(argument, f"a batch store of schema {SCHEMA_VERSION}", str(path),
-                                 detail=f"schema {row[0]}: made by another version of nhstab")
             con.execute("SELECT COUNT(*) FROM trials").fetchone()
         finally:
             con.close()

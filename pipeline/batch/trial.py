@@ -1,6 +1,14 @@
 """One batch trial: a full composite-controller run (plan, execute, monitor, replan) from its spec,
 reduced to a record of metrics for the store. Runs in a worker process (local or Dask), so it takes
-and returns plain data."""
+and returns plain data: the spec (robot description, run options, seed, poses) and the map as data
+(a :class:`~nhstab.batch.bundle.MapBundle`, packed or not), never a path to read.
+
+Where the map comes from, in order: the bundle passed with the trial (a Dask worker gets it this
+way, scattered once per batch), the bundles provided to this process (:func:`provide_bundles`: a
+local batch's workers get them when they start), and only for a library call that gives neither,
+the spec's map path on this machine (read into a bundle, and checked against the spec's content
+hash). Whichever it is, the map is loaded from the bundle, once per process (see
+:mod:`nhstab.batch.bundle`)."""
 
 from __future__ import annotations
 
@@ -16,29 +24,50 @@ from ..errors import InputError
 #: the error-norm series of a trial is sampled every this many seconds (for the envelopes)
 SERIES_DT = 0.2
 
-_MAPS: dict = {}
+_PROVIDED: dict = {}
 
 
 class MapChangedError(InputError):
-    """A map file changed while its batch ran (or since the batch was configured). Not recorded as
-    a trial's error: the batch stops, since its trials would mix two maps."""
+    """A trial's map is not the one its batch was configured with (its files changed since, or a
+    bundle holds another map). Not recorded as a trial's error: the batch stops, since its trials
+    would mix two maps."""
 
 
-def _load(path: str, cell_size, content_hash: str | None = None):
-    """The trial's map (cached per worker), checked against the content hash the batch was
-    configured with."""
-    from ..maps import load_map
+def provide_bundles(bundles: dict) -> None:
+    """Make maps (``{bundle id: MapBundle or its packed bytes}``) available to the trials run by
+    this process (a local batch's worker initializer calls this)."""
+    _PROVIDED.update(bundles)
 
-    key = (path, cell_size, content_hash)
-    if key not in _MAPS:
-        m = load_map(path, **({"cell_size": cell_size} if cell_size else {}))
-        if content_hash and m.meta["content_hash"] != content_hash:
-            raise MapChangedError(path, "the map the batch was configured with (its files unchanged)",
-                                  f"content hash {m.meta['content_hash'][:12]}",
-                                  detail=f"the batch's is {content_hash[:12]}; the stored trials used that one: "
-                                         "restore the map or start a new batch")
-        _MAPS[key] = m
-    return _MAPS[key]
+
+def withdraw_bundles(ids) -> None:
+    for key in ids:
+        _PROVIDED.pop(key, None)
+
+
+def trial_map(spec: dict, bundle=None):
+    """The map of a trial (see the module docstring), checked against the spec's bundle id and
+    content hash (:class:`MapChangedError` otherwise)."""
+    from .bundle import MapBundle, loaded
+
+    cell = spec["cell_spec"]
+    key, digest, size = cell.get("map_bundle"), cell.get("map_hash"), cell.get("cell_size")
+    if bundle is None and key is not None:
+        m = loaded(key, size)
+        if m is not None:
+            return m
+        bundle = _PROVIDED.get(key)
+    if bundle is None:
+        bundle = MapBundle.from_path(cell["map_path"], **({"cell_size": size} if size else {}))
+    elif not isinstance(bundle, MapBundle):
+        if key is not None and loaded(key, size) is not None:
+            return loaded(key, size)
+        bundle = MapBundle.unpack(bundle)
+    if (key is not None and bundle.id != key) or (digest and bundle.content_hash != digest):
+        raise MapChangedError(cell["map_path"], "the map the batch was configured with (its files unchanged)",
+                              f"content hash {bundle.content_hash[:12]}",
+                              detail=f"the batch's is {(digest or '?')[:12]}; the stored trials used that one: "
+                                     "restore the map or start a new batch")
+    return bundle.load(size)
 
 
 def trial_options(spec: dict):
@@ -55,18 +84,19 @@ def trial_options(spec: dict):
                                robot=cell["robot"], start=tuple(cell["start"]), goal=tuple(cell["goal"]))
 
 
-def run_trial(spec: dict) -> dict:
-    """Run one trial. An exception becomes a record with status "error", except two that stop the
-    batch instead: a map that changed since the batch was configured (:class:`MapChangedError`),
-    and Ctrl-C (KeyboardInterrupt, also when the run reports itself "interrupted"): an interrupted
-    trial has no result and must not be stored."""
+def run_trial(spec: dict, bundle=None) -> dict:
+    """Run one trial (its map from ``bundle``, a MapBundle or its packed bytes, or as the module
+    docstring says). An exception becomes a record with status "error", except two that stop the
+    batch instead: a map that is not the batch's (:class:`MapChangedError`), and Ctrl-C
+    (KeyboardInterrupt, also when the run reports itself "interrupted"): an interrupted trial has no
+    result and must not be stored."""
     from .store import versions
 
     started = time.perf_counter()
     record = {"id": spec["id"], "cell": spec["cell"], "trial": spec["trial"], "seed": spec["seed"], "spec": spec,
               "versions": versions()}
     try:
-        record.update(_run(spec))
+        record.update(_run(spec, bundle))
     except MapChangedError:
         raise
     except Exception as exc:          # recorded, never stops the batch
@@ -80,13 +110,13 @@ def run_trial(spec: dict) -> dict:
     return record
 
 
-def _run(spec: dict) -> dict:
+def _run(spec: dict, bundle=None) -> dict:
     from ..execution import execute, summary
     from ..robot import resolve_robot
     from .config import robot_label
 
     cell = spec["cell_spec"]
-    m = _load(cell["map_path"], cell["cell_size"], cell.get("map_hash"))
+    m = trial_map(spec, bundle)
     opts = trial_options(spec)
     rob = resolve_robot(opts.robot, m.robot, source="batch")
     model = rob.model
@@ -149,16 +179,18 @@ def _run(spec: dict) -> dict:
             "error": None if result.status != "numerical_failure" else result.message}
 
 
-def replay_config(record: dict) -> dict:
-    """A run config (the ``nhstab run --config`` format) that replays the trial exactly."""
+def replay_config(record: dict, map_path: str | None = None) -> dict:
+    """A run config (the ``nhstab run --config`` format) that replays the trial exactly, on the map
+    at ``map_path`` (relative to the config; ``nhstab batch replay`` writes the trial's map files
+    beside it), or by default the absolute form of the path the trial records."""
     from ..records import to_jsonable
 
     opts = trial_options(record["spec"])
     cell = record["spec"]["cell_spec"]
     d = dataclasses.asdict(opts)
-    # the stored map path is relative to where the batch ran (like the workers); the run config
-    # resolves paths relative to itself, so it gets the absolute path
-    out = {"map": str(Path(cell["map_path"]).resolve()), "seed": opts.seed, "start": list(opts.start), "goal": list(opts.goal)}
+    if map_path is None:
+        map_path = str(Path(cell["map_path"]).resolve())
+    out = {"map": map_path, "seed": opts.seed, "start": list(opts.start), "goal": list(opts.goal)}
     if opts.robot:
         out["robot"] = opts.robot
     for key in ("rate_hz", "substeps", "saturate", "headroom", "max_time_s"):

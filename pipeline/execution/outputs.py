@@ -236,7 +236,7 @@ PLAN_FILES = ("plan.json", "trajectory.csv", "trajectory.npz", "plan.png", "tube
 
 def write_run(result: RunResult, out_dir, map_path: str | None = None, figures: bool = True,
               animate: bool = False, extra_files: dict | None = None) -> list[Path]:
-    """Write trajectory.csv, the figures, run.json (and ``extra_files``: {name: text}) into
+    """Write trajectory.csv, the figures, run.json (and ``extra_files``: {name: text or bytes}) into
     ``out_dir`` as one output (:class:`nhstab.records.OutputFolder`): an earlier run's files there
     are replaced as a whole, never mixed with these, and ``nhstab-manifest.json`` (last) names them.
     Returns the paths written, the manifest last."""
@@ -244,8 +244,11 @@ def write_run(result: RunResult, out_dir, map_path: str | None = None, figures: 
 
     with OutputFolder(out_dir, "run", owned=RUN_FILES + tuple(extra_files or ()),
                       info={"status": result.status}) as out:
-        for name, text in (extra_files or {}).items():
-            out.write_text(name, text)
+        for name, content in (extra_files or {}).items():
+            if isinstance(content, bytes):
+                out.path(name).write_bytes(content)
+            else:
+                out.write_text(name, content)
         out.write_text("trajectory.csv", trajectory_csv(result))
         if figures:
             from ..report.runs import run_map_figure, run_tracking_figure
