@@ -9,7 +9,7 @@ import click
 
 
 WINDOW_CHOICES = ("future", "past")
-END_STRATEGY_CHOICES = ("frozen", "switch")
+END_STRATEGY_CHOICES = ("frozen", "switch", "extend")
 
 
 def stabilizer_options(defaults: bool = True):

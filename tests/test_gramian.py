@@ -51,6 +51,79 @@ def test_heisenberg_line_closed_form(alpha, delta):
     assert np.max(np.abs(dets / det - 1)) < 1e-8
 
 
+@pytest.mark.parametrize("alpha,delta", [(1.0, 1.0), (0.3, 0.7)])
+def test_extend_end_is_the_closed_form_on_the_whole_line(alpha, delta):
+    """end_strategy="extend": the Heisenberg line continued under u0 = (0, 1) held is the same line, so
+    every grid point's window, those that run off the end included, is the closed form's."""
+    nom = heisenberg_line(5.0, hz=200.0)
+    s = compute_schedule(nom, StabilizerOptions(alpha=alpha, delta=delta, end_strategy="extend"))
+    assert s.diagnostics["end"].startswith("extend")
+    Hc, _ = heisenberg_line_H(s.t, alpha, delta)
+    assert rel(s.H, Hc).max() < 1e-8
+    p = compute_schedule(nom, StabilizerOptions(alpha=alpha, delta=delta, window="past", end_strategy="extend"))
+    assert p.diagnostics["end"].startswith("extend")
+    # the past window [t - delta, t] of the line is the future window of the line started delta earlier,
+    # carried to t (Phi = I: A = 0); weights exp(w alpha (t - tau)) = exp(w alpha delta) exp(w alpha (t - delta - tau))
+    Hp, _ = heisenberg_line_H(s.t - delta, alpha, delta)
+    import math
+    # carry H_c(t - delta, t) to t: Phi = I, weight shift exp(w alpha delta)
+    assert rel(p.H, math.exp(6.0 * alpha * delta) * Hp).max() < 1e-8
+
+
+def _car_nominal(segments, dt=0.05):
+    """A rwd_car nominal driving ``segments`` (direction, steering, length) exactly (closed forms)."""
+    from types import SimpleNamespace
+
+    from nhstab.planning import TimingOptions
+    from nhstab.planning.cars import exact_nominal
+
+    path = SimpleNamespace(info={"segments": segments}, samples=np.zeros((2, 3)))
+    return exact_nominal(make_model("rwd_car"), path, TimingOptions(dt=dt))[0]
+
+
+def test_extend_end_equals_the_sliding_window_of_the_longer_run():
+    """A car that reverses a straight run into its goal: with "extend" the schedule at every grid point
+    equals the ordinary sliding future window of the same nominal with that run 10.5 m longer (built
+    independently, in closed form, on the same grid), to 1e-10; and the largest gain stays that of the
+    sliding part, where "frozen" lets it grow at the end (the parking suite's tight bays)."""
+    pre = [(1, 0.0, 2.0), (1, 0.5, 2.0), (-1, -0.5, 2.0)]
+    short = _car_nominal(pre + [(-1, 0.0, 3.0)])
+    longer = _car_nominal(pre + [(-1, 0.0, 3.0 + 10.5)])
+    h = short.t[1] - short.t[0]
+    grid = h * np.arange(len(short.t) + 200)
+    longer = Nominal.from_functions(short.model, longer._x_func, longer._u_func, grid)
+    opts = StabilizerOptions(alpha=0.1, delta=6.0)
+    ext = compute_schedule(short, opts, end_strategy="extend")
+    ref = compute_schedule(longer, opts)
+    N = len(short.t)
+    assert ref.diagnostics["sliding_window_until_s"] >= short.t[-1]
+    assert rel(ext.H, ref.H[:N]).max() < 1e-10
+    assert rel(ext.P, ref.P[:N]).max() < 1e-8
+    frozen = compute_schedule(short, opts)
+    sliding = frozen.t <= frozen.diagnostics["sliding_window_until_s"]
+    g_frozen = np.linalg.norm(frozen.K, ord=2, axis=(1, 2))
+    g_ext = np.linalg.norm(ext.K, ord=2, axis=(1, 2))
+    assert np.allclose(g_ext[sliding], g_frozen[sliding], rtol=1e-9)
+    assert g_ext.max() <= 1.2 * g_frozen[sliding].max() and g_frozen.max() > 3 * g_frozen[sliding].max()
+
+
+def test_extend_falls_back_to_frozen_where_the_continuation_is_unusable():
+    """A car that ends steering in place (its continuation would steer past max_steer) and a robot
+    that ends standing still (last input zero): the frozen end, and the schedule says why."""
+    frozen_opts = StabilizerOptions(alpha=0.1, delta=6.0)
+    steering = _car_nominal([(1, 0.0, 2.0), (1, 0.5, 4.0), (-1, -0.5, 3.0)])     # ends steering back to 0
+    s = compute_schedule(steering, frozen_opts, end_strategy="extend")
+    assert "state limits" in s.diagnostics["end"] and s.diagnostics["end"].startswith("frozen")
+    assert np.array_equal(s.K, compute_schedule(steering, frozen_opts).K)
+    t = np.linspace(0.0, 2 * np.pi, 252)          # the unicycle drives and turns, and ends at rest
+    still = Nominal.from_inputs(make_model("unicycle"), lambda s: np.stack([np.sin(s), 1 - np.cos(s)], -1),
+                                np.zeros(3), t)
+    assert np.allclose(still.u[-1], 0.0, atol=1e-12)
+    s = compute_schedule(still, StabilizerOptions(alpha=0.1, delta=1.0, end_strategy="extend"))
+    assert "input is zero" in s.diagnostics["end"]
+    assert np.array_equal(s.K, compute_schedule(still, StabilizerOptions(alpha=0.1, delta=1.0)).K)
+
+
 def test_long_trajectory_keeps_accuracy():
     """2000 s Heisenberg line: H33 ~ t^2 ~ 4e6, nothing re-anchored by hand; still 1e-8 relative.
     (Its H has condition number ~t^4, past what double precision can invert meaningfully, so this

@@ -25,6 +25,20 @@ past s would make P, and with it the gains, shrink by up to exp(w alpha delta) b
 schedule, P_c at the start of a past-window one), as Remark 2 suggests; it needs a trajectory of at
 least 2 delta, and the gains jump where it switches.
 
+``end_strategy="extend"`` keeps the window sliding: past the end it runs along the nominal's
+continuation under its last input held (before the start, under its first input held, for a past
+window), x' = f(x) + g(x) u0(T) from x0(T), integrated to 1e-12 (DOP853). The windows are then the
+paper's own, on the continued trajectory. This is meant for nominals that end in motion, as a car
+that drives a straight run into its goal: the frozen window carries the last window's gramian along
+that run, P(t) = Phi(s, t)^T P(s) Phi(s, t), so a steering error at t is weighed as the lateral
+error it would have caused at s; over a car length of straight the steering gain grows with the
+square of the distance driven since s (measured on the parking suite: max ||K|| 55-80 at the very
+end, against about 10 in the sliding part). Along the continuation the window sees the line the car
+is on, and the gains stay those of driving on along it. Where the continuation is unusable (the last
+input is zero, so the robot stands still, or the continuation leaves the model's state limits within
+delta, as a car steering in place would) or its window gramian is singular, the end falls back to
+"frozen"; ``diagnostics["end"]`` says which was used and why.
+
 Computation: per-interval pieces are integrated to 8th order (``elements``), then every window is an
 associative combination of pieces (``windows``): linear in the number of grid points, with no
 subtraction and nothing spanning more than one window, so long trajectories lose no accuracy.
@@ -45,7 +59,7 @@ from .interpolant import GridInterpolant
 from .windows import Segments, combine, exclusive_prefix, scan, sliding
 
 WINDOWS = ("future", "past")
-END_STRATEGIES = ("frozen", "switch")
+END_STRATEGIES = ("frozen", "switch", "extend")
 
 
 @dataclass(frozen=True)
@@ -55,7 +69,7 @@ class StabilizerOptions:
     alpha: the rate parameter (> 0); delta: window length in s (> 0); gamma: gain factor, a number or
     a function of time (array in, array out), >= 1/2 everywhere; weight: the weighting constant w of
     exp(w alpha (t - tau)) (6 in the paper's Proposition 1); window: "future" (P_c) or "past" (P_r);
-    end_strategy: "frozen" or "switch" (see the module docstring); singular_rtol / singular_atol:
+    end_strategy: "frozen", "switch" or "extend" (see the module docstring); singular_rtol / singular_atol:
     H(t) counts as singular where its smallest eigenvalue is <= max(atol, rtol * lambda_max(H(t))),
     i.e. where it cannot be told from singular in double precision.
     """
@@ -228,10 +242,16 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
     if opts.end_strategy == "switch" and 2 * n_full < N:
         raise InputError("end_strategy", f"'frozen' for a trajectory shorter than 2 delta = {2 * delta:.6g} s",
                          opts.end_strategy)
+    end = "none: every window fits" if n_full == N else opts.end_strategy
     if future:
         H[:n_full] = _future_windows(nom, E, w, phi, n_full, cw, substeps).W
         if n_full < N:
-            if opts.end_strategy == "frozen":
+            extended = None
+            if opts.end_strategy == "extend":
+                extended, end = _extended_windows(nom, E, w, phi, cw, substeps, opts, future=True)
+            if extended is not None:
+                H[n_full:] = extended[n_full:]
+            elif opts.end_strategy in ("frozen", "extend"):
                 H[n_full:] = _frozen_end(nom, E, n_full, delta, cw, substeps)
             else:
                 H[n_full:] = _past_windows(nom, E, w, phi, n_full, cw, substeps).W[: N - n_full][::-1]
@@ -239,7 +259,12 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
         # past windows for i = i_min .. N-1, computed in reversed order
         H[i_min:] = _past_windows(nom, E, w, phi, n_full, cw, substeps).W[::-1]
         if i_min > 0:
-            if opts.end_strategy == "frozen":
+            extended = None
+            if opts.end_strategy == "extend":
+                extended, end = _extended_windows(nom, E, w, phi, cw, substeps, opts, future=False)
+            if extended is not None:
+                H[:i_min] = extended[:i_min]
+            elif opts.end_strategy in ("frozen", "extend"):
                 H[:i_min] = _frozen_start(nom, E, w, phi, i_min, cw, substeps)
             else:
                 H[:i_min] = _future_windows(nom, E, w, phi, i_min, cw, substeps).W
@@ -269,6 +294,7 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
         "window_intervals": w, "window_fraction_s": phi, "substeps": substeps,
         "sliding_window_until_s": float(t[n_full - 1]) if future else None,
         "sliding_window_from_s": float(t[i_min]) if not future else None,
+        "end": end,
         **schedule.diagnose(),
     }
     return schedule
@@ -295,6 +321,84 @@ def _past_windows(nom: Nominal, E: Segments, w: int, phi: float, count: int, cw:
         frac = to_end_anchored(interval_segments(nom, ends - phi, phi, cw, substeps), cw)
         R = combine(R, frac, cw)
     return R
+
+
+def _continuation(nom: Nominal, length: float, future: bool):
+    """The nominal continued past its end (``future``) or before its start under the input there held,
+    on the nominal's grid step, at least ``length`` long: (times, states, input) or a reason why it is
+    unusable (the robot stands still, or leaves the model's state limits)."""
+    from scipy.integrate import solve_ivp
+
+    model = nom.model
+    h = float(nom.t[1] - nom.t[0])
+    k = int(math.ceil(length / h - 1e-9))
+    x_end, u_end = (nom.x[-1], nom.u[-1]) if future else (nom.x[0], nom.u[0])
+    if np.max(np.abs(u_end)) <= 1e-9 * max(float(np.max(np.abs(nom.u))), 1e-300):
+        return f"frozen: the nominal's {'last' if future else 'first'} input is zero (the robot stands still there)"
+    sign = 1.0 if future else -1.0
+    t_rel = sign * h * np.arange(1, k + 1)
+    sol = solve_ivp(lambda _, x: model.rhs(x, u_end), (0.0, t_rel[-1]), x_end, method="DOP853",
+                    t_eval=t_rel, dense_output=True, rtol=1e-12, atol=1e-13)
+    lim = model.state_limits()
+    if not sol.success or not np.all(np.isfinite(sol.y)):
+        return "frozen: the continuation under the held input could not be integrated"
+    if np.any(sol.y.T < lim[:, 0] - 1e-9) or np.any(sol.y.T > lim[:, 1] + 1e-9):
+        j = int(np.argmax(np.any((sol.y.T < lim[:, 0] - 1e-9) | (sol.y.T > lim[:, 1] + 1e-9), axis=1)))
+        return (f"frozen: the continuation under the held input leaves the state limits after "
+                f"{abs(t_rel[j]):.3g} s (shorter than delta)")
+    return t_rel, sol.sol, u_end
+
+
+def _extended_windows(nom: Nominal, E: Segments, w: int, phi: float, cw: float, substeps: int,
+                      opts: StabilizerOptions, future: bool):
+    """The window gramians at every grid point of ``nom``, the windows that run off its end (or start)
+    continued along :func:`_continuation`; (H (N, n, n), what was done) or (None, why not)."""
+    N = len(nom.t)
+    h = float(nom.t[1] - nom.t[0])
+    cont = _continuation(nom, (w + 1) * h, future)
+    if isinstance(cont, str):
+        return None, cont
+    t_rel, dense, u_held = cont
+    model = nom.model
+    k = len(t_rel)
+    T_edge = float(nom.t[-1] if future else nom.t[0])
+    t_all = np.concatenate([nom.t, T_edge + t_rel]) if future else np.concatenate([T_edge + t_rel[::-1], nom.t])
+
+    def x_func(tau):
+        tau = np.asarray(tau, dtype=float)
+        out = np.empty(tau.shape + (model.n,))
+        inside = (tau <= T_edge) if future else (tau >= T_edge)
+        if inside.any():
+            out[inside] = nom.at(tau[inside])[0]
+        if (~inside).any():
+            out[~inside] = np.asarray(dense(tau[~inside] - T_edge)).T
+        return out
+
+    def u_func(tau):
+        tau = np.asarray(tau, dtype=float)
+        out = np.empty(tau.shape + (model.m,))
+        inside = (tau <= T_edge) if future else (tau >= T_edge)
+        if inside.any():
+            out[inside] = nom.at(tau[inside])[1]
+        out[~inside] = u_held
+        return out
+
+    ext = Nominal(model, t_all, x_func(t_all), u_func(t_all), x_func=x_func, u_func=u_func, source="continued")
+    if future:
+        tail = interval_segments(ext, t_all[N - 1:-1], h, cw, substeps)
+        E_all = Segments(np.concatenate([E.P, tail.P]), np.concatenate([E.W, tail.W]), np.concatenate([E.d, tail.d]))
+        H = _future_windows(ext, E_all, w, phi, N, cw, substeps).W
+    else:
+        head = interval_segments(ext, t_all[:k], h, cw, substeps)
+        E_all = Segments(np.concatenate([head.P, E.P]), np.concatenate([head.W, E.W]), np.concatenate([head.d, E.d]))
+        H = _past_windows(ext, E_all, w, phi, N, cw, substeps).W[::-1]
+    H = 0.5 * (H + np.swapaxes(H, -1, -2))
+    lam = np.linalg.eigvalsh(H)
+    if not np.all(np.isfinite(lam)) or np.any(lam[:, 0] <= np.maximum(float(opts.singular_atol),
+                                                                      float(opts.singular_rtol) * np.abs(lam[:, -1]))):
+        return None, "frozen: the window along the continuation is singular"
+    where = "past its end under its last input" if future else "before its start under its first input"
+    return H, f"extend: the nominal continued {k * h:.6g} s {where} held"
 
 
 def _carry(G: np.ndarray, Phi_back: np.ndarray, scale: float = 1.0) -> np.ndarray:
