@@ -100,6 +100,7 @@ class CarOptions:
     far_branches_first: bool = True
     attempts: int = 4
     nominal: str = "exact"
+    probe_share: float = 0.1
 
     def validated(self) -> "CarOptions":
         def num(key, lo, hi=math.inf, lo_open=False):
@@ -120,6 +121,7 @@ class CarOptions:
         num("shuffle_guidance_s_per_m", 0.0)
         num("open_clearance_m", 0.0)
         num("direct_share", 0.0, 1.0)
+        num("probe_share", 0.0, 1.0)
         num("default_radius_share", 0.0, 1.0)
         if self.straight_reach_m is not None:
             num("straight_reach_m", 0.0)
@@ -676,7 +678,7 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
 
     grown = set()
 
-    def grow(key, options=None):
+    def grow(key, options=None, shuffle=True):
         pose = start if key == "start" else goal
         grown.add(key)
         t = unparking_tree(world, fp, model, np.asarray(pose, dtype=float), opts.margin, open_margin,
@@ -684,22 +686,76 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
         info["stages"].append({"stage": f"unparking {key}", "branches": getattr(t, "branches", 0), "arcs": t.arcs,
                                "poses_checked": t.poses_checked, "open_candidates": len(t.candidates),
                                "escaped": sum(c.escaped for c in t.candidates), "time_s": t.time_s})
-        if not any(c.escaped for c in t.candidates) and options is None:
-            # the search gets at most half of what is left (the connection needs the rest)
-            sh = shuffle_search(world, fp, model, np.asarray(pose, dtype=float), opts.margin, open_margin, parking,
-                                speed, deadline=time.perf_counter() + 0.5 * max(left(), 0.0))
-            info["stages"].append({"stage": f"shuffle {key}", "expanded": sh.arcs, "poses_checked": sh.poses_checked,
-                                   "escaped": len(sh.candidates), "time_s": sh.time_s})
-            t.candidates = sh.candidates + t.candidates
+        if not any(c.escaped for c in t.candidates) and options is None and shuffle:
+            t.candidates = shuffled(key) + t.candidates
         root = np.asarray(pose, dtype=float)
         # a side without open poses searches from its end itself, at the margin the end allows
         return t.candidates[: parking.candidates] or [Candidate(root, Maneuver(root, (), L), 0.0, True)]
 
+    def shuffled(key):
+        """The shuffle search's candidates from the side's end; it gets at most half of what is left
+        (the connection needs the rest)."""
+        pose = np.asarray(start if key == "start" else goal, dtype=float)
+        sh = shuffle_search(world, fp, model, pose, opts.margin, open_margin, parking, speed,
+                            deadline=time.perf_counter() + 0.5 * max(left(), 0.0))
+        info["stages"].append({"stage": f"shuffle {key}", "expanded": sh.arcs, "poses_checked": sh.poses_checked,
+                               "escaped": len(sh.candidates), "lattices": sh.lattices, "time_s": sh.time_s})
+        return sh.candidates
+
+    def search_margin_now():
+        return open_margin if all(world.free_many(np.array([c.pose for c in sides[k]]), fp, open_margin).all()
+                                  for k in sides) else search_margin
+
+    # 4. (defined here, used below) OMPL between the two sides' open poses, each radius in turn; then
+    # further searches with new seeds at the radius that worked. RRTConnect puts every start state in
+    # its tree at once but takes goal states in one by one, growing the goal tree from each before it
+    # takes the next, so a first goal state in a slot can stall it: the side with more candidates (the
+    # confined end's) gives the start states, and the search runs backwards when that is the goal side
+    # (a Reeds-Shepp path driven backwards is one; a Dubins path is not, so Dubins searches run
+    # forwards). The goal states are ordered by clearance, the most open first.
+    def search(radius, budget, few: int | None = None):
+        S, G = sides["start"], sides["goal"]
+        if few is not None:          # the cheapest candidates only (those that got out first)
+            S, G = S[:few], G[:few]
+        backwards = opts.space == "reeds_shepp" and len(G) > len(S)
+        A, B = (G, S) if backwards else (S, G)
+        B = sorted(B, key=lambda c: -world.clearance(c.pose, fp)) if len(B) > 1 else B
+        p = run_ompl(A[0].pose, B[0].pose, radius, budget, margin, [c.pose for c in A[1:]], [c.pose for c in B[1:]])
+        if p.status != "exact":
+            return None
+        a_end, b_end = A[p.info["start_index"]], B[p.info["goal_index"]]
+        if backwards:
+            return _finish(p, p.waypoints[::-1], b_end.maneuver, a_end.maneuver, info, started, "search", model, shortcut,
+                           backwards=True)
+        return _finish(p, p.waypoints, a_end.maneuver, b_end.maneuver, info, started, "search", model, shortcut)
+
+    stuck = set()
     for key in ("start", "goal"):
         if sides[key] is None:
-            sides[key] = grow(key)
-    margin = open_margin if all(world.free_many(np.array([c.pose for c in sides[k]]), fp, open_margin).all()
-                                for k in sides) else search_margin
+            sides[key] = grow(key, shuffle=False)
+            if not any(c.escaped for c in sides[key]):
+                stuck.add(key)
+    # the trees' open poses are worth a probe where some got at least half a car length from their end
+    # (out of a bay into an aisle); in a slot shorter than L1 they all stay inside it
+    reached = {k: max((float(np.hypot(*(c.pose[:2] - c.maneuver.start[:2]))) for c in sides[k]), default=0.0)
+               for k in stuck}
+    margin = search_margin_now()
+    worked = None
+    if stuck and left() > 0 and min(reached.values()) >= 0.5 * length:
+        # No unparking sequence got out (into the open or onto a corridor). Out of a bay off a narrow
+        # aisle the tree's open poses are out all the same (the open room of 0.75 m is not there to
+        # reach): a short search from them first (probe_share of the budget); only if it finds nothing,
+        # the shuffle search (slots shorter than L1), whose way out is added to the candidates.
+        found = search(r_default, min(left(), parking.probe_share * float(opts.time_limit_s)))
+        info["stages"][-1]["probe"] = True
+        if found is not None:
+            worked = r_default
+            stuck = set()
+            yield found
+    if stuck and worked is None:
+        for key in sorted(stuck):
+            sides[key] = (shuffled(key) + sides[key])[: parking.candidates]
+        margin = search_margin_now()
     S, G = sides["start"], sides["goal"]
     # 3. direct local paths between the cheapest pairs (maneuvers plus the local path's estimated
     # time), at each radius; each free one is a solution
@@ -724,31 +780,7 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
                 t0 = time.perf_counter()
         info["stages"].append({"stage": "direct", "radius_m": radius, "pairs_tried": tried, "found": False,
                                "time_s": time.perf_counter() - t0})
-    # 4. OMPL between the two sides' open poses, each radius in turn; then further searches with new
-    # seeds at the radius that worked. RRTConnect puts every start state in its tree at once but
-    # takes goal states in one by one, growing the goal tree from each before it takes the next, so
-    # a first goal state in a slot can stall it: the side with more candidates (the confined end's)
-    # gives the start states, and the search runs backwards when that is the goal side (a
-    # Reeds-Shepp path driven backwards is one; a Dubins path is not, so Dubins searches run
-    # forwards). The goal states are ordered by clearance, the most open first.
-    def search(radius, budget, few: int | None = None):
-        S, G = sides["start"], sides["goal"]
-        if few is not None:          # the cheapest candidates only (those that got out first)
-            S, G = S[:few], G[:few]
-        backwards = opts.space == "reeds_shepp" and len(G) > len(S)
-        A, B = (G, S) if backwards else (S, G)
-        B = sorted(B, key=lambda c: -world.clearance(c.pose, fp)) if len(B) > 1 else B
-        p = run_ompl(A[0].pose, B[0].pose, radius, budget, margin, [c.pose for c in A[1:]], [c.pose for c in B[1:]])
-        if p.status != "exact":
-            return None
-        a_end, b_end = A[p.info["start_index"]], B[p.info["goal_index"]]
-        if backwards:
-            return _finish(p, p.waypoints[::-1], b_end.maneuver, a_end.maneuver, info, started, "search", model, shortcut,
-                           backwards=True)
-        return _finish(p, p.waypoints, a_end.maneuver, b_end.maneuver, info, started, "search", model, shortcut)
-
-    worked = None
-    if lazy:        # the corridor ends as they are, with a share of the budget, before their trees
+    if lazy and worked is None:        # the corridor ends as they are, with a share of the budget, before their trees
         found = search(r_default, left() * parking.default_radius_share)
         if found is not None:
             worked = r_default
