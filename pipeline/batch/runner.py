@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import sys
 import time
+import warnings
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
@@ -61,6 +62,11 @@ def run_batch(config: BatchConfig, out_dir, workers: int = 1, scheduler: str | N
     out_dir = Path(out_dir)
     if scheduler:
         require_dask(scheduler)          # before the store is made: a refused request leaves nothing behind
+    if "past" in config.windows():       # once here; the trials do not repeat it
+        from ..control import PAST_WINDOW_WARNING
+        from ..errors import NotStabilizingWarning
+
+        warnings.warn(PAST_WINDOW_WARNING, NotStabilizingWarning, stacklevel=2)
     specs = config.trial_specs()
     with open_store(config, out_dir, resume) as store:
         done = store.done_ids()
