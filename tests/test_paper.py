@@ -116,7 +116,7 @@ def test_the_guaranteed_bound_holds_at_every_sample_in_the_linear_regime(paper, 
     assert c["lyapunov_max_relative_increase_small_error"] <= 1e-3
     if c["window"] == "future":
         assert c["rate_bound"] == pytest.approx(3 * c["alpha"])
-        assert c["rate_bound_printed"] < 0.05 * c["rate_bound"]       # the printed rate: far too pessimistic
+        assert c["rate_bound_printed"] < 0.1 * c["rate_bound"]        # the printed rate: far too pessimistic
     # from the paper's own (not small) initial error the bound holds too, except where the loop runs away
     if c["status"] == "converged":
         assert c["bound_min_ratio"] >= 1.0
