@@ -249,3 +249,25 @@ def test_a_past_window_batch_warns_once_and_trials_record_their_bound(tmp_path):
     bound, err = fut["series"]["bound"], fut["series"]["error_norm"]
     assert len(bound) == len(err) and bound[0] >= err[0]          # sqrt(e0^T P e0 / lambda_min(P)) >= ||e0||
     assert "bound" not in (past["series"] or {}) and past["metrics"]["rate_bound"] is None
+
+
+def test_paired_outcomes_count_on_the_reference_seeds():
+    """Hand-made records: the reference reached on seeds 0, 1, 2; the other law on 0 and 2 (and on 3,
+    where the reference did not, which does not count); it collided once."""
+    from nhstab.batch.report import paired_outcomes
+
+    def rec(window, k, status, controller="gramian"):
+        cell = {"map": "m", "problem": 0, "noise": 1.0, "controller": controller}
+        if window:
+            cell["window"] = window
+        return {"status": status, "trial": k, "spec": {"cell_spec": cell}}
+
+    trials = [rec("future", 0, "reached"), rec("future", 1, "reached"), rec("future", 2, "reached"),
+              rec("future", 3, "missed_goal"),
+              rec("frozen-time", 0, "reached"), rec("frozen-time", 1, "collision"), rec("frozen-time", 2, "reached"),
+              rec("frozen-time", 3, "reached"), rec(None, 0, "reached", "tvlqr")]
+    rows = {r["controller"]: r for r in paired_outcomes(trials)}
+    r = rows["gramian frozen-time"]
+    assert (r["reference"], r["also_reached"], r["reference_reached"], r["collisions"], r["trials"]) == \
+        ("gramian future", 2, 3, 1, 4)
+    assert rows["tvlqr"]["reference_reached"] == 1 and rows["tvlqr"]["also_reached"] == 1

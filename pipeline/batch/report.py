@@ -269,6 +269,35 @@ def paired_figure(trials):
     return fig
 
 
+def paired_outcomes(trials: list[dict]) -> list[dict]:
+    """Controllers on the same seeds, against the reference (the gramian law's future window): per
+    (map, problem, noise) and controller, on how many of the seeds where the reference reached the goal
+    this controller reached it too (without a collision, which ends a run), and where it collided."""
+    by: dict = {}
+    for t in trials:
+        if t["status"] == "error":
+            continue
+        c = t["spec"]["cell_spec"]
+        by.setdefault((c["map"], c["problem"], c["noise"]), {}).setdefault(_controller_name(c), {})[t["trial"]] = \
+            t["status"]
+    ref = "gramian future" if any("gramian future" in v for v in by.values()) else "gramian"
+    rows = []
+    for (mp, problem, noise), ctrls in by.items():
+        if ref not in ctrls:
+            continue
+        base = {k for k, st in ctrls[ref].items() if st == "reached"}
+        for name, sts in sorted(ctrls.items()):
+            if name == ref:
+                continue
+            common = base & set(sts)
+            k = sum(1 for s in common if sts[s] == "reached")
+            rows.append({"map": mp, "problem": problem, "noise": noise, "reference": ref, "controller": name,
+                         "reference_reached": len(common), "also_reached": k,
+                         "fraction": k / len(common) if common else math.nan,
+                         "collisions": sum(1 for st in sts.values() if st == "collision"), "trials": len(sts)})
+    return rows
+
+
 def _controller_name(cell: dict) -> str:
     return cell["controller"] + (f" {cell['window']}" if cell.get("window") else "")
 
@@ -357,6 +386,18 @@ def write_report(store_path, out_dir=None) -> list[Path]:
     md = [f"# {title}", "", intro, "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     md += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in table_rows]
     md.append("")
+    paired = paired_outcomes(trials)
+    paired_header = ["map / noise", "controller", "reached where the reference reached", "collisions"]
+    paired_rows = [[f"{r['map']} / noise {r['noise']:g}", r["controller"],
+                    f"{r['also_reached']}/{r['reference_reached']}"
+                    + (f" ({100 * r['fraction']:.1f}%)" if r["reference_reached"] else ""),
+                    f"{r['collisions']}/{r['trials']}"] for r in paired]
+    if paired:
+        md += [f"**Same seeds, against the reference ({paired[0]['reference']}).** On the seeds where the reference "
+               "reached the goal, how often each other controller did too; and its collisions over all its "
+               "seeds.", "", "| " + " | ".join(paired_header) + " |", "|" + "---|" * len(paired_header)]
+        md += ["| " + " | ".join(row) + " |" for row in paired_rows]
+        md.append("")
     for name, fig in figs.items():
         if fig is not None:
             md += [f"![{name}](figures/{name}.png)", "", captions[name], ""]
@@ -371,6 +412,13 @@ def write_report(store_path, out_dir=None) -> list[Path]:
          "<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in header) + "</tr>"]
     h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in table_rows]
     h.append("</table>")
+    if paired:
+        h.append(f"<p><b>Same seeds, against the reference ({html.escape(paired[0]['reference'])}).</b> On the seeds "
+                 "where the reference reached the goal, how often each other controller did too; and its collisions "
+                 "over all its seeds.</p>")
+        h.append("<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in paired_header) + "</tr>")
+        h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in paired_rows]
+        h.append("</table>")
     for name, fig in figs.items():
         if fig is not None:
             h.append(f"<figure><img src='figures/{name}.png' alt='{name}'>"
