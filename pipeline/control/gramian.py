@@ -49,16 +49,21 @@ used the past window, which is not stabilizing, and made the gains jump.
 ``end_strategy="extend"`` keeps the window sliding: past the end it runs along the nominal's
 continuation under its last input held (before the start, under its first input held, for a past
 window), x' = f(x) + g(x) u0(T) from x0(T), integrated to 1e-12 (DOP853). The windows are then the
-paper's own, on the continued trajectory. This is meant for nominals that end in motion, as a car
-that drives a straight run into its goal: the frozen window carries the last window's gramian along
-that run, P(t) = Phi(s, t)^T P(s) Phi(s, t), so a steering error at t is weighed as the lateral
-error it would have caused at s; over a car length of straight the steering gain grows with the
-square of the distance driven since s (measured on the parking suite: max ||K|| 55-80 at the very
-end, against about 10 in the sliding part). Along the continuation the window sees the line the car
-is on, and the gains stay those of driving on along it. Where the continuation is unusable (the last
-input is zero, so the robot stands still, or the continuation leaves the model's state limits within
-delta, as a car steering in place would) or its window gramian is singular, the end falls back to
-"frozen"; ``diagnostics["end"]`` says which was used and why.
+paper's own, on the continued trajectory. Where the robot is at rest at the end (its last input is
+zero, or it only steers: every car nominal that ends on an arc steers its wheels straight in place
+before it stops, and holding that input would steer past the limit), the continuation drives on as
+the robot last really moved: the input of the last grid point where the pose moved at least half as
+fast as anywhere on the nominal, with the inputs that act only on limited states (the steering rate)
+zeroed, so the car drives on at its final steering angle (``_held_inputs``). Why: the frozen end
+carries the window [s, s + delta] to t > s, H(t) = Phi(t, s) H(s) Phi(t, s)^T, which still counts the
+control spent in [s, t] as if it were to come; over the last window the gains fall (on the parking
+suite's last reverse arc into a slot to a tenth of the sliding part's), the tracking error grows
+under the process noise while the car reverses towards the curb, and the car touched it or missed
+the goal (3-4 of 28 runs of ``tests/test_parking_runs.py``). Along the continuation the window sees
+the motion the car is in, and the gains stay those of the sliding part. Where no continuation is
+usable (the robot never moves, the continuation leaves the model's state limits within delta, or its
+window gramian is singular), the end falls back to "frozen"; ``diagnostics["end"]`` says which end
+was used, under which input, and why.
 
 Computation: per-interval pieces are integrated to 8th order (``elements``), then every window is an
 associative combination of pieces (``windows``): linear in the number of grid points, with no
@@ -463,30 +468,75 @@ def _past_windows(nom: Nominal, E: Segments, w: int, phi: float, count: int, cw:
     return R
 
 
+def _held_inputs(nom: Nominal, future: bool):
+    """The inputs the continuation may hold past the end (``future``) or before the start, in order of
+    preference: a list of (input, what it is), or a reason why there is none.
+
+    The input there, if it moves the robot's pose (and then the same with the steering rate zeroed,
+    in case holding it would steer past the limit). Where the robot is at rest there (its input is
+    zero, or it only drives states with limits, as a car steering its wheels straight in place before
+    it stops), the continuation drives on as the robot last really moved: the input of the last
+    (first) grid point where the pose moved at least half as fast as anywhere on the nominal, with the
+    inputs that act only on limited states (the steering rate) set to zero, so that the car drives on
+    at its final steering angle."""
+    model = nom.model
+    i = -1 if future else 0
+    x_end, u_end = nom.x[i], nom.u[i]
+    lim = model.state_limits()
+    limited = np.all(np.isfinite(lim), axis=1)                       # e.g. a car's steering angle
+    acts = np.abs(np.asarray(model.g(x_end))) > 1e-12                # (n, m): which input drives which state
+    steering_only = acts.any(axis=0) & ~np.any(acts & ~limited[:, None], axis=0)
+    scale = max(float(np.max(np.abs(nom.u))), 1e-300)
+    nonzero = np.abs(u_end) > 1e-9 * scale
+    end = "last" if future else "first"
+    if np.any(nonzero & ~steering_only):
+        out = [(u_end, f"its {end} input")]
+        if np.any(nonzero & steering_only):
+            out.append((np.where(steering_only, 0.0, u_end), f"its {end} input with the steering rate zeroed"))
+        return out
+    speed = np.linalg.norm(model.rhs(nom.x, nom.u)[:, ~limited], axis=1)
+    moving = np.flatnonzero(speed >= 0.5 * speed.max()) if speed.max() > 0 else np.array([], dtype=int)
+    if not moving.size:
+        return f"frozen: the nominal's {end} input is zero and it never moves (the robot stands still)"
+    j = int(moving[-1] if future else moving[0])
+    u = np.where(steering_only, 0.0, nom.u[j])
+    at_rest = "steers in place" if np.any(nonzero) else "stands still"
+    return [(u, f"its {end} real move (the robot {at_rest} at its {'end' if future else 'start'}; the input "
+                f"at t = {nom.t[j]:.6g} s with the steering rate zeroed)")]
+
+
 def _continuation(nom: Nominal, length: float, future: bool):
-    """The nominal continued past its end (``future``) or before its start under the input there held,
-    on the nominal's grid step, at least ``length`` long: (times, states, input) or a reason why it is
-    unusable (the robot stands still, or leaves the model's state limits)."""
+    """The nominal continued past its end (``future``) or before its start under the first usable
+    input of :func:`_held_inputs` held, on the nominal's grid step, at least ``length`` long: (times,
+    dense states, input, what was held) or a reason why it is unusable (the robot never moves, or
+    every continuation leaves the model's state limits)."""
     from scipy.integrate import solve_ivp
 
     model = nom.model
     h = float(nom.t[1] - nom.t[0])
     k = int(math.ceil(length / h - 1e-9))
-    x_end, u_end = (nom.x[-1], nom.u[-1]) if future else (nom.x[0], nom.u[0])
-    if np.max(np.abs(u_end)) <= 1e-9 * max(float(np.max(np.abs(nom.u))), 1e-300):
-        return f"frozen: the nominal's {'last' if future else 'first'} input is zero (the robot stands still there)"
+    x_end = nom.x[-1] if future else nom.x[0]
+    held = _held_inputs(nom, future)
+    if isinstance(held, str):
+        return held
     sign = 1.0 if future else -1.0
     t_rel = sign * h * np.arange(1, k + 1)
-    sol = solve_ivp(lambda _, x: model.rhs(x, u_end), (0.0, t_rel[-1]), x_end, method="DOP853",
-                    t_eval=t_rel, dense_output=True, rtol=1e-12, atol=1e-13)
     lim = model.state_limits()
-    if not sol.success or not np.all(np.isfinite(sol.y)):
-        return "frozen: the continuation under the held input could not be integrated"
-    if np.any(sol.y.T < lim[:, 0] - 1e-9) or np.any(sol.y.T > lim[:, 1] + 1e-9):
-        j = int(np.argmax(np.any((sol.y.T < lim[:, 0] - 1e-9) | (sol.y.T > lim[:, 1] + 1e-9), axis=1)))
-        return (f"frozen: the continuation under the held input leaves the state limits after "
-                f"{abs(t_rel[j]):.3g} s (shorter than delta)")
-    return t_rel, sol.sol, u_end
+    why = None
+    for u_end, what in held:
+        sol = solve_ivp(lambda _, x: model.rhs(x, u_end), (0.0, t_rel[-1]), x_end, method="DOP853",
+                        t_eval=t_rel, dense_output=True, rtol=1e-12, atol=1e-13)
+        if not sol.success or not np.all(np.isfinite(sol.y)):
+            why = why or "frozen: the continuation under the held input could not be integrated"
+            continue
+        out = (sol.y.T < lim[:, 0] - 1e-9) | (sol.y.T > lim[:, 1] + 1e-9)
+        if np.any(out):
+            j = int(np.argmax(np.any(out, axis=1)))
+            why = why or (f"frozen: the continuation under the held input leaves the state limits after "
+                          f"{abs(t_rel[j]):.3g} s (shorter than delta)")
+            continue
+        return t_rel, sol.sol, u_end, what
+    return why
 
 
 def _extended_windows(nom: Nominal, E: Segments, w: int, phi: float, cw: float, substeps: int,
@@ -498,7 +548,7 @@ def _extended_windows(nom: Nominal, E: Segments, w: int, phi: float, cw: float, 
     cont = _continuation(nom, (w + 1) * h, future)
     if isinstance(cont, str):
         return None, cont
-    t_rel, dense, u_held = cont
+    t_rel, dense, u_held, what = cont
     model = nom.model
     k = len(t_rel)
     T_edge = float(nom.t[-1] if future else nom.t[0])
@@ -537,8 +587,8 @@ def _extended_windows(nom: Nominal, E: Segments, w: int, phi: float, cw: float, 
     if not np.all(np.isfinite(lam)) or np.any(lam[:, 0] <= np.maximum(float(opts.singular_atol),
                                                                       float(opts.singular_rtol) * np.abs(lam[:, -1]))):
         return None, "frozen: the window along the continuation is singular"
-    where = "past its end under its last input" if future else "before its start under its first input"
-    return H, f"extend: the nominal continued {k * h:.6g} s {where} held"
+    where = "past its end" if future else "before its start"
+    return H, f"extend: the nominal continued {k * h:.6g} s {where} under {what} held"
 
 
 def _carry(G: np.ndarray, Phi_back: np.ndarray, scale: float = 1.0) -> np.ndarray:
