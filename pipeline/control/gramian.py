@@ -164,14 +164,13 @@ class GainSchedule:
         p_m = float(np.min(1.0 / lam[:, -1]))
         p_M = float(np.max(1.0 / lam[:, 0]))
         k_min = int(np.argmin(lam[:, 0]))
-        gain_norms = np.linalg.norm(self.K[sel], ord=2, axis=(1, 2))
-        k_gain = int(np.argmax(gain_norms))
+        k_gain, max_gain = _largest_norm(self.K[sel])
         return {
             "p_m": p_m, "p_M": p_M,
             "rate_bound": 2.0 * float(self.options.alpha) * p_m / p_M,
             "h_min_eigenvalue": float(lam[k_min, 0]), "h_min_eigenvalue_time_s": float(self.t[sel][k_min]),
             "h_max_eigenvalue": float(lam[:, -1].max()),
-            "max_gain_norm": float(gain_norms[k_gain]), "max_gain_norm_time_s": float(self.t[sel][k_gain]),
+            "max_gain_norm": max_gain, "max_gain_norm_time_s": float(self.t[sel][k_gain]),
         }
 
     def evaluator(self) -> GridInterpolant:
@@ -183,6 +182,21 @@ class GainSchedule:
         x0, u0 = self.nominal.at(tau)
         e = self.nominal.model.state_error(x, x0)
         return u0 - self.gain_at(tau) @ e
+
+
+def _largest_norm(K: np.ndarray) -> tuple[int, float]:
+    """The (first) index and the value of the largest spectral norm among matrices K (N, m, n): the
+    same as the argmax of ``np.linalg.norm(K, ord=2, axis=(1, 2))``, with an SVD only for the matrices
+    that can hold it: ||K||_2 <= ||K||_F, and ||K||_2 >= ||K||_F / sqrt(rank), so a matrix whose
+    Frobenius norm is below the largest one's / sqrt(min(m, n)) is not the largest (a relative
+    allowance of 1e-9 covers rounding)."""
+    fro = np.sqrt(np.einsum("kij,kij->k", K, K))
+    top = fro.max()
+    keep = np.flatnonzero(fro >= top / math.sqrt(min(K.shape[1:])) * (1.0 - 1e-9)) if np.isfinite(top) \
+        else np.arange(len(K))          # a non-finite gain: every matrix goes to the SVD, as before
+    norms = np.linalg.norm(K[keep], ord=2, axis=(1, 2))
+    k = int(np.argmax(norms))
+    return int(keep[k]), float(norms[k])
 
 
 def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None, **overrides) -> GainSchedule:
