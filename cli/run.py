@@ -43,7 +43,9 @@ def parse_levels(name: str, text: str | None) -> dict | None:
 @click.option("--goal", default=None, help="Goal pose x,y,theta (default: the map's).")
 @click.option("--problem", type=int, default=None, help="Use the map's start/goal problem with this index.")
 @click.option("--controller", default=None, help="gramian (default), tvlqr or open-loop.")
-@click.option("--window", default=None, help="The gramian's window: future (default) or past.")
+@click.option("--window", default=None,
+              help="The gramian's window: future (default, Proposition 1), frozen-time (causal: no future nominal "
+                   "needed) or past (Remark 2: not stabilizing in general, for study only).")
 @click.option("--alpha", type=float, default=None, help="Gramian law: rate parameter (default: the robot's).")
 @click.option("--delta", type=float, default=None, help="Gramian law: window length [s] (default: the robot's).")
 @click.option("--gamma", type=float, default=None, help="Gramian law: gain factor >= 1/2 (default: the robot's).")

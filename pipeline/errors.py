@@ -12,6 +12,14 @@ class PipelineError(Exception):
     """Base class of every error nhstab raises on purpose."""
 
 
+class NhstabWarning(UserWarning):
+    """Base class of the warnings nhstab issues on purpose (the command line prints each as one line)."""
+
+
+class NotStabilizingWarning(NhstabWarning):
+    """A requested feedback law is not stabilizing in general (the past window of Remark 2)."""
+
+
 class InputError(PipelineError, ValueError):
     """An argument, option or file content is not acceptable.
 

@@ -79,6 +79,25 @@ def test_gains_command(runner, tmp_path, traj):
     assert diag["weighting"] == "exp(6 alpha (t - tau))" and diag["model"] == "unicycle"
 
 
+def test_gains_reports_the_3_alpha_bound_and_warns_once_for_the_past_window(runner, tmp_path, traj):
+    out = tmp_path / "g"
+    res = runner.invoke(cli, ["gains", str(traj), "--model", "unicycle", "--out", str(out)])
+    assert res.exit_code == 0 and "guaranteed rate 3 alpha = 0.3 1/s" in res.stdout
+    diag = json.loads((out / "gains.json").read_text())
+    assert diag["rate_bound"] == pytest.approx(0.3) and diag["rate_bound_printed"] < 0.3
+    res = runner.invoke(cli, ["gains", str(traj), "--model", "unicycle", "--window", "past", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    warnings = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(warnings) == 1 and warnings[0].startswith("nhstab: warning: the past window (Remark 2) is not "
+                                                         "stabilizing in general")
+    assert json.loads((out / "gains.json").read_text())["rate_bound"] is None
+    res = runner.invoke(cli, ["gains", str(traj), "--model", "unicycle", "--window", "frozen-time", "--out", str(out)])
+    assert res.exit_code == 0 and not res.stderr.strip()
+    assert json.loads((out / "gains.json").read_text())["frozen_time"]["max_gain"] == 50.0
+    _one_line_error(runner.invoke(cli, ["gains", str(traj), "--model", "unicycle", "--end-strategy", "switch",
+                                        "--out", str(out)]), "--end-strategy", "switch")
+
+
 def test_gains_bad_inputs(runner, tmp_path, traj):
     base = ["gains", str(traj), "--out", str(tmp_path / "o")]
     _one_line_error(runner.invoke(cli, [*base, "--model", "hovercraft"]), "'model'", "hovercraft")

@@ -22,6 +22,8 @@ Format (paths relative to the config file)::
       alpha: [0.1, 0.2]             # gramian only (default: the robot's)
       delta: [2.0]
       gamma: [1.0]
+      window: [future, frozen-time] # gramian only (default: run.controller.window): future |
+                                    # frozen-time (causal) | past (Remark 2: not stabilizing, study only)
     run:                            # base options of every trial: the run-config keys except map,
       rate_hz: 50                   # robot, start, goal and seed (see nhstab run --config)
       noise: {sensor: {x: 0.02}}
@@ -43,11 +45,12 @@ import numpy as np
 
 from ..errors import InputError
 from ..execution.config import RunOptions, check_number, check_pose, options_from_mapping, read_yaml_mapping
+from ..control import WINDOWS
 from ..execution.controllers import CONTROLLERS
 
 _TOP = ("name", "root_seed", "trials", "maps", "robots", "robot", "controllers", "grid", "run")
 _MAP_KEYS = ("path", "problems", "cell_size")
-_GRID_KEYS = ("noise", "alpha", "delta", "gamma")
+_GRID_KEYS = ("noise", "alpha", "delta", "gamma", "window")
 _RUN_EXCLUDED = ("robot", "start", "goal", "seed")
 
 
@@ -93,16 +96,19 @@ class BatchConfig:
             robots = self.robots or [None]
             for p_index, (start, goal) in enumerate(ms.problems):
                 for robot, ctrl in itertools.product(robots, self.controllers):
-                    gains = list(itertools.product(self.grid.get("alpha", [None]), self.grid.get("delta", [None]),
+                    gains = list(itertools.product(self.grid.get("window", [None]), self.grid.get("alpha", [None]),
+                                                   self.grid.get("delta", [None]),
                                                    self.grid.get("gamma", [None]))) if ctrl == "gramian" \
-                        else [(None, None, None)]
-                    for (alpha, delta, gamma), level in itertools.product(gains, noise):
+                        else [(None, None, None, None)]
+                    for (window, alpha, delta, gamma), level in itertools.product(gains, noise):
                         cell = {"map": ms.label, "map_path": ms.path, "map_hash": ms.content_hash,
                                 "map_bundle": ms.bundle.id if ms.bundle is not None else None,
                                 "cell_size": ms.cell_size,
                                 "problem": p_index, "start": list(start), "goal": list(goal),
                                 "robot": robot, "controller": ctrl, "alpha": alpha, "delta": delta,
                                 "gamma": gamma, "noise": float(level)}
+                        if window is not None:          # absent (not None) keeps older cell ids and stores
+                            cell["window"] = window
                         cell["id"] = cell_id(cell)
                         out.append(cell)
         return out
@@ -115,6 +121,12 @@ class BatchConfig:
                 specs.append({"id": f"{cell['id']}#{k}", "cell": cell["id"], "trial": k, "seed": seed,
                               "cell_spec": cell, "run": self.run})
         return specs
+
+    def windows(self) -> set:
+        """The gramian windows some cell uses (the grid's, else the run config's)."""
+        if "gramian" not in self.controllers:
+            return set()
+        return set(self.grid.get("window") or [self.base_options.controller.window])
 
     def describe(self) -> dict:
         return {"name": self.name, "root_seed": self.root_seed, "trials": self.trials,
@@ -158,6 +170,8 @@ def robot_label(robot) -> str:
 def cell_id(cell: dict) -> str:
     parts = [f"map={cell['map']}", f"problem={cell['problem']}", f"robot={robot_label(cell['robot'])}",
              f"controller={cell['controller']}"]
+    if cell.get("window") is not None:
+        parts.append(f"window={cell['window']}")
     for key in ("alpha", "delta", "gamma"):
         if cell[key] is not None:
             parts.append(f"{key}={cell[key]:g}")
@@ -252,6 +266,11 @@ def load_batch_config(path) -> BatchConfig:
         if key not in _GRID_KEYS:
             raise InputError(f"grid.{key}", "one of " + ", ".join(_GRID_KEYS), key)
         _list(f"grid.{key}", values)
+        if key == "window":
+            for j, v in enumerate(values):
+                if v not in WINDOWS:
+                    raise InputError(f"grid.window[{j}]", "one of " + ", ".join(WINDOWS), v)
+            continue
         lo, lo_open = {"noise": (0.0, False), "alpha": (0.0, True), "delta": (0.0, True), "gamma": (0.5, False)}[key]
         grid[key] = [check_number(f"grid.{key}[{j}]", v, lo, lo_open=lo_open) for j, v in enumerate(values)]
     run = data.get("run", {}) or {}

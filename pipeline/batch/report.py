@@ -2,9 +2,13 @@
 CSV of every trial. Every number in it is read from the store (trials.sqlite), nothing else.
 
 Rates come with Wilson score 95% intervals. The tracking-error envelopes are percentiles over the
-trials of ||e(t)|| while each trial follows its first plan, with the gramian bound of Proposition 1,
-||e(0)|| sqrt(p_M / p_m) exp(-rate t), rate = 2 alpha p_m / p_M, drawn from each trial's own plan
-(median over trials).
+trials of ||e(t)|| while each trial follows its first plan, with the guaranteed bound of the noiseless
+linearised loop drawn from each trial's own plan and true initial error (median over trials): for the
+future window Proposition 1's 3 alpha bound sqrt(e0^T P(0) e0 / lambda_min(P(t))) exp(-3 alpha t)
+(NOTES.md item 8), for the frozen-time law its certified bound; none for the past window. Stores
+written before the trials recorded that curve (their metrics have ``rate_bound`` = the printed
+2 alpha p_m / p_M and no ``rate_bound_printed``) get the 3 alpha bound with its uniform constant,
+||e(0)|| sqrt(p_M / p_m) exp(-3 alpha t), alpha recovered as rate_bound p_M / (2 p_m).
 
 The error tubes (:mod:`nhstab.tubes`) held to reality: per cell, the coverage of each trial's first
 plan's p-tube, the fraction of its tracking samples inside it (the pose region the spatial tube is
@@ -53,6 +57,18 @@ def _m(t, key):
     return (t.get("metrics") or {}).get(key)
 
 
+def bound_metrics(metrics: dict | None) -> dict:
+    """rate_bound (the guaranteed 3 alpha) and rate_bound_printed (the paper's 2 alpha p_m / p_M) of a
+    trial's metrics, for stores of either generation: before the 3 alpha bound, ``rate_bound`` held
+    the printed value (and ``rate_bound_printed`` was absent); the gramian law then always used the
+    future window with weight 6, so its 3 alpha is rate_bound p_M / p_m * 3 / 2."""
+    m = metrics or {}
+    if "rate_bound_printed" in m or m.get("rate_bound") is None or not m.get("p_m"):
+        return {"rate_bound": m.get("rate_bound"), "rate_bound_printed": m.get("rate_bound_printed")}
+    alpha = m["rate_bound"] * m["p_M"] / (2.0 * m["p_m"])
+    return {"rate_bound": 3.0 * alpha, "rate_bound_printed": m["rate_bound"]}
+
+
 def cell_table(trials: list[dict]) -> list[dict]:
     rows = []
     for cell, ts in _cells(trials).items():
@@ -60,7 +76,8 @@ def cell_table(trials: list[dict]) -> list[dict]:
         n = len(ts)
         done = [t for t in ts if t["status"] != "error"]
         row = {"cell": cell, "map": spec["map"], "robot": _m(ts[0], "robot") or spec["robot"],
-               "controller": spec["controller"], "alpha": spec["alpha"], "delta": spec["delta"],
+               "controller": spec["controller"], "window": spec.get("window"), "alpha": spec["alpha"],
+               "delta": spec["delta"],
                "gamma": spec["gamma"], "noise": spec["noise"], "trials": n, "errors": n - len(done)}
         for key, pred in (("success", lambda t: t["status"] == "reached"),
                           ("collision", lambda t: t["status"] == "collision"),
@@ -102,17 +119,20 @@ def trials_csv(trials: list[dict]) -> str:
     keys = ["status", "reached", "collision", "margin_violation", "min_clearance_m", "margin_m",
             "final_position_error_m", "final_heading_error_rad", "replans", "discovered", "rms_error_norm",
             "max_error_norm", "rms_position_error_m", "max_position_error_m", "duration_s", "e0_norm", "p_m", "p_M",
-            "rate_bound", "tube_certified_clearance_m", "tube_saturation_probability", "tube_max_position_radius_m",
-            "tube_samples", "tube_inside", "tube_inside_state"]
+            "rate_bound", "rate_bound_printed", "tube_certified_clearance_m", "tube_saturation_probability",
+            "tube_max_position_radius_m", "tube_samples", "tube_inside", "tube_inside_state"]
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["id", "cell", "trial", "seed", "map", "robot", "controller", "alpha", "delta", "gamma", "noise",
-                *keys, "replan_latencies_s", "error"])
+    w.writerow(["id", "cell", "trial", "seed", "map", "robot", "controller", "window", "alpha", "delta", "gamma",
+                "noise", *keys, "replan_latencies_s", "error"])
     for t in trials:
         c = t["spec"]["cell_spec"]
-        m = t.get("metrics") or {}
+        m = {**(t.get("metrics") or {})}
+        if t.get("metrics"):
+            m.update(bound_metrics(m))
+        window = c.get("window") or m.get("window") or ("future" if c["controller"] == "gramian" else "")
         w.writerow([t["id"], t["cell"], t["trial"], t["seed"], c["map"], m.get("robot") or c["robot"],
-                    c["controller"], c["alpha"], c["delta"], c["gamma"], c["noise"], t["status"],
+                    c["controller"], window, c["alpha"], c["delta"], c["gamma"], c["noise"], t["status"],
                     *[("" if m.get(k) is None else _num(m[k])) for k in keys[1:]],
                     ";".join(f"{x:.4f}" for x in (t.get("timings") or {}).get("replan_latencies_s", [])),
                     t.get("error") or ""])
@@ -128,7 +148,8 @@ def _num(v):
 def _label(row) -> str:
     gains = "".join(f" {name}{row[key]:g}" for name, key in (("a", "alpha"), ("d", "delta"), ("g", "gamma"))
                     if row[key] is not None)
-    return f"{row['map']} / {row['controller']}{gains} / noise {row['noise']:g}"
+    ctrl = row["controller"] + (f" {row['window']}" if row.get("window") else "")
+    return f"{row['map']} / {ctrl}{gains} / noise {row['noise']:g}"
 
 
 # ---- figures ---------------------------------------------------------------------------------------
@@ -176,14 +197,13 @@ def envelope_figure(trials, rows):
         keep = count >= max(3, 0.5 * len(series))
         for q, style in ((50, "-"), (90, "--"), (99, ":")):
             ax.semilogy(t[keep], np.nanpercentile(E[:, keep], q, axis=0), "k" + style, lw=1.0, label=f"{q}th percentile")
-        bounds = []
-        for tr in cells[row["cell"]]:
-            m = tr.get("metrics") or {}
-            if row["controller"] == "gramian" and m.get("p_m") and m.get("e0_norm") is not None:
-                bounds.append(m["e0_norm"] * math.sqrt(m["p_M"] / m["p_m"]) * np.exp(-m["rate_bound"] * t))
+        bounds = [b for b in (_bound_curve(tr, t) for tr in cells[row["cell"]]) if b is not None]
         if bounds:
-            ax.semilogy(t[keep], np.median(np.array(bounds), axis=0)[keep], color="tab:blue", lw=1.0,
-                        label="gramian bound (median over trials)")
+            B = np.array(bounds)
+            ok = keep & (np.sum(np.isfinite(B), axis=0) >= max(1, 0.5 * len(bounds)))
+            label = ("3 alpha bound" if row.get("window") in (None, "future") else "certified bound") + \
+                " (noiseless linearised loop; median over trials)"
+            ax.semilogy(t[ok], np.nanmedian(B[:, ok], axis=0), color="tab:blue", lw=1.0, label=label)
         ax.set_ylabel("||e||")
         ax.set_title(_label(row) + f"  ({len(series)} trials)", fontsize=8)
         ax.grid(alpha=0.3)
@@ -233,6 +253,25 @@ def tube_figure(trials, rows):
     for ax in axes[-1]:
         ax.set_xlabel("t [s] (first plan)")
     return fig
+def _bound_curve(trial: dict, t: np.ndarray):
+    """The trial's guaranteed bound at times t (NaN past its series), or None (no gramian bound)."""
+    series = trial.get("series") or {}
+    m = trial.get("metrics") or {}
+    if series.get("bound") is not None:
+        out = np.full(len(t), np.nan)
+        b = np.asarray(series["bound"], dtype=float)
+        out[:min(len(b), len(t))] = b[:len(t)]
+        return out
+    spec = trial["spec"]["cell_spec"]
+    run_window = ((trial["spec"].get("run") or {}).get("controller") or {}).get("window")
+    if spec["controller"] != "gramian" or spec.get("window") not in (None, "future") or \
+            run_window not in (None, "future") or "rate_bound_printed" in m:
+        return None
+    if not m.get("p_m") or m.get("e0_norm") is None or m.get("rate_bound") is None:
+        return None
+    # an older store: the 3 alpha bound with its uniform constant sqrt(p_M / p_m)
+    rate = bound_metrics(m)["rate_bound"]
+    return m["e0_norm"] * math.sqrt(m["p_M"] / m["p_m"]) * np.exp(-rate * t)
 
 
 def distributions_figure(trials, rows):
@@ -270,36 +309,71 @@ def paired_figure(trials):
         c = t["spec"]["cell_spec"]
         if t["status"] == "error":
             continue
-        by.setdefault((c["map"], c["problem"], c["noise"]), {}).setdefault(c["controller"], {})[t["trial"]] = \
+        by.setdefault((c["map"], c["problem"], c["noise"]), {}).setdefault(_controller_name(c), {})[t["trial"]] = \
             _m(t, "min_clearance_m")
-    pairs = [(k, v) for k, v in by.items() if "gramian" in v and len(v) > 1]
+    # the reference: the paper's law (the future window, or the one gramian cell of an older store)
+    ref = "gramian future" if any("gramian future" in v for v in by.values()) else "gramian"
+    pairs = [(k, v) for k, v in by.items() if ref in v and len(v) > 1]
     if not pairs:
         return None
     fig, ax = subplots(figsize=(5.5, 5), layout="constrained")
-    markers = {"open-loop": "x", "tvlqr": "o"}
+    markers = {"open-loop": "x", "tvlqr": "o", "gramian past": "v", "gramian frozen-time": "^"}
     lo, hi = np.inf, -np.inf
     for (mp, _, noise), ctrls in pairs:
         for base, vals in ctrls.items():
-            if base == "gramian":
+            if base == ref:
                 continue
-            ks = sorted(set(vals) & set(ctrls["gramian"]))
+            ks = sorted(set(vals) & set(ctrls[ref]))
             xs = np.array([vals[k] for k in ks], float)
-            ys = np.array([ctrls["gramian"][k] for k in ks], float)
+            ys = np.array([ctrls[ref][k] for k in ks], float)
             ax.scatter(xs, ys, marker=markers.get(base, "s"), s=18, label=f"{base}, {mp}, noise {noise:g}")
             lo, hi = min(lo, np.nanmin([xs.min(), ys.min()])), max(hi, np.nanmax([xs.max(), ys.max()]))
     ax.plot([lo, hi], [lo, hi], color="0.5", lw=0.8)
     ax.set_xlabel("baseline: min executed clearance [m]")
-    ax.set_ylabel("gramian: min executed clearance [m] (same seed)")
+    ax.set_ylabel(f"{ref}: min executed clearance [m] (same seed)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=6)
-    ax.set_title("Same seeds, two controllers (above the diagonal: gramian kept more room)", fontsize=8)
+    ax.set_title(f"Same seeds, two controllers (above the diagonal: {ref} kept more room)", fontsize=8)
     return fig
+
+
+def paired_outcomes(trials: list[dict]) -> list[dict]:
+    """Controllers on the same seeds, against the reference (the gramian law's future window): per
+    (map, problem, noise) and controller, on how many of the seeds where the reference reached the goal
+    this controller reached it too (without a collision, which ends a run), and where it collided."""
+    by: dict = {}
+    for t in trials:
+        if t["status"] == "error":
+            continue
+        c = t["spec"]["cell_spec"]
+        by.setdefault((c["map"], c["problem"], c["noise"]), {}).setdefault(_controller_name(c), {})[t["trial"]] = \
+            t["status"]
+    ref = "gramian future" if any("gramian future" in v for v in by.values()) else "gramian"
+    rows = []
+    for (mp, problem, noise), ctrls in by.items():
+        if ref not in ctrls:
+            continue
+        base = {k for k, st in ctrls[ref].items() if st == "reached"}
+        for name, sts in sorted(ctrls.items()):
+            if name == ref:
+                continue
+            common = base & set(sts)
+            k = sum(1 for s in common if sts[s] == "reached")
+            rows.append({"map": mp, "problem": problem, "noise": noise, "reference": ref, "controller": name,
+                         "reference_reached": len(common), "also_reached": k,
+                         "fraction": k / len(common) if common else math.nan,
+                         "collisions": sum(1 for st in sts.values() if st == "collision"), "trials": len(sts)})
+    return rows
+
+
+def _controller_name(cell: dict) -> str:
+    return cell["controller"] + (f" {cell['window']}" if cell.get("window") else "")
 
 
 def noise_figure(rows):
     groups = {}
     for r in rows:
-        key = (r["map"], r["controller"], r["alpha"], r["delta"], r["gamma"])
+        key = (r["map"], _controller_name(r), r["alpha"], r["delta"], r["gamma"])
         groups.setdefault(key, []).append(r)
     groups = {k: v for k, v in groups.items() if len({r["noise"] for r in v}) > 1}
     if not groups:
@@ -436,8 +510,13 @@ def _write_report(out, db, trials, config, vers, rows, figs, runs=()) -> None:
     captions = {
         "rates": "Success (goal reached), collision and margin-violation rates per cell, with Wilson 95% intervals.",
         "envelopes": "Tracking error ||x - x0|| while following the first plan: median, 90th and 99th percentile "
-                     "over trials; blue: the gramian bound ||e(0)|| sqrt(p_M/p_m) exp(-2 alpha p_m/p_M t) of each "
-                     "trial's own plan (median over trials).",
+                     "over trials; blue: the guaranteed bound of the noiseless linearised loop from each trial's own "
+                     "plan and initial error (median over trials): for the future window Proposition 1's 3 alpha "
+                     "bound sqrt(e0^T P(0) e0 / lambda_min(P(t))) exp(-3 alpha t) (NOTES.md item 8; stores from "
+                     "before nhstab recorded it per trial: ||e(0)|| sqrt(p_M/p_m) exp(-3 alpha t)), for the "
+                     "frozen-time law its certified bound; none for the past window, which has no guarantee. "
+                     "Sensor noise, disturbances and the 50 Hz hold are outside the bound: the envelopes may "
+                     "cross it.",
         "distributions": "Minimum executed clearance (orange: the margin, red: contact), final position error, "
                          "replans and replan latency per cell.",
         "tubes": "Predicted error tube against the observed error, per state: RMS over trials of e(t) while following "
@@ -468,6 +547,17 @@ def _write_report(out, db, trials, config, vers, rows, figs, runs=()) -> None:
     md = [f"# {title}", "", intro, "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     md += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in table_rows]
     md.append("")
+    paired = paired_outcomes(trials)
+    paired_header = ["map / noise", "controller", "reached where the reference reached", "collisions"]
+    paired_rows = [[f"{r['map']} / noise {r['noise']:g}", r["controller"],
+                    f"{r['also_reached']}/{r['reference_reached']}"
+                    + (f" ({100 * r['fraction']:.1f}%)" if r["reference_reached"] else ""),
+                    f"{r['collisions']}/{r['trials']}"] for r in paired]
+    if paired:
+        md += [f"**Same seeds, against the reference ({paired[0]['reference']}).** On the seeds where the reference "
+               "reached the goal, how often each other controller did too; and its collisions over all its "
+               "seeds.", "", "| " + " | ".join(paired_header) + " |", "|" + "---|" * len(paired_header)]
+        md += ["| " + " | ".join(row) + " |" for row in paired_rows]
     tube_rows = [r for r in rows if r.get("tube_samples")]
     if tube_rows:
         md += [f"**Error tubes.** Coverage: the fraction of the trials' tracking samples (first plan) inside their "
@@ -497,6 +587,12 @@ def _write_report(out, db, trials, config, vers, rows, figs, runs=()) -> None:
          "<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in header) + "</tr>"]
     h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in table_rows]
     h.append("</table>")
+    if paired:
+        h.append(f"<p><b>Same seeds, against the reference ({html.escape(paired[0]['reference'])}).</b> On the seeds "
+                 "where the reference reached the goal, how often each other controller did too; and its collisions "
+                 "over all its seeds.</p>")
+        h.append("<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in paired_header) + "</tr>")
+        h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in paired_rows]
     if tube_rows:
         h.append("<h2>Error tubes</h2><p>Coverage of each trial's first-plan p-tube over its tracking samples; "
                  "Wilson 95% over samples (correlated within a trial: too narrow), per-trial spread beside it.</p>")

@@ -44,6 +44,7 @@ import sys
 import tempfile
 import threading
 import time
+import warnings
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
@@ -174,6 +175,11 @@ def run_batch(config: BatchConfig, out_dir, workers: int = 1, scheduler: str | N
         raise InputError("--retry-errors", "used with --resume (it reruns the errors of a stored batch)", "alone")
     if scheduler is not None:
         client = connect_dask(scheduler)     # before the store is made: a refused request leaves nothing behind
+    if "past" in config.windows():       # once here; the trials do not repeat it
+        from ..control import PAST_WINDOW_WARNING
+        from ..errors import NotStabilizingWarning
+
+        warnings.warn(PAST_WINDOW_WARNING, NotStabilizingWarning, stacklevel=2)
     try:
         if client is not None:
             check_workers(client, scheduler)

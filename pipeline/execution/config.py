@@ -18,6 +18,9 @@ was given. The format::
     headroom: 0.8                     # plan nominals within this fraction of the input limits
     max_time_s: 120                   # simulated time limit (default: 2 x the active plan + 30 s)
     controller: {kind: gramian, window: future, alpha: 0.1, delta: 6.0, gamma: 1.0, q: [..], r: [..]}
+                                      # kind: gramian | tvlqr | open-loop; window (gramian): future |
+                                      # frozen-time (causal) | past (Remark 2: not stabilizing, study only);
+                                      # max_gain: frozen-time's hold threshold (default 50);
                                       # gains: auto picks alpha, delta, gamma per plan (gramian; nhstab.tubes)
     noise:
       scale: 1.0                      # multiplies every noise level below (0: noiseless)

@@ -321,6 +321,7 @@ def _from_path(path: GeometricPath, robot: Robot, world: CollisionWorld, path_op
     metrics.update({"robot": robot.name, "stabilizer": stab_opts.describe(), "h_min_eigenvalue": d["h_min_eigenvalue"],
                     "h_min_eigenvalue_time_s": d["h_min_eigenvalue_time_s"], "max_gain_norm": d["max_gain_norm"],
                     "p_m": d["p_m"], "p_M": d["p_M"], "rate_bound": d["rate_bound"],
+                    "rate_bound_printed": d["rate_bound_printed"],
                     "time_to_nominal_s": time.perf_counter() - started})
     metrics["tracking"] = tracking_metrics(model, path, nominal, d["max_gain_norm"], timing_opts.max_speed)
     return PlanResult("ok", "exact path, feasible nominal, clear by the margin, gain schedule computed",
