@@ -250,17 +250,18 @@ class GainSchedule:
         nom = self.nominal
         A, B = nom.model.linearize(nom.x, nom.u)
         dP = np.diff(self.P, axis=0) / self.h
+        # per grid point, once: the part of M without dP/dt, and P^-1/2 as the inverse Cholesky factor
+        P = self.P
+        PB = P @ B
+        Q = np.swapaxes(A, -1, -2) @ P + P @ A - 2.0 * self.gamma[:, None, None] * (PB @ np.swapaxes(PB, -1, -2))
+        Li = np.linalg.inv(np.linalg.cholesky(P))
+        LiT = np.swapaxes(Li, -1, -2)
 
-        def rate(idx, dPk):
-            P, Ak, Bk = self.P[idx], A[idx], B[idx]
-            PB = P @ Bk
-            M = np.swapaxes(Ak, -1, -2) @ P + P @ Ak + dPk - 2.0 * self.gamma[idx, None, None] * (PB @ np.swapaxes(PB, -1, -2))
-            Li = np.linalg.inv(np.linalg.cholesky(P))
-            S = Li @ M @ np.swapaxes(Li, -1, -2)
+        def rate(idx):
+            S = Li[idx] @ (Q[idx] + dP) @ LiT[idx]
             return -np.linalg.eigvalsh(0.5 * (S + np.swapaxes(S, -1, -2)))[:, -1]
 
-        k = np.arange(len(self.t) - 1)
-        r = 0.5 * (rate(k, dP) + rate(k + 1, dP))
+        r = 0.5 * (rate(slice(None, -1)) + rate(slice(1, None)))
         self.__dict__["_lyapunov_rates"] = r
         return r
 
