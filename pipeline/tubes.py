@@ -282,8 +282,9 @@ def certified_clearance(world, fp: Footprint, poses: np.ndarray, reach: np.ndarr
     the number of FCL clearance queries made.
 
     Poses are visited in order of a lower bound of c_k - reach_k (the distance field's disc cover, and
-    for a polygon footprint whose discs are clear its outline) until that bound is no better than the
-    best value found; a measured c_j > 0 also bounds its neighbours i by c_j - 1 mm - (how far the
+    for a polygon footprint whose discs are clear its outline, computed only for the poses still below
+    the value measured at the pose of the smallest disc bound, which goes first) until that bound is no
+    better than the best value found; a measured c_j > 0 also bounds its neighbours i by c_j - 1 mm - (how far the
     footprint moved from j to i: |translation| + rho |rotation|, rho the farthest footprint point, 0 for a
     disc), as in :meth:`CollisionWorld.min_clearance`."""
     from .clearance_field import disc_cover
