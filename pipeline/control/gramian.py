@@ -253,7 +253,7 @@ class GainSchedule:
         # per grid point, once: the part of M without dP/dt, and P^-1/2 as the inverse Cholesky factor
         P = self.P
         PB = P @ B
-        Q = np.swapaxes(A, -1, -2) @ P + P @ A - 2.0 * self.gamma[:, None, None] * (PB @ np.swapaxes(PB, -1, -2))
+        Q = np.swapaxes(A, -1, -2) @ P + P @ A - 2.0 * self.gamma[:, None, None] * (PB @ np.ascontiguousarray(np.swapaxes(PB, -1, -2)))
         Li = np.linalg.inv(np.linalg.cholesky(P))
         LiT = np.swapaxes(Li, -1, -2)
 
