@@ -142,10 +142,10 @@ class _Arc:
         u = self.direction * self.body_speed * np.asarray(t, dtype=float)
         x0, y0, th0 = self.pose
         k = self.kappa
-        if abs(k) < 1e-12:
-            return x0 + u * math.cos(th0), y0 + u * math.sin(th0), np.full_like(u, th0)
-        th = th0 + k * u
-        return x0 + (np.sin(th) - math.sin(th0)) / k, y0 - (np.cos(th) - math.cos(th0)) / k, th
+        # the arc as a chord (no cancellation on nearly straight arcs; see parking.segment_poses)
+        half = 0.5 * k * u
+        chord = u * np.sinc(half / np.pi)
+        return x0 + chord * np.cos(th0 + half), y0 + chord * np.sin(th0 + half), th0 + k * u
 
     def states_at(self, t):
         t = np.asarray(t, dtype=float)
@@ -278,21 +278,17 @@ class _Joined:
         ``states_at`` / ``inputs_at`` (the same values, bit for bit: tests/test_fast_paths.py)."""
         P = len(pieces)
         self.h_arc = np.zeros(P, dtype=bool)        # an arc (else steering in place, or not held)
-        self.h_straight = np.zeros(P, dtype=bool)   # an arc of curvature below 1e-12 1/m
         self.h_pose = np.zeros((P, 3))
-        self.h_cs0 = np.zeros((P, 2))               # math.cos, math.sin of the start heading
         self.h_speed = np.zeros(P)                  # direction * body speed (arc), rate (steering)
-        self.h_kappa = np.ones(P)
+        self.h_kappa = np.zeros(P)                  # the arc's curvature
         self.h_phi = np.zeros(P)                    # held angle (arc), start angle (steering)
         self.h_input = np.zeros(P)                  # direction * max speed (arc)
         for q, p in enumerate(pieces):
             if isinstance(p, _Arc):
-                th0 = p.pose[2]
-                self.h_arc[q], self.h_straight[q] = True, abs(p.kappa) < 1e-12
+                self.h_arc[q] = True
                 self.h_pose[q] = p.pose
-                self.h_cs0[q] = math.cos(th0), math.sin(th0)
                 self.h_speed[q] = p.direction * p.body_speed
-                self.h_kappa[q] = p.kappa if abs(p.kappa) >= 1e-12 else 1.0
+                self.h_kappa[q] = p.kappa
                 self.h_phi[q], self.h_input[q] = p.phi, p.direction * p.max_speed
             elif isinstance(p, _SteerInPlace):
                 self.h_pose[q] = p.pose
@@ -312,17 +308,16 @@ class _Joined:
             x[steer, cphi] = self.h_phi[js] + self.h_speed[js] * local[steer]
             u[steer, 1] = self.h_speed[js]
         arcs = np.flatnonzero(arc)
-        if len(arcs):
+        if len(arcs):                 # _Arc._poses: the arc as a chord
             ja = j[arcs]
             s = self.h_speed[ja] * local[arcs]
             x0, y0, th0 = self.h_pose[ja].T
-            c0, s0 = self.h_cs0[ja].T
             k = self.h_kappa[ja]
-            th = th0 + k * s
-            curved = ~self.h_straight[ja]
-            x[arcs, cx] = np.where(curved, x0 + (np.sin(th) - s0) / k, x0 + s * c0)
-            x[arcs, cy] = np.where(curved, y0 - (np.cos(th) - c0) / k, y0 + s * s0)
-            x[arcs, cth] = np.where(curved, th, th0)
+            half = 0.5 * k * s
+            chord = s * np.sinc(half / np.pi)
+            x[arcs, cx] = x0 + chord * np.cos(th0 + half)
+            x[arcs, cy] = y0 + chord * np.sin(th0 + half)
+            x[arcs, cth] = th0 + k * s
             x[arcs, cphi] = self.h_phi[ja]
             u[arcs, 0] = self.h_input[ja]
         return x, u
