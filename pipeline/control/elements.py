@@ -17,7 +17,7 @@ import numpy as np
 from scipy.integrate import DOP853
 
 from ..nominal import Nominal
-from .windows import Segments
+from .windows import Segments, transposed
 
 _A = np.asarray(DOP853.A, dtype=float)[: DOP853.n_stages, : DOP853.n_stages]
 _B = np.asarray(DOP853.B, dtype=float)
@@ -93,9 +93,7 @@ def _dop853(A_all: np.ndarray, B_all: np.ndarray, weights: np.ndarray, h: np.nda
             kX[i] = -(Xi @ A_all[:, col])
             if _B[i] != 0.0:
                 XB = Xi @ B_all[:, col]
-                # the transpose copied first: numpy multiplies (K, n, m) by a contiguous (K, m, n) several
-                # times faster than by the strided view (the same products)
-                dW += (_B[i] * weights[:, col])[:, None, None] * (XB @ np.ascontiguousarray(np.swapaxes(XB, -1, -2)))
+                dW += (_B[i] * weights[:, col])[:, None, None] * (XB @ transposed(XB))
         X = X + h[:, None, None] * np.tensordot(_B, kX, axes=1)
         W = W + h[:, None, None] * dW
     W = 0.5 * (W + np.swapaxes(W, -1, -2))
@@ -107,5 +105,5 @@ def to_end_anchored(seg: Segments, c: float) -> Segments:
     P = Phi(end, start) and W with weight exp(c (end - tau)). Used for past windows."""
     F = np.linalg.inv(seg.P)
     scale = np.exp(c * seg.d)[:, None, None]
-    W = scale * (F @ seg.W @ np.swapaxes(F, -1, -2))
+    W = scale * (F @ seg.W @ transposed(F))
     return Segments(F, 0.5 * (W + np.swapaxes(W, -1, -2)), seg.d.copy())

@@ -65,7 +65,7 @@ from ..nominal import Nominal
 from .elements import interval_segments, to_end_anchored
 from .frozen import MAX_GAIN, frozen_time_schedule
 from .interpolant import GridInterpolant
-from .windows import Segments, combine, exclusive_prefix, scan, sliding
+from .windows import Segments, combine, exclusive_prefix, scan, sliding, transposed
 
 WINDOWS = ("future", "past", "frozen-time")
 END_STRATEGIES = ("frozen",)
@@ -253,7 +253,7 @@ class GainSchedule:
         # per grid point, once: the part of M without dP/dt, and P^-1/2 as the inverse Cholesky factor
         P = self.P
         PB = P @ B
-        Q = np.swapaxes(A, -1, -2) @ P + P @ A - 2.0 * self.gamma[:, None, None] * (PB @ np.ascontiguousarray(np.swapaxes(PB, -1, -2)))
+        Q = np.swapaxes(A, -1, -2) @ P + P @ A - 2.0 * self.gamma[:, None, None] * (PB @ transposed(PB))
         Li = np.linalg.inv(np.linalg.cholesky(P))
         LiT = np.swapaxes(Li, -1, -2)
 
@@ -406,7 +406,7 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
         k = int(np.argmax(bad))
         rank = int(np.sum(lam[k] > thresholds[k]))
         raise SingularGramianError(t[k], lam[k, 0], rank, n, thresholds[k], opts.window)
-    P = (V / lam[:, None, :]) @ np.swapaxes(V, -1, -2)
+    P = (V / lam[:, None, :]) @ transposed(V)
     P = 0.5 * (P + np.swapaxes(P, -1, -2))
     B = model.g(nom.x)
     K = gamma[:, None, None] * (np.swapaxes(B, -1, -2) @ P)
@@ -453,7 +453,7 @@ def _carry(G: np.ndarray, Phi_back: np.ndarray, scale: float = 1.0) -> np.ndarra
     """Carry a gramian G given at time a along the linearised flow to times t:
     scale * Phi(t, a) G Phi(t, a)^T, given Phi_back = Phi(a, t)."""
     F = np.linalg.inv(Phi_back)
-    return scale * (F @ G @ np.swapaxes(F, -1, -2))
+    return scale * (F @ G @ transposed(F))
 
 
 def _frozen_end(nom: Nominal, E: Segments, n_full: int, delta: float, cw: float, substeps: int) -> np.ndarray:
