@@ -64,11 +64,13 @@ MODEL_DEFAULTS: dict[str, dict] = {
     "heisenberg": {"footprint": {"radius": 0.1}, "margin": 0.1,
                    "stabilizer": {"alpha": 1.0, "delta": 1.0, "gamma": 1.0}, "turning_radius": ("fixed", 0.5)},
     # the rwd_car towing a 2.5 x 1.8 m trailer whose axle is 3 m behind the hitch; the turning radius
-    # is the last trailer's axle path's (the planned point), 1.5 times its smallest steady turn
+    # is the trailer's axle path's (the planned point), 3.5 times its smallest steady turn: the hitch
+    # angle changes only gradually, and on those arcs the steady steering angle is half its limit
+    # (nhstab.planning.trailer)
     "car_trailer": {"footprint": {"rectangle": {"length": 4.2, "width": 1.8, "rear_overhang": 0.9}},
                     "trailer_footprint": {"rectangle": {"length": 2.5, "width": 1.8, "rear_overhang": 1.0}},
-                    "margin": 0.3, "stabilizer": {"alpha": 0.1, "delta": 6.0, "gamma": 1.0},
-                    "turning_radius": ("factor", 1.5)},
+                    "margin": 0.3, "stabilizer": {"alpha": 0.05, "delta": 10.0, "gamma": 1.0},
+                    "turning_radius": ("factor", 5.0)},
 }
 #: the robot keys other than the model's parameters
 ROBOT_KEYS = ("model", "footprint", "margin", "stabilizer", "turning_radius", "name", "trailer_footprint")

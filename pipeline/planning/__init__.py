@@ -29,7 +29,7 @@ from .timing import TimingOptions, unicycle_nominal
 #: the constant-v1 pieces used first now stay within about 0.012 m (measured on the bundled warehouse,
 #: parking lot and 10 Bench-MR parking3 problems), but a piece may still fall back to the phased ones
 MARGIN_PAD = {"unicycle": 0.02, "rwd_car": 0.15, "fwd_car": 0.15}
-PLANNABLE = ("unicycle", "rwd_car", "fwd_car")
+PLANNABLE = ("unicycle", "rwd_car", "fwd_car", "car_trailer")
 
 
 def pose_columns(model: Model) -> list[int]:
@@ -100,6 +100,10 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
     path_opts = (path_opts or PathOptions()).for_robot(robot).validated()
     timing_opts = (timing_opts or TimingOptions()).validated()
     stab_opts = (stab_opts or StabilizerOptions(**robot.stabilizer)).validated()
+    if model.name == "car_trailer":       # the trailer's path, the rig checked (nhstab.planning.trailer)
+        from .trailer import plan_trailer
+
+        return plan_trailer(m, robot, start, goal, path_opts, timing_opts, stab_opts, check_resolution, world)
     start, goal = _pose(start, "start", model), _pose(goal, "goal", model)
     if model.name != "unicycle" and path_opts.turning_radius < min_turning_radius(model) - 1e-9:
         raise InputError("turning_radius", f"at least the {model.name}'s minimum turning radius "

@@ -623,23 +623,32 @@ def steer_chained_constant_v1(z0, zf, T: float = 1.0) -> SteeringPlan:
                         amplitude="none", mode="constant_v1")
 
 
+def _polynomial_coefficients(zs: np.ndarray, c: float, b: np.ndarray, T: float, n: int) -> list[np.ndarray]:
+    """Coefficients in s = t / T (lowest degree first) of z_2 .. z_n under v1 = c, v2 = sum_j b_j s^j:
+    z_k(s) = sum_(i=2..k) z_is (c T)^(k-i) s^(k-i) / (k-i)! + T (c T)^(k-2) sum_j b_j j! s^(j+k-1) / (j+k-1)!."""
+    cT = c * T
+    out = []
+    for k in range(2, n + 1):
+        coef = np.zeros(len(b) + k - 1)
+        for i in range(2, k + 1):
+            coef[k - i] += zs[i - 1] * cT ** (k - i) / math.factorial(k - i)
+        for j, bj in enumerate(b):
+            coef[j + k - 1] += T * cT ** (k - 2) * bj * math.factorial(j) / math.factorial(j + k - 1)
+        out.append(coef)
+    return out
+
+
 def _polynomial_phase(zs: np.ndarray, c: float, b: np.ndarray, T: float, t: np.ndarray,
                       coords: int | None = None) -> np.ndarray:
-    """States under v1 = c, v2 = sum_j b_j (t / T)^j (module docstring):
-    z_k(s) = sum_(i=2..k) z_is (c T s)^(k-i) / (k-i)! + T (c T)^(k-2) sum_j b_j j! s^(j+k-1) / (j+k-1)!."""
+    """States under v1 = c, v2 = sum_j b_j (t / T)^j (module docstring), by Horner's rule on the
+    coefficients of :func:`_polynomial_coefficients`."""
     n = zs.shape[0] if coords is None else coords
-    s = np.asarray(t, dtype=float) / T
+    t = np.asarray(t, dtype=float)
+    s = t / T
     out = np.empty(s.shape + (n,))
-    out[..., 0] = zs[0] + c * np.asarray(t, dtype=float)
-    r = c * T * s
-    for k in range(2, n + 1):
-        acc = np.zeros(s.shape)
-        for j, bj in enumerate(b):
-            acc = acc + bj * (math.factorial(j) / math.factorial(j + k - 1)) * s ** (j + k - 1)
-        acc = T * (c * T) ** (k - 2) * acc
-        for i in range(2, k + 1):
-            acc = acc + zs[i - 1] * r ** (k - i) / math.factorial(k - i)
-        out[..., k - 1] = acc
+    out[..., 0] = zs[0] + c * t
+    for k, coef in enumerate(_polynomial_coefficients(zs, c, b, T, n), start=2):
+        out[..., k - 1] = np.polynomial.polynomial.polyval(s, coef)
     return out
 
 
