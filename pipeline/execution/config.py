@@ -46,12 +46,15 @@ from ..errors import InputError
 from ..sensing import SensorOptions
 from .controllers import ControllerOptions
 
-#: default noise per state name: initial error std, sensor std, process intensity [unit/sqrt(s)]
+#: default noise per state name: initial error std, sensor std, process intensity [unit/sqrt(s)]; a
+#: trailer's heading theta1 .. theta8 (car_trailer) as the car's heading
 DEFAULT_NOISE = {
     "initial": {"x": 0.10, "y": 0.10, "theta": 0.05, "phi": 0.0},
     "sensor": {"x": 0.02, "y": 0.02, "theta": 0.01, "phi": 0.005},
     "process": {"x": 0.02, "y": 0.02, "theta": 0.01, "phi": 0.0},
 }
+for _kind in DEFAULT_NOISE.values():
+    _kind.update({f"theta{_i}": _kind["theta"] for _i in range(1, 9)})
 DISTRIBUTIONS = ("gaussian", "uniform")
 
 

@@ -155,7 +155,24 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
 
     poses = lg["x"][:, pose_columns(model)]
     clearance = {}
-    if len(poses):
+    robot = result.robot if result.robot is not None else make_robot(model, footprint=result.footprint)
+    if len(poses) and len(robot.footprints) > 1:
+        from .. import bodies
+
+        truth = result.world if result.world is not None else CollisionWorld.from_map(result.map, "all")
+        c_min, i_min, b_min = bodies.min_clearance(truth, robot, lg["x"])
+        margin = result.options.planning.margin
+        free = bodies.free_many(truth, robot, lg["x"], margin)
+        hitch = model.hitch_angles(lg["x"])
+        clearance = {"min_executed_m": c_min, "time_s": float(lg["t"][i_min]), "pose": poses[i_min],
+                     "body": "car" if b_min == 0 else f"trailer {b_min}",
+                     "body_pose": robot.body_poses(lg["x"][i_min])[b_min],
+                     "margin_m": margin, "samples_below_margin": int((~free).sum()), "samples": len(poses),
+                     "max_abs_hitch_angle_rad": np.abs(hitch).max(axis=0).tolist(),
+                     "jackknife_limit_rad": float(model.jackknife_limit),
+                     "note": "signed clearance of every body's footprint (the car and each trailer) at every control "
+                             "sample to known and unknown obstacles; the smallest over the bodies"}
+    elif len(poses):
         truth = result.world if result.world is not None else CollisionWorld.from_map(result.map, "all")
         c_min, i_min = truth.min_clearance(poses, result.footprint)
         margin = result.options.planning.margin
@@ -172,13 +189,15 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
                   "saturated_fraction": float(np.mean(np.any(
                       np.isclose(np.abs(lg["u"]), model.input_limits()[:, 1], rtol=0, atol=1e-12), axis=1)))}
     plans, timings = zip(*(_plan_entry(p) for p in result.plans)) if result.plans else ((), ())
-    robot = result.robot if result.robot is not None else make_robot(model, footprint=result.footprint)
     opts = dataclasses.asdict(dataclasses.replace(result.options, robot=None))
     opts["robot"] = robot.spec()
     return {
         "status": result.status, "message": result.message,
         "inputs": {"map": map_path, "map_name": result.map.name, "robot": robot.describe(),
-                   "footprint": result.footprint.describe(), "start": result.start, "goal": result.goal,
+                   "footprint": result.footprint.describe(),
+                   **({"trailer_footprints": [f.describe() for f in robot.trailer_footprints]}
+                      if robot.trailer_footprints else {}),
+                   "start": result.start, "goal": result.goal,
                    "options": opts, "noise": result.options.noise.describe(model.state_names),
                    "controller": result.options.controller.describe(model.n, model.m, robot.stabilizer),
                    "nhstab_version": __version__},

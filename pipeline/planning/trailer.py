@@ -93,6 +93,10 @@ PREVIEW_HITCHES = 0.3
 MIN_RUN_HITCHES = 1.0
 #: the straight-ends combinations are ordered by Reeds-Shepp length plus this much per cusp [m]
 CUSP_COST_M = 10.0
+#: the final piece runs at most at this fraction of the tracked motion's speed
+FINAL_SPEED_FRACTION = 1.0
+#: the nominal's tail (the motion continued past the goal for the gain schedule's windows) [s]
+TAIL_S = 20.0
 #: the final piece starts this far from the goal (trailer's axle) [m], the first that is feasible
 FINAL_PIECE_M = (3.0, 4.5, 6.0, 8.0, 10.0)
 
@@ -415,6 +419,10 @@ def trailer_nominal(robot, path: GeometricPath, timing: TimingOptions, world: Co
         k = int(cand[-1])
         try:
             piece = steer_trailer(model, x_arr[k], goal_state, T=None, mode="polynomial")
+            final_speed = FINAL_SPEED_FRACTION * tracker.speed
+            if piece.max_speed > final_speed:        # slower than the tracked motion
+                piece = steer_trailer(model, x_arr[k], goal_state, T=piece.T * piece.max_speed / final_speed,
+                                      frame=piece.frame["heading"], mode="polynomial")
         except InputError as exc:
             tried.append(f"{lead:g} m: {exc.expected}")
             continue
@@ -439,6 +447,12 @@ def trailer_nominal(robot, path: GeometricPath, timing: TimingOptions, world: Co
     npts = max(2, int(math.ceil(joined.duration / timing.dt)) + 1)
     t = np.linspace(0.0, joined.duration, npts)
     nominal = Nominal.from_functions(model, joined.states, joined.inputs, t)
+    # the motion continued past the goal, for the gramian law's future windows only (Nominal.tail): the
+    # rig driving on at its final speed with the steering held
+    v_end = float(piece.inputs_at(np.array([piece.T]))[0, 0])
+    t_tail = np.linspace(0.0, TAIL_S, int(round(TAIL_S / timing.dt)) + 1)
+    nominal.tail = Nominal.from_inputs(model, lambda tau: np.tile([v_end, 0.0], (np.size(tau), 1)),
+                                       nominal.x[-1], t_tail)
     from .cars import direction_reversals
 
     hitches = model.hitch_angles(nominal.x)[:, 0]
