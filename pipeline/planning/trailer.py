@@ -90,15 +90,23 @@ RECOVERABLE_FRACTION = 0.6
 #: the tracking law's curvature feedforward looks this many hitch lengths ahead along the path
 PREVIEW_HITCHES = 0.3
 #: a run between two cusps of a local path is at least this many hitch lengths long
-MIN_RUN_HITCHES = 1.0
+MIN_RUN_HITCHES = 2.0
+#: the path arrives at the goal along a straight this many hitch lengths long where there is room (the
+#: tracked motion settles on it before the final piece), else along the shorter run-up
+GOAL_RUN_HITCHES = 3.0
 #: the straight-ends combinations are ordered by Reeds-Shepp length plus this much per cusp [m]
 CUSP_COST_M = 10.0
+#: the tracked motion reverses at this fraction of its forward speed (the hitch angle is unstable in
+#: reverse, and the steering rate limit binds less at a lower speed)
+REVERSE_SPEED_FRACTION = 1.0
 #: the final piece runs at most at this fraction of the tracked motion's speed
 FINAL_SPEED_FRACTION = 1.0
 #: the nominal's tail (the motion continued past the goal for the gain schedule's windows) [s]
 TAIL_S = 20.0
-#: the final piece starts this far from the goal (trailer's axle) [m], the first that is feasible
-FINAL_PIECE_M = (3.0, 4.5, 6.0, 8.0, 10.0)
+#: the final piece starts between the first and last of these distances from the goal (trailer's axle) [m]
+FINAL_PIECE_M = (3.0, 4.5, 6.0, 8.0, 10.0, 12.0, 15.0, 20.0, 25.0, 30.0, 40.0)
+#: the final piece is tried from at most this many starts (the calmest in each band of FINAL_PIECE_M)
+FINAL_TRIES = 10
 
 
 class TrailerPlanningError(PipelineError):
@@ -164,6 +172,8 @@ class TrailerRig:
         self.hitch_on_arcs = math.atan(self.d / self.radius)
         self._trailer = world.state_checker(self.trailer_fp, margin)
         self.bounding_radius = max(self.trailer_fp.bounding_radius, self.d + self.car_fp.bounding_radius)
+        #: the poses where straight ends join the searched path, and the directions they are driven in
+        self.depart, self.depart_dir, self.arrive, self.arrive_dir = None, 1.0, None, 1.0
 
     def pose_free(self, x: float, y: float, th: float) -> bool:
         """The trailer's body at its axle pose (x, y, th): a necessary condition for the rig (the car's
@@ -183,6 +193,12 @@ class TrailerRig:
         seg = local_paths.reeds_shepp(a, b, self.radius)
         if _short_run(seg, self.radius, MIN_RUN_HITCHES * self.d):
             return False
+        # no cusp where a straight end joins (see _search)
+        moving = [v for _, v in seg if abs(v) * self.radius > 1e-9]
+        for end, want, first in ((self.depart, self.depart_dir, True), (self.arrive, self.arrive_dir, False)):
+            if end is not None and moving and np.allclose(a if first else b, end, atol=1e-9):
+                if (moving[0] if first else moving[-1]) * want < 0:
+                    return False
         n = max(1, int(math.ceil(local_paths.path_length(seg, self.radius) / self.opts.resolution)))
         fractions = np.arange(1, n + 1) / n
         poses = local_paths.sample(a, seg, self.radius, fractions)
@@ -200,10 +216,11 @@ def _search(world: CollisionWorld, robot, rig: TrailerRig, opts: PathOptions, x_
             run: float) -> GeometricPath:
     """The trailer's path from start to goal, with straight ends: the rig starts and ends straight, and
     its hitch angle needs about ``2 run`` of path to settle on an arc, so the search joins a pose ``run``
-    ahead of or behind the start (forward or reverse run-up) to one ``run`` before or beyond the goal
-    (arriving forward or in reverse). The four combinations are tried in order of their Reeds-Shepp
-    length while the budget lasts, each with at least half of it, and then the path from the start to
-    the goal itself."""
+    ahead of or behind the start (forward or reverse run-up) to one ``GOAL_RUN_HITCHES`` hitch lengths
+    (else ``run``) before or beyond the goal (arriving forward or in reverse; the tracked motion settles
+    on that straight before the final piece). The combinations are tried in order of their
+    Reeds-Shepp length plus ``CUSP_COST_M`` per cusp (and once more for the short arrival) while the
+    budget lasts, each with at least half of it, and then the path from the start to the goal itself."""
     model = robot.model
     ps, pg = trailer_pose(model, x_start), trailer_pose(model, x_goal)
     R = float(opts.turning_radius)
@@ -213,10 +230,13 @@ def _search(world: CollisionWorld, robot, rig: TrailerRig, opts: PathOptions, x_
 
     combos = []
     for ds in (run, -run):
-        for dg in (run, -run):
-            s1, g1 = moved(ps, ds), moved(pg, dg)
-            seg = [("S", ds / R), *local_paths.reeds_shepp(s1, g1, R), ("S", -dg / R)]
-            combos.append((local_paths.path_length(seg, R) + CUSP_COST_M * _cusp_count(seg, R), s1, g1))
+        for dg in (GOAL_RUN_HITCHES * float(model.hitch_lengths[0]), run):
+            for sign in (1.0, -1.0):
+                s1, g1 = moved(ps, ds), moved(pg, sign * dg)
+                seg = [("S", ds / R), *local_paths.reeds_shepp(s1, g1, R), ("S", -sign * dg / R)]
+                cost = local_paths.path_length(seg, R) + CUSP_COST_M * _cusp_count(seg, R) + (CUSP_COST_M if dg == run
+                                                                                               else 0.0)
+                combos.append((cost, s1, g1))
     combos.sort(key=lambda c: c[0])
     started = time.perf_counter()
     budget = float(opts.time_limit_s)
@@ -225,8 +245,11 @@ def _search(world: CollisionWorld, robot, rig: TrailerRig, opts: PathOptions, x_
         left = budget - (time.perf_counter() - started)
         if left <= 0.05 * budget:
             break
+        rig.depart = rig.arrive = None
         if not (rig.pose_free(*s1) and rig.pose_free(*g1) and rig.connect(ps, s1) and rig.connect(g1, pg)):
             continue
+        rig.depart, rig.depart_dir = s1, math.copysign(1.0, float(np.dot(s1[:2] - ps[:2], [math.cos(ps[2]), math.sin(ps[2])])))
+        rig.arrive, rig.arrive_dir = g1, math.copysign(1.0, float(np.dot(pg[:2] - g1[:2], [math.cos(pg[2]), math.sin(pg[2])])))
         path = plan_path(world, rig.trailer_fp, s1, g1, replace(opts, time_limit_s=max(0.5 * budget, left / 2)
                                                                 if k < len(combos) - 1 else left), rig=rig)
         last = path
@@ -234,9 +257,10 @@ def _search(world: CollisionWorld, robot, rig: TrailerRig, opts: PathOptions, x_
             waypoints = np.vstack([ps, path.waypoints, pg])
             samples, sigma, direction, length = rig.densify(waypoints)
             cusps = int(np.sum(direction[1:] != direction[:-1]))
-            info = {**path.info, "straight_ends_m": run}
+            info = {**path.info, "start_straight_m": run, "goal_straight_m": float(np.hypot(*(g1[:2] - pg[:2])))}
             return replace(path, waypoints=waypoints, samples=samples, sigma=sigma, direction=direction,
                            length=length, cusps=cusps, planning_time_s=time.perf_counter() - started, info=info)
+    rig.depart = rig.arrive = None
     left = budget - (time.perf_counter() - started)
     if left > 0.05 * budget or last is None:
         path = plan_path(world, rig.trailer_fp, ps, pg, replace(opts, time_limit_s=max(left, 0.05 * budget)), rig=rig)
@@ -317,7 +341,7 @@ class _Tracker:
         tan_phi = L * (math.sin(D) / d - TRACK_GAINS[2] * direction * (D - D_des))
         phi_des = max(-self.steer_cap, min(self.steer_cap, math.atan(tan_phi)))
         omega = max(-self.rate_cap, min(self.rate_cap, TRACK_GAINS[3] * (phi_des - float(x[3]))))
-        return np.array([direction * self.speed, omega])
+        return np.array([self.speed if direction > 0 else -REVERSE_SPEED_FRACTION * self.speed, omega])
 
     def step(self, x, u0, u1) -> np.ndarray:
         """x one control period later under u linear from u0 to u1 (RK4, ``substeps`` steps; the model's
@@ -412,24 +436,35 @@ def trailer_nominal(robot, path: GeometricPath, timing: TimingOptions, world: Co
     hitch_cap = JACKKNIFE_FRACTION * float(model.jackknife_limit)
     steer_cap = STEER_FRACTION * float(model.max_steer)
     final, tried = None, []
-    for lead in FINAL_PIECE_M:
-        cand = np.flatnonzero((np.arange(len(x_arr)) >= first_of_last) & (dist >= lead))
-        if not len(cand):
-            continue
-        k = int(cand[-1])
+    # candidate starts of the final piece on the last run, FINAL_PIECE_M[0] to FINAL_PIECE_M[-1] from the
+    # goal: the calmest first (smallest steering and hitch angles: the piece starts from them), at most
+    # FINAL_TRIES of them, spread over the distances
+    on_last = (np.arange(len(x_arr)) >= first_of_last) & (dist >= FINAL_PIECE_M[0]) & (dist <= FINAL_PIECE_M[-1])
+    cand = np.flatnonzero(on_last)
+    if len(cand):
+        calm = np.abs(x_arr[cand, 3]) + np.abs(model.hitch_angles(x_arr[cand])[:, 0])
+        bins = np.digitize(dist[cand], FINAL_PIECE_M)
+        order = []
+        for b in np.unique(bins):
+            sel = cand[bins == b]
+            order.append(int(sel[np.argmin(calm[bins == b])]))
+        order.sort(key=lambda k: float(np.abs(x_arr[k, 3]) + abs(model.hitch_angles(x_arr[k])[0])))
+        cand = order[:FINAL_TRIES]
+    for k in cand:
+        lead = float(dist[k])
         try:
             piece = steer_trailer(model, x_arr[k], goal_state, T=None, mode="polynomial")
-            final_speed = FINAL_SPEED_FRACTION * tracker.speed
+            final_speed = FINAL_SPEED_FRACTION * tracker.speed * (1.0 if last_dir > 0 else REVERSE_SPEED_FRACTION)
             if piece.max_speed > final_speed:        # slower than the tracked motion
                 piece = steer_trailer(model, x_arr[k], goal_state, T=piece.T * piece.max_speed / final_speed,
                                       frame=piece.frame["heading"], mode="polynomial")
         except InputError as exc:
-            tried.append(f"{lead:g} m: {exc.expected}")
+            tried.append(f"{lead:.1f} m: {exc.expected}")
             continue
         ok = (math.copysign(1.0, piece.plan.phases[0].v1) == last_dir and piece.max_abs_phi <= steer_cap + 1e-9
               and piece.max_abs_hitch <= hitch_cap + 1e-9 and piece.max_speed <= max_speed * 1.001
               and bool(bodies.free_many(world, robot, piece.x, margin).all()))
-        tried.append(f"{lead:g} m: max |phi| {piece.max_abs_phi:.2f}, max |hitch| {piece.max_abs_hitch:.2f}")
+        tried.append(f"{lead:.1f} m: max |phi| {piece.max_abs_phi:.2f}, max |hitch| {piece.max_abs_hitch:.2f}")
         if ok:
             final = (k, piece)
             break
