@@ -277,7 +277,7 @@ def write_plan(result, out_dir, m, map_label: str, robot, start, goal, path_opti
         title = (f"{m.name}: {model.name}, {met['length_m']:.1f} m, {cusps} cusp{'' if cusps == 1 else 's'}, "
                  f"min clearance {met['min_clearance_m']:.2f} m")
         fig = plan_figure(m, nom.x[:, pose_columns(model)],
-                          np.sign(nom.u[:, 0]), footprint, start, goal, title=title)
+                          np.sign(nom.u[:, 0]), footprint, start, goal, title=title, robot=robot, states=nom.x)
         written.append(save_figure(fig, out_dir / "plan.png"))
     written.append(write_json(out_dir / "plan.json",
                               plan_record(result, map_label, robot, start, goal, path_options)))

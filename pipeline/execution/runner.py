@@ -485,12 +485,11 @@ class CompositeRun:
         pos_err, head_err = self.final_errors["position_m"], self.final_errors["heading_rad"]
         tol = self.opts.tolerance
         text = f"position error {pos_err:.3f} m, heading error {head_err:.3f} rad"
-        if self.multibody:      # every body: its axle's position and its heading
-            pos_err = max(pos_err, *self.final_errors["trailer_position_m"])
-            head_err = max(head_err, *self.final_errors["trailer_heading_rad"])
-            text += (", trailer position error " + ", ".join(f"{v:.3f}" for v in self.final_errors["trailer_position_m"])
-                     + " m, trailer heading error " + ", ".join(f"{v:.3f}" for v in self.final_errors["trailer_heading_rad"])
-                     + " rad")
+        if self.multibody:      # the docked body: the last trailer (its axle and heading); the car's is reported
+            pos_err = self.final_errors["trailer_position_m"][-1]
+            head_err = self.final_errors["trailer_heading_rad"][-1]
+            text = (f"trailer position error {pos_err:.3f} m, trailer heading error {head_err:.3f} rad (car: "
+                    f"{self.final_errors['position_m']:.3f} m, {self.final_errors['heading_rad']:.3f} rad)")
         if pos_err <= tol.position_m and head_err <= tol.heading_rad:
             return "reached", f"goal reached: {text}"
         return "missed_goal", (f"the last nominal ended outside the goal tolerance ({text}; tolerance "

@@ -101,6 +101,12 @@ CUSP_COST_M = 10.0
 REVERSE_SPEED_FRACTION = 1.0
 #: the final piece runs at most at this fraction of the tracked motion's speed
 FINAL_SPEED_FRACTION = 1.0
+#: a path whose nominal fails is replaced by another one (OMPL over the map, the next seed), at most this
+#: many paths and while the time spent is below this factor times the planning budget
+NOMINAL_ATTEMPTS = 4
+NOMINAL_BUDGET_FACTOR = 3.0
+#: the final piece slows the rig down to this fraction of its speed at the goal
+FINAL_SPEED_RATIO = 1.0
 #: the nominal's tail (the motion continued past the goal for the gain schedule's windows) [s]
 TAIL_S = 20.0
 #: the final piece starts between the first and last of these distances from the goal (trailer's axle) [m]
@@ -478,6 +484,8 @@ def trailer_nominal(robot, path: GeometricPath, timing: TimingOptions, world: Co
     if np.abs(hitches).max() > hitch_cap + 1e-6 or np.abs(x_track[:, 3]).max() > float(model.max_steer):
         raise TrailerPlanningError(f"the tracked motion leaves the limits (max |hitch| {np.abs(hitches).max():.3f} rad, "
                                    f"max |phi| {np.abs(x_track[:, 3]).max():.3f} rad)")
+    # the rig slows down along the final piece, to FINAL_SPEED_RATIO of its speed at the goal
+    piece = _Retimed(piece, FINAL_SPEED_RATIO)
     joined = _TrackedThenPiece(model, t_track, x_track, u_track, piece)
     npts = max(2, int(math.ceil(joined.duration / timing.dt)) + 1)
     t = np.linspace(0.0, joined.duration, npts)
@@ -500,6 +508,29 @@ def trailer_nominal(robot, path: GeometricPath, timing: TimingOptions, world: Co
                      "max_abs_steering_rad": float(np.abs(nominal.x[:, 3]).max()),
                      "steering_limit_rad": float(model.max_steer),
                      "final_piece_end_error": float(np.abs(piece.final_error).max())}
+
+
+class _Retimed:
+    """A steering piece driven with a speed that falls linearly to ``ratio`` of its own by its end: for a
+    drift-free system x(t) = x_p(s(t)) with u(t) = s'(t) u_p(s(t)) is exact for any increasing s(t);
+    here s'(t) = 1 - (1 - ratio) t / T with T = 2 T_p / (1 + ratio)."""
+
+    def __init__(self, piece, ratio: float):
+        self.piece, self.ratio = piece, float(ratio)
+        self.T = 2.0 * float(piece.T) / (1.0 + self.ratio)
+        self.final_error = piece.final_error
+
+    def _s(self, t):
+        t = np.clip(np.asarray(t, dtype=float), 0.0, self.T)
+        return np.minimum(t - (1.0 - self.ratio) * t * t / (2.0 * self.T), self.piece.T), 1.0 - (1.0 - self.ratio) * t / self.T
+
+    def states_at(self, t):
+        s, _ = self._s(t)
+        return self.piece.states_at(s)
+
+    def inputs_at(self, t):
+        s, rate = self._s(t)
+        return rate[..., None] * self.piece.inputs_at(s)
 
 
 class _TrackedThenPiece:
@@ -573,39 +604,60 @@ def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts
     pad_margin = min(path_opts.margin + MARGIN_PAD, min(clearances.values()) - 1e-3)
     search = replace(path_opts, margin=max(path_opts.margin, pad_margin))
     rig = TrailerRig(world, robot, search.margin, search)
-    path = _search(world, robot, rig, search, x_start, x_goal, 0.5 * TRANSITION_HITCHES * float(model.hitch_lengths[0]))
-    metrics = {"planner": path_opts.planner, "planner_used": path.info.get("planner_used"),
-               "planner_status": path.planner_status, "planning_time_s": path.planning_time_s,
-               "validity_calls": path.validity_calls,
-               "validity_us_per_state": 1e6 * path.validity_time_s / max(path.validity_calls, 1),
-               "start_clearance_m": clearances["start"], "goal_clearance_m": clearances["goal"],
-               "planned_body": "trailer 1 (its axle)", "hitch_angle_on_arcs_rad": rig.hitch_on_arcs}
-    if path.status != "exact":
-        tried = (f"{path_opts.planner} for the trailer's axle in the reeds_shepp space (turning radius "
-                 f"{path_opts.turning_radius:g} m, margin {path_opts.margin:g} m) for {path_opts.time_limit_s:g} s "
-                 f"with seed {path_opts.seed}")
-        return PlanResult("no_path", f"no collision-free path found: tried {tried}; OMPL: {path.planner_status}",
-                          path, metrics=metrics)
-    try:
-        nominal, tinfo = trailer_nominal(robot, path, timing_opts, world, path_opts.margin, x_start, x_goal)
-    except TrailerPlanningError as exc:
-        metrics["time_to_nominal_s"] = time.perf_counter() - started
-        return PlanResult("infeasible", f"the path was found but could not be made feasible for the car with a "
-                          f"trailer: {exc}", path, metrics=metrics)
-    check = bodies.check_path(world, robot, nominal.x, margin=path_opts.margin, resolution=check_resolution)
-    metrics.update({
-        "length_m": path.length, "cusps": path.cusps, "max_curvature_per_m": 1.0 / path_opts.turning_radius,
-        "waypoints": len(path.waypoints), **tinfo,
-        "min_clearance_m": check.min_clearance, "min_clearance_pose": check.min_clearance_pose,
-        "min_clearance_body": ("car", "trailer 1")[check.min_clearance_body],
-        "clearance_check_resolution_m": check_resolution, "clearance_samples": check.samples,
-        "max_abs_inputs": np.max(np.abs(nominal.u), axis=0), "input_limits": model.input_limits()[:, 1],
-    })
-    if not check.clear:
-        metrics["time_to_nominal_s"] = time.perf_counter() - started
-        return PlanResult("not_clear", f"the nominal comes within {check.min_clearance:.3g} m of an obstacle "
+    run_up = 0.5 * TRANSITION_HITCHES * float(model.hitch_lengths[0])
+    budget = NOMINAL_BUDGET_FACTOR * float(path_opts.time_limit_s)
+    attempts: list = []
+    result = None
+    for k in range(NOMINAL_ATTEMPTS):
+        # the first path from the guided search (if asked), the next ones from OMPL over the whole map with
+        # the next seeds: a path whose motion the rig cannot follow is replaced by another one
+        opts_k = search if k == 0 else replace(search, guide=False, seed=int(
+            np.random.SeedSequence([int(search.seed), 15, k]).generate_state(1)[0] % (2**31 - 2)))
+        path = _search(world, robot, rig, opts_k, x_start, x_goal, run_up)
+        metrics = {"planner": path_opts.planner, "planner_used": path.info.get("planner_used"),
+                   "planner_status": path.planner_status, "planning_time_s": time.perf_counter() - started,
+                   "validity_calls": path.validity_calls,
+                   "validity_us_per_state": 1e6 * path.validity_time_s / max(path.validity_calls, 1),
+                   "start_clearance_m": clearances["start"], "goal_clearance_m": clearances["goal"],
+                   "planned_body": "trailer 1 (its axle)", "hitch_angle_on_arcs_rad": rig.hitch_on_arcs}
+        if path.status != "exact":
+            tried = (f"{path_opts.planner} for the trailer's axle in the reeds_shepp space (turning radius "
+                     f"{path_opts.turning_radius:g} m, margin {path_opts.margin:g} m) for {opts_k.time_limit_s:g} s "
+                     f"with seed {opts_k.seed}")
+            result = ("no_path", f"no collision-free path found: tried {tried}; OMPL: {path.planner_status}", path,
+                      None, metrics)
+        else:
+            try:
+                nominal, tinfo = trailer_nominal(robot, path, timing_opts, world, path_opts.margin, x_start, x_goal)
+            except TrailerPlanningError as exc:
+                result = ("infeasible", f"the path was found but could not be made feasible for the car with a "
+                          f"trailer: {exc}", path, None, metrics)
+            else:
+                check = bodies.check_path(world, robot, nominal.x, margin=path_opts.margin, resolution=check_resolution)
+                metrics.update({
+                    "length_m": path.length, "cusps": path.cusps,
+                    "max_curvature_per_m": 1.0 / path_opts.turning_radius, "waypoints": len(path.waypoints), **tinfo,
+                    "min_clearance_m": check.min_clearance, "min_clearance_pose": check.min_clearance_pose,
+                    "min_clearance_body": ("car", "trailer 1")[check.min_clearance_body],
+                    "clearance_check_resolution_m": check_resolution, "clearance_samples": check.samples,
+                    "max_abs_inputs": np.max(np.abs(nominal.u), axis=0), "input_limits": model.input_limits()[:, 1],
+                })
+                if check.clear:
+                    result = None
+                    break
+                result = ("not_clear", f"the nominal comes within {check.min_clearance:.3g} m of an obstacle "
                           f"(margin {path_opts.margin:g} m) with its {('car', 'trailer')[check.min_clearance_body]} at "
-                          f"{np.round(check.min_clearance_pose, 3).tolist()}", path, nominal, metrics=metrics)
+                          f"{np.round(check.min_clearance_pose, 3).tolist()}", path, nominal, metrics)
+        attempts.append(f"{result[0]} ({'guided' if k == 0 and search.guide else f'seed {opts_k.seed}'})")
+        if time.perf_counter() - started >= budget:
+            break
+    if result is not None:
+        status, message, path, nominal, metrics = result
+        metrics.update({"time_to_nominal_s": time.perf_counter() - started, "path_attempts": attempts})
+        if len(attempts) > 1:
+            message += f" (after {len(attempts)} paths: " + ", ".join(attempts) + ")"
+        return PlanResult(status, message, path, nominal, metrics=metrics)
+    metrics["path_attempts"] = attempts + ["ok"]
     try:
         schedule = compute_schedule(nominal, stab_opts)
     except SingularGramianError as exc:
