@@ -85,6 +85,7 @@ the car with one trailer's in :mod:`nhstab.planning.trailer_charts`.
 from __future__ import annotations
 
 import bisect
+import functools
 import math
 from dataclasses import dataclass
 
@@ -232,10 +233,10 @@ class _ExpPoly:
     are trigonometric polynomials in w t (module docstring). Coefficients are complex; the real
     functions here carry conjugate pairs, and the real part removes the round-off between them."""
 
-    __slots__ = ("w", "terms")
+    __slots__ = ("w", "terms", "_arrays")
 
     def __init__(self, w: float, terms: dict):
-        self.w, self.terms = float(w), terms
+        self.w, self.terms, self._arrays = float(w), terms, None
 
     @classmethod
     def constant(cls, w: float, value: float) -> "_ExpPoly":
@@ -277,17 +278,24 @@ class _ExpPoly:
         return _ExpPoly(self.w, out)
 
     def __call__(self, t) -> np.ndarray:
-        t = np.asarray(t, dtype=float)
-        acc = np.zeros(t.shape, dtype=complex)
-        for (p, q), c in self.terms.items():
-            term = c * np.exp(1j * q * self.w * t) if q else np.full(t.shape, c)
-            acc += term * t**p if p else term
-        return acc.real
+        if self._arrays is None:
+            keys = list(self.terms)
+            self._arrays = (np.array([p for p, _ in keys], dtype=float), np.array([q for _, q in keys], dtype=float),
+                            np.array([self.terms[k] for k in keys], dtype=complex))
+        p, q, c = self._arrays
+        t = np.asarray(t, dtype=float)[..., None]
+        return np.sum(c * t**p * np.exp((1j * self.w) * q * t), axis=-1).real
 
     def at_period(self) -> float:
         """The value at t = 2 pi / w (every exp(i q w t) is 1 there)."""
         P = _TWO_PI / self.w
         return float(sum((c * P**p for (p, q), c in self.terms.items()), 0j).real)
+
+
+@functools.lru_cache(maxsize=256)
+def _cached_series(zs: tuple, k: int, a: float, b: float, w: float, n: int) -> tuple:
+    """:func:`_sin_series` kept for the phases evaluated again and again (an integrator's calls)."""
+    return tuple(_sin_series(np.array(zs), k, a, b, w, n))
 
 
 def _sin_series(zs: np.ndarray, k: int, a: float, b: float, w: float, n: int) -> list:
@@ -332,7 +340,8 @@ def _sin_phase(zs: np.ndarray, k: int, a: float, b: float, w: float, t: np.ndarr
     one phase per time (arrays shaped as t)."""
     n = zs.shape[0] if coords is None else coords
     if n >= 5 or k >= 5:        # exact exponential-polynomial series (module docstring)
-        series = _sin_series(np.asarray(zs, dtype=float), int(k), float(a), float(b), float(w), n)
+        series = _cached_series(tuple(float(v) for v in np.asarray(zs, dtype=float)), int(k), float(a), float(b),
+                                float(w), n)
         return np.stack([zj(t) for zj in series], axis=-1)
     c, s = np.cos(w * t), np.sin(w * t)
     one_c = 1.0 - c
