@@ -155,7 +155,7 @@ class Robot:
         if len(arr) == 3 and self.trailers:
             return np.concatenate([arr, np.full(self.trailers, arr[2])])
         sizes = "three numbers (x, y, theta)" if not self.trailers else (
-            f"x, y, theta (trailers in line) or x, y, theta, " + ", ".join(f"theta{i}" for i in
+            "x, y, theta (trailers in line) or x, y, theta, " + ", ".join(f"theta{i}" for i in
                                                                           range(1, self.trailers + 1)))
         raise InputError(name, sizes, value if arr.size < 12 else f"{arr.size} numbers")
 

@@ -142,3 +142,19 @@ def test_tail_keeps_the_reversing_gramian_law(rng):
         law = FeedbackLaw("gramian", nom, sch.t, sch.K, sch)
         finals[name] = np.median(simulate_shared(law, seeds, NoiseOptions(), model=m, record=False).final_error_norm)
     assert finals["tail"] < 0.4 and finals["frozen"] > 2.0 * finals["tail"]
+
+
+@pytest.mark.parametrize("radius,within", [(10.0, False), (14.0, True), (20.0, True)])
+def test_pieces_between_straight_rigs_need_wide_arcs(radius, within):
+    """Why the search does not join poses where the rig stands straight with the polynomial steering:
+    an 8 m piece along an arc keeps within 0.9 of the steering limit only from a radius of about 14 m."""
+    m = make_model("car_trailer")
+    d = m.hitch_lengths[0]
+
+    def straight(x1, y1, th):
+        return np.array([x1 + d * math.cos(th), y1 + d * math.sin(th), th, 0.0, th])
+
+    th = 8.0 / radius
+    piece = steer_trailer(m, straight(0.0, 0.0, 0.0), straight(radius * math.sin(th), radius * (1 - math.cos(th)), th),
+                          T=10.0, frame=0.5 * th)
+    assert (piece.max_abs_phi <= 0.9 * m.max_steer) == within

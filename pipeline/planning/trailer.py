@@ -1,53 +1,70 @@
-"""Planning a car with one trailer: a Reeds-Shepp path of the trailer's axle, checked with the whole
-rig, followed by exact chained-form steering pieces (Tilbury, Laumond, Murray, Sastry, Walsh 1992;
-Laumond, Jacobs, Taix, Murray 1994).
+"""Planning a car with one trailer: a Reeds-Shepp path of the trailer's axle, searched with the whole
+rig checked, then an exactly feasible motion of the rig along it: the model driven by a tracking law
+and integrated, ending in one chained-form piece that meets the goal exactly (Tilbury, Laumond,
+Murray, Sastry, Walsh 1992 for the chained form; Laumond, Jacobs, Taix, Murray 1994 for following a
+geometric path).
 
-Why this approach
------------------
+The path
+--------
 The trailer's axle point is a flat output of the car with a trailer (:mod:`nhstab.planning.
 trailer_charts`): the trailer moves like a car of wheelbase d "steered" by the hitch angle
 D = theta - theta1, with curvature tan(D) / d. So the geometric search plans the *trailer's* path: a
-Reeds-Shepp path at the planning turning radius R1 (:func:`~nhstab.planning.geometric.plan_path`,
-the machinery every robot uses: the direct connection, the guided subgoals, OMPL's RRTConnect in the
-gaps; only exact solutions count). Along it the hitch angle of steady motion is fixed by each
-segment's turn, D = atan(d / R1) on a left arc, -atan(d / R1) on a right arc, 0 on a straight, forward
-and in reverse alike, so the whole rig's place is known at every sample: the car's rear axle d ahead of
-the trailer's along theta1, its heading theta1 + D. :class:`TrailerRig` checks every local path with
-both bodies placed so (margin plus ``MARGIN_PAD``), and OMPL validates its motions with that check.
-Cusps and reversing are Reeds-Shepp's own; the goal's trailer heading is the goal pose of the
-trailer's path, so it is met exactly; the hitch angle of the path stays at atan(d / R1).
+Reeds-Shepp path at the planning turning radius R1 (:func:`~nhstab.planning.geometric.plan_path`, the
+machinery every robot uses: the direct connection, the guided subgoals, OMPL's RRTConnect in the gaps;
+only exact solutions count). Along it the hitch angle of steady motion is fixed by each segment's
+turn, D = atan(d / R1) on a left arc, -atan(d / R1) on a right arc, 0 on a straight, forward and in
+reverse alike, so the whole rig's place is known at every sample: the car's rear axle d ahead of the
+trailer's along theta1, its heading theta1 + D. :class:`TrailerRig` checks every local path with both
+bodies placed so (margin plus ``MARGIN_PAD``), and OMPL validates its motions with that check (a
+Python motion validator). Cusps and reversing are Reeds-Shepp's own; the goal's trailer heading is
+the goal pose of the trailer's path. Three constraints shape the path for the rig: every run between
+cusps of a local path is at least ``MIN_RUN_HITCHES`` hitch lengths long (after a reversal the hitch
+angle needs room to settle); the path leaves the start along a straight (``START_RUN_HITCHES``) and
+arrives at the goal along a straight (``GOAL_RUN_HITCHES``, else the shorter one), with no cusp where
+those straights join (:func:`_search`: the rig starts and ends straight); R1 is five times the
+trailer's smallest steady turn (the robot's rule), where the steady steering angle is 0.23 rad.
 
-The hitch angle is a state and changes only gradually (D' = v (tan(phi)/L - sin(D)/d), with |phi|
-limited), so the rig cannot follow a Reeds-Shepp path's curvature jumps. The nominal follows the
-path with exact steering pieces, as the cars' planner does (:mod:`nhstab.planning.cars`), but with
-waypoints only where the path is *calm*: at the cusps and ends, and elsewhere only at points at least
-``transition`` / 2 from every curvature jump, cusp and end, at most ``spacing`` apart. There the rig
-takes the path's steady state (hitch angle of the segment, steering angle tan(phi) = L sin(D) / d,
-which holds D constant); at a cusp the mean of the hitch angles on its two sides (the hitch angle is
-continuous through a stop) with its steady steering angle, so no piece steers in place. A piece joins two
-consecutive waypoints with the chained form's polynomial steering
-(:func:`~nhstab.planning.steering.steer_chained_polynomial`: the trailer's path is the Hermite
-interpolant of position, heading, curvature and curvature rate, at constant chained speed, so it
-never reverses inside a piece), and the pieces across curvature jumps, at least ``transition`` long,
-change the hitch angle gradually. Each piece is checked: every body clear by the margin, the
-steering angle within ``STEER_FRACTION`` of its limit, the hitch angle within ``JACKKNIFE_FRACTION``
-of the jackknife limit, the direction of travel the path's. A piece that fails is first lengthened
-to the next waypoint (a longer transition), then split (where the path is calm), then tried with
-the phased sinusoids. The nominal is re-checked with every body and the gain schedule computed.
+The motion
+----------
+A Reeds-Shepp path's curvature jumps, and the hitch angle, which sets the trailer's curvature, is a
+state that changes only gradually (D' = v (tan(phi)/L - sin(D)/d), |phi| limited). So the rig is
+*driven* along the path, run by run (:class:`_Tracker`): a flat-output tracking law asks for the
+trailer's curvature (the path's, a little ahead, corrected by the lateral and heading errors), i.e. a
+hitch angle D*, steers so that D follows it (tan(phi) = L (sin(D)/d - k s (D - D*)), s the direction:
+in reverse the car steers the trailer back, within the hitch angles it can still straighten,
+asin(d tan(phi_max) / L)), and moves phi at a bounded rate; the model (RK4, 8 steps per control
+period, inputs a first-order hold of the law's commands) is integrated, so the motion is exactly a
+motion of the model. On the last run a chained-form polynomial piece
+(:func:`~nhstab.planning.steering.steer_chained_polynomial` through
+:func:`~nhstab.planning.trailer_charts.steer_trailer`) joins the calmest tracked state (smallest
+steering and hitch angles) between 3 and 40 m before the goal to the goal state exactly, within the
+limits (steering within ``STEER_FRACTION``, hitch within ``JACKKNIFE_FRACTION`` of the jackknife
+limit) and clear of the obstacles. A path whose motion fails (no feasible final piece, the nominal
+not clear) is replaced by another one (OMPL over the map with the next seed), ``NOMINAL_ATTEMPTS``
+at most. The nominal carries a *tail* (:attr:`~nhstab.nominal.Nominal.tail`: the rig driving on past
+the goal) so that the gramian law's future windows are whole up to the goal: the frozen end strategy
+carries the last whole window along the linearised flow, which in reverse is unstable, and the gains
+faded exactly where the trailer backs into the dock (tests/test_trailer_planning.py).
 
-The planning turning radius is ``TURNING_FACTOR`` times the last trailer's smallest steady turn
-(:attr:`~nhstab.models.car_trailer.CarTrailer.min_turning_radius`): on those arcs the steady steering
-angle is about half its limit, which leaves the transitions (and the feedback) their room. Measured
-on the default rig (L = 2.5 m, d = 3 m, max_steer 0.6 rad): a transition from a straight into an arc
-of radius 8 m needs about 8 m of path to keep |phi| within 0.47 rad; between two poses where the rig
-stands straight, a piece along an arc needs a radius of 14 m or more (tests/test_trailer_planning.py).
-
-Alternatives considered: a search whose local planner is the polynomial steering between poses where
-the rig stands straight (exact, no approximation after the search) finds almost no feasible motions
-among OMPL's samples for that last reason; a control-based OMPL planner on the model
-(``ompl.control``) would reach the goal only within a region and propagate the model in Python at
-every step; a Reeds-Shepp search for the *car* with the trailer integrated behind it jackknifes in
-reverse (the hitch angle diverges unless the path is shaped for the trailer).
+Alternatives considered, and what they did on the loading dock
+---------------------------------------------------------------
+* A search whose local planner is the polynomial steering between poses where the rig stands straight
+  (exact, nothing approximated after the search): between two such poses an 8 m piece along an arc
+  keeps within 0.9 of the steering limit only from a radius of about 14 m on
+  (tests/test_trailer_planning.py), so OMPL found almost no feasible motions.
+* Steering pieces between *calm* waypoints of the Reeds-Shepp path (the path's steady states, as the
+  cars' planner joins its waypoints): a straight rig cannot enter an arc at once, and the pieces that
+  must change the hitch angle across a curvature jump needed steering angles of 0.8-1.3 rad.
+* Driving each reverse run backwards in time (forward motion is stable, and its time reversal is an
+  exact motion): a Reeds-Shepp cusp joins arcs of opposite turn, so the runs on its two sides meet
+  the cusp with opposite hitch angles and poses up to 2 m apart, and no piece joined them.
+* A control-based OMPL planner on the model (``ompl.control``) reaches the goal only within a region
+  and propagates the model in Python at every step; a Reeds-Shepp search for the *car* with the
+  trailer integrated behind it jackknifes in reverse.
+What remains hard is the reversal itself: at a Reeds-Shepp cusp the hitch angle must swing from one
+arc's to the other's while reversing, and the tracked motion leaves the path there by up to a metre
+(the search's pad and the final check cover it). N >= 2 trailers are modelled, simulated and checked,
+but not planned: the chained chart here is the one-trailer one.
 """
 
 from __future__ import annotations
@@ -74,13 +91,11 @@ from .trailer_charts import steer_trailer
 JACKKNIFE_FRACTION = 0.8
 #: and the steering angle within this fraction of its limit
 STEER_FRACTION = 0.9
-#: the geometric search keeps this much more than the margin: the pieces across curvature jumps leave
-#: the path by up to about (jump in curvature) transition^2 / 24
+#: the geometric search keeps this much more than the margin: the tracked motion leaves the path where
+#: its curvature jumps (the hitch angle follows gradually)
 MARGIN_PAD = 0.3
-#: the planning turning radius of the trailer's path, in multiples of its smallest steady turn
-TURNING_FACTOR = 3.5
-#: a transition piece (across a curvature jump) is at least this many hitch lengths long
-TRANSITION_HITCHES = 2.5
+#: the path leaves the start along a straight this many hitch lengths long (forward or in reverse)
+START_RUN_HITCHES = 1.25
 #: the tracking law's gains: lateral error [1/m^2], heading error [1/m], hitch angle [1/m], steering
 #: angle [1/s] (module docstring)
 TRACK_GAINS = (0.15, 0.8, 3.0, 8.0)
@@ -96,17 +111,10 @@ MIN_RUN_HITCHES = 2.0
 GOAL_RUN_HITCHES = 3.0
 #: the straight-ends combinations are ordered by Reeds-Shepp length plus this much per cusp [m]
 CUSP_COST_M = 10.0
-#: the tracked motion reverses at this fraction of its forward speed (the hitch angle is unstable in
-#: reverse, and the steering rate limit binds less at a lower speed)
-REVERSE_SPEED_FRACTION = 1.0
-#: the final piece runs at most at this fraction of the tracked motion's speed
-FINAL_SPEED_FRACTION = 1.0
 #: a path whose nominal fails is replaced by another one (OMPL over the map, the next seed), at most this
 #: many paths and while the time spent is below this factor times the planning budget
 NOMINAL_ATTEMPTS = 4
 NOMINAL_BUDGET_FACTOR = 3.0
-#: the final piece slows the rig down to this fraction of its speed at the goal
-FINAL_SPEED_RATIO = 1.0
 #: the nominal's tail (the motion continued past the goal for the gain schedule's windows) [s]
 TAIL_S = 20.0
 #: the final piece starts between the first and last of these distances from the goal (trailer's axle) [m]
@@ -347,7 +355,7 @@ class _Tracker:
         tan_phi = L * (math.sin(D) / d - TRACK_GAINS[2] * direction * (D - D_des))
         phi_des = max(-self.steer_cap, min(self.steer_cap, math.atan(tan_phi)))
         omega = max(-self.rate_cap, min(self.rate_cap, TRACK_GAINS[3] * (phi_des - float(x[3]))))
-        return np.array([self.speed if direction > 0 else -REVERSE_SPEED_FRACTION * self.speed, omega])
+        return np.array([direction * self.speed, omega])
 
     def step(self, x, u0, u1) -> np.ndarray:
         """x one control period later under u linear from u0 to u1 (RK4, ``substeps`` steps; the model's
@@ -460,9 +468,8 @@ def trailer_nominal(robot, path: GeometricPath, timing: TimingOptions, world: Co
         lead = float(dist[k])
         try:
             piece = steer_trailer(model, x_arr[k], goal_state, T=None, mode="polynomial")
-            final_speed = FINAL_SPEED_FRACTION * tracker.speed * (1.0 if last_dir > 0 else REVERSE_SPEED_FRACTION)
-            if piece.max_speed > final_speed:        # slower than the tracked motion
-                piece = steer_trailer(model, x_arr[k], goal_state, T=piece.T * piece.max_speed / final_speed,
+            if piece.max_speed > tracker.speed:        # no faster than the tracked motion
+                piece = steer_trailer(model, x_arr[k], goal_state, T=piece.T * piece.max_speed / tracker.speed,
                                       frame=piece.frame["heading"], mode="polynomial")
         except InputError as exc:
             tried.append(f"{lead:.1f} m: {exc.expected}")
@@ -484,8 +491,6 @@ def trailer_nominal(robot, path: GeometricPath, timing: TimingOptions, world: Co
     if np.abs(hitches).max() > hitch_cap + 1e-6 or np.abs(x_track[:, 3]).max() > float(model.max_steer):
         raise TrailerPlanningError(f"the tracked motion leaves the limits (max |hitch| {np.abs(hitches).max():.3f} rad, "
                                    f"max |phi| {np.abs(x_track[:, 3]).max():.3f} rad)")
-    # the rig slows down along the final piece, to FINAL_SPEED_RATIO of its speed at the goal
-    piece = _Retimed(piece, FINAL_SPEED_RATIO)
     joined = _TrackedThenPiece(model, t_track, x_track, u_track, piece)
     npts = max(2, int(math.ceil(joined.duration / timing.dt)) + 1)
     t = np.linspace(0.0, joined.duration, npts)
@@ -508,29 +513,6 @@ def trailer_nominal(robot, path: GeometricPath, timing: TimingOptions, world: Co
                      "max_abs_steering_rad": float(np.abs(nominal.x[:, 3]).max()),
                      "steering_limit_rad": float(model.max_steer),
                      "final_piece_end_error": float(np.abs(piece.final_error).max())}
-
-
-class _Retimed:
-    """A steering piece driven with a speed that falls linearly to ``ratio`` of its own by its end: for a
-    drift-free system x(t) = x_p(s(t)) with u(t) = s'(t) u_p(s(t)) is exact for any increasing s(t);
-    here s'(t) = 1 - (1 - ratio) t / T with T = 2 T_p / (1 + ratio)."""
-
-    def __init__(self, piece, ratio: float):
-        self.piece, self.ratio = piece, float(ratio)
-        self.T = 2.0 * float(piece.T) / (1.0 + self.ratio)
-        self.final_error = piece.final_error
-
-    def _s(self, t):
-        t = np.clip(np.asarray(t, dtype=float), 0.0, self.T)
-        return np.minimum(t - (1.0 - self.ratio) * t * t / (2.0 * self.T), self.piece.T), 1.0 - (1.0 - self.ratio) * t / self.T
-
-    def states_at(self, t):
-        s, _ = self._s(t)
-        return self.piece.states_at(s)
-
-    def inputs_at(self, t):
-        s, rate = self._s(t)
-        return rate[..., None] * self.piece.inputs_at(s)
 
 
 class _TrackedThenPiece:
@@ -604,7 +586,7 @@ def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts
     pad_margin = min(path_opts.margin + MARGIN_PAD, min(clearances.values()) - 1e-3)
     search = replace(path_opts, margin=max(path_opts.margin, pad_margin))
     rig = TrailerRig(world, robot, search.margin, search)
-    run_up = 0.5 * TRANSITION_HITCHES * float(model.hitch_lengths[0])
+    run_up = START_RUN_HITCHES * float(model.hitch_lengths[0])
     budget = NOMINAL_BUDGET_FACTOR * float(path_opts.time_limit_s)
     attempts: list = []
     result = None
