@@ -183,3 +183,34 @@ def test_every_body_is_checked_against_shapely(dock, rng):
             assert b == int(np.argmin(dists))
         assert (bodies.collides(world, robot, x) is None) == (shapely_min > 0)
         assert free[k] == (shapely_min > 0.2 + 2e-4) or abs(shapely_min - 0.2) < 2e-4
+
+
+def test_batch_report_counts_jackknifes_per_cell():
+    """The report's trailer table is computed from the trials' own metrics: the jackknife count with its
+    Wilson interval, medians that skip missing values; cells of one-body robots get no trailer row."""
+    from nhstab.batch.report import _trailer_table, cell_table, wilson
+
+    def trial(cell, k, status, **metrics):
+        spec = {"cell_spec": {"map": "dock", "robot": None, "controller": cell, "alpha": None, "delta": None,
+                              "gamma": None, "noise": 1.0}}
+        return {"cell": cell, "trial": k, "status": status, "spec": spec, "metrics": {"robot": "r", **metrics},
+                "timings": {}}
+
+    rig = [trial("rig", 0, "collision", jackknife=True, max_abs_hitch_angle_rad=1.01,
+                 final_trailer_position_error_m=9.0),
+           trial("rig", 1, "reached", jackknife=False, max_abs_hitch_angle_rad=0.5,
+                 final_trailer_position_error_m=0.1),
+           trial("rig", 2, "collision", jackknife=True, max_abs_hitch_angle_rad=1.02,
+                 final_trailer_position_error_m=None),
+           trial("rig", 3, "reached", jackknife=False, max_abs_hitch_angle_rad=float("nan"),
+                 final_trailer_position_error_m=0.2)]
+    car = [trial("car", k, "reached") for k in range(3)]
+    rows = {r["cell"]: r for r in cell_table(rig + car)}
+    r = rows["rig"]
+    assert r["jackknife_count"] == 2 and r["collision_count"] == 2
+    assert (r["jackknife_rate"], r["jackknife_lo"], r["jackknife_hi"]) == wilson(2, 4)
+    assert r["max_abs_hitch_angle_rad_median"] == pytest.approx(1.01)         # NaN skipped
+    assert r["final_trailer_position_error_m_median"] == pytest.approx(0.2)   # None skipped
+    assert "jackknife_rate" not in rows["car"]
+    header, table = _trailer_table(list(rows.values()))
+    assert len(table) == 1 and len(table[0]) == len(header) and table[0][1].startswith("50% [")
