@@ -28,30 +28,75 @@ def batch():
 @click.option("--workers", type=int, default=None, help="Local worker processes (default: the number of cores).")
 @click.option("--scheduler", default=None, help="Address of a Dask distributed scheduler, e.g. tcp://10.0.0.5:8786.")
 @click.option("--resume", is_flag=True, help="Continue the batch stored in --out: run each missing trial once.")
+@click.option("--retry-errors", is_flag=True, help="With --resume: also run again the trials stored with an error.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
-def run_cmd(config_file, out_dir, workers, scheduler, resume, no_progress):
+def run_cmd(config_file, out_dir, workers, scheduler, resume, retry_errors, no_progress):
     """Run every trial of CONFIG (strict YAML; see pipeline/batch/config.py), committing each to
-    OUT/trials.sqlite as it finishes. A trial that fails is recorded with its error."""
+    OUT/trials.sqlite as it finishes. A trial that fails by error is recorded with its error; the
+    batch says how many did, and exits 1 if every trial it ran did. Ctrl-C stops the batch (exit
+    code 130) without storing the trials that were running; --resume runs them."""
     import os
 
     from nhstab.batch.config import load_batch_config
-    from nhstab.batch.runner import run_batch
+    from nhstab.batch.runner import STORE_NAME, check_scheduler_address, run_batch
     from nhstab.errors import InputError
 
     if workers is not None and workers < 1:
         raise InputError("--workers", "an integer >= 1", workers)
+    if retry_errors and not resume:
+        raise InputError("--retry-errors", "used with --resume (it reruns the errors of a stored batch)", "alone")
+    if scheduler is not None:
+        check_scheduler_address(scheduler)
     config = load_batch_config(config_file)
-    n = len(config.trial_specs())
+    n = config.n_trials()
     click.echo(f"batch {config.name}: {len(config.cells())} cells x {config.trials} trials = {n} trials", err=True)
-    counts = run_batch(config, out_dir, workers=workers or os.cpu_count() or 1, scheduler=scheduler, resume=resume,
-                       progress=not no_progress)
-    click.echo(f"ran {counts['ran']} trials in {counts['wall_s']:.1f} s ({counts['already_stored']} already stored); "
-               f"{counts['stored']} in {out_dir / 'trials.sqlite'}")
+    try:
+        counts = run_batch(config, out_dir, workers=workers or os.cpu_count() or 1, scheduler=scheduler,
+                           resume=resume, progress=not no_progress, retry_errors=retry_errors)
+    except KeyboardInterrupt:
+        store = out_dir / STORE_NAME
+        stored = _stored_count(store)
+        click.echo(f"nhstab: interrupted: {stored} of {n} trials are stored in {store}; the running ones were "
+                   f"not; `nhstab batch {config_file} --out {out_dir} --resume` runs the rest", err=True)
+        return 130
+    outcomes = ", ".join(f"{k} {v}" for k, v in sorted(counts["outcomes"].items(), key=lambda kv: (kv[0] == "error",
+                                                                                                    -kv[1], kv[0])))
+    click.echo(f"ran {counts['ran']} trials in {counts['wall_s']:.1f} s ({counts['already_stored']} already stored)"
+               + (f": {outcomes}" if outcomes else "") + f"; {counts['stored']} in {out_dir / STORE_NAME}")
+    t = counts["transfer"]
+    if scheduler is not None and t["trials"]:
+        click.echo(f"shipped: map bundles {_kb(t['bundles_sent_bytes'])} ({_kb(sum(t['bundle_bytes'].values()))} "
+                   f"to each of {t['bundle_copies']} workers); per trial {_kb(t['spec_bytes_per_trial'])} sent, "
+                   f"{_kb(t['record_bytes_per_trial'])} received", err=True)
     from nhstab.batch.report import write_report
 
     files = write_report(out_dir)
     click.echo(f"report: {out_dir / 'report.html'} (and {len(files) - 1} more files)")
+    if counts["errors"]:
+        trial_id, message = counts["first_error"]
+        every = counts["errors"] == counts["ran"]
+        head = (f"failed: all {counts['ran']} trials failed by error" if every else
+                f"warning: {counts['errors']} of {counts['ran']} trials failed by error")
+        click.echo(f"nhstab: {head}, not by an outcome; the first, {trial_id}: {message} (they are stored as "
+                   "errors; --resume --retry-errors runs them again)", err=True)
+        if every:
+            return 1
     return 0
+
+
+def _kb(n) -> str:
+    return "-" if n is None else f"{n / 1000:.1f} kB"
+
+
+def _stored_count(path: Path) -> str:
+    from nhstab.batch.store import Store
+    from nhstab.errors import PipelineError
+
+    try:
+        with Store(path) as s:
+            return str(s.count())
+    except PipelineError:
+        return "no"
 
 
 @batch.command("replay")
@@ -60,35 +105,91 @@ def run_cmd(config_file, out_dir, workers, scheduler, resume, no_progress):
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True)
 @click.option("--animate", is_flag=True, help="Also write run.gif.")
 def replay(store_path, trial_id, out_dir, animate):
-    """Replay one stored trial with `nhstab run`: writes OUT/run_config.yaml (its exact options) and
-    the run's files. STORE is a batch folder or its trials.sqlite."""
+    """Replay one stored trial with `nhstab run`: writes OUT/run_config.yaml (its exact options), the
+    trial's map files under OUT/map/ (so that `nhstab run --config OUT/run_config.yaml` works
+    anywhere) and the run's files. STORE is a batch folder or its trials.sqlite (opened read-only).
+    The map comes from the store; a store made before stores kept maps needs the map files at the
+    path the trial records (with the content the batch used, when the store says which)."""
+    import tempfile
+
     import yaml
 
     from nhstab.batch.store import Store
     from nhstab.batch.trial import replay_config
     from nhstab.errors import InputError
     from nhstab.execution.config import load_run_config
-    from nhstab.records import write_text
 
-    from .map import load
     from .run import execute_and_write
 
     path = store_path / "trials.sqlite" if store_path.is_dir() else store_path
     with Store(path) as store:
         record = store.trial(trial_id)
-    if record is None:
-        raise InputError("TRIAL_ID", "the id of a stored trial (see the report's CSV)", trial_id)
-    cfg = replay_config(record)
-    cfg_path = write_text(out_dir / "run_config.yaml", "# replays trial " + trial_id + " of " + str(path) + "\n"
-                          + yaml.safe_dump(cfg, sort_keys=False))
-    extra, opts = load_run_config(cfg_path)
-    cell = record["spec"]["cell_spec"]
-    m = load(extra["map"], cell["cell_size"], None)
+        if record is None:
+            raise InputError("TRIAL_ID", "the id of a stored trial (see the report's CSV)", trial_id)
+        cell = _cell_spec(record, trial_id)
+        bundle = store.map_bundle(cell.get("map_bundle"), cell.get("map_hash"))
+        schema = store.schema
+    from_store = bundle is not None
+    if bundle is None:
+        bundle = _bundle_at_recorded_path(cell, path, schema)
+    map_rel = "map/" + bundle.entry
+    try:
+        cfg = replay_config(record, map_rel)
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        if isinstance(exc, InputError):
+            raise
+        raise InputError("TRIAL_ID", "a trial whose stored spec is complete", trial_id,
+                         detail=f"{type(exc).__name__}: {exc}") from None
+    text = "# replays trial " + trial_id + " of " + str(path) + "\n" + yaml.safe_dump(cfg, sort_keys=False)
+    with tempfile.TemporaryDirectory(prefix="nhstab-replay-") as tmp:
+        bundle.write_into(Path(tmp) / "map")
+        cfg_path = Path(tmp) / "run_config.yaml"
+        cfg_path.write_text(text, encoding="utf-8")
+        _, opts = load_run_config(cfg_path)
+    m = bundle.load(cell.get("cell_size"), argument="STORE")
     from nhstab.robot import resolve_robot
 
-    click.echo(f"replaying {trial_id} (stored status: {record['status']})", err=True)
+    click.echo(f"replaying {trial_id} (stored status: {record['status']}) on {m.name} from "
+               f"{'the store' if from_store else bundle.source}", err=True)
     robot = resolve_robot(opts.robot, m.robot, source="run config")
-    return execute_and_write(m, str(extra["map"]), opts, robot, opts.start, opts.goal, out_dir, animate)
+    extra = {"run_config.yaml": text, **{f"map/{rel}": data for rel, data in bundle.files.items()}}
+    return execute_and_write(m, str(out_dir / map_rel), opts, robot, opts.start, opts.goal, out_dir, animate,
+                             extra_files=extra)
+
+
+def _cell_spec(record: dict, trial_id: str) -> dict:
+    from nhstab.errors import InputError
+
+    cell = (record.get("spec") or {}).get("cell_spec") if isinstance(record.get("spec"), dict) else None
+    if not isinstance(cell, dict) or not isinstance(cell.get("map_path"), str):
+        raise InputError("TRIAL_ID", "a trial whose stored spec is complete", trial_id, detail="no cell_spec.map_path")
+    return cell
+
+
+def _bundle_at_recorded_path(cell: dict, store_path: Path, schema: int):
+    """For a trial whose map the store does not hold: its files at the recorded path, checked
+    against the recorded content hash if there is one; else one line naming what is missing."""
+    from nhstab.batch.bundle import MapBundle
+    from nhstab.errors import InputError
+    from nhstab.maps.yaml_format import is_file
+
+    why = ("it was made before stores kept maps (schema 1)" if schema < 2 else
+           f"it holds no map {cell.get('map_bundle') or '(the trial names none)'}")
+    where = Path(cell["map_path"])
+    expected = "a store that holds the trial's map, or the map files at the path the trial records"
+    if not is_file(where):
+        raise InputError("STORE", expected, str(store_path), detail=f"{why}, and {where} is not a file here")
+    size = cell.get("cell_size")
+    bundle = MapBundle.from_path(where, **({"cell_size": size} if size else {}))
+    digest = cell.get("map_hash")
+    if digest and bundle.content_hash != digest:
+        raise InputError("STORE", expected, str(store_path),
+                         detail=f"{why}, and {where} has changed since the batch: content hash "
+                                f"{bundle.content_hash[:12]}, the trial's {digest[:12]}")
+    if not digest:
+        click.echo(f"nhstab: note: {store_path} records no map content; replaying with {where} as it is now",
+                   err=True)
+    return bundle
 
 
 @batch.command("report")

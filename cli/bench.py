@@ -19,16 +19,37 @@ def _emit(result: dict, out: Path):
 @click.group(invoke_without_command=True)
 @click.option("--out-dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results/bench"),
               show_default=True, help="Folder for bench.json and summary.md (when run without a subcommand).")
+@click.option("--only", default=None, metavar="NAME[,NAME...]",
+              help="Run only these benchmarks and merge their results into OUT_DIR/bench.json (the others "
+                   "kept as they were), then rewrite summary.md from the merged file.")
 @click.pass_context
-def bench(ctx, out_dir):
+def bench(ctx, out_dir, only):
     """Run every benchmark (no subcommand) or one of them. Writes JSON."""
     if ctx.invoked_subcommand is not None:
         return 0
     from nhstab.bench import BENCHMARKS, summary_markdown
+    from nhstab.errors import InputError
     from nhstab.records import write_json, write_text
 
     results = {}
-    for name, fn in BENCHMARKS.items():
+    names = list(BENCHMARKS)
+    if only is not None:
+        names = [n.strip() for n in only.split(",") if n.strip()]
+        unknown = [n for n in names if n not in BENCHMARKS]
+        if unknown or not names:
+            raise InputError("--only", f"benchmark names from {', '.join(BENCHMARKS)}", only)
+        previous = out_dir / "bench.json"
+        if previous.is_file():
+            try:
+                results = json.loads(previous.read_text())
+            except (OSError, ValueError) as exc:
+                raise InputError("--out-dir", "a folder whose bench.json is readable JSON (to merge into)",
+                                 f"{previous}: {exc}") from None
+            if not isinstance(results, dict):
+                raise InputError("--out-dir", "a bench.json holding an object", str(previous))
+        results = {k: v for k, v in results.items() if k in BENCHMARKS}
+    for name in names:
+        fn = BENCHMARKS[name]
         click.echo(f"running {name} ...", err=True)
         results[name] = fn()
         write_json(out_dir / "bench.json", results)      # keep what is done if a later one fails
@@ -45,23 +66,41 @@ SUBCOMMANDS = {
     "collision": "FCL world build time and car pose checks per second on the Moving AI 512x512 and nav2 depot maps.",
     "planning": "Time to a feasible, stabilizable nominal over 20 fixed start/goal pairs on two maps, two robots, "
                 "and the scale series on the Moving AI NewYork_1_512 scenarios.",
+    "parking": "Planning on the parking suite: success within 5 s over 10 seeds, time, cusps, duration and gain "
+               "against their bounds, per case (about 10-25 minutes).",
     "run": "Composite controller: replan latency on the depot and warehouse scenarios; cost of a control update.",
     "batch": "Batch throughput: vectorised Hilare trials on one and two workers against the competent per-trial "
              "baseline (a naive one as an extra row), full map trials.",
+    "tube": "Error tube: its time against the plan's on the bundled scenarios, and a per-step loop baseline.",
+}
+
+
+#: options of some subcommands beyond --out, passed to bench_<name> as keywords when given
+EXTRA_OPTIONS = {
+    "parking": [
+        click.option("--seeds", type=int, default=None, help="Seeds per case (default 10)."),
+        click.option("--budget", "budget_s", type=float, default=None, help="Planning budget per call [s] (default 5)."),
+        click.option("--case", "cases", multiple=True,
+                     help="Only this case (repeatable; names as in `nhstab parking table`)."),
+    ],
 }
 
 
 def _subcommand(name: str, help_text: str):
-    @bench.command(name, help=help_text)
-    @click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
-                  default=Path(f"results/bench/{name}.json"), show_default=True)
-    def run(out):
+    def run(out, **extra):
         from nhstab.bench import BENCHMARKS
 
-        _emit(BENCHMARKS[name](), out)
+        kwargs = {k: v for k, v in extra.items() if v not in (None, ())}
+        if name in EXTRA_OPTIONS:
+            kwargs["progress"] = lambda line: click.echo(line, err=True)
+        _emit(BENCHMARKS[name](**kwargs), out)
         return 0
 
-    return run
+    for opt in reversed(EXTRA_OPTIONS.get(name, [])):
+        run = opt(run)
+    run = click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
+                       default=Path(f"results/bench/{name}.json"), show_default=True)(run)
+    return bench.command(name, help=help_text)(run)
 
 
 for _name, _help in SUBCOMMANDS.items():

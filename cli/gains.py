@@ -35,23 +35,31 @@ def gains(trajectory, model_name, params, alpha, delta, gamma, window, end_strat
     """Compute the gramian gain schedule along the nominal in TRAJECTORY (CSV or NPZ).
 
     Writes gains.npz (t, P, K, H eigenvalues, gamma, x0, u0) and gains.json (options and diagnostics:
-    p_m, p_M, the guaranteed rate 2 alpha p_m / p_M, the smallest eigenvalue of H and where).
+    p_m, p_M, the guaranteed rate rate_bound = 3 alpha of the future window (NOTES.md item 8) beside the
+    paper's printed 2 alpha p_m / p_M (rate_bound_printed), the certified Lyapunov rates, the smallest
+    eigenvalue of H and where). The past window has no guarantee (it is not stabilizing in general).
     """
     from nhstab.control import StabilizerOptions, compute_schedule
     from nhstab.models import make_model
-    from nhstab.records import write_json, write_npz
+    from nhstab.records import OutputFolder
     from nhstab.trajectory_io import read_trajectory
 
     model = make_model(model_name, **_parse_params(params))
     opts = StabilizerOptions(alpha=alpha, delta=delta, gamma=gamma, window=window, end_strategy=end_strategy).validated()
     nominal = read_trajectory(trajectory, model)
     schedule = compute_schedule(nominal, opts)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_npz(out_dir / "gains.npz", t=schedule.t, P=schedule.P, K=schedule.K, H_eigenvalues=schedule.H_eigenvalues,
-              gamma=schedule.gamma, x0=schedule.nominal.x, u0=schedule.nominal.u)
-    write_json(out_dir / "gains.json", {"trajectory": str(trajectory), **model.describe(), **schedule.diagnostics})
+    with OutputFolder(out_dir, "gains", owned=("gains.npz", "gains.json")) as out:
+        out.write_npz("gains.npz", t=schedule.t, P=schedule.P, K=schedule.K, H_eigenvalues=schedule.H_eigenvalues,
+                      gamma=schedule.gamma, x0=schedule.nominal.x, u0=schedule.nominal.u)
+        out.write_json("gains.json", {"trajectory": str(trajectory), **model.describe(), **schedule.diagnostics})
     d = schedule.diagnostics
-    click.echo(f"p_m = {d['p_m']:.4g}, p_M = {d['p_M']:.4g}, rate bound = {d['rate_bound']:.4g} 1/s, "
+    if d["rate_bound"] is not None:
+        rates = (f"guaranteed rate 3 alpha = {d['rate_bound']:.4g} 1/s (the paper's printed 2 alpha p_m/p_M = "
+                 f"{d['rate_bound_printed']:.4g} 1/s)")
+    else:
+        rates = (f"no guaranteed rate for the {window} window (certified Lyapunov rate of V: min "
+                 f"{d['lyapunov_rate_min']:.4g}, mean {d['lyapunov_rate_mean']:.4g} 1/s)")
+    click.echo(f"p_m = {d['p_m']:.4g}, p_M = {d['p_M']:.4g}, {rates}, "
                f"min eig H = {d['h_min_eigenvalue']:.4g} at t = {d['h_min_eigenvalue_time_s']:.4g} s, "
                f"max ||K|| = {d['max_gain_norm']:.4g}")
     click.echo(f"wrote {out_dir / 'gains.npz'} and {out_dir / 'gains.json'}")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import warnings
 
 import click
 
@@ -19,10 +20,32 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """nhstab's own warnings as one line on stderr (each text once); others as Python prints them."""
+    from nhstab.errors import NhstabWarning
+
+    if issubclass(category, NhstabWarning):
+        click.echo(f"nhstab: warning: {_one_line(message)}", err=True)
+    else:
+        _default_showwarning(message, category, filename, lineno, file, line)
+
+
+_default_showwarning = warnings.showwarning
+
+
 class NhstabGroup(click.Group):
-    """A click group whose errors are one line on stderr with a non-zero exit code, no traceback."""
+    """A click group whose errors are one line on stderr with a non-zero exit code, no traceback;
+    nhstab's warnings are one line each."""
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        from nhstab.errors import NhstabWarning
+
+        with warnings.catch_warnings():            # restored on exit (CliRunner runs in-process)
+            warnings.showwarning = _show_warning
+            warnings.simplefilter("once", NhstabWarning)
+            self._main(args, prog_name, complete_var, **extra)
+
+    def _main(self, args, prog_name, complete_var, **extra):
         try:
             rv = super().main(args=args, prog_name=prog_name or "nhstab", complete_var=complete_var,
                               standalone_mode=False, **extra)
@@ -59,9 +82,11 @@ def _register():
     from . import bench, gains, paper
     from .examples import examples
     from .map import map_group
+    from .parking import parking
     from .plan import plan, sweep
     from .run import run
     from .batch import batch
+    from .tubes import tubes
 
     cli.add_command(examples)
     cli.add_command(map_group)
@@ -72,6 +97,8 @@ def _register():
     cli.add_command(paper.paper)
     cli.add_command(gains.gains)
     cli.add_command(bench.bench)
+    cli.add_command(parking)
+    cli.add_command(tubes)
 
 
 _register()

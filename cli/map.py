@@ -26,6 +26,19 @@ def parse_pose(name: str, text: str | None):
     return tuple(values)
 
 
+def safe_file_name(name: str, fallback: str = "map", limit: int = 100) -> str:
+    """A default output name made from text a file gave (a map's ``name``): one path component of
+    letters, digits, '.', '-' and '_' only (anything else, path separators included, becomes '_'),
+    no leading dot, at most ``limit`` characters; ``fallback`` (sanitised too) if nothing is left."""
+    import re
+
+    def clean(text: str) -> str:
+        out = re.sub(r"[^A-Za-z0-9._-]+", "_", str(text)).strip("._-")
+        return out[:limit].rstrip("._-")
+
+    return clean(name) or clean(fallback) or "map"
+
+
 def map_options(f):
     f = click.option("--unknown", type=click.Choice(["occupied", "free"]), default=None,
                      help="ROS maps: how unknown cells count (default occupied).")(f)
@@ -103,7 +116,8 @@ def info(map_file, as_json, robot, robot_config, cell_size, unknown):
 @click.option("--start", default=None, help="Start pose x,y,theta (default: the map's).")
 @click.option("--goal", default=None, help="Goal pose x,y,theta (default: the map's).")
 @robot_options
-@click.option("--problems", default=0, show_default=True, help="Also draw this many of the map's start/goal problems.")
+@click.option("--problems", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Also draw this many of the map's start/goal problems.")
 @map_options
 def show(map_file, out, start, goal, robot, robot_config, problems, cell_size, unknown):
     """Draw MAP: known obstacles solid, unknown dashed, bounds, start and goal with the footprint."""
@@ -111,12 +125,16 @@ def show(map_file, out, start, goal, robot, robot_config, problems, cell_size, u
     from nhstab.records import save_figure
     from nhstab.report.maps import map_figure
 
+    from nhstab.errors import InputError
+
+    if out is not None and (not str(out).strip() or str(out) in (".", "..") or str(out).endswith(("/", "\\"))):
+        raise InputError("--out", "the path of a PNG file to write", str(out))
     m = load(map_file, cell_size, unknown)
     fp = _footprint(m, robot, robot_config)
     s = parse_pose("--start", start) or _arr(m.start)
     g = parse_pose("--goal", goal) or _arr(m.goal)
     clear = check_poses(m, fp, {"start": s, "goal": g})
-    out = out or Path(f"{m.name}.png")
+    out = out or Path(safe_file_name(m.name, fallback=Path(str(map_file)).stem) + ".png")
     fig = map_figure(m, start=s, goal=g, footprint=fp, problems=problems,
                      title=f"{m.name}: {fp.label}" + "".join(f", {k} clearance {v:.2f} m" for k, v in clear.items()))
     save_figure(fig, out)

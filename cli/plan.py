@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -27,43 +28,106 @@ EXIT_NO_PLAN = 3
 @click.option("--seed", type=int, default=0, show_default=True, help="OMPL's random seed for this call.")
 @click.option("--guide/--no-guide", default=True, show_default=True,
               help="Guided search: a grid shortest path sets subgoals; --no-guide: OMPL over the whole map.")
-@click.option("--margin", type=float, default=None,
-              help="Clearance to keep from known obstacles [m] (default: the robot's margin).")
+@click.option("--margin", default=None,
+              help="Clearance to keep from known obstacles [m] (default: the robot's margin), or auto: the smallest "
+                   "margin whose error tube is certified clear (a few rounds of planning).")
+@click.option("--gains", default="default", show_default=True,
+              help="default (the robot's alpha, delta, gamma) or auto (per plan, the narrowest tube with a saturation "
+                   "probability under 1 %).")
+@click.option("--noise", "noise_scale", type=float, default=1.0, show_default=True,
+              help="Noise level the tube is predicted for (a multiple of nhstab run's default noise).")
+@click.option("--probability", type=float, default=0.997, show_default=True, help="Probability of the error tube.")
+@click.option("--headroom", type=float, default=1.0, show_default=True,
+              help="Plan within this fraction of the input limits (nhstab run uses 0.8, leaving the rest to the "
+                   "feedback; the tube's saturation probability is against the full limits).")
 @click.option("--max-speed", type=float, default=None, help="[m/s] (default: the robot's limit).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True)
 @map_options
 def plan(map_file, robot, robot_config, start, goal, problem, planner, space, turning_radius, time_limit, seed, guide,
-         margin,
-         max_speed, out_dir, cell_size, unknown):
+         margin, gains, noise_scale, probability, headroom, max_speed, out_dir, cell_size, unknown):
     """Plan on MAP and write trajectory.csv, trajectory.npz, plan.json and plan.png into OUT.
 
     The robot (model, footprint, margin, turning radius, stabilizer) comes from --robot-config,
-    else --robot, else the map's robot block, else the unicycle. Exit code 2 for a bad request
-    (start or goal out of bounds or in collision, unknown planner, zero budget, ...), 3 when no plan
-    was found within the budget (nothing is written then).
+    else --robot, else the map's robot block, else the unicycle. The plan's error tube (nhstab run's
+    default noise times --noise, 50 Hz, the gramian law) is drawn in plan.png, summarised in
+    plan.json (``tube``) and stored in tube.npz.
+
+    Exit code 2 for a bad request (start or goal out of bounds or in collision, unknown planner, zero
+    budget, ...), 3 when no plan was found within the budget (nothing is written then).
     """
     from nhstab.execution import write_plan
     from nhstab.maps import resolve_poses
-    from nhstab.planning import PathOptions, TimingOptions, plan as make_plan
+    from nhstab.errors import InputError
+    from nhstab.execution.config import NoiseOptions
+    from nhstab.execution.runner import derated
+    from nhstab.planning import PathOptions, TimingOptions
+    from nhstab.tubes import certified_text, plan_and_tube
 
+    margin = None if margin is None else parse_margin("--margin", margin)
+    if not (0.0 < probability < 1.0):
+        raise InputError("--probability", "a number in (0, 1)", probability)
+    if not (0.0 < headroom <= 1.0):
+        raise InputError("--headroom", "a number in (0, 1]", headroom)
+
+    from nhstab.errors import InputError
+    from nhstab.limits import MAX_PLANNER_SEED, check_int
+    from nhstab.planning import PLANNABLE
+
+    check_int("--seed", seed, 0, MAX_PLANNER_SEED, "an integer (OMPL's seed)")
     m = load(map_file, cell_size, unknown)
     rob = cli_robot(robot, robot_config, None, m.robot)
+    if rob.model.name not in PLANNABLE:
+        key = "--robot" if robot else ("--robot-config" if robot_config else f"robot.model (in {map_file})")
+        raise InputError(key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)", rob.model.name)
     s, g = resolve_poses(m, parse_pose("--start", start), parse_pose("--goal", goal), problem,
                          names=("--start", "--goal", "--problem"))
     path_opts = PathOptions(space=space, turning_radius=turning_radius, planner=planner, time_limit_s=time_limit,
-                            seed=seed, margin=margin, guide=guide).for_robot(rob)
-    result = make_plan(m, rob, s, g, path_opts, TimingOptions(max_speed=max_speed))
-    if not result.ok:
+                            seed=seed, margin=None if margin in (None, "auto") else margin, guide=guide)
+    if margin is None:
+        margin = rob.margin
+    plan_robot = rob.with_model(derated(rob.model, headroom)) if headroom < 1.0 else rob
+    path_opts = path_opts.for_robot(plan_robot)
+    result, law, tube, extra = plan_and_tube(m, rob, s, g, path_opts, TimingOptions(max_speed=max_speed),
+                                             margin=margin, gains=gains, noise=NoiseOptions(scale=noise_scale),
+                                             probability=probability, plan_robot=plan_robot)
+    for key in ("margin_auto", "gains_auto"):
+        if key in extra:
+            click.echo(extra[key]["message"])
+    if law is None:
         click.echo(f"nhstab: no plan ({result.status}): {result.message}", err=True)
         return EXIT_NO_PLAN
-    write_plan(result, out_dir, m, str(map_file), rob, s, g, path_opts)
+    if margin == "auto":
+        path_opts = replace(path_opts, margin=extra["margin_auto"]["margin_m"])
+    write_plan(result, out_dir, m, str(map_file), rob, s, g, path_opts, tube=tube, extra=extra)
     met = result.metrics
     cusps = met["cusps"]
     click.echo(f"plan found for {rob.name}: {met['length_m']:.2f} m, {cusps} cusp{'' if cusps == 1 else 's'}, "
                f"{met['duration_s']:.1f} s, min clearance {met['min_clearance_m']:.3f} m (margin {path_opts.margin:g} m), "
                f"max gain {met['max_gain_norm']:.3g}")
-    click.echo(f"wrote {out_dir}/trajectory.csv, trajectory.npz, plan.json, plan.png")
+    click.echo(f"tube (p = {tube.probability:g}, noise x{noise_scale:g}): position radius up to "
+               f"{tube.position_radius.max():.3f} m, heading spread up to {tube.heading_spread.max():.3f} rad, "
+               f"{certified_text(tube)}, saturation probability <= "
+               f"{tube.saturation['run_bound']:.3g}")
+    if tube.saturation["run_bound"] > 0.01 and headroom == 1.0:
+        click.echo("note: the nominal may use the full input limits, so the feedback saturates; nhstab run plans "
+                   "with --headroom 0.8")
+    click.echo(f"wrote {out_dir}/trajectory.csv, trajectory.npz, tube.npz, plan.json, plan.png")
     return 0
+
+
+def parse_margin(name: str, text):
+    """A margin option: a number >= 0 [m] or ``auto``; None stays None."""
+    from nhstab.errors import InputError
+
+    if text is None or text == "auto":
+        return text
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        raise InputError(name, "a number >= 0 [m] or auto", text) from None
+    if not (value >= 0.0 and value < float("inf")):
+        raise InputError(name, "a number >= 0 [m] or auto", text)
+    return value
 
 
 @click.command()

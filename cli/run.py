@@ -43,7 +43,9 @@ def parse_levels(name: str, text: str | None) -> dict | None:
 @click.option("--goal", default=None, help="Goal pose x,y,theta (default: the map's).")
 @click.option("--problem", type=int, default=None, help="Use the map's start/goal problem with this index.")
 @click.option("--controller", default=None, help="gramian (default), tvlqr or open-loop.")
-@click.option("--window", default=None, help="The gramian's window: future (default) or past.")
+@click.option("--window", default=None,
+              help="The gramian's window: future (default, Proposition 1), frozen-time (causal: no future nominal "
+                   "needed) or past (Remark 2: not stabilizing in general, for study only).")
 @click.option("--alpha", type=float, default=None, help="Gramian law: rate parameter (default: the robot's).")
 @click.option("--delta", type=float, default=None, help="Gramian law: window length [s] (default: the robot's).")
 @click.option("--gamma", type=float, default=None, help="Gramian law: gain factor >= 1/2 (default: the robot's).")
@@ -58,14 +60,20 @@ def parse_levels(name: str, text: str | None) -> dict | None:
 @click.option("--time-limit", type=float, default=None, help="Budget of each planning call [s] (default 2).")
 @click.option("--guide/--no-guide", default=None,
               help="Guided search (default) or OMPL's planner over the whole map (planning.guide).")
-@click.option("--margin", type=float, default=None, help="Clearance nominals keep from known obstacles [m] (default: the robot's margin).")
+@click.option("--margin", default=None,
+              help="Clearance nominals keep from known obstacles [m] (default: the robot's margin), "
+                   "or auto: per plan, the smallest margin whose error tube is certified clear.")
+@click.option("--gains", default=None,
+              help="default, or auto: the gramian law's alpha, delta, gamma chosen per plan (narrowest error tube "
+                   "with a saturation probability under 1 %).")
 @click.option("--max-time", type=float, default=None, help="Simulated time limit [s].")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results/run"),
               show_default=True)
 @click.option("--animate", is_flag=True, help="Also write run.gif.")
 @map_options
 def run(map_file, config_file, robot, robot_config, start, goal, problem, controller, window, alpha, delta, gamma,
-        rate_hz, noise_scale, initial_error, sensor_std, process_std, seed, planner, time_limit, guide, margin, max_time,
+        rate_hz, noise_scale, initial_error, sensor_std, process_std, seed, planner, time_limit, guide, margin, gains,
+        max_time,
         out_dir, animate, cell_size, unknown):
     """Run the composite controller on MAP: plan, stabilize under noise, sense, monitor with FCL, replan.
 
@@ -76,6 +84,16 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     """
     from nhstab.errors import InputError
     from nhstab.execution.config import RunOptions, load_run_config, merge
+    from nhstab.limits import MAX_RATE_HZ, MAX_SEED, MIN_RATE_HZ, check_int, check_range
+
+    from .plan import parse_margin
+
+    # the flags are checked under their own names (the config's keys are checked when merged)
+    if seed is not None:
+        check_int("--seed", seed, 0, MAX_SEED, "a non-negative integer")
+    if rate_hz is not None:
+        check_range("--rate", rate_hz, MIN_RATE_HZ, MAX_RATE_HZ, "Hz")
+    margin = parse_margin("--margin", margin)
 
     base, cfg_map = RunOptions(), None
     if config_file is not None:
@@ -95,7 +113,7 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
         noise = replace(noise, scale=noise_scale)
     opts = merge(base, seed=seed, rate_hz=rate_hz, max_time_s=max_time, noise=noise,
                  controller__kind=controller, controller__window=window, controller__alpha=alpha,
-                 controller__delta=delta, controller__gamma=gamma, planning__planner=planner,
+                 controller__delta=delta, controller__gamma=gamma, controller__gains=gains, planning__planner=planner,
                  planning__time_limit_s=time_limit, planning__margin=margin, planning__guide=guide)
     from nhstab.maps import resolve_poses
 
@@ -103,21 +121,40 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     rob = cli_robot(robot, robot_config, opts.robot, m.robot)
     s, g = resolve_poses(m, parse_pose("--start", start) or opts.start, parse_pose("--goal", goal) or opts.goal,
                          problem, names=("--start", "--goal", "--problem"))
-    return execute_and_write(m, str(map_path), opts, rob, s, g, out_dir, animate)
+    robot_key = ("--robot" if robot else "--robot-config" if robot_config else
+                 f"robot (in {config_file})" if opts.robot is not None else f"robot.model (in {map_path})")
+    return execute_and_write(m, str(map_path), opts, rob, s, g, out_dir, animate, robot_key=robot_key)
 
 
-def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path, animate: bool) -> int:
+def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path, animate: bool,
+                      robot_key: str = "robot", extra_files: dict | None = None) -> int:
     from nhstab.errors import InputError
     from nhstab.execution import execute, write_run
+    from nhstab.tubes import certified_text
     from nhstab.planning import PLANNABLE
 
     if robot.model.name not in PLANNABLE:
-        raise InputError("robot", "a robot whose model is one of " + ", ".join(PLANNABLE), robot.model.name)
+        raise InputError(robot_key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)",
+                         robot.model.name)
+    opts.validated(robot.model.state_names, robot.model.m)      # every option checked before anything runs
+    from nhstab.planning import check_map_budget
+
+    check_map_budget(m, opts.planning.time_limit_s)
     click.echo(f"running {opts.controller.kind} control of {robot.name} on {m.name} (seed {opts.seed}) ...", err=True)
     result = execute(m, robot, start, goal, opts)
-    files = write_run(result, out_dir, map_path, animate=animate)
+    files = write_run(result, out_dir, map_path, animate=animate, extra_files=extra_files)
     replans = sum(1 for p in result.plans if p.trigger != "initial")
     click.echo(f"{result.status}: {result.message}")
+    for rec in result.plans:
+        for attempt in rec.attempts:
+            for key in ("margin_auto", "gains_auto"):
+                if key in attempt:
+                    click.echo(f"plan {rec.id}: {attempt[key]['message']}")
+        if rec.tube is not None:
+            tb = rec.tube
+            click.echo(f"plan {rec.id} tube (p = {tb.probability:g}): position radius up to "
+                       f"{tb.position_radius.max():.3f} m, {certified_text(tb)}, "
+                       f"saturation probability <= {tb.saturation['run_bound']:.3g}")
     click.echo(f"{replans} replan(s), {len(result.discovered)} obstacle(s) discovered, "
                f"{result.log['t'][-1] if len(result.log['t']) else 0:.1f} s simulated in {result.wall_time_s:.1f} s")
     click.echo("wrote " + ", ".join(str(f) for f in files))

@@ -17,6 +17,7 @@ The names a user needs for the common jobs are here, at the top (each is documen
 ``plan(m, robot, s, g)`` map + robot + start/goal -> ``PlanResult`` with a feasible ``Nominal``
 ``PathOptions``          options of the planning search (planner, budget, seed, margin)
 ``compute_schedule``     the gramian gain schedule along a nominal (``StabilizerOptions``)
+``predict_tube(...)``    the error tube of a feedback law under a noise model (``nhstab.tubes``)
 ``execute(m, robot)``    one run of the composite controller -> ``RunResult``
 ``RunOptions``           options of a run (controller, noise, sensing, replanning); ``load_run_config``
 ``write_run``            a run's files (run.json, trajectory.csv, figures)
@@ -52,6 +53,7 @@ _PUBLIC = {
     "Nominal": "nhstab.nominal",
     "compute_schedule": "nhstab.control",
     "StabilizerOptions": "nhstab.control",
+    "predict_tube": "nhstab.tubes",
     "execute": "nhstab.execution",
     "RunOptions": "nhstab.execution",
     "RunResult": "nhstab.execution",

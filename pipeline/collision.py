@@ -130,11 +130,13 @@ class CollisionWorld:
             else:
                 raise InputError("obstacle", "a Polygon or a Circle", type(shape).__name__)
         self.n_grid_boxes = 0
-        for grid in self.grids:
+        rectangles = [grid_rectangles(grid.occupied) for grid in self.grids]
+        _check_world_size(len(objects) + sum(map(len, rectangles)))       # before any box is built
+        for grid, rects in zip(self.grids, rectangles):
             ox, oy, yaw = grid.origin
             r = grid.resolution
             c, s = math.cos(yaw), math.sin(yaw)
-            for i0, j0, i1, j1 in grid_rectangles(grid.occupied):
+            for i0, j0, i1, j1 in rects:
                 u, v = (j0 + j1) / 2 * r, (i0 + i1) / 2 * r          # centre in the grid frame
                 lx, ly = (j1 - j0) * r, (i1 - i0) * r
                 cx, cy = ox + c * u - s * v, oy + s * u + c * v
@@ -212,7 +214,13 @@ class CollisionWorld:
         return self._robot_objs
 
     # ---- queries -----------------------------------------------------------------------------------
+    # The public queries check their poses (an InputError naming the argument, not an IndexError or a
+    # silently truncated state); the loops inside this class call the unchecked _versions.
     def in_collision(self, pose, fp: Footprint) -> bool:
+        """Does the footprint at ``pose`` (x, y, theta) overlap an obstacle?"""
+        return self._in_collision(_pose(pose), fp)
+
+    def _in_collision(self, pose, fp: Footprint) -> bool:
         for o in self._robot(fp, pose):
             data = fcl.CollisionData()
             self.manager.collide(o, data, _first_contact)
@@ -222,6 +230,9 @@ class CollisionWorld:
 
     def distance(self, pose, fp: Footprint) -> float:
         """Unsigned distance to the nearest obstacle (0 when touching or overlapping)."""
+        return self._distance(_pose(pose), fp)
+
+    def _distance(self, pose, fp: Footprint) -> float:
         best = math.inf
         for o in self._robot(fp, pose):
             data = fcl.DistanceData()
@@ -235,8 +246,11 @@ class CollisionWorld:
 
     def clearance(self, pose, fp: Footprint) -> float:
         """Signed clearance: the distance to the nearest obstacle, or minus the deepest penetration."""
-        if not self.in_collision(pose, fp):
-            return self.distance(pose, fp)
+        return self._clearance(_pose(pose), fp)
+
+    def _clearance(self, pose, fp: Footprint) -> float:
+        if not self._in_collision(pose, fp):
+            return self._distance(pose, fp)
         deepest = 0.0
         for o in self._robot(fp, pose):
             data = fcl.CollisionData(request=fcl.CollisionRequest(num_max_contacts=100_000, enable_contact=True))
@@ -255,12 +269,15 @@ class CollisionWorld:
         is not. Only poses between the two are measured (``_within``). The outer copy goes first: it
         contains the footprint, so a pose it clears is free without testing the footprint itself.
         """
+        return self._is_free(_pose(pose), fp, margin)
+
+    def _is_free(self, pose, fp: Footprint, margin: float = 0.0) -> bool:
         if margin <= 0.0:
-            return not self.in_collision(pose, fp)
+            return not self._in_collision(pose, fp)
         outer, inner = self._inflated(fp, margin)
         if not self._collides(outer, pose):
             return True
-        if self._collides(inner, pose) or self.in_collision(pose, fp):
+        if self._collides(inner, pose) or self._in_collision(pose, fp):
             return False
         return not self._within(pose, fp, margin)
 
@@ -324,7 +341,7 @@ class CollisionWorld:
         Python once per state): the distance-field prefilter in plain Python, then FCL."""
         field = self.clearance_field()
         if field is None:
-            return lambda x, y, th: self.is_free((x, y, th), fp, margin)
+            return lambda x, y, th: self._is_free((x, y, th), fp, margin)
         # plain Python floats and ints throughout (numpy scalars are several times slower here)
         centres, radii = disc_cover(fp)
         discs = [(float(u), float(v), float(rad + margin)) for (u, v), rad in zip(centres, radii)]
@@ -347,7 +364,7 @@ class CollisionWorld:
                 i = int((y + s * u + c * v - y0) // r)
                 if 0 <= i < rows and 0 <= j < cols and inside[i, j]:
                     return False
-            return self.is_free((x, y, th), fp, margin)
+            return self._is_free((x, y, th), fp, margin)
 
         return check
 
@@ -362,11 +379,11 @@ class CollisionWorld:
         c - margin - ``VOUCH_GAP`` from it (|translation| + reach |rotation|, reach = the farthest
         footprint point from the reference point), as clearance changes no faster than that.
         """
-        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        poses = _poses(poses)
         out = np.zeros(len(poses), dtype=bool)
         field = self.clearance_field()
         if field is None:
-            return np.array([self.is_free(p, fp, margin) for p in poses], dtype=bool)
+            return np.array([self._is_free(p, fp, margin) for p in poses], dtype=bool)
         sure = field.surely_free(poses, fp, margin)
         out[sure] = True
         undecided = np.flatnonzero(~sure)
@@ -382,10 +399,10 @@ class CollisionWorld:
             if held is not None and _moved(held[0], p, reach) < held[1]:
                 out[k] = True
                 continue
-            out[k] = self.is_free(p, fp, margin)
+            out[k] = self._is_free(p, fp, margin)
             held = None
             if out[k] and n + 1 < len(undecided) and _moved(p, poses[undecided[n + 1]], reach) < self.VOUCH_NEAR:
-                held = (p, self.distance(p, fp) - margin - self.VOUCH_GAP)
+                held = (p, self._distance(p, fp) - margin - self.VOUCH_GAP)
         return out
 
     def motion_free(self, poses, fp: Footprint, margin: float = 0.0, stats: dict | None = None) -> bool:
@@ -395,13 +412,13 @@ class CollisionWorld:
         path) and stops at the first pose that is not free. ``stats`` (if given) accumulates "states",
         "fcl_states" (poses that reached FCL) and "time_s"."""
         started = time.perf_counter()
-        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        poses = _poses(poses)
         fcl_calls = 0
         try:
             field = self.clearance_field()
             if field is None:
                 fcl_calls = len(poses)
-                return all(self.is_free(p, fp, margin) for p in poses)
+                return all(self._is_free(p, fp, margin) for p in poses)
             sure = field.surely_free(poses, fp, margin)
             if sure.all():
                 return True
@@ -416,11 +433,11 @@ class CollisionWorld:
                 if held is not None and _moved(held[0], p, reach) < held[1]:
                     continue
                 fcl_calls += 1
-                if not self.is_free(p, fp, margin):
+                if not self._is_free(p, fp, margin):
                     return False
                 held = None
                 if n + 1 < len(undecided) and _moved(p, poses[undecided[n + 1]], reach) < self.VOUCH_NEAR:
-                    held = (p, self.distance(p, fp) - margin - self.VOUCH_GAP)
+                    held = (p, self._distance(p, fp) - margin - self.VOUCH_GAP)
             return True
         finally:
             if stats is not None:
@@ -435,8 +452,8 @@ class CollisionWorld:
         return getattr(self, "_field", None)
 
     def clearance_many(self, poses, fp: Footprint) -> np.ndarray:
-        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
-        return np.array([self.clearance(p, fp) for p in poses])
+        """``clearance`` at each of ``poses`` (N, 3)."""
+        return np.array([self._clearance(p, fp) for p in _poses(poses)])
 
     def min_clearance(self, poses, fp: Footprint) -> tuple[float, int]:
         """The smallest signed clearance over poses (N, 3) and its (first) index, exactly, without
@@ -447,9 +464,9 @@ class CollisionWorld:
         obstacle lies inside it), also its outline sampled at the field's cell size, which is tighter;
         for the ``VOUCH_SPAN`` poses either side of a measured pose with clearance c > 0, also
         c - ``VOUCH_GAP`` - how far the footprint moved (as in :meth:`free_many`)."""
-        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        poses = _poses(poses, at_least=1)
         field = self.clearance_field()
-        if field is None or len(poses) == 0:
+        if field is None:
             c = self.clearance_many(poses, fp)
             k = int(np.argmin(c))
             return float(c[k]), k
@@ -459,7 +476,7 @@ class CollisionWorld:
         for (u, v), rad in zip(centres, radii):
             bound = np.minimum(bound, field.at(poses[:, 0] + c * u - s * v, poses[:, 1] + s * u + c * v) - rad)
         k0 = int(np.argmin(bound))
-        best, best_k = self.clearance(poses[k0], fp), k0
+        best, best_k = self._clearance(poses[k0], fp), k0
         todo = np.flatnonzero(bound <= max(best, 0.0))        # the only poses that can beat it
         if fp.radius is None:
             clear = bound[todo] > 0.0
@@ -480,7 +497,7 @@ class CollisionWorld:
             if bound[k] > max(best, 0.0):
                 break
             if k != k0 and vouched[k] <= max(best, 0.0):
-                ck = self.clearance(poses[k], fp)
+                ck = self._clearance(poses[k], fp)
                 vouch(k, ck)
                 if ck < best or (ck == best and k < best_k):
                     best, best_k = ck, int(k)
@@ -490,9 +507,7 @@ class CollisionWorld:
                    angular_resolution: float = 0.05) -> PathCheck:
         """Check a path of poses (N, 3), interpolated so that consecutive samples are at most
         ``resolution`` m and ``angular_resolution`` rad apart (linear in x, y; shortest turn in theta)."""
-        poses = np.asarray(poses, dtype=float)
-        if poses.ndim != 2 or poses.shape[1] != 3 or len(poses) < 1 or not np.all(np.isfinite(poses)):
-            raise InputError("poses", "a finite (N, 3) array of (x, y, theta)", f"shape {poses.shape}")
+        poses = _poses(poses, at_least=1)
         if not (resolution > 0 and angular_resolution > 0):
             raise InputError("resolution", "positive", (resolution, angular_resolution))
         samples, segment = interpolate_poses(poses, resolution, angular_resolution)
@@ -509,6 +524,15 @@ class CollisionWorld:
 
 _COLLIDE_REQUEST = fcl.CollisionRequest()
 _DISTANCE_REQUEST = fcl.DistanceRequest()
+
+
+def _check_world_size(n: int) -> None:
+    from .limits import MAX_WORLD_OBJECTS
+
+    if n > MAX_WORLD_OBJECTS:
+        raise InputError("map", f"obstacles that make at most {MAX_WORLD_OBJECTS:,} collision objects (convex parts "
+                         "and merged rectangles of occupied cells)", f"{n:,}",
+                         detail="a grid this fragmented is mostly isolated noise cells: clean or coarsen it")
 
 
 def _moved(a, b, reach: float) -> float:
@@ -567,6 +591,38 @@ def _exact_distance(fp: Footprint, pose, outline) -> float:
     return point_polygon_distance(outline[1], transform_points(fp.vertices, pose)) - outline[2]
 
 
+def _pose(value, name: str = "pose") -> np.ndarray:
+    """A pose (x, y, theta) as an array; anything but three finite numbers is an InputError naming
+    ``name`` (a robot's full state, e.g. a car's (x, y, theta, phi), is not a pose: take its pose
+    columns)."""
+    try:
+        p = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value) from None
+    if value is None:
+        raise InputError(name, "a pose of three finite numbers (x, y, theta)", "None")
+    if p.shape != (3,) or not (math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])):
+        raise InputError(name, "a pose of three finite numbers (x, y, theta)",
+                         value if p.size <= 6 else f"an array of shape {p.shape}")
+    return p
+
+
+def _poses(value, name: str = "poses", at_least: int = 0) -> np.ndarray:
+    """Poses as an (N, 3) array (one pose (3,) counts as N = 1); anything else is an InputError."""
+    try:
+        p = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(name, "an (N, 3) array of poses (x, y, theta)", value) from None
+    if value is None:
+        raise InputError(name, "an (N, 3) array of poses (x, y, theta)", "None")
+    if p.shape == (3,):
+        p = p.reshape(1, 3)
+    if p.ndim != 2 or p.shape[1] != 3 or len(p) < at_least or not np.all(np.isfinite(p)):
+        expected = f"an (N, 3) array of finite poses (x, y, theta){f', N >= {at_least}' if at_least else ''}"
+        raise InputError(name, expected, value if p.size <= 6 else f"an array of shape {p.shape}")
+    return p
+
+
 def interpolate_poses(poses: np.ndarray, resolution: float, angular_resolution: float):
     """Samples along the polyline of poses; returns (samples (M, 3), segment index of each sample)."""
     if len(poses) == 1:
@@ -593,7 +649,7 @@ def check_poses(m: Map, fp: Footprint, poses: dict, obstacles: str = "all", worl
     for name, pose in poses.items():
         if pose is None:
             continue
-        p = np.asarray(pose, dtype=float)
+        p = _pose(pose, name)
         if not m.contains(p[0], p[1]):
             raise MapError(f"{m.source or m.name}: {name}", f"inside the bounds {list(m.bounds)}", p.tolist())
         c = world.clearance(p, fp)

@@ -12,6 +12,14 @@ class PipelineError(Exception):
     """Base class of every error nhstab raises on purpose."""
 
 
+class NhstabWarning(UserWarning):
+    """Base class of the warnings nhstab issues on purpose (the command line prints each as one line)."""
+
+
+class NotStabilizingWarning(NhstabWarning):
+    """A requested feedback law is not stabilizing in general (the past window of Remark 2)."""
+
+
 class InputError(PipelineError, ValueError):
     """An argument, option or file content is not acceptable.
 
@@ -22,12 +30,21 @@ class InputError(PipelineError, ValueError):
         self.argument = argument
         self.expected = expected
         self.got = got
+        self.detail = detail
         msg = f"'{argument}' must be {expected}"
         if got is not None:
             msg += f"; got {_short(got)}"
         if detail:
             msg += f" ({detail})"
         super().__init__(msg)
+
+    def __reduce__(self):
+        # pickled by its fields, so that it crosses from a worker process (local or Dask) intact
+        return (_rebuild_input_error, (type(self), self.argument, self.expected, self.got, self.detail))
+
+
+def _rebuild_input_error(cls, argument, expected, got, detail):
+    return cls(argument, expected, got, detail=detail)
 
 
 class UnknownModelError(InputError):

@@ -125,11 +125,12 @@ def _describe(name: str, path: Path) -> Example:
         robot = {"car": "rwd_car (car.svg)", "warehouse_robot": "unicycle (warehouse_robot.svg)"}.get(shape or "", "any")
         return Example(name, path, "Bench-MR SVG", robot, "problems" if n else "map",
                        f"polygon world; {n} start/goal problem(s) from polygon_scenarios.csv")
-    import yaml
+    from .errors import PipelineError
+    from .safe_io import load_yaml_file
 
     try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        doc = load_yaml_file(path)
+    except PipelineError:
         doc = None
     if not isinstance(doc, dict):
         return Example(name, path, "unreadable", "-", "map", "(could not be read)")

@@ -35,6 +35,25 @@ def _as_float_array(name: str, value, ndim: int) -> np.ndarray:
     return arr
 
 
+def _check_grid(model: Model, t: np.ndarray, x: np.ndarray, u: np.ndarray) -> None:
+    """Samples on a strictly increasing grid, with the model's state and input sizes."""
+    N = t.shape[0]
+    if N < 2:
+        raise TrajectoryError("t", "at least 2 samples", N)
+    if x.shape != (N, model.n):
+        raise TrajectoryError("x", f"shape ({N}, {model.n}) to match t and the {model.name} state", f"shape {x.shape}")
+    if u.shape != (N, model.m):
+        raise TrajectoryError("u", f"shape ({N}, {model.m}) to match t and the {model.name} inputs", f"shape {u.shape}")
+    _check_increasing(t)
+
+
+def _check_increasing(t: np.ndarray) -> None:
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        k = int(np.argmax(dt <= 0))
+        raise TrajectoryError("t", "strictly increasing", f"t[{k}] = {t[k]} then t[{k + 1}] = {t[k + 1]}")
+
+
 class Nominal:
     """A nominal trajectory of a model. Build it with one of the ``from_*`` constructors.
 
@@ -47,6 +66,11 @@ class Nominal:
 
     def __init__(self, model: Model, t: np.ndarray, x: np.ndarray, u: np.ndarray,
                  x_func: ArrayFn | None = None, u_func: ArrayFn | None = None, source: str = "samples"):
+        if not isinstance(model, Model):
+            raise InputError("model", "a robot model (nhstab.make_model(name))", type(model).__name__)
+        if x_func is None or u_func is None:       # sampled data: the grid must be usable
+            t, x, u = _as_float_array("t", t, 1), _as_float_array("x", x, 2), _as_float_array("u", u, 2)
+            _check_grid(model, t, x, u)
         self.model = model
         self.t = t
         self.x = x
@@ -70,17 +94,7 @@ class Nominal:
         t = _as_float_array("t", t, 1)
         x = _as_float_array("x", x, 2)
         u = _as_float_array("u", u, 2)
-        N = t.shape[0]
-        if N < 2:
-            raise TrajectoryError("t", "at least 2 samples", N)
-        if x.shape != (N, model.n):
-            raise TrajectoryError("x", f"shape ({N}, {model.n}) to match t and the {model.name} state", f"shape {x.shape}")
-        if u.shape != (N, model.m):
-            raise TrajectoryError("u", f"shape ({N}, {model.m}) to match t and the {model.name} inputs", f"shape {u.shape}")
-        dt = np.diff(t)
-        if np.any(dt <= 0):
-            k = int(np.argmax(dt <= 0))
-            raise TrajectoryError("t", "strictly increasing", f"t[{k}] = {t[k]} then t[{k + 1}] = {t[k + 1]}")
+        _check_grid(model, t, x, u)
         if model.angle_states:
             x = x.copy()
             idx = list(model.angle_states)
@@ -103,6 +117,9 @@ class Nominal:
         integrating the model along the nominal reproduces it to about ``rtol``.
         """
         t = _as_float_array("t", t, 1)
+        if t.shape[0] < 2:
+            raise TrajectoryError("t", "at least 2 samples", t.shape[0])
+        _check_increasing(t)
         x_init = _as_float_array("x_init", x_init, 1)
         if x_init.shape != (model.n,):
             raise TrajectoryError("x_init", f"a vector of length {model.n}", f"shape {x_init.shape}")

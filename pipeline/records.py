@@ -73,3 +73,182 @@ def save_figure(fig, path, dpi: int = 110) -> Path:
     """Save a matplotlib figure atomically as PNG (figures from :func:`nhstab.report.subplots` are not
     registered with pyplot, so there is nothing to close)."""
     return _atomic_write(Path(path), lambda fh: fig.savefig(fh, format="png", dpi=dpi))
+
+
+# ---- output folders ---------------------------------------------------------------------------
+
+#: the file that marks a folder's outputs complete and names them (written last)
+MANIFEST = "nhstab-manifest.json"
+_STAGING = ".nhstab-staging-"
+
+
+class OutputFolder:
+    """Write one command's files into a folder so that the folder never mixes two runs.
+
+    The protocol (documented in the README, "Output folders"):
+
+    1. every file is written into a fresh staging folder inside the output folder
+       (``.nhstab-staging-<pid>-<random>``), so nothing the command writes is visible before it
+       has all been written. If the command fails or is interrupted before it commits, the staging
+       folder is removed and the output folder is exactly as it was (an earlier run stays whole);
+    2. commit: the old manifest is removed first (from then on the folder says it holds no complete
+       run), then every file of the earlier output is removed (the files its manifest names, and
+       the names this command writes, for folders made before manifests existed), then the new
+       files are moved in (a rename each: same file system), and finally the new manifest
+       ``nhstab-manifest.json`` is written (atomically), naming every file with its size and
+       SHA-256.
+
+    So a folder with a manifest holds exactly the files of one run, as the manifest lists them, and
+    a folder without one (a commit cut short) holds files of at most one run and says it is
+    incomplete. Other files in the folder (a batch's trials.sqlite, the user's own) are never
+    touched. Use as a context manager::
+
+        with OutputFolder(out_dir, "run", owned=RUN_FILES) as out:
+            out.write_text("trajectory.csv", text)
+            out.save_figure(fig, "run_map.png")
+        out.written            # the final paths, manifest last
+    """
+
+    def __init__(self, out_dir, command: str, owned=(), info: dict | None = None):
+        self.dir = Path(out_dir)
+        self.command = command
+        self.owned = tuple(owned)
+        self.info = dict(info or {})
+        self.names: list[str] = []
+        self.written: list[Path] = []
+        self.staging: Path | None = None
+
+    # -- writing into the staging folder ---------------------------------------------------------
+    def __enter__(self) -> "OutputFolder":
+        if self.dir.exists() and not self.dir.is_dir():
+            from .errors import InputError
+
+            raise InputError("--out", "a folder (or a path where one can be made)", str(self.dir),
+                             detail="it is a file")
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.staging = Path(tempfile.mkdtemp(prefix=f"{_STAGING}{os.getpid()}-", dir=self.dir))
+        return self
+
+    def path(self, name: str) -> Path:
+        """Where to write ``name`` (a relative path) now: inside the staging folder."""
+        rel = Path(name)
+        if rel.is_absolute() or ".." in rel.parts or not rel.parts:
+            raise ValueError(f"output names are relative paths inside the folder: {name!r}")
+        if name not in self.names:
+            self.names.append(name)
+        target = self.staging / rel
+        target.parent.mkdir(parents=True, exist_ok=True)
+        return target
+
+    def write_text(self, name: str, text: str) -> Path:
+        return write_text(self.path(name), text)
+
+    def write_json(self, name: str, obj) -> Path:
+        return write_json(self.path(name), obj)
+
+    def write_npz(self, name: str, **arrays) -> Path:
+        return write_npz(self.path(name), **arrays)
+
+    def save_figure(self, fig, name: str, dpi: int = 110) -> Path:
+        return save_figure(fig, self.path(name), dpi=dpi)
+
+    def final(self, name: str) -> Path:
+        return self.dir / name
+
+    def __exit__(self, kind, exc, tb) -> bool:
+        try:
+            if kind is None:
+                self.commit()
+        finally:
+            if self.staging is not None:
+                _rmtree(self.staging)
+                self.staging = None
+        return False
+
+    # -- commit ----------------------------------------------------------------------------------
+    def commit(self) -> list[Path]:
+        import hashlib
+
+        manifest = self.dir / MANIFEST
+        old = read_manifest(self.dir)
+        entries = []
+        for name in self.names:
+            data = (self.staging / name).read_bytes()
+            entries.append({"name": name, "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()})
+        # 1. the folder no longer claims a complete run
+        if manifest.exists() or manifest.is_symlink():
+            manifest.unlink()
+        # 2. the earlier output goes, whole
+        stale = set(self.owned) | set(old.get("files", {}) if old else {})
+        for name in sorted(stale):
+            target = self._inside(name)
+            if target is not None and (target.is_file() or target.is_symlink()):
+                target.unlink()
+        for name in sorted(stale, key=lambda n: -len(Path(n).parts)):      # empty subfolders we made
+            target = self._inside(name)
+            if target is not None and target.parent != self.dir:
+                try:
+                    target.parent.rmdir()
+                except OSError:
+                    pass
+        # 3. the new files move in
+        self.written = []
+        for name in self.names:
+            target = self.dir / name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(self.staging / name, target)
+            self.written.append(target)
+        # 4. the manifest, last
+        from . import __version__
+
+        self.written.append(write_json(manifest, {
+            "command": self.command, "nhstab_version": __version__, **self.info,
+            "files": {e["name"]: {"bytes": e["bytes"], "sha256": e["sha256"]} for e in entries},
+            "note": "written last: these files are one complete output; a folder without this file holds an "
+                    "incomplete one"}))
+        self._clean_dead_staging()
+        return self.written
+
+    def _inside(self, name: str) -> Path | None:
+        rel = Path(name)
+        if rel.is_absolute() or ".." in rel.parts or not rel.parts or rel.name == MANIFEST:
+            return None
+        return self.dir / rel
+
+    def _clean_dead_staging(self) -> None:
+        """Staging folders left by a writer that was killed (its process no longer exists)."""
+        for d in self.dir.glob(f"{_STAGING}*"):
+            try:
+                pid = int(d.name[len(_STAGING):].split("-")[0])
+            except ValueError:
+                continue
+            if pid != os.getpid() and not _alive(pid):
+                _rmtree(d)
+
+
+def read_manifest(folder) -> dict | None:
+    """The manifest of an output folder (see :class:`OutputFolder`), or None if it has none or it is
+    not readable."""
+    try:
+        data = json.loads((Path(folder) / MANIFEST).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict) or not isinstance(data.get("files"), dict):
+        return None
+    return data
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True
+    return True
+
+
+def _rmtree(path: Path) -> None:
+    import shutil
+
+    shutil.rmtree(path, ignore_errors=True)

@@ -455,7 +455,11 @@ def resolve_robot(robot=None, map_robot=None, default: str = "unicycle", source:
 
 
 def _number(key: str, v, lo: float = -math.inf, lo_open: bool = False) -> float:
-    ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
+    ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+    try:
+        ok = ok and math.isfinite(v)
+    except OverflowError:            # an integer too large for a float (issue 12)
+        ok, v = False, f"an integer of {v.bit_length()} bits"
     if ok:
         ok = v > lo if lo_open else v >= lo
     if not ok:

@@ -49,8 +49,9 @@ class TrackingResult:
 
 def simulate_tracking(schedule: GainSchedule, x_init, t_end: float | None = None, *, method: str = "Radau",
                       rtol: float = 1e-10, atol: float = 1e-20, n_out: int = 2001,
-                      divergence_norm: float | None = None) -> TrackingResult:
-    """Integrate the closed loop from ``x_init`` at the schedule's start until ``t_end``.
+                      divergence_norm: float | None = None, t_start: float | None = None) -> TrackingResult:
+    """Integrate the closed loop from ``x_init`` at ``t_start`` (default: the schedule's start) until
+    ``t_end``.
 
     The run stops early with status "diverged" when ||x - x0|| exceeds ``divergence_norm``
     (default: max(10, 100 ||e(0)||)).
@@ -60,7 +61,9 @@ def simulate_tracking(schedule: GainSchedule, x_init, t_end: float | None = None
     x_init = np.asarray(x_init, dtype=float)
     if x_init.shape != (model.n,) or not np.all(np.isfinite(x_init)):
         raise InputError("x_init", f"a finite vector of length {model.n}", x_init.tolist())
-    t0 = float(schedule.t[0])
+    t0 = float(schedule.t[0]) if t_start is None else float(t_start)
+    if not (schedule.t[0] - 1e-9 <= t0 < schedule.t[-1]):
+        raise InputError("t_start", f"in [{schedule.t[0]:.6g}, {schedule.t[-1]:.6g}) s (the schedule's span)", t_start)
     t_end = float(schedule.t[-1]) if t_end is None else float(t_end)
     if not (t0 < t_end <= schedule.t[-1] + 1e-9):
         raise InputError("t_end", f"in ({t0:.6g}, {schedule.t[-1]:.6g}] s (the schedule's span)", t_end)

@@ -40,8 +40,18 @@ def read_trajectory(path, model: Model) -> Nominal:
         raise InputError("trajectory", "an existing CSV or NPZ file", str(path))
     suffix = path.suffix.lower()
     if suffix == ".npz":
+        from .limits import MAX_FILE_BYTES
+        from .safe_io import read_bytes
+
+        raw = io.BytesIO(read_bytes(path, what="NPZ file"))
         try:
-            with np.load(path, allow_pickle=False) as data:
+            with zipfile.ZipFile(raw) as z:         # a compressed array may expand: check before it does
+                unpacked = sum(i.file_size for i in z.infolist())
+            if unpacked > MAX_FILE_BYTES:
+                raise InputError(path.name, f"an NPZ file of at most {MAX_FILE_BYTES:,} bytes unpacked",
+                                 f"{unpacked:,} bytes")
+            raw.seek(0)
+            with np.load(raw, allow_pickle=False) as data:
                 missing = [k for k in ("t", "x", "u") if k not in data.files]
                 if missing:
                     raise TrajectoryError(f"{path.name}", "an NPZ file with arrays t, x, u", f"missing {missing}")
@@ -56,10 +66,9 @@ def read_trajectory(path, model: Model) -> Nominal:
 
 
 def _read_csv(path: Path, model: Model) -> Nominal:
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path.name, "a readable UTF-8 CSV file", type(exc).__name__) from None
+    from .safe_io import read_text
+
+    text = read_text(path, what="UTF-8 CSV file")
     rows = list(csv.reader(io.StringIO(text)))
     rows = [r for r in rows if r and not (len(r) == 1 and not r[0].strip())]
     if len(rows) < 3:

@@ -53,8 +53,8 @@ def transition(nominal, t: float, s: float, rtol=1e-12, atol=1e-15):
 
 def reference_H(nominal, times, opts):
     """H(t) at each time with the window and end conventions the library documents: whole windows
-    where they fit; past the boundary s, "switch" takes the other window and "frozen" carries H(s)
-    along the flow, H(t) = Phi(t, s) H(s) Phi(t, s)^T."""
+    where they fit; past the boundary s, "frozen" carries H(s) along the flow,
+    H(t) = Phi(t, s) H(s) Phi(t, s)^T."""
     t0, T = nominal.t0, nominal.t_end
     delta = opts.delta
     cw = opts.weight * opts.alpha
@@ -62,9 +62,9 @@ def reference_H(nominal, times, opts):
     for t in times:
         fits_future = t + delta <= T + 1e-12
         fits_past = t - delta >= t0 - 1e-12
-        if opts.window == "future" and fits_future or opts.window == "past" and opts.end_strategy == "switch" and not fits_past:
+        if opts.window == "future" and fits_future:
             out.append(window_gramian(nominal, t, t, t + delta, cw))
-        elif opts.window == "past" and fits_past or opts.window == "future" and opts.end_strategy == "switch":
+        elif opts.window == "past" and fits_past:
             out.append(window_gramian(nominal, t, t - delta, t, cw))
         else:   # frozen
             s = T - delta if opts.window == "future" else t0 + delta

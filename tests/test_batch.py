@@ -48,6 +48,9 @@ def _records(path) -> dict:
     ("name: t\nroot_seed: 1\ntrials: 2\nmaps: [{path: MAP}]\nrun: {noise: {scale: -1}}\n", "run.noise.scale"),
     ("name: t\nroot_seed: 1\ntrials: 2\nmaps: [{path: MAP}]\nrun: {seed: 3}\n", "run.seed"),
     ("name: t\nroot_seed: 1\ntrials: 2\nmaps: []\n", "maps"),
+    ("name: t\nroot_seed: 1\ntrials: 2\nmaps: [{path: MAP}]\ngrid: {window: [future, sideways]}\n", "grid.window[1]"),
+    ("name: t\nroot_seed: 1\ntrials: 2\nmaps: [{path: MAP}]\nrun: {controller: {window: past2}}\n",
+     "run.controller.window"),
 ])
 def test_a_malformed_batch_config_is_refused_naming_the_key(tmp_path, text, key):
     f = tmp_path / "b.yaml"
@@ -69,6 +72,40 @@ def test_cells_and_paired_seeds(tmp_path):
         by_trial.setdefault(s["trial"], set()).add(s["seed"])
     assert all(len(v) == 1 for v in by_trial.values())          # the same seed for trial k in every cell
     assert len({next(iter(v)) for v in by_trial.values()}) == 4
+
+
+def test_a_window_grid_makes_gramian_cells_only_and_keeps_older_cell_ids(tmp_path):
+    c = load_batch_config(_config(tmp_path, trials=2, controllers=("gramian", "tvlqr"),
+                                  extra="  window: [future, past, frozen-time]\n"))
+    cells = c.cells()
+    assert [x.get("window") for x in cells] == ["future", "past", "frozen-time", None]
+    assert cells[1]["id"] == "map=cluttered-room|problem=0|robot=default|controller=gramian|window=past|noise=1"
+    assert cells[3]["id"] == "map=cluttered-room|problem=0|robot=default|controller=tvlqr|noise=1"
+    assert c.windows() == {"future", "past", "frozen-time"}
+    plain = load_batch_config(_config(tmp_path, trials=2))
+    assert "window" not in plain.cells()[0] and plain.windows() == {"future"}
+
+
+def test_the_committed_older_store_still_reports(tmp_path):
+    """results/robustness/trials.sqlite was written when `rate_bound` held the printed 2 alpha p_m/p_M
+    and cells had no window: the report reads it, labels the cells as before, and gives the 3 alpha
+    rate recovered from it (alpha = rate_bound p_M / (2 p_m), the depot robot's default 0.2)."""
+    import csv as _csv
+    import shutil
+
+    from nhstab.batch.report import write_report
+
+    src = ROOT / "results" / "robustness" / "trials.sqlite"
+    shutil.copy(src, tmp_path / "trials.sqlite")
+    names = {f.name for f in write_report(tmp_path / "trials.sqlite")}
+    assert {"envelopes.png", "report.md", "trials.csv"} <= names
+    rows = list(_csv.DictReader((tmp_path / "trials.csv").open()))
+    gram = [r for r in rows if r["controller"] == "gramian"]
+    assert gram and all(r["window"] == "future" for r in gram)
+    for r in gram:
+        assert float(r["rate_bound"]) == pytest.approx(0.6, rel=1e-9)       # 3 alpha, alpha = 0.2
+        assert float(r["rate_bound_printed"]) < 0.05
+    assert "| depot-blocked-aisle / gramian / noise 1 | 16 |" in (tmp_path / "report.md").read_text()
 
 
 def test_store_records_a_trial_once(tmp_path):
@@ -127,6 +164,63 @@ def test_a_batch_killed_with_sigkill_and_resumed_runs_each_trial_once(tmp_path):
     assert counts["ran"] == 12 - part and counts["stored"] == 12
     run_batch(load_batch_config(cfg_file), tmp_path / "whole", workers=2, progress=False)
     assert _records(db) == _records(tmp_path / "whole" / "trials.sqlite")
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    """The reference: the 4-trial batch of the Ctrl-C tests, run without interruption."""
+    d = tmp_path_factory.mktemp("whole")
+    run_batch(load_batch_config(_config(d, trials=2)), d / "b", workers=2, progress=False)
+    return _records(d / "b" / "trials.sqlite")
+
+
+def _stored(db) -> int:
+    try:
+        with sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5) as con:
+            return con.execute("SELECT COUNT(*) FROM trials").fetchone()[0]
+    except sqlite3.Error:
+        return 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("workers,target", [(1, "group"), (2, "group"), (2, "driver")])
+def test_ctrl_c_stops_the_batch_stores_no_interrupted_trial_and_resume_completes_it(tmp_path, uninterrupted,
+                                                                                    workers, target):
+    """SIGINT part-way (after the first stored trial), as a terminal's Ctrl-C (the whole process group)
+    or to the driving process only: exit 130, one line, only finished trials stored, no process left;
+    then --resume: the store equals an uninterrupted batch's, trial for trial (statuses, metrics,
+    series, seeds)."""
+    cfg_file = _config(tmp_path, trials=2)
+    out = tmp_path / "b"
+    db = out / "trials.sqlite"
+    cmd = [sys.executable, "-m", "nhstab.cli.main", "batch", str(cfg_file), "--out", str(out), "--workers",
+           str(workers), "--no-progress"]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, start_new_session=True, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 300
+    while time.time() < deadline and proc.poll() is None and _stored(db) < 1:
+        time.sleep(0.02)
+    assert proc.poll() is None, "the batch finished before it could be interrupted"
+    if target == "group":
+        os.killpg(proc.pid, signal.SIGINT)
+    else:
+        os.kill(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    lines = [ln for ln in err.splitlines() if ln.startswith("nhstab:")]
+    assert len(lines) == 1 and "interrupted" in lines[0] and "--resume" in lines[0] and "Traceback" not in err, err
+    time.sleep(0.5)
+    with pytest.raises(ProcessLookupError):       # no worker or planner process outlives the batch
+        os.killpg(proc.pid, 0)
+    with Store(db) as s:
+        part = s.trials()
+    assert 1 <= len(part) < 4
+    assert all(t["status"] not in ("interrupted", "error") for t in part), [t["status"] for t in part]
+    assert f"{len(part)} of 4 trials are stored" in lines[0]
+    res = subprocess.run(cmd + ["--resume"], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr
+    assert f"ran {4 - len(part)} trials" in res.stdout
+    assert _records(db) == uninterrupted
 
 
 def test_replay_reproduces_a_stored_trial(tmp_path, monkeypatch):
@@ -194,3 +288,42 @@ def test_report_with_a_partial_gain_grid(tmp_path):
     write_report(tmp_path / "b")
     md = (tmp_path / "b" / "report.md").read_text()
     assert "/ gramian a0.1 / noise 1 |" in md and "/ gramian a0.2 / noise 1 |" in md
+
+
+def test_a_past_window_batch_warns_once_and_trials_record_their_bound(tmp_path):
+    from nhstab.errors import NotStabilizingWarning
+
+    cfg = load_batch_config(_config(tmp_path, trials=1, controllers=("gramian",),
+                                    extra="  window: [future, past]\n"))
+    with pytest.warns(NotStabilizingWarning) as rec:
+        run_batch(cfg, tmp_path / "b", workers=1, progress=False)
+    assert sum(issubclass(w.category, NotStabilizingWarning) for w in rec) == 1
+    with Store(tmp_path / "b" / "trials.sqlite") as s:
+        trials = {t["spec"]["cell_spec"]["window"]: t for t in s.trials()}
+    fut, past = trials["future"], trials["past"]
+    assert fut["metrics"]["window"] == "future" and fut["metrics"]["rate_bound"] == pytest.approx(0.6)
+    bound, err = fut["series"]["bound"], fut["series"]["error_norm"]
+    assert len(bound) == len(err) and bound[0] >= err[0]          # sqrt(e0^T P e0 / lambda_min(P)) >= ||e0||
+    assert "bound" not in (past["series"] or {}) and past["metrics"]["rate_bound"] is None
+
+
+def test_paired_outcomes_count_on_the_reference_seeds():
+    """Hand-made records: the reference reached on seeds 0, 1, 2; the other law on 0 and 2 (and on 3,
+    where the reference did not, which does not count); it collided once."""
+    from nhstab.batch.report import paired_outcomes
+
+    def rec(window, k, status, controller="gramian"):
+        cell = {"map": "m", "problem": 0, "noise": 1.0, "controller": controller}
+        if window:
+            cell["window"] = window
+        return {"status": status, "trial": k, "spec": {"cell_spec": cell}}
+
+    trials = [rec("future", 0, "reached"), rec("future", 1, "reached"), rec("future", 2, "reached"),
+              rec("future", 3, "missed_goal"),
+              rec("frozen-time", 0, "reached"), rec("frozen-time", 1, "collision"), rec("frozen-time", 2, "reached"),
+              rec("frozen-time", 3, "reached"), rec(None, 0, "reached", "tvlqr")]
+    rows = {r["controller"]: r for r in paired_outcomes(trials)}
+    r = rows["gramian frozen-time"]
+    assert (r["reference"], r["also_reached"], r["reference_reached"], r["collisions"], r["trials"]) == \
+        ("gramian future", 2, 3, 1, 4)
+    assert rows["tvlqr"]["reference_reached"] == 1 and rows["tvlqr"]["also_reached"] == 1

@@ -79,6 +79,25 @@ def test_gains_command(runner, tmp_path, traj):
     assert diag["weighting"] == "exp(6 alpha (t - tau))" and diag["model"] == "unicycle"
 
 
+def test_gains_reports_the_3_alpha_bound_and_warns_once_for_the_past_window(runner, tmp_path, traj):
+    out = tmp_path / "g"
+    res = runner.invoke(cli, ["gains", str(traj), "--model", "unicycle", "--out", str(out)])
+    assert res.exit_code == 0 and "guaranteed rate 3 alpha = 0.3 1/s" in res.stdout
+    diag = json.loads((out / "gains.json").read_text())
+    assert diag["rate_bound"] == pytest.approx(0.3) and diag["rate_bound_printed"] < 0.3
+    res = runner.invoke(cli, ["gains", str(traj), "--model", "unicycle", "--window", "past", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    warnings = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(warnings) == 1 and warnings[0].startswith("nhstab: warning: the past window (Remark 2) is not "
+                                                         "stabilizing in general")
+    assert json.loads((out / "gains.json").read_text())["rate_bound"] is None
+    res = runner.invoke(cli, ["gains", str(traj), "--model", "unicycle", "--window", "frozen-time", "--out", str(out)])
+    assert res.exit_code == 0 and not res.stderr.strip()
+    assert json.loads((out / "gains.json").read_text())["frozen_time"]["max_gain"] == 50.0
+    _one_line_error(runner.invoke(cli, ["gains", str(traj), "--model", "unicycle", "--end-strategy", "switch",
+                                        "--out", str(out)]), "--end-strategy", "switch")
+
+
 def test_gains_bad_inputs(runner, tmp_path, traj):
     base = ["gains", str(traj), "--out", str(tmp_path / "o")]
     _one_line_error(runner.invoke(cli, [*base, "--model", "hovercraft"]), "'model'", "hovercraft")
@@ -118,3 +137,24 @@ def test_every_benchmark_has_a_subcommand():
     from nhstab.bench import BENCHMARKS
 
     assert set(SUBCOMMANDS) == set(BENCHMARKS)
+
+
+def test_bench_only_merges_into_the_existing_results(runner, tmp_path, monkeypatch):
+    """`nhstab bench --only a,b` runs those benchmarks, keeps the others' stored results, and rewrites
+    summary.md from the merged file; an unknown name is one line naming --only (exit code 2)."""
+    import nhstab.bench as bench_pkg
+
+    calls = []
+    fake = {"gains": lambda: calls.append("gains") or {"new": 1}, "collision": lambda: calls.append("collision") or {}}
+    monkeypatch.setattr(bench_pkg, "BENCHMARKS", fake)
+    monkeypatch.setattr(bench_pkg, "summary_markdown", lambda results: "# merged\n" + json.dumps(results, sort_keys=True))
+    (tmp_path / "bench.json").write_text(json.dumps({"gains": {"old": 1}, "collision": {"kept": True}}))
+    res = runner.invoke(cli, ["bench", "--out-dir", str(tmp_path), "--only", "gains"])
+    assert res.exit_code == 0, res.output
+    assert calls == ["gains"]
+    merged = json.loads((tmp_path / "bench.json").read_text())
+    assert merged == {"gains": {"new": 1}, "collision": {"kept": True}}
+    assert json.loads((tmp_path / "summary.md").read_text().split("\n", 1)[1]) == merged
+    res = runner.invoke(cli, ["bench", "--out-dir", str(tmp_path), "--only", "gains,nope"])
+    _one_line_error(res, "--only", "nope")
+    assert json.loads((tmp_path / "bench.json").read_text()) == merged

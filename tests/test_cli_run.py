@@ -21,7 +21,7 @@ def _invoke(*args):
 
 @pytest.mark.parametrize("args,needle", [
     (["--noise", "-1"], "noise.scale"),
-    (["--rate", "0"], "rate_hz"),
+    (["--rate", "0"], "--rate"),
     (["--controller", "pid"], "controller"),
     (["--sensor-std", "x=-0.1"], "noise.sensor.x"),
     (["--sensor-std", "x:0.1"], "--sensor-std"),
@@ -41,6 +41,42 @@ def test_bad_input_is_one_line_with_exit_code_2_and_writes_nothing(tmp_path, arg
     lines = [ln for ln in res.output.splitlines() if ln.startswith("nhstab:")]
     assert len(lines) == 1 and needle in lines[0] and "Traceback" not in res.output
     assert not (out / "run.json").exists()
+
+
+def test_a_bad_frozen_time_gain_bound_in_a_config_is_a_one_line_error(tmp_path):
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text(f"map: {ROOM}\ncontroller: {{window: frozen-time, max_gain: -1}}\n")
+    res = _invoke("--config", str(cfg), "--out", str(tmp_path / "o"))
+    assert res.exit_code == 2 and "controller.max_gain" in res.output
+
+
+@pytest.mark.slow
+def test_windows_on_a_real_map_frozen_time_reaches_the_goal_past_warns(tmp_path):
+    """The cluttered room, seed 1: the causal frozen-time law reaches the goal (its verdict recomputed
+    from trajectory.csv: the last pose within the goal tolerance, every pose clear of every real
+    obstacle, FCL); the past window's run prints exactly one warning line."""
+    import numpy as np
+
+    from nhstab.collision import CollisionWorld
+    from nhstab.robot import default_footprint
+    from nhstab.maps import load_map
+
+    out = tmp_path / "frozen"
+    res = _invoke(ROOM, "--window", "frozen-time", "--seed", "1", "--out", str(out))
+    assert res.exit_code == 0, res.output
+    assert "nhstab: warning" not in res.output
+    d = json.loads((out / "run.json").read_text())
+    assert d["inputs"]["controller"]["window"] == "frozen-time" and d["status"] == "reached"
+    log = read_run_csv(out / "trajectory.csv")
+    m = load_map(ROOM)
+    world = CollisionWorld.from_map(m, "all")
+    poses = np.stack([log["x"], log["y"], log["theta"]], axis=1)
+    assert world.free_many(poses, default_footprint("unicycle"), 0.0).all()
+    goal = m.goal.as_array()
+    assert np.hypot(*(poses[-1, :2] - goal[:2])) <= 0.3
+    res = _invoke(ROOM, "--window", "past", "--seed", "1", "--out", str(tmp_path / "past"))
+    warnings = [ln for ln in res.output.splitlines() if ln.startswith("nhstab: warning")]
+    assert len(warnings) == 1 and "not stabilizing in general" in warnings[0]
 
 
 def test_missing_map_and_bad_config_are_one_line_errors(tmp_path):

@@ -256,3 +256,29 @@ def test_distance_field_with_added_obstacles_equals_the_one_built_anew(path):
     fresh = CollisionWorld(tuple(m.obstacles) + tuple(m.unknown_obstacles), m.grids, m.bounds).clearance_field()
     np.testing.assert_array_equal(derived.lower_bound, fresh.lower_bound)
     np.testing.assert_array_equal(derived.inside, fresh.inside)
+
+
+@pytest.mark.parametrize("offset", [0.0, 0.37])
+def test_vectorised_boxes_mark_the_same_field_as_the_loop(monkeypatch, offset):
+    """Grid cells (axis-aligned boxes) are marked all at once; the field is identical, cell for cell,
+    to marking them one by one, for grids on the raster (offset 0) and off it."""
+    from nhstab.clearance_field import ClearanceField
+
+    rng = np.random.default_rng(12)
+    occ = rng.random((120, 90)) < 0.08
+    grid = OccupancyGrid(occ, 0.1, (offset, -offset, 0.0))
+    b = grid.bounds()
+    m = Map("g", (b[0] + 0.55, b[1] - 0.3, b[2] - 1.2, b[3] + 0.45), grids=(grid,),
+            obstacles=(Circle((3.0, 4.0), 0.7),))
+    world = CollisionWorld.from_map(m, "known")
+    args = (world.bounds, [g.resolution for g in world.grids], list(world._outline.values()))
+    fast = ClearanceField(*args)
+    monkeypatch.setattr(ClearanceField, "VECTORISED_BOXES", False)
+    slow = ClearanceField(*args)
+    assert np.array_equal(fast.lower_bound, slow.lower_bound) and np.array_equal(fast.inside, slow.inside)
+    extra = [("poly", np.array([[1.0, 1.0], [2.0, 1.0], [2.0, 1.5], [1.0, 1.5]]))]
+    monkeypatch.setattr(ClearanceField, "VECTORISED_BOXES", True)
+    derived_fast = fast.with_outlines(extra)
+    monkeypatch.setattr(ClearanceField, "VECTORISED_BOXES", False)
+    derived_slow = slow.with_outlines(extra)
+    assert np.array_equal(derived_fast.lower_bound, derived_slow.lower_bound)

@@ -161,13 +161,16 @@ def test_wheel_installs_one_import_name_and_runs_examples_from_anywhere(tmp_path
     py = env_dir / "bin" / "python"
     site = Path(subprocess.run([py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
                                check=True, capture_output=True, text=True).stdout.strip())
-    # the dependencies from this environment (after the venv's own site-packages on sys.path)
-    (site / "_nhstab_test_deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
-    subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install", "--no-deps", "-q", str(wheel)],
-                   check=True, capture_output=True) if _pip_has_python_option() else \
+    # --ignore-installed: pip must not take this environment's own nhstab (a regular install in CI) as
+    # already satisfying the wheel
+    subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install", "--no-deps", "--ignore-installed",
+                    "-q", str(wheel)], check=True, capture_output=True) if _pip_has_python_option() else \
         subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target", str(site), str(wheel)],
                        check=True, capture_output=True)
     top = {p.name for p in site.iterdir()}
+    # the dependencies from this environment, written after the install so that pip never saw them
+    # (after the venv's own site-packages on sys.path)
+    (site / "_nhstab_test_deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
     assert "nhstab" in top
     assert not {"pipeline", "cli", "maps", "tests"} & top, top
     assert (site / "nhstab" / "data" / "scenarios" / "depot_blocked_aisle.yaml").is_file()

@@ -22,9 +22,12 @@ Format (paths relative to the config file)::
       alpha: [0.1, 0.2]             # gramian only (default: the robot's)
       delta: [2.0]
       gamma: [1.0]
+      window: [future, frozen-time] # gramian only (default: run.controller.window): future |
+                                    # frozen-time (causal) | past (Remark 2: not stabilizing, study only)
     run:                            # base options of every trial: the run-config keys except map,
       rate_hz: 50                   # robot, start, goal and seed (see nhstab run --config)
       noise: {sensor: {x: 0.02}}
+      planning: {margin: auto}      # each plan's margin from its error tube (nhstab.tubes)
 
 Each trial k of a cell has the seed spawned as child k of ``root_seed``, the same in every cell, so
 controllers and noise levels are compared on the same seeds. Trial ids are ``<cell>#<k>``.
@@ -42,11 +45,12 @@ import numpy as np
 
 from ..errors import InputError
 from ..execution.config import RunOptions, check_number, check_pose, options_from_mapping, read_yaml_mapping
+from ..control import WINDOWS
 from ..execution.controllers import CONTROLLERS
 
 _TOP = ("name", "root_seed", "trials", "maps", "robots", "robot", "controllers", "grid", "run")
 _MAP_KEYS = ("path", "problems", "cell_size")
-_GRID_KEYS = ("noise", "alpha", "delta", "gamma")
+_GRID_KEYS = ("noise", "alpha", "delta", "gamma", "window")
 _RUN_EXCLUDED = ("robot", "start", "goal", "seed")
 
 
@@ -56,6 +60,12 @@ class MapSpec:
     label: str
     cell_size: float | None
     problems: tuple            # ((start, goal), ...) poses as tuples
+    #: SHA-256 of every file the map is built from (nhstab.maps.content_hash): a resumed batch and
+    #: every trial check it, so a store never mixes trials of two versions of a map
+    content_hash: str = ""
+    #: the map as data (every file's bytes, nhstab.batch.bundle): what the trials load their map
+    #: from, wherever they run, and what the store keeps for replays
+    bundle: object = field(default=None, repr=False, compare=False)
 
 
 @dataclass
@@ -72,7 +82,9 @@ class BatchConfig:
     base_options: RunOptions = field(default_factory=RunOptions)
 
     def seeds(self) -> list[int]:
-        """Trial k's seed: child k of root_seed (a 32-bit integer, usable as nhstab run --seed)."""
+        """Trial k's seed: child k of root_seed (a 32-bit integer, usable as nhstab run --seed). The
+        count is bounded by the config check (nhstab.limits.MAX_BATCH_TRIALS) before anything is
+        spawned."""
         children = np.random.SeedSequence(self.root_seed).spawn(self.trials)
         return [int(c.generate_state(1)[0]) for c in children]
 
@@ -84,14 +96,19 @@ class BatchConfig:
             robots = self.robots or [None]
             for p_index, (start, goal) in enumerate(ms.problems):
                 for robot, ctrl in itertools.product(robots, self.controllers):
-                    gains = list(itertools.product(self.grid.get("alpha", [None]), self.grid.get("delta", [None]),
+                    gains = list(itertools.product(self.grid.get("window", [None]), self.grid.get("alpha", [None]),
+                                                   self.grid.get("delta", [None]),
                                                    self.grid.get("gamma", [None]))) if ctrl == "gramian" \
-                        else [(None, None, None)]
-                    for (alpha, delta, gamma), level in itertools.product(gains, noise):
-                        cell = {"map": ms.label, "map_path": ms.path, "cell_size": ms.cell_size,
+                        else [(None, None, None, None)]
+                    for (window, alpha, delta, gamma), level in itertools.product(gains, noise):
+                        cell = {"map": ms.label, "map_path": ms.path, "map_hash": ms.content_hash,
+                                "map_bundle": ms.bundle.id if ms.bundle is not None else None,
+                                "cell_size": ms.cell_size,
                                 "problem": p_index, "start": list(start), "goal": list(goal),
                                 "robot": robot, "controller": ctrl, "alpha": alpha, "delta": delta,
                                 "gamma": gamma, "noise": float(level)}
+                        if window is not None:          # absent (not None) keeps older cell ids and stores
+                            cell["window"] = window
                         cell["id"] = cell_id(cell)
                         out.append(cell)
         return out
@@ -105,18 +122,35 @@ class BatchConfig:
                               "cell_spec": cell, "run": self.run})
         return specs
 
+    def windows(self) -> set:
+        """The gramian windows some cell uses (the grid's, else the run config's)."""
+        if "gramian" not in self.controllers:
+            return set()
+        return set(self.grid.get("window") or [self.base_options.controller.window])
+
     def describe(self) -> dict:
         return {"name": self.name, "root_seed": self.root_seed, "trials": self.trials,
-                "maps": [{"path": m.path, "label": m.label, "cell_size": m.cell_size, "problems": m.problems}
-                         for m in self.maps],
+                "maps": [{"path": m.path, "label": m.label, "cell_size": m.cell_size, "problems": m.problems,
+                          "content_hash": m.content_hash} for m in self.maps],
                 "robots": self.robots, "controllers": self.controllers, "grid": self.grid, "run": self.run,
                 "source": self.source}
 
+    def bundles(self) -> dict:
+        """The maps as data, by bundle id (see nhstab.batch.bundle)."""
+        return {m.bundle.id: m.bundle for m in self.maps if m.bundle is not None}
+
+    def n_trials(self) -> int:
+        return len(self.cells()) * self.trials
+
     def fingerprint(self) -> str:
-        """A hash of everything that decides the trials (not the name): a resumed batch must match."""
+        """A hash of everything that decides the trials (not the name, nor where the map files are):
+        the options, seeds, problems and the content of every map file (base maps and images
+        included), so that a resumed batch must match."""
         d = self.describe()
         d.pop("name")
         d.pop("source")
+        for m in d["maps"]:
+            m.pop("path")
         return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
@@ -136,6 +170,8 @@ def robot_label(robot) -> str:
 def cell_id(cell: dict) -> str:
     parts = [f"map={cell['map']}", f"problem={cell['problem']}", f"robot={robot_label(cell['robot'])}",
              f"controller={cell['controller']}"]
+    if cell.get("window") is not None:
+        parts.append(f"window={cell['window']}")
     for key in ("alpha", "delta", "gamma"):
         if cell[key] is not None:
             parts.append(f"{key}={cell[key]:g}")
@@ -151,10 +187,14 @@ def _list(key, v, minimum=1):
 
 def load_batch_config(path) -> BatchConfig:
     """Read and check a batch config; every map is loaded (and its poses checked) here, before any
-    trial runs. Raises InputError naming the key."""
+    trial runs. Raises InputError naming the key.
+
+    Each map is read into a bundle (its files' bytes, :mod:`nhstab.batch.bundle`) and loaded from
+    that bundle, exactly as every trial will load it, wherever it runs: a map that cannot travel
+    (it names a base map or image by an absolute path) is refused here, naming ``maps[i].path``."""
     from ..examples import resolve_map_path
-    from ..maps import load_map
     from ..planning import PLANNABLE
+    from .bundle import MapBundle
     from ..robot import robot_from_spec
 
     path = Path(path)
@@ -168,8 +208,10 @@ def load_batch_config(path) -> BatchConfig:
     name = data.get("name", path.stem)
     if not isinstance(name, str) or not name:
         raise InputError("name", "a non-empty string", name)
-    root_seed = check_number("root_seed", data["root_seed"], 0, integer=True)
-    trials = check_number("trials", data["trials"], 1, integer=True)
+    from ..limits import MAX_BATCH_TRIALS, MAX_SEED, check_int
+
+    root_seed = check_int("root_seed", data["root_seed"], 0, MAX_SEED, "a non-negative integer")
+    trials = check_int("trials", data["trials"], 1, MAX_BATCH_TRIALS, "a number of trials per cell")
     maps, loaded = [], []
     for i, entry in enumerate(_list("maps", data["maps"])):
         where = f"maps[{i}]"
@@ -184,11 +226,14 @@ def load_batch_config(path) -> BatchConfig:
         mpath = mpath if mpath.is_absolute() else path.parent / mpath
         cell = check_number(f"{where}.cell_size", entry["cell_size"], 0, lo_open=True) if "cell_size" in entry else None
         try:
-            m = load_map(mpath, **({"cell_size": cell} if cell is not None else {}))
+            bundle = MapBundle.from_path(mpath, **({"cell_size": cell} if cell is not None else {}))
+            m = bundle.load(cell, argument=f"{where}.path")
         except InputError as exc:
+            if exc.argument == f"{where}.path":
+                raise
             raise InputError(f"{where}.path", "a map that loads", str(entry["path"]), detail=str(exc)) from None
         problems = _problems(f"{where}.problems", entry.get("problems", "map"), m)
-        maps.append(MapSpec(str(mpath), m.name, cell, problems))
+        maps.append(MapSpec(str(mpath), m.name, cell, problems, m.meta["content_hash"], bundle))
         loaded.append(m)
     labels = [m.label for m in maps]
     if len(set(labels)) != len(labels):
@@ -221,6 +266,11 @@ def load_batch_config(path) -> BatchConfig:
         if key not in _GRID_KEYS:
             raise InputError(f"grid.{key}", "one of " + ", ".join(_GRID_KEYS), key)
         _list(f"grid.{key}", values)
+        if key == "window":
+            for j, v in enumerate(values):
+                if v not in WINDOWS:
+                    raise InputError(f"grid.window[{j}]", "one of " + ", ".join(WINDOWS), v)
+            continue
         lo, lo_open = {"noise": (0.0, False), "alpha": (0.0, True), "delta": (0.0, True), "gamma": (0.5, False)}[key]
         grid[key] = [check_number(f"grid.{key}[{j}]", v, lo, lo_open=lo_open) for j, v in enumerate(values)]
     run = data.get("run", {}) or {}
@@ -231,14 +281,46 @@ def load_batch_config(path) -> BatchConfig:
             if key in _RUN_EXCLUDED:
                 raise InputError(f"run.{key}", "set by the batch (maps, robots, trials), not in run", key)
     base = options_from_mapping(run, allowed, prefix="run.")
-    for m in loaded:
+    for i, (m, spec) in enumerate(zip(loaded, maps)):
         for r in robots or [m.robot or "unicycle"]:
-            model = robot_from_spec(r).model
+            rob = robot_from_spec(r)
+            model = rob.model
+            if model.name not in PLANNABLE:
+                raise InputError(f"maps[{i}].path", f"a map whose robot nhstab plans for ({', '.join(PLANNABLE)})",
+                                 model.name, detail="or give robots")
             try:
-                base.validated(model.state_names, model.m)
+                opts = base.validated(model.state_names, model.m)
             except InputError as exc:
                 raise InputError("run." + exc.argument, exc.expected, exc.got) from None
-    return BatchConfig(name, root_seed, trials, maps, robots, controllers, grid, run, str(path), base)
+            _check_problems(f"maps[{i}].problems", m, spec.problems, rob, opts)
+    config = BatchConfig(name, root_seed, trials, maps, robots, controllers, grid, run, str(path), base)
+    n = len(config.cells()) * trials
+    if n > MAX_BATCH_TRIALS:
+        raise InputError("trials", f"at most {MAX_BATCH_TRIALS:,} trials in the batch (cells x trials)",
+                         f"{len(config.cells())} cells x {trials} = {n:,}")
+    return config
+
+
+def _check_problems(key: str, m, problems, robot, opts) -> None:
+    """Every start and goal inside the map's bounds and clear of its known obstacles by more than
+    the planning margin, for the robot's footprint: what the first plan of every trial would
+    refuse, refused once here instead of stored as an error in every trial."""
+    from ..collision import CollisionWorld
+
+    fp = robot.footprint
+    margin = opts.planning.margin if opts.planning.margin is not None else robot.margin
+    world = None
+    for j, (start, goal) in enumerate(problems):
+        for which, pose in (("start", start), ("goal", goal)):
+            where = f"{key}[{j}].{which}"
+            if not m.contains(pose[0], pose[1]):
+                raise InputError(where, f"a pose inside the bounds of {m.name} {list(m.bounds)}", list(pose))
+            world = world or CollisionWorld.from_map(m, "known")
+            c = world.clearance(np.asarray(pose, dtype=float), fp)
+            if c <= margin:
+                raise InputError(where, f"a pose more than the planning margin {margin:g} m from the known "
+                                 f"obstacles of {m.name} for the {robot.name or robot.model.name}", [round(float(v), 4) for v in pose],
+                                 detail=f"clearance {c:.3g} m")
 
 
 def _problems(key: str, value, m) -> tuple:

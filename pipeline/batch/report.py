@@ -2,9 +2,20 @@
 CSV of every trial. Every number in it is read from the store (trials.sqlite), nothing else.
 
 Rates come with Wilson score 95% intervals. The tracking-error envelopes are percentiles over the
-trials of ||e(t)|| while each trial follows its first plan, with the gramian bound of Proposition 1,
-||e(0)|| sqrt(p_M / p_m) exp(-rate t), rate = 2 alpha p_m / p_M, drawn from each trial's own plan
-(median over trials).
+trials of ||e(t)|| while each trial follows its first plan, with the guaranteed bound of the noiseless
+linearised loop drawn from each trial's own plan and true initial error (median over trials): for the
+future window Proposition 1's 3 alpha bound sqrt(e0^T P(0) e0 / lambda_min(P(t))) exp(-3 alpha t)
+(NOTES.md item 8), for the frozen-time law its certified bound; none for the past window. Stores
+written before the trials recorded that curve (their metrics have ``rate_bound`` = the printed
+2 alpha p_m / p_M and no ``rate_bound_printed``) get the 3 alpha bound with its uniform constant,
+||e(0)|| sqrt(p_M / p_m) exp(-3 alpha t), alpha recovered as rate_bound p_M / (2 p_m).
+
+The error tubes (:mod:`nhstab.tubes`) held to reality: per cell, the coverage of each trial's first
+plan's p-tube, the fraction of its tracking samples inside it (the pose region the spatial tube is
+built from, and the full-state p-ellipsoid), with a Wilson 95% interval over samples (samples of one
+trial are correlated, so that interval is too narrow; the spread of the per-trial fractions is given
+beside it), and per state the observed RMS error over trials against the predicted one,
+sqrt(mean over trials of sigma^2 + m^2) of each trial's own tube, against time.
 """
 
 from __future__ import annotations
@@ -18,7 +29,6 @@ from pathlib import Path
 import numpy as np
 
 from ..report import subplots
-from ..records import save_figure, write_text
 from .store import Store
 
 Z95 = 1.959963984540054
@@ -47,6 +57,18 @@ def _m(t, key):
     return (t.get("metrics") or {}).get(key)
 
 
+def bound_metrics(metrics: dict | None) -> dict:
+    """rate_bound (the guaranteed 3 alpha) and rate_bound_printed (the paper's 2 alpha p_m / p_M) of a
+    trial's metrics, for stores of either generation: before the 3 alpha bound, ``rate_bound`` held
+    the printed value (and ``rate_bound_printed`` was absent); the gramian law then always used the
+    future window with weight 6, so its 3 alpha is rate_bound p_M / p_m * 3 / 2."""
+    m = metrics or {}
+    if "rate_bound_printed" in m or m.get("rate_bound") is None or not m.get("p_m"):
+        return {"rate_bound": m.get("rate_bound"), "rate_bound_printed": m.get("rate_bound_printed")}
+    alpha = m["rate_bound"] * m["p_M"] / (2.0 * m["p_m"])
+    return {"rate_bound": 3.0 * alpha, "rate_bound_printed": m["rate_bound"]}
+
+
 def cell_table(trials: list[dict]) -> list[dict]:
     rows = []
     for cell, ts in _cells(trials).items():
@@ -54,7 +76,8 @@ def cell_table(trials: list[dict]) -> list[dict]:
         n = len(ts)
         done = [t for t in ts if t["status"] != "error"]
         row = {"cell": cell, "map": spec["map"], "robot": _m(ts[0], "robot") or spec["robot"],
-               "controller": spec["controller"], "alpha": spec["alpha"], "delta": spec["delta"],
+               "controller": spec["controller"], "window": spec.get("window"), "alpha": spec["alpha"],
+               "delta": spec["delta"],
                "gamma": spec["gamma"], "noise": spec["noise"], "trials": n, "errors": n - len(done)}
         for key, pred in (("success", lambda t: t["status"] == "reached"),
                           ("collision", lambda t: t["status"] == "collision"),
@@ -62,7 +85,7 @@ def cell_table(trials: list[dict]) -> list[dict]:
             k = sum(1 for t in done if pred(t))
             rate, lo, hi = wilson(k, len(done))
             row.update({f"{key}_count": k, f"{key}_rate": rate, f"{key}_lo": lo, f"{key}_hi": hi})
-        for key in ("min_clearance_m", "final_position_error_m", "replans", "max_error_norm"):
+        for key in ("min_clearance_m", "final_position_error_m", "replans", "max_error_norm", "margin_m"):
             vals = [_m(t, key) for t in done if _m(t, key) is not None]
             row[f"{key}_median"] = float(np.median(vals)) if vals else math.nan
         if any(_m(t, "jackknife") is not None for t in done):     # a car with trailers
@@ -72,6 +95,7 @@ def cell_table(trials: list[dict]) -> list[dict]:
             for key in ("max_abs_hitch_angle_rad", "final_trailer_position_error_m"):
                 vals = [_m(t, key) for t in done if _m(t, key) is not None and _m(t, key) == _m(t, key)]
                 row[f"{key}_median"] = float(np.median(vals)) if vals else math.nan
+        _tube_cells(row, done)
         lat = [x for t in done for x in (t.get("timings") or {}).get("replan_latencies_s", [])]
         row["replan_latency_median_s"] = float(np.median(lat)) if lat else math.nan
         row["replan_latency_p95_s"] = float(np.percentile(lat, 95)) if lat else math.nan
@@ -79,21 +103,45 @@ def cell_table(trials: list[dict]) -> list[dict]:
     return rows
 
 
+def _tube_cells(row: dict, done: list[dict]) -> None:
+    """Coverage of the trials' first-plan tubes: pooled over samples (Wilson 95%) and per trial."""
+    with_tube = [t for t in done if _m(t, "tube_samples")]
+    n = sum(int(_m(t, "tube_samples")) for t in with_tube)
+    row["tube_samples"] = n
+    row["tube_probability"] = _m(with_tube[0], "tube_probability") if with_tube else None
+    for key in ("inside", "inside_state"):
+        k = sum(int(round(_m(t, "tube_samples") * _m(t, f"tube_{key}"))) for t in with_tube)
+        rate, lo, hi = wilson(k, n)
+        per = np.array([_m(t, f"tube_{key}") for t in with_tube], dtype=float)
+        row.update({f"tube_{key}_rate": rate, f"tube_{key}_lo": lo, f"tube_{key}_hi": hi,
+                    f"tube_{key}_trial_sd": float(per.std(ddof=1)) if len(per) > 1 else math.nan,
+                    f"tube_{key}_min_trial": float(per.min()) if len(per) else math.nan})
+    cert = [c for c in (_m(t, "tube_certified_clearance_m") for t in with_tube) if c is not None]
+    sat = [_m(t, "tube_saturation_probability") for t in with_tube]
+    row["tube_certified_clearance_median_m"] = float(np.median(cert)) if cert else math.nan
+    row["tube_saturation_median"] = float(np.median(sat)) if sat else math.nan
+
+
 def trials_csv(trials: list[dict]) -> str:
     keys = ["status", "reached", "collision", "margin_violation", "min_clearance_m", "margin_m",
             "final_position_error_m", "final_heading_error_rad", "replans", "discovered", "rms_error_norm",
             "max_error_norm", "rms_position_error_m", "max_position_error_m", "duration_s", "e0_norm", "p_m", "p_M",
-            "rate_bound", "jackknife", "max_abs_hitch_angle_rad", "final_trailer_position_error_m",
+            "rate_bound", "rate_bound_printed", "tube_certified_clearance_m", "tube_saturation_probability",
+            "tube_max_position_radius_m", "tube_samples", "tube_inside", "tube_inside_state",
+            "jackknife", "max_abs_hitch_angle_rad", "final_trailer_position_error_m",
             "final_trailer_heading_error_rad"]
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["id", "cell", "trial", "seed", "map", "robot", "controller", "alpha", "delta", "gamma", "noise",
-                *keys, "replan_latencies_s", "error"])
+    w.writerow(["id", "cell", "trial", "seed", "map", "robot", "controller", "window", "alpha", "delta", "gamma",
+                "noise", *keys, "replan_latencies_s", "error"])
     for t in trials:
         c = t["spec"]["cell_spec"]
-        m = t.get("metrics") or {}
+        m = {**(t.get("metrics") or {})}
+        if t.get("metrics"):
+            m.update(bound_metrics(m))
+        window = c.get("window") or m.get("window") or ("future" if c["controller"] == "gramian" else "")
         w.writerow([t["id"], t["cell"], t["trial"], t["seed"], c["map"], m.get("robot") or c["robot"],
-                    c["controller"], c["alpha"], c["delta"], c["gamma"], c["noise"], t["status"],
+                    c["controller"], window, c["alpha"], c["delta"], c["gamma"], c["noise"], t["status"],
                     *[("" if m.get(k) is None else _num(m[k])) for k in keys[1:]],
                     ";".join(f"{x:.4f}" for x in (t.get("timings") or {}).get("replan_latencies_s", [])),
                     t.get("error") or ""])
@@ -109,7 +157,8 @@ def _num(v):
 def _label(row) -> str:
     gains = "".join(f" {name}{row[key]:g}" for name, key in (("a", "alpha"), ("d", "delta"), ("g", "gamma"))
                     if row[key] is not None)
-    return f"{row['map']} / {row['controller']}{gains} / noise {row['noise']:g}"
+    ctrl = row["controller"] + (f" {row['window']}" if row.get("window") else "")
+    return f"{row['map']} / {ctrl}{gains} / noise {row['noise']:g}"
 
 
 # ---- figures ---------------------------------------------------------------------------------------
@@ -157,20 +206,81 @@ def envelope_figure(trials, rows):
         keep = count >= max(3, 0.5 * len(series))
         for q, style in ((50, "-"), (90, "--"), (99, ":")):
             ax.semilogy(t[keep], np.nanpercentile(E[:, keep], q, axis=0), "k" + style, lw=1.0, label=f"{q}th percentile")
-        bounds = []
-        for tr in cells[row["cell"]]:
-            m = tr.get("metrics") or {}
-            if row["controller"] == "gramian" and m.get("p_m") and m.get("e0_norm") is not None:
-                bounds.append(m["e0_norm"] * math.sqrt(m["p_M"] / m["p_m"]) * np.exp(-m["rate_bound"] * t))
+        bounds = [b for b in (_bound_curve(tr, t) for tr in cells[row["cell"]]) if b is not None]
         if bounds:
-            ax.semilogy(t[keep], np.median(np.array(bounds), axis=0)[keep], color="tab:blue", lw=1.0,
-                        label="gramian bound (median over trials)")
+            B = np.array(bounds)
+            ok = keep & (np.sum(np.isfinite(B), axis=0) >= max(1, 0.5 * len(bounds)))
+            label = ("3 alpha bound" if row.get("window") in (None, "future") else "certified bound") + \
+                " (noiseless linearised loop; median over trials)"
+            ax.semilogy(t[ok], np.nanmedian(B[:, ok], axis=0), color="tab:blue", lw=1.0, label=label)
         ax.set_ylabel("||e||")
         ax.set_title(_label(row) + f"  ({len(series)} trials)", fontsize=8)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=6, loc="upper right")
     axes[-1, 0].set_xlabel("t [s] (while following the first plan)")
     return fig
+
+
+def tube_figure(trials, rows):
+    """Per cell (rows) and state (columns): the observed RMS tracking error over trials against the
+    predicted sqrt(mean over trials of sigma^2 + m^2), from each trial's own first-plan tube, against
+    time (while the trials follow their first plan)."""
+    cells = _cells(trials)
+    shown = [r for r in rows if any((t.get("series") or {}).get("tube_std") for t in cells[r["cell"]])]
+    if not shown:
+        return None
+    width = max(len(t["series"]["state_names"]) for r in shown for t in cells[r["cell"]]
+                if (t.get("series") or {}).get("tube_std"))
+    fig, axes = subplots(len(shown), width, figsize=(3.2 * width, 2.0 * len(shown) + 0.6), squeeze=False,
+                         sharex="row", layout="constrained")
+    for i, row in enumerate(shown):
+        series = [t["series"] for t in cells[row["cell"]] if (t.get("series") or {}).get("tube_std")]
+        names = series[0]["state_names"]
+        dt = series[0]["dt_s"]
+        length = max(len(s["tube_std"]) for s in series)
+        n = len(names)
+        E, P = np.full((len(series), length, n), np.nan), np.full((len(series), length, n), np.nan)
+        for j, s in enumerate(series):
+            k = len(s["tube_std"])
+            E[j, :k] = np.asarray(s["error_by_state"])[:k]
+            P[j, :k] = np.asarray(s["tube_std"]) ** 2 + np.asarray(s["tube_mean"]) ** 2
+        for c in range(n, width):
+            axes[i, c].set_visible(False)
+        count = np.sum(np.isfinite(E[:, :, 0]), axis=0)
+        keep = count >= max(3, 0.5 * len(series))
+        t = dt * np.arange(length)
+        for c, name in enumerate(names):
+            ax = axes[i, c]
+            ax.plot(t[keep], np.sqrt(np.nanmean(E[:, keep, c] ** 2, axis=0)), color="k", lw=1.0, label="observed RMS")
+            ax.plot(t[keep], np.sqrt(np.nanmean(P[:, keep, c], axis=0)), color="tab:blue", lw=1.0, ls="--",
+                    label="predicted RMS (tube)")
+            ax.set_title(f"e_{name}", fontsize=8)
+            ax.grid(alpha=0.3)
+            if c == 0:
+                ax.set_ylabel(_label(row), fontsize=6)
+        axes[i, 0].legend(fontsize=6, loc="upper right")
+    for ax in axes[-1]:
+        ax.set_xlabel("t [s] (first plan)")
+    return fig
+def _bound_curve(trial: dict, t: np.ndarray):
+    """The trial's guaranteed bound at times t (NaN past its series), or None (no gramian bound)."""
+    series = trial.get("series") or {}
+    m = trial.get("metrics") or {}
+    if series.get("bound") is not None:
+        out = np.full(len(t), np.nan)
+        b = np.asarray(series["bound"], dtype=float)
+        out[:min(len(b), len(t))] = b[:len(t)]
+        return out
+    spec = trial["spec"]["cell_spec"]
+    run_window = ((trial["spec"].get("run") or {}).get("controller") or {}).get("window")
+    if spec["controller"] != "gramian" or spec.get("window") not in (None, "future") or \
+            run_window not in (None, "future") or "rate_bound_printed" in m:
+        return None
+    if not m.get("p_m") or m.get("e0_norm") is None or m.get("rate_bound") is None:
+        return None
+    # an older store: the 3 alpha bound with its uniform constant sqrt(p_M / p_m)
+    rate = bound_metrics(m)["rate_bound"]
+    return m["e0_norm"] * math.sqrt(m["p_M"] / m["p_m"]) * np.exp(-rate * t)
 
 
 def distributions_figure(trials, rows):
@@ -208,36 +318,71 @@ def paired_figure(trials):
         c = t["spec"]["cell_spec"]
         if t["status"] == "error":
             continue
-        by.setdefault((c["map"], c["problem"], c["noise"]), {}).setdefault(c["controller"], {})[t["trial"]] = \
+        by.setdefault((c["map"], c["problem"], c["noise"]), {}).setdefault(_controller_name(c), {})[t["trial"]] = \
             _m(t, "min_clearance_m")
-    pairs = [(k, v) for k, v in by.items() if "gramian" in v and len(v) > 1]
+    # the reference: the paper's law (the future window, or the one gramian cell of an older store)
+    ref = "gramian future" if any("gramian future" in v for v in by.values()) else "gramian"
+    pairs = [(k, v) for k, v in by.items() if ref in v and len(v) > 1]
     if not pairs:
         return None
     fig, ax = subplots(figsize=(5.5, 5), layout="constrained")
-    markers = {"open-loop": "x", "tvlqr": "o"}
+    markers = {"open-loop": "x", "tvlqr": "o", "gramian past": "v", "gramian frozen-time": "^"}
     lo, hi = np.inf, -np.inf
     for (mp, _, noise), ctrls in pairs:
         for base, vals in ctrls.items():
-            if base == "gramian":
+            if base == ref:
                 continue
-            ks = sorted(set(vals) & set(ctrls["gramian"]))
+            ks = sorted(set(vals) & set(ctrls[ref]))
             xs = np.array([vals[k] for k in ks], float)
-            ys = np.array([ctrls["gramian"][k] for k in ks], float)
+            ys = np.array([ctrls[ref][k] for k in ks], float)
             ax.scatter(xs, ys, marker=markers.get(base, "s"), s=18, label=f"{base}, {mp}, noise {noise:g}")
             lo, hi = min(lo, np.nanmin([xs.min(), ys.min()])), max(hi, np.nanmax([xs.max(), ys.max()]))
     ax.plot([lo, hi], [lo, hi], color="0.5", lw=0.8)
     ax.set_xlabel("baseline: min executed clearance [m]")
-    ax.set_ylabel("gramian: min executed clearance [m] (same seed)")
+    ax.set_ylabel(f"{ref}: min executed clearance [m] (same seed)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=6)
-    ax.set_title("Same seeds, two controllers (above the diagonal: gramian kept more room)", fontsize=8)
+    ax.set_title(f"Same seeds, two controllers (above the diagonal: {ref} kept more room)", fontsize=8)
     return fig
+
+
+def paired_outcomes(trials: list[dict]) -> list[dict]:
+    """Controllers on the same seeds, against the reference (the gramian law's future window): per
+    (map, problem, noise) and controller, on how many of the seeds where the reference reached the goal
+    this controller reached it too (without a collision, which ends a run), and where it collided."""
+    by: dict = {}
+    for t in trials:
+        if t["status"] == "error":
+            continue
+        c = t["spec"]["cell_spec"]
+        by.setdefault((c["map"], c["problem"], c["noise"]), {}).setdefault(_controller_name(c), {})[t["trial"]] = \
+            t["status"]
+    ref = "gramian future" if any("gramian future" in v for v in by.values()) else "gramian"
+    rows = []
+    for (mp, problem, noise), ctrls in by.items():
+        if ref not in ctrls:
+            continue
+        base = {k for k, st in ctrls[ref].items() if st == "reached"}
+        for name, sts in sorted(ctrls.items()):
+            if name == ref:
+                continue
+            common = base & set(sts)
+            k = sum(1 for s in common if sts[s] == "reached")
+            rows.append({"map": mp, "problem": problem, "noise": noise, "reference": ref, "controller": name,
+                         "reference_reached": len(common), "also_reached": k,
+                         "fraction": k / len(common) if common else math.nan,
+                         "collisions": sum(1 for st in sts.values() if st == "collision"), "trials": len(sts)})
+    return rows
+
+
+def _controller_name(cell: dict) -> str:
+    return cell["controller"] + (f" {cell['window']}" if cell.get("window") else "")
 
 
 def noise_figure(rows):
     groups = {}
     for r in rows:
-        key = (r["map"], r["controller"], r["alpha"], r["delta"], r["gamma"])
+        key = (r["map"], _controller_name(r), r["alpha"], r["delta"], r["gamma"])
         groups.setdefault(key, []).append(r)
     groups = {k: v for k, v in groups.items() if len({r["noise"] for r in v}) > 1}
     if not groups:
@@ -267,6 +412,20 @@ def _fmt_rate(r, key):
     return f"{100 * r[key + '_rate']:.0f}% [{100 * r[key + '_lo']:.0f}, {100 * r[key + '_hi']:.0f}]"
 
 
+TUBE_HEADER = ["cell", "samples", "inside tube [Wilson 95%]", "per-trial sd / min", "inside state ellipsoid",
+               "median certified clearance [m]", "median saturation bound"]
+
+
+def _tube_row(r) -> list[str]:
+    def cov(key):
+        return (f"{100 * r[f'tube_{key}_rate']:.2f}% [{100 * r[f'tube_{key}_lo']:.2f}, "
+                f"{100 * r[f'tube_{key}_hi']:.2f}]")
+
+    return [_label(r), str(r["tube_samples"]), cov("inside"),
+            f"{100 * r['tube_inside_trial_sd']:.2f} / {100 * r['tube_inside_min_trial']:.1f}%", cov("inside_state"),
+            _fmt(r["tube_certified_clearance_median_m"]), _fmt(r["tube_saturation_median"])]
+
+
 def _fmt(v, digits=3):
     return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{digits}g}"
 
@@ -285,43 +444,127 @@ def _trailer_table(rows):
 
 def write_report(store_path, out_dir=None) -> list[Path]:
     """Write report.html, report.md, trials.csv and figures/*.png next to the store (or in out_dir)."""
+    from ..errors import InputError
+    from ..records import OutputFolder
+
     store_path = Path(store_path)
     db = store_path / "trials.sqlite" if store_path.is_dir() else store_path
     out_dir = Path(out_dir) if out_dir is not None else db.parent
-    with Store(db) as store:
+    with Store(db) as store:            # read-only; refused unless it is a batch store
         trials = store.trials()
         config = store.meta("config", {})
         vers = store.meta("versions", {})
+        runs = store.meta("runs", [])
+    if not trials:
+        raise InputError("STORE", "a batch store with at least one finished trial", str(db),
+                         detail="no trial is stored yet")
+    if not isinstance(config, dict) or not isinstance(vers, dict):
+        raise InputError("STORE", "a batch store whose config and versions are mappings", str(db))
     rows = cell_table(trials)
     figs = {"rates": rates_figure(rows), "envelopes": envelope_figure(trials, rows),
-            "distributions": distributions_figure(trials, rows), "paired": paired_figure(trials),
+            "distributions": distributions_figure(trials, rows), "tubes": tube_figure(trials, rows),
+            "paired": paired_figure(trials),
             "noise": noise_figure(rows)}
-    written = [write_text(out_dir / "trials.csv", trials_csv(trials))]
+    owned = REPORT_FILES + tuple(f"figures/{name}.png" for name in figs)     # those not drawn this time too
+    with OutputFolder(out_dir, "batch report", owned=owned, info={"store": str(db), "trials": len(trials)}) as out:
+        _write_report(out, db, trials, config, vers, rows, figs, runs)
+    return out.written
+
+
+ERROR_HEADER = ["error", "trials", "cells", "first trial"]
+
+
+def error_table(trials: list[dict]) -> list[dict]:
+    """The trials stored with status "error", grouped by message (most frequent first)."""
+    groups: dict = {}
+    for t in trials:
+        if t["status"] != "error":
+            continue
+        g = groups.setdefault(t.get("error") or "(no message)", {"trials": 0, "cells": set(), "first": t["id"]})
+        g["trials"] += 1
+        g["cells"].add(t["cell"])
+    return [{"error": msg, "trials": g["trials"], "cells": len(g["cells"]), "first": g["first"]}
+            for msg, g in sorted(groups.items(), key=lambda kv: -kv[1]["trials"])]
+
+
+def _error_row(e: dict) -> list[str]:
+    msg = e["error"] if len(e["error"]) <= 300 else e["error"][:297] + "..."
+    return [msg, str(e["trials"]), str(e["cells"]), e["first"]]
+
+
+#: the files ``nhstab batch report`` writes besides its figures (figures/<name>.png; an earlier
+#: report's files are all replaced)
+REPORT_FILES = ("report.html", "report.md", "trials.csv")
+
+
+def runs_text(runs) -> str:
+    """The store's meta ``runs`` (one entry per invocation of the batch) as one sentence each."""
+    if not isinstance(runs, list):
+        return ""
+    out = []
+    for i, r in enumerate(runs, 1):
+        if not isinstance(r, dict):
+            continue
+        t = r.get("transfer") if isinstance(r.get("transfer"), dict) else {}
+        where = (f"on the Dask cluster at {r.get('scheduler')}" if r.get("executor") == "dask"
+                 else f"on {r.get('workers')} local worker process(es)")
+        text = f"{i}. {where}: {r.get('stored')} trials stored ({r.get('errors')} failed by error)"
+        if isinstance(r.get("wall_s"), (int, float)):
+            text += f" in {r['wall_s']:.1f} s"
+        if t.get("trials"):
+            text += (f"; shipped: map bundles {_kbytes(t.get('bundles_sent_bytes'))} in "
+                     f"{t.get('bundle_copies')} copies, per trial {_kbytes(t.get('spec_bytes_per_trial'))} sent "
+                     f"(the pickled spec) and {_kbytes(t.get('record_bytes_per_trial'))} received (the pickled record)")
+        out.append(text + ".")
+    return " ".join(out)
+
+
+def _kbytes(n) -> str:
+    return f"{n / 1000:.1f} kB" if isinstance(n, (int, float)) else "-"
+
+
+def _write_report(out, db, trials, config, vers, rows, figs, runs=()) -> None:
+    out.write_text("trials.csv", trials_csv(trials))
     for name, fig in figs.items():
         if fig is not None:
-            written.append(save_figure(fig, out_dir / "figures" / f"{name}.png", dpi=90))
+            out.save_figure(fig, f"figures/{name}.png", dpi=90)
     captions = {
         "rates": "Success (goal reached), collision and margin-violation rates per cell, with Wilson 95% intervals.",
         "envelopes": "Tracking error ||x - x0|| while following the first plan: median, 90th and 99th percentile "
-                     "over trials; blue: the gramian bound ||e(0)|| sqrt(p_M/p_m) exp(-2 alpha p_m/p_M t) of each "
-                     "trial's own plan (median over trials).",
+                     "over trials; blue: the guaranteed bound of the noiseless linearised loop from each trial's own "
+                     "plan and initial error (median over trials): for the future window Proposition 1's 3 alpha "
+                     "bound sqrt(e0^T P(0) e0 / lambda_min(P(t))) exp(-3 alpha t) (NOTES.md item 8; stores from "
+                     "before nhstab recorded it per trial: ||e(0)|| sqrt(p_M/p_m) exp(-3 alpha t)), for the "
+                     "frozen-time law its certified bound; none for the past window, which has no guarantee. "
+                     "Sensor noise, disturbances and the 50 Hz hold are outside the bound: the envelopes may "
+                     "cross it.",
         "distributions": "Minimum executed clearance (orange: the margin, red: contact), final position error, "
                          "replans and replan latency per cell.",
+        "tubes": "Predicted error tube against the observed error, per state: RMS over trials of e(t) while following "
+                 "the first plan (black) and the RMS each trial's own tube predicts, sqrt(mean of sigma^2 + m^2) "
+                 "(blue, dashed).",
         "paired": "The same seeds under two controllers: each point is one trial.",
         "noise": "Success rate against the noise level, per controller.",
     }
-    header = ["cell", "trials", "success", "collision", "margin violation", "median min clearance [m]",
+    header = ["cell", "trials", "success", "collision", "margin violation", "median margin [m]", "median min clearance [m]",
               "median final error [m]", "median replans", "replan latency median / p95 [s]"]
     table_rows = [[_label(r), str(r["trials"]) + (f" ({r['errors']} errors)" if r["errors"] else ""),
                    _fmt_rate(r, "success"), _fmt_rate(r, "collision"), _fmt_rate(r, "margin_violation"),
-                   _fmt(r["min_clearance_m_median"]), _fmt(r["final_position_error_m_median"]),
+                   _fmt(r["margin_m_median"]), _fmt(r["min_clearance_m_median"]), _fmt(r["final_position_error_m_median"]),
                    _fmt(r["replans_median"]),
                    f"{_fmt(r['replan_latency_median_s'])} / {_fmt(r['replan_latency_p95_s'])}"] for r in rows]
     title = f"nhstab robustness report: {config.get('name', db.parent.name)}"
-    intro = (f"{len(trials)} trials in {len(rows)} cells, root seed {config.get('root_seed')}, "
+    errors = error_table(trials)
+    n_err = sum(e["trials"] for e in errors)
+    outcome = (f" ({len(trials) - n_err} with an outcome, {n_err} failed by error: not counted in any rate, "
+               "see Errors)" if n_err else "")
+    intro = (f"{len(trials)} trials{outcome} in {len(rows)} cells, root seed {config.get('root_seed')}, "
              f"{config.get('trials')} trials per cell (trial k has the same seed in every cell). "
              f"Every number here is read from `{db.name}`; rates carry Wilson 95% intervals. "
              f"Versions: " + ", ".join(f"{k} {v}" for k, v in vers.items()) + ".")
+    ran = runs_text(runs)
+    if ran:
+        intro += " Runs: " + ran
     md = [f"# {title}", "", intro, "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     md += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in table_rows]
     md.append("")
@@ -330,12 +573,38 @@ def write_report(store_path, out_dir=None) -> list[Path]:
         md += [TRAILER_NOTE, "", "| " + " | ".join(trailer_header) + " |", "|" + "---|" * len(trailer_header)]
         md += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in trailer_rows]
         md.append("")
+    paired = paired_outcomes(trials)
+    paired_header = ["map / noise", "controller", "reached where the reference reached", "collisions"]
+    paired_rows = [[f"{r['map']} / noise {r['noise']:g}", r["controller"],
+                    f"{r['also_reached']}/{r['reference_reached']}"
+                    + (f" ({100 * r['fraction']:.1f}%)" if r["reference_reached"] else ""),
+                    f"{r['collisions']}/{r['trials']}"] for r in paired]
+    if paired:
+        md += [f"**Same seeds, against the reference ({paired[0]['reference']}).** On the seeds where the reference "
+               "reached the goal, how often each other controller did too; and its collisions over all its "
+               "seeds.", "", "| " + " | ".join(paired_header) + " |", "|" + "---|" * len(paired_header)]
+        md += ["| " + " | ".join(row) + " |" for row in paired_rows]
+    tube_rows = [r for r in rows if r.get("tube_samples")]
+    if tube_rows:
+        md += [f"**Error tubes.** Coverage: the fraction of the trials' tracking samples (first plan) inside their "
+               f"plan's p-tube (p = {tube_rows[0]['tube_probability']:g}; the pose region of the spatial tube, and the "
+               "full-state p-ellipsoid), Wilson 95% over samples (correlated within a trial, so too narrow: the "
+               "standard deviation of the per-trial fractions and the lowest one are beside it).", "",
+               "| " + " | ".join(TUBE_HEADER) + " |", "|" + "---|" * len(TUBE_HEADER)]
+        md += ["| " + " | ".join(c.replace("|", "/") for c in _tube_row(r)) + " |" for r in tube_rows]
+        md.append("")
+    if errors:
+        md += ["## Errors", "", "Trials that failed by error (an exception, not an outcome such as a collision), by "
+               "message; each is in `trials.csv` with status `error`.", "",
+               "| " + " | ".join(ERROR_HEADER) + " |", "|" + "---|" * len(ERROR_HEADER)]
+        md += ["| " + " | ".join(c.replace("|", "/") for c in _error_row(e)) + " |" for e in errors]
+        md.append("")
     for name, fig in figs.items():
         if fig is not None:
             md += [f"![{name}](figures/{name}.png)", "", captions[name], ""]
     md += ["Every trial, with its seed and metrics, is in `trials.csv`; replay one with "
            "`nhstab batch replay STORE TRIAL_ID --out DIR`.", ""]
-    written.append(write_text(out_dir / "report.md", "\n".join(md)))
+    out.write_text("report.md", "\n".join(md))
     h = ["<!doctype html><html><head><meta charset='utf-8'><title>" + html.escape(title) + "</title>",
          "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
          "table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px}"
@@ -349,10 +618,27 @@ def write_report(store_path, out_dir=None) -> list[Path]:
               "<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in trailer_header) + "</tr>"]
         h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in trailer_rows]
         h.append("</table>")
+    if paired:
+        h.append(f"<p><b>Same seeds, against the reference ({html.escape(paired[0]['reference'])}).</b> On the seeds "
+                 "where the reference reached the goal, how often each other controller did too; and its collisions "
+                 "over all its seeds.</p>")
+        h.append("<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in paired_header) + "</tr>")
+        h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in paired_rows]
+    if tube_rows:
+        h.append("<h2>Error tubes</h2><p>Coverage of each trial's first-plan p-tube over its tracking samples; "
+                 "Wilson 95% over samples (correlated within a trial: too narrow), per-trial spread beside it.</p>")
+        h.append("<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in TUBE_HEADER) + "</tr>")
+        h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in _tube_row(r)) + "</tr>" for r in tube_rows]
+        h.append("</table>")
+    if errors:
+        h.append("<h2>Errors</h2><p>Trials that failed by error (an exception, not an outcome such as a collision), "
+                 "by message; each is in trials.csv with status error.</p>")
+        h.append("<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in ERROR_HEADER) + "</tr>")
+        h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in _error_row(e)) + "</tr>" for e in errors]
+        h.append("</table>")
     for name, fig in figs.items():
         if fig is not None:
             h.append(f"<figure><img src='figures/{name}.png' alt='{name}'>"
                      f"<figcaption>{html.escape(captions[name])}</figcaption></figure>")
     h.append("<p>Every trial is in <a href='trials.csv'>trials.csv</a>.</p></body></html>")
-    written.append(write_text(out_dir / "report.html", "\n".join(h) + "\n"))
-    return written
+    out.write_text("report.html", "\n".join(h) + "\n")

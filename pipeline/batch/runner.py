@@ -4,20 +4,54 @@ Dask distributed cluster, each committed to the store the moment it finishes.
 Trials are independent (their seeds are fixed by the config), so the order in which they finish
 does not change any result: a batch run with 1 or N workers, locally or on Dask, interrupted and
 resumed or not, stores the same records (up to wall-clock timings).
+
+Interruption (Ctrl-C, SIGINT): the batch stops, the trials already stored stay stored, the running
+ones are abandoned (never stored: an interrupted trial has no result) and :class:`KeyboardInterrupt`
+propagates (``nhstab batch`` exits with 130); ``--resume`` runs every trial without a row. Local
+workers ignore SIGINT, so a Ctrl-C at a terminal (which signals the whole process group) and a
+SIGINT to the driving process alone behave the same: the driver stops the workers.
+
+Before anything is created in ``--out``, the config, the scheduler address and the connection to
+it are checked, so a refused request leaves nothing behind; a resumed batch must match the stored
+config's fingerprint, which covers the content of every map file (base maps and images included).
+
+What a trial needs travels with it, as data: its spec (robot description, run options, seed,
+poses) and its map as a :class:`~nhstab.batch.bundle.MapBundle` (the bytes of every file the map
+is built from). No worker reads a path of the submitting machine. On Dask, each map's packed bundle
+is scattered once per batch to every worker (``broadcast=True``) and passed to the map's trials as
+a shared future; local workers receive the bundles when they start. Every worker loads a map once
+(cached by bundle id) from a private copy of its files. The store keeps the bundles (its ``maps``
+table), so replays need the store alone. The bytes each invocation ships (bundles and copies,
+pickled specs sent, pickled records received) are returned in the counts and appended to the
+store's meta ``runs``.
+
+A trial that fails by error (an exception, not an outcome such as a collision) is stored with its
+message and does not stop the batch; the counts say how many of this run's trials did, with the
+first message (``nhstab batch`` prints them, and exits 1 when every trial errored). Problems of
+the cluster itself are not trial errors: a worker without nhstab (or with another version) stops
+the batch with one line naming ``--scheduler``; a trial whose worker died (Dask's ``KilledWorker``)
+is stored as an error.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
+import pickle
+import re
+import signal
 import sys
+import tempfile
+import threading
 import time
+import warnings
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
 from ..errors import InputError
 from .config import BatchConfig
 from .store import Store, versions
-from .trial import run_trial
+from .trial import MapChangedError, provide_bundles, run_trial, withdraw_bundles
 
 STORE_NAME = "trials.sqlite"
 
@@ -29,89 +63,413 @@ def _progress(total: int, initial: int, enabled: bool):
                 dynamic_ncols=True, smoothing=0.1)
 
 
-def _worker_init():
+def _worker_init(bundles: dict | None = None):
+    if bundles:
+        provide_bundles(bundles)
     # one core per worker: no nested threading in numpy's BLAS
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = "1"
+    # Ctrl-C is the driver's business (it stops the workers); SIGTERM from the driver ends the
+    # running trial through the normal exit path, so that the planner's child process is reaped
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _exit_on_term)
+
+
+def _exit_on_term(signum, frame):
+    raise SystemExit(128 + signum)
 
 
 def open_store(config: BatchConfig, out_dir: Path, resume: bool) -> Store:
+    """The batch's store in ``out_dir``: a new one (complete with its config, fingerprint and
+    versions before it appears under its name), or with ``resume`` the existing one, checked to be
+    a batch store (read-only) and made from the same config and map contents before it is opened
+    for writing."""
     path = Path(out_dir) / STORE_NAME
-    if path.exists() and not resume:
+    exists = os.path.lexists(path)
+    if exists and not resume:
         raise InputError("--out", "a folder without a batch store (or --resume to continue it)", str(out_dir))
-    if resume and not path.exists():
+    if resume and not exists:
         raise InputError("--resume", "an existing batch store in --out", str(path))
-    store = Store(path, create=True)
-    stored = store.meta("fingerprint")
-    if stored is None:
-        store.set_meta("config", config.describe())
-        store.set_meta("fingerprint", config.fingerprint())
-        store.set_meta("versions", versions())
-        store.set_meta("created", time.time())
-    elif stored != config.fingerprint():
-        store.close()
-        raise InputError("CONFIG", "the config the store was made with (to resume it)", str(config.source),
-                         detail="the trials it defines differ")
-    return store
+    if resume:
+        with Store(path, argument="--resume") as ro:
+            stored = ro.meta("fingerprint")
+            stored_config = ro.meta("config", {}) or {}
+        if stored != config.fingerprint():
+            raise InputError("CONFIG", "the config the store was made with (to resume it)", str(config.source),
+                             detail=_difference(stored_config, config))
+        store = Store(path, writable=True, argument="--resume")
+        try:
+            for bundle in config.bundles().values():     # a store of schema 1 gains its maps
+                store.add_map(bundle)
+        except BaseException:
+            store.close()
+            raise
+        return store
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{STORE_NAME}.", suffix=".new", dir=path.parent)
+    os.close(fd)
+    os.unlink(tmp)
+    try:
+        with Store(tmp, create=True) as store:
+            store.set_meta("config", config.describe())
+            store.set_meta("fingerprint", config.fingerprint())
+            store.set_meta("versions", versions())
+            store.set_meta("created", time.time())
+            for bundle in config.bundles().values():
+                store.add_map(bundle)
+            store.db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        _publish(tmp, path)
+    except FileExistsError:
+        raise InputError("--out", "a folder without a batch store (or --resume to continue it)", str(out_dir)) \
+            from None
+    finally:
+        for leftover in (tmp, tmp + "-wal", tmp + "-shm"):
+            if os.path.lexists(leftover):
+                os.unlink(leftover)
+    return Store(path, writable=True, argument="--out")
+
+
+def _publish(tmp: str, path: Path) -> None:
+    """Give the finished new store its name without replacing one that appeared meanwhile: a hard
+    link (no-clobber), or where the file system has none, a rename after a last check."""
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise
+    except OSError:
+        if os.path.lexists(path):
+            raise FileExistsError(str(path)) from None
+        os.rename(tmp, path)
+
+
+def _difference(stored: dict, config: BatchConfig) -> str:
+    """Why a resumed config does not match the store, as precisely as the stored config allows."""
+    now = config.describe()
+    old_maps = {m.get("label"): m for m in stored.get("maps", []) if isinstance(m, dict)}
+    for i, m in enumerate(now["maps"]):
+        old = old_maps.get(m["label"])
+        if old is not None and old.get("content_hash") != m["content_hash"]:
+            if not old.get("content_hash"):
+                return f"the store was made by an nhstab that did not record map contents (maps[{i}])"
+            return (f"maps[{i}] ({m['path']}) has changed since the store was made: content hash "
+                    f"{m['content_hash'][:12]}, the store's {old['content_hash'][:12]}")
+    for key in ("root_seed", "trials", "robots", "controllers", "grid", "run"):
+        if stored.get(key) != now.get(key) and key in stored:
+            return f"its {key!r} differs"
+    return "the trials it defines differ"
 
 
 def run_batch(config: BatchConfig, out_dir, workers: int = 1, scheduler: str | None = None, resume: bool = False,
-              progress: bool = True) -> dict:
-    """Run every trial of ``config`` missing from the store in ``out_dir``. Returns counts."""
+              progress: bool = True, retry_errors: bool = False) -> dict:
+    """Run every trial of ``config`` missing from the store in ``out_dir``. Returns counts: trials,
+    ran, already_stored, stored, wall_s, outcomes ({status: count} of this run's trials), errors
+    and first_error (this run's trials that failed by error, and the first one's id and message),
+    stored_errors (in the whole store) and transfer (the bytes shipped, see the module docstring).
+    With ``retry_errors`` (and ``resume``), the trials stored with an error are removed and run again.
+
+    A KeyboardInterrupt stops the batch (see the module docstring) and propagates; the trials stored
+    until then stay stored."""
     out_dir = Path(out_dir)
-    if scheduler:
-        require_dask(scheduler)          # before the store is made: a refused request leaves nothing behind
-    specs = config.trial_specs()
-    with open_store(config, out_dir, resume) as store:
-        done = store.done_ids()
-        todo = [s for s in specs if s["id"] not in done]
-        bar = _progress(len(specs), len(specs) - len(todo), progress)
-        started = time.perf_counter()
-        try:
-            if scheduler:
-                _run_dask(todo, scheduler, store, bar)
-            elif workers <= 1:
-                for spec in todo:
-                    store.add(run_trial(spec))
-                    bar.update(1)
-            else:
-                _run_local(todo, workers, store, bar)
-        finally:
-            bar.close()
-        return {"trials": len(specs), "ran": len(todo), "already_stored": len(specs) - len(todo),
-                "stored": store.count(), "wall_s": time.perf_counter() - started}
+    client = None
+    if retry_errors and not resume:
+        raise InputError("--retry-errors", "used with --resume (it reruns the errors of a stored batch)", "alone")
+    if scheduler is not None:
+        client = connect_dask(scheduler)     # before the store is made: a refused request leaves nothing behind
+    if "past" in config.windows():       # once here; the trials do not repeat it
+        from ..control import PAST_WINDOW_WARNING
+        from ..errors import NotStabilizingWarning
+
+        warnings.warn(PAST_WINDOW_WARNING, NotStabilizingWarning, stacklevel=2)
+    try:
+        if client is not None:
+            check_workers(client, scheduler)
+        specs = config.trial_specs()
+        with open_store(config, out_dir, resume) as store:
+            if retry_errors:
+                store.remove_errors()
+            done = store.done_ids()
+            todo = [s for s in specs if s["id"] not in done]
+            bar = _progress(len(specs), len(specs) - len(todo), progress)
+            tally = _Tally(config.bundles())
+            started = time.perf_counter()
+            try:
+                if client is not None:
+                    _run_dask(todo, client, store, bar, config.bundles(), tally)
+                elif workers <= 1:
+                    _run_serial(todo, store, bar, config.bundles(), tally)
+                else:
+                    _run_local(todo, workers, store, bar, config.bundles(), tally)
+            finally:
+                bar.close()
+                wall = time.perf_counter() - started
+                _record_run(store, tally, "dask" if client is not None else "local",
+                            scheduler if client is not None else workers, wall)
+            errors = store.errors()
+            return {"trials": len(specs), "ran": len(todo), "already_stored": len(specs) - len(todo),
+                    "stored": store.count(), "wall_s": wall, "outcomes": dict(tally.outcomes),
+                    "errors": tally.errors, "first_error": tally.first_error, "stored_errors": len(errors),
+                    "transfer": tally.transfer()}
+    finally:
+        if client is not None:
+            client.close()
 
 
-def _run_local(todo: list, workers: int, store: Store, bar) -> None:
+class _Tally:
+    """What this run stored: outcomes, errors (the first with its trial id), and the bytes shipped:
+    each map's packed bundle and how many copies were sent, and every trial's pickled spec (sent)
+    and record (received), the objects the executor serialises with pickle."""
+
+    def __init__(self, bundles: dict):
+        self.outcomes: dict = {}
+        self.errors = 0
+        self.first_error: tuple[str, str] | None = None
+        self.bundle_bytes = {key: len(b.packed) for key, b in bundles.items()}
+        self.bundle_copies = 0
+        self.bundles_sent = 0
+        self.sent = 0
+        self.received = 0
+        self.trials = 0
+
+    def spec(self, spec: dict) -> None:
+        self.sent += len(pickle.dumps(spec, protocol=pickle.HIGHEST_PROTOCOL))
+
+    def record(self, record: dict) -> None:
+        self.trials += 1
+        self.received += len(pickle.dumps(record, protocol=pickle.HIGHEST_PROTOCOL))
+        status = record.get("status")
+        self.outcomes[status] = self.outcomes.get(status, 0) + 1
+        if status == "error":
+            self.errors += 1
+            if self.first_error is None:
+                self.first_error = (record["id"], record.get("error") or "")
+
+    def transfer(self) -> dict:
+        n = max(self.trials, 1)
+        return {"bundle_bytes": dict(self.bundle_bytes), "bundle_copies": self.bundle_copies,
+                "bundles_sent_bytes": self.bundles_sent, "specs_sent_bytes": self.sent, "records_received_bytes": self.received, "trials": self.trials,
+                "spec_bytes_per_trial": self.sent / n if self.trials else None,
+                "record_bytes_per_trial": self.received / n if self.trials else None}
+
+
+def _record_run(store: Store, tally: _Tally, executor: str, where, wall: float) -> None:
+    """Append this invocation to the store's meta ``runs`` (executor, workers or scheduler, trials
+    stored, wall time, bytes shipped)."""
+    try:
+        runs = store.meta("runs", []) or []
+        if not isinstance(runs, list):
+            runs = []
+        runs.append({"executor": executor, "workers": where if executor == "local" else None,
+                     "scheduler": where if executor == "dask" else None, "stored": tally.trials,
+                     "errors": tally.errors, "wall_s": wall, "finished": time.time(), "transfer": tally.transfer()})
+        store.set_meta("runs", runs)
+    except Exception:        # bookkeeping must never cost the stored trials (e.g. during Ctrl-C)
+        pass
+
+
+def _run_serial(todo: list, store: Store, bar, bundles: dict, tally: _Tally) -> None:
+    provide_bundles(bundles)
+    try:
+        with _interrupt_flag() as interrupted:
+            for spec in todo:
+                record = run_trial(spec)
+                if interrupted.is_set():     # a Ctrl-C the trial's code may have swallowed
+                    raise KeyboardInterrupt
+                _store(store, record, tally)
+                bar.update(1)
+    finally:
+        withdraw_bundles(bundles)
+
+
+@contextlib.contextmanager
+def _interrupt_flag():
+    """While trials run in this process: SIGINT raises KeyboardInterrupt as usual and also sets the
+    flag, so that a trial during which Ctrl-C was pressed is never stored, even if some library
+    code on the way caught the exception."""
+    flag = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield flag
+        return
+
+    def handler(signum, frame):
+        flag.set()
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield flag
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _store(store: Store, record: dict, tally: _Tally) -> None:
+    """Commit a finished trial. An interrupted one is not a result: the batch stops (the user
+    pressed Ctrl-C while it ran in this process) and the trial will run again on --resume."""
+    if record.get("status") == "interrupted":
+        raise KeyboardInterrupt
+    if store.add(record):
+        tally.record(record)
+
+
+def _run_local(todo: list, workers: int, store: Store, bar, bundles: dict, tally: _Tally) -> None:
     import multiprocessing as mp
 
-    # fork keeps the already imported modules; the planner forks its own child per call
+    # fork keeps the already imported modules (and the maps the config loaded); the workers get the
+    # bundles as their initializer's argument, so that any start method gives them the same maps
     ctx = mp.get_context("fork")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=(bundles,))
+    try:
         pending = set()
         queue = iter(todo)
-        for spec in queue:
+
+        def submit(spec):
+            tally.spec(spec)
             pending.add(pool.submit(run_trial, spec))
+
+        for spec in queue:
+            submit(spec)
             if len(pending) >= 2 * workers:
                 break
         while pending:
             finished, pending = wait(pending, return_when=FIRST_COMPLETED)
             for fut in finished:
-                store.add(fut.result())
+                _store(store, fut.result(), tally)
                 bar.update(1)
                 nxt = next(queue, None)
                 if nxt is not None:
-                    pending.add(pool.submit(run_trial, nxt))
+                    submit(nxt)
+    except BaseException:
+        _stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
 
 
-def _dask_trial(spec: dict) -> dict:
-    """run_trial in a Dask worker. Dask runs tasks in daemonic processes, which multiprocessing
-    forbids to start children; the planner forks one child per call (to seed OMPL) and joins it
-    before returning, so the flag is lifted for the task."""
+def _stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Abandon the running trials: cancel what is queued, end the workers (SIGTERM, then SIGKILL
+    after a grace period) and wait for them, so that no worker outlives the batch."""
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None     # a second Ctrl-C waits
+    try:
+        _end_workers(pool)
+    finally:
+        if main:
+            signal.signal(signal.SIGINT, previous)
+
+
+def _end_workers(pool: ProcessPoolExecutor) -> None:
+    # the executor has no public way to end its workers before Python 3.14: its process table
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    deadline = time.monotonic() + 10.0
+    for p in procs:
+        p.join(max(0.0, deadline - time.monotonic()))
+        if p.is_alive():
+            p.kill()
+            p.join(5.0)
+
+
+def _dask_trial(spec: dict, bundle: bytes, version: str) -> dict:
+    """run_trial in a Dask worker, with the map's packed bundle (a scattered future, resolved by Dask
+    to the bytes held by this worker) and the submitting nhstab's version, which this worker's must
+    equal. Dask runs tasks in daemonic processes, which multiprocessing forbids to start children;
+    the planner may fork one child per call (``isolate``) and joins it before returning, so the flag
+    is lifted for the task."""
     import multiprocessing
 
+    from .. import __version__
+
+    if version != __version__:
+        raise WorkerMismatch(version, __version__)
     multiprocessing.current_process()._config.pop("daemon", None)
-    return run_trial(spec)
+    return run_trial(spec, bundle)
+
+
+class WorkerMismatch(Exception):
+    """A Dask worker runs another nhstab than the submitting machine."""
+
+    def __init__(self, wanted: str, found: str):
+        super().__init__(wanted, found)
+        self.wanted, self.found = wanted, found
+
+    def __str__(self) -> str:
+        return f"a worker runs nhstab {self.found}, this machine {self.wanted}"
+
+
+def _worker_versions() -> dict:
+    from .. import __version__
+    from .store import versions
+
+    return {**versions(), "nhstab": __version__}
+
+
+def check_workers(client, scheduler: str) -> dict:
+    """The workers connected now, each checked to run this nhstab version (one line naming
+    ``--scheduler`` otherwise: install ``nhstab[cluster]`` of the same version on every worker).
+    Returns their versions by address. A cluster without workers yet (e.g. an adaptive one) is
+    not refused: its trials wait for workers, each checked when it runs one."""
+    from .. import __version__
+
+    expected = f"Dask workers with nhstab {__version__} installed (the version of this machine)"
+    try:
+        found = client.run(_worker_versions)
+    except Exception as exc:          # e.g. ModuleNotFoundError: nhstab is not installed there
+        raise InputError("--scheduler", expected, scheduler,
+                         detail=f"a worker could not run nhstab: {type(exc).__name__}: {_one_line(exc)}"[:240]) \
+            from None
+    wrong = {addr: v.get("nhstab") for addr, v in found.items() if v.get("nhstab") != __version__}
+    if wrong:
+        addr, v = next(iter(wrong.items()))
+        raise InputError("--scheduler", expected, scheduler,
+                         detail=f"{len(wrong)} of {len(found)} workers run another: {addr} has nhstab {v}")
+    return found
+
+
+def _one_line(exc) -> str:
+    return " ".join(str(exc).split())
+
+
+_SCHEMES = ("tcp", "tls", "inproc", "ucx", "ws", "wss")
+_HOST = re.compile(r"(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9._-]+)")
+
+
+def check_scheduler_address(address) -> str:
+    """A Dask scheduler address ``[scheme://]host[:port]`` (scheme one of tcp, tls, inproc, ucx, ws,
+    wss; port 1..65535), or an InputError naming ``--scheduler``. Checked before anything else."""
+    expected = "a Dask scheduler address like tcp://10.0.0.5:8786 (scheme://host:port)"
+    if not isinstance(address, str) or not address.strip():
+        raise InputError("--scheduler", expected, address)
+    text = address.strip()
+    scheme, sep, rest = text.partition("://")
+    if not sep:
+        scheme, rest = "tcp", text
+    if scheme not in _SCHEMES:
+        raise InputError("--scheduler", expected, address, detail=f"unknown scheme {scheme!r}; one of "
+                         + ", ".join(_SCHEMES))
+    if scheme == "inproc":
+        return text
+    host, colon, port = rest.rpartition(":") if not rest.endswith("]") else (rest, "", "")
+    if not colon:
+        host, port = rest, ""
+    if not _HOST.fullmatch(host or "") or (port and not (port.isdigit() and 1 <= int(port) <= 65535)) \
+            or (colon and not port):
+        raise InputError("--scheduler", expected, address)
+    return text
+
+
+def connect_dask(scheduler: str):
+    """A connected ``distributed.Client``: the address checked, Dask's presence checked, the
+    scheduler reached (one-line errors naming ``--scheduler`` for each)."""
+    address = check_scheduler_address(scheduler)
+    require_dask(address)
+    from distributed import Client
+
+    try:
+        return Client(address, timeout="20s")
+    except (OSError, ValueError, TypeError) as exc:
+        raise InputError("--scheduler", "the address of a running Dask scheduler", scheduler,
+                         detail=" ".join(str(exc).split())[:160]) from None
 
 
 def require_dask(scheduler: str) -> None:
@@ -124,19 +482,57 @@ def require_dask(scheduler: str) -> None:
                          detail="local batches need no Dask: drop --scheduler and use --workers")
 
 
-def _run_dask(todo: list, scheduler: str, store: Store, bar) -> None:
-    from distributed import Client, as_completed
+def _run_dask(todo: list, client, store: Store, bar, bundles: dict, tally: _Tally) -> None:
+    """Each map's packed bundle scattered once to every worker, then every trial with its map's
+    future; records stored as they come back (see the module docstring)."""
+    from distributed import as_completed
 
+    from .. import __version__
+
+    if not todo:
+        return
+    needed = sorted({s["cell_spec"]["map_bundle"] for s in todo})
+    shared = {}
+    for key in needed:
+        shared[key] = client.scatter(bundles[key].packed, broadcast=True, hash=False)
+    tally.bundle_copies = len(client.nthreads())          # one copy per worker connected now
+    tally.bundles_sent = tally.bundle_copies * sum(tally.bundle_bytes[key] for key in needed)
+    for spec in todo:
+        tally.spec(spec)
+    by_key = {f"nhstab-{s['id']}": s for s in todo}
+    futures = client.map(_dask_trial, todo, [shared[s["cell_spec"]["map_bundle"]] for s in todo],
+                         [__version__] * len(todo), key=list(by_key), pure=False)
     try:
-        client = Client(scheduler, timeout="20s")
-    except OSError as exc:
-        raise InputError("--scheduler", "the address of a running Dask scheduler", scheduler,
-                         detail=" ".join(str(exc).split())[:160]) from None
-    try:
-        futures = client.map(_dask_trial, todo, key=[f"nhstab-{s['id']}" for s in todo], pure=False)
         for fut in as_completed(futures):
-            store.add(fut.result())
+            try:
+                record = fut.result()
+            except (KeyboardInterrupt, MapChangedError):
+                raise
+            except WorkerMismatch as exc:
+                raise InputError("--scheduler", f"Dask workers with nhstab {exc.wanted} installed (the version of "
+                                 "this machine)", str(exc)) from None
+            except Exception as exc:
+                if type(exc).__name__ != "KilledWorker":
+                    raise InputError("--scheduler", "Dask workers that can run nhstab trials", type(exc).__name__,
+                                     detail=_one_line(exc)[:240]) from None
+                record = _lost_trial(by_key[fut.key], exc)
+            _store(store, record, tally)
             bar.update(1)
             fut.release()
+    except BaseException:
+        client.cancel(futures)
+        raise
     finally:
-        client.close()
+        for f in shared.values():
+            f.release()
+
+
+def _lost_trial(spec: dict, exc) -> dict:
+    """The record of a trial whose worker died running it (Dask gave up on it: ``KilledWorker``):
+    an error, the crash being what the trial did."""
+    from .store import versions
+
+    return {"id": spec["id"], "cell": spec["cell"], "trial": spec["trial"], "seed": spec["seed"], "spec": spec,
+            "versions": versions(), "status": "error", "metrics": None, "series": None,
+            "error": f"{type(exc).__name__}: the worker running it died ({_one_line(exc)[:160]})",
+            "timings": {}, "finished_at": time.time()}

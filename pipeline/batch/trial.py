@@ -1,29 +1,74 @@
 """One batch trial: a full composite-controller run (plan, execute, monitor, replan) from its spec,
 reduced to a record of metrics for the store. Runs in a worker process (local or Dask), so it takes
-and returns plain data."""
+and returns plain data: the spec (robot description, run options, seed, poses) and the map as data
+(a :class:`~nhstab.batch.bundle.MapBundle`, packed or not), never a path to read.
+
+Where the map comes from, in order: the bundle passed with the trial (a Dask worker gets it this
+way, scattered once per batch), the bundles provided to this process (:func:`provide_bundles`: a
+local batch's workers get them when they start), and only for a library call that gives neither,
+the spec's map path on this machine (read into a bundle, and checked against the spec's content
+hash). Whichever it is, the map is loaded from the bundle, once per process (see
+:mod:`nhstab.batch.bundle`)."""
 
 from __future__ import annotations
 
 import dataclasses
 import time
-from pathlib import Path
 import traceback
+import warnings
+from pathlib import Path
 
 import numpy as np
+
+from ..errors import InputError, NotStabilizingWarning
 
 #: the error-norm series of a trial is sampled every this many seconds (for the envelopes)
 SERIES_DT = 0.2
 
-_MAPS: dict = {}
+_PROVIDED: dict = {}
 
 
-def _load(path: str, cell_size):
-    from ..maps import load_map
+class MapChangedError(InputError):
+    """A trial's map is not the one its batch was configured with (its files changed since, or a
+    bundle holds another map). Not recorded as a trial's error: the batch stops, since its trials
+    would mix two maps."""
 
-    key = (path, cell_size)
-    if key not in _MAPS:
-        _MAPS[key] = load_map(path, **({"cell_size": cell_size} if cell_size else {}))
-    return _MAPS[key]
+
+def provide_bundles(bundles: dict) -> None:
+    """Make maps (``{bundle id: MapBundle or its packed bytes}``) available to the trials run by
+    this process (a local batch's worker initializer calls this)."""
+    _PROVIDED.update(bundles)
+
+
+def withdraw_bundles(ids) -> None:
+    for key in ids:
+        _PROVIDED.pop(key, None)
+
+
+def trial_map(spec: dict, bundle=None):
+    """The map of a trial (see the module docstring), checked against the spec's bundle id and
+    content hash (:class:`MapChangedError` otherwise)."""
+    from .bundle import MapBundle, loaded
+
+    cell = spec["cell_spec"]
+    key, digest, size = cell.get("map_bundle"), cell.get("map_hash"), cell.get("cell_size")
+    if bundle is None and key is not None:
+        m = loaded(key, size)
+        if m is not None:
+            return m
+        bundle = _PROVIDED.get(key)
+    if bundle is None:
+        bundle = MapBundle.from_path(cell["map_path"], **({"cell_size": size} if size else {}))
+    elif not isinstance(bundle, MapBundle):
+        if key is not None and loaded(key, size) is not None:
+            return loaded(key, size)
+        bundle = MapBundle.unpack(bundle)
+    if (key is not None and bundle.id != key) or (digest and bundle.content_hash != digest):
+        raise MapChangedError(cell["map_path"], "the map the batch was configured with (its files unchanged)",
+                              f"content hash {bundle.content_hash[:12]}",
+                              detail=f"the batch's is {(digest or '?')[:12]}; the stored trials used that one: "
+                                     "restore the map or start a new batch")
+    return bundle.load(size)
 
 
 def trial_options(spec: dict):
@@ -34,42 +79,55 @@ def trial_options(spec: dict):
     cell = spec["cell_spec"]
     base = options_from_mapping(spec["run"], prefix="run.")
     ctrl = dataclasses.replace(base.controller, kind=cell["controller"],
-                               **{k: cell[k] for k in ("alpha", "delta", "gamma") if cell[k] is not None})
+                               **{k: cell[k] for k in ("alpha", "delta", "gamma", "window") if cell.get(k) is not None})
     noise = dataclasses.replace(base.noise, scale=base.noise.scale * cell["noise"])
     return dataclasses.replace(base, controller=ctrl, noise=noise, seed=int(spec["seed"]),
                                robot=cell["robot"], start=tuple(cell["start"]), goal=tuple(cell["goal"]))
 
 
-def run_trial(spec: dict) -> dict:
-    """Run one trial; never raises: an exception becomes a record with status "error"."""
+def run_trial(spec: dict, bundle=None) -> dict:
+    """Run one trial (its map from ``bundle``, a MapBundle or its packed bytes, or as the module
+    docstring says). An exception becomes a record with status "error", except two that stop the
+    batch instead: a map that is not the batch's (:class:`MapChangedError`), and Ctrl-C
+    (KeyboardInterrupt, also when the run reports itself "interrupted"): an interrupted trial has no
+    result and must not be stored."""
     from .store import versions
 
     started = time.perf_counter()
     record = {"id": spec["id"], "cell": spec["cell"], "trial": spec["trial"], "seed": spec["seed"], "spec": spec,
               "versions": versions()}
     try:
-        record.update(_run(spec))
+        with warnings.catch_warnings():
+            # the batch warned once about a past window (run_batch); no repeat per trial and worker
+            warnings.simplefilter("ignore", NotStabilizingWarning)
+            record.update(_run(spec, bundle))
+    except MapChangedError:
+        raise
     except Exception as exc:          # recorded, never stops the batch
         record.update(status="error", error=f"{type(exc).__name__}: {' '.join(str(exc).split())}",
                       metrics=None, series=None,
                       timings={"traceback": traceback.format_exc(limit=8)})
+    if record.get("status") == "interrupted":
+        raise KeyboardInterrupt
     record.setdefault("timings", {})["trial_wall_s"] = time.perf_counter() - started
     record["finished_at"] = time.time()
     return record
 
 
-def _run(spec: dict) -> dict:
+def _run(spec: dict, bundle=None) -> dict:
     from ..execution import execute, summary
     from ..robot import resolve_robot
     from .config import robot_label
 
     cell = spec["cell_spec"]
-    m = _load(cell["map_path"], cell["cell_size"])
+    m = trial_map(spec, bundle)
     opts = trial_options(spec)
     rob = resolve_robot(opts.robot, m.robot, source="batch")
     model = rob.model
     robot = robot_label(opts.robot) if opts.robot is not None else robot_label(m.robot or "unicycle")
     result = execute(m, rob, np.asarray(opts.start, float), np.asarray(opts.goal, float), opts)
+    if result.status == "interrupted":         # Ctrl-C inside the run: no result, the batch stops
+        raise KeyboardInterrupt
     s = summary(result, cell["map_path"])
     first = result.plans[0]
     metrics = {
@@ -85,12 +143,22 @@ def _run(spec: dict) -> dict:
         "max_position_error_m": s["tracking"].get("max_position_error_m"),
         "duration_s": s["duration_s"], "robot": robot,
     }
+    tube = (s["plans"][0].get("tube") or {}) if s["plans"] else {}
+    if tube:
+        observed = tube.get("observed") or {}
+        metrics.update({"tube_certified_clearance_m": tube["certified_clearance_m"],
+                        "tube_saturation_probability": tube["saturation_probability"],
+                        "tube_max_position_radius_m": tube["max_position_radius_m"],
+                        "tube_probability": tube["probability"], "tube_samples": observed.get("samples", 0),
+                        "tube_inside_state": observed.get("inside_state_ellipsoid"),
+                        "tube_inside": observed.get("inside_tube")})
     if first.result is not None:
         pm = first.result.metrics
         metrics.update({"first_plan_length_m": pm.get("length_m"), "first_plan_duration_s": first.law.t_end - first.law.t0})
         if first.law.schedule is not None:
             d = first.law.schedule.diagnostics
-            metrics.update({"p_m": d["p_m"], "p_M": d["p_M"], "rate_bound": d["rate_bound"]})
+            metrics.update({"p_m": d["p_m"], "p_M": d["p_M"], "rate_bound": d["rate_bound"],
+                            "rate_bound_printed": d["rate_bound_printed"], "window": d["window"]})
     # ||e(t)|| while following the first plan (until the first replan stop), every SERIES_DT
     lg = result.log
     series = None
@@ -104,6 +172,19 @@ def _run(spec: dict) -> dict:
             series = {"dt_s": step * result.info["period_s"], "error_norm": e[::step].tolist(),
                       "e0_norm": float(e[0])}
             metrics["e0_norm"] = float(e[0])
+            if first.tube is not None:
+                # per state: the observed error and the first plan's predicted mean and std, same samples
+                k = np.arange(0, min(last, len(first.tube.t)), step)
+                series.update({"state_names": list(model.state_names),
+                               "error_by_state": model.state_error(lg["x"][k], lg["x0"][k]).tolist(),
+                               "tube_mean": first.tube.mean[k].tolist(), "tube_std": first.tube.std[k].tolist()})
+            schedule = first.law.schedule
+            if schedule is not None and schedule.options.window != "past":
+                # the guaranteed bound of the noiseless linearised loop from this trial's true e(0)
+                # (future window: the 3 alpha bound), at the series' samples
+                e0 = model.state_error(lg["x"][0], lg["x0"][0])
+                tau = lg["t"][:last:step] - first.t_start
+                series["bound"] = schedule.error_bound(e0, np.clip(tau, schedule.t[0], schedule.t[-1])).tolist()
     timings = {"run_wall_s": result.wall_time_s, "replan_latencies_s": s["timing"]["replan_latencies_s"]}
     if rob.trailers:        # a car with trailers: the docked trailer's errors, the hitch, jackknifes
         fe = s["final_error"] or {}
@@ -117,16 +198,18 @@ def _run(spec: dict) -> dict:
             "error": None if result.status != "numerical_failure" else result.message}
 
 
-def replay_config(record: dict) -> dict:
-    """A run config (the ``nhstab run --config`` format) that replays the trial exactly."""
+def replay_config(record: dict, map_path: str | None = None) -> dict:
+    """A run config (the ``nhstab run --config`` format) that replays the trial exactly, on the map
+    at ``map_path`` (relative to the config; ``nhstab batch replay`` writes the trial's map files
+    beside it), or by default the absolute form of the path the trial records."""
     from ..records import to_jsonable
 
     opts = trial_options(record["spec"])
     cell = record["spec"]["cell_spec"]
     d = dataclasses.asdict(opts)
-    # the stored map path is relative to where the batch ran (like the workers); the run config
-    # resolves paths relative to itself, so it gets the absolute path
-    out = {"map": str(Path(cell["map_path"]).resolve()), "seed": opts.seed, "start": list(opts.start), "goal": list(opts.goal)}
+    if map_path is None:
+        map_path = str(Path(cell["map_path"]).resolve())
+    out = {"map": map_path, "seed": opts.seed, "start": list(opts.start), "goal": list(opts.goal)}
     if opts.robot:
         out["robot"] = opts.robot
     for key in ("rate_hz", "substeps", "saturate", "headroom", "max_time_s"):

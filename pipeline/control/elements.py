@@ -46,18 +46,35 @@ def interval_segments(nominal: Nominal, starts: np.ndarray, length: float | np.n
 
 
 def _integrate(nominal: Nominal, s0: np.ndarray, lengths: np.ndarray, c: float, substeps: int):
-    model = nominal.model
-    n = model.n
-    K = s0.shape[0]
-    X = np.broadcast_to(np.eye(n), (K, n, n)).copy()
-    W = np.zeros((K, n, n))
     h = lengths / substeps
     # all stage times of all substeps, evaluated in one call to the model
     offsets = (np.arange(substeps)[:, None] + _C[None, :]).reshape(-1)          # (substeps * stages,)
     taus = s0[:, None] + h[:, None] * offsets[None, :]                            # (K, S)
     x0, u0 = nominal.at(taus)
-    A_all, B_all = model.linearize(x0, u0)
-    weights = np.exp(c * (s0[:, None] - taus))
+    A_all, B_all = nominal.model.linearize(x0, u0)
+    return _dop853(A_all, B_all, np.exp(c * (s0[:, None] - taus)), h, substeps)
+
+
+def frozen_segments(A: np.ndarray, B: np.ndarray, length: float, c: float, substeps: int = 1) -> Segments:
+    """Start-anchored segments of the *frozen* pairs (A[k], B[k]) held constant over [0, length]:
+    P = exp(-A length), W = int_0^length exp(-c s) exp(-A s) B B^T exp(-A^T s) ds (same integrator)."""
+    K = A.shape[0]
+    lengths = np.full(K, float(length))
+    S = substeps * _STAGES
+    h = lengths / substeps
+    offsets = (np.arange(substeps)[:, None] + _C[None, :]).reshape(-1)
+    weights = np.exp(-c * h[:, None] * offsets[None, :])
+    P, W = _dop853(np.broadcast_to(A[:, None], (K, S) + A.shape[1:]),
+                   np.broadcast_to(B[:, None], (K, S) + B.shape[1:]), weights, h, substeps)
+    return Segments(P, W, lengths)
+
+
+def _dop853(A_all: np.ndarray, B_all: np.ndarray, weights: np.ndarray, h: np.ndarray, substeps: int):
+    """X' = -X A, W' = weight X B B^T X^T from X = I, W = 0; A_all, B_all, weights at every stage time
+    of every substep, shape (K, substeps * stages, ...)."""
+    K, n = A_all.shape[0], A_all.shape[-1]
+    X = np.broadcast_to(np.eye(n), (K, n, n)).copy()
+    W = np.zeros((K, n, n))
     hA = h[:, None] * _A_LOWER[None, :]                                          # (K, pairs)
     kX = np.empty((_STAGES, K, n, n))
     for j in range(substeps):

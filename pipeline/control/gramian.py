@@ -1,29 +1,50 @@
-"""The gain schedule of Proposition 1 (future window) and Remark 2 (past window).
+"""The gain schedule of Proposition 1 (future window), Remark 2 (past window, for study) and the
+frozen-time law (a causal alternative).
 
-Convention (NOTES.md item 1, the 6-alpha weighting; the constant ``weight`` = 6 is a parameter):
+Convention (NOTES.md item 1, the 6-alpha weighting; the constant ``weight`` = w = 6 is a parameter):
 
     H_c(t, t + delta) = int_t^{t+delta} exp(w alpha (t - tau)) Phi(t, tau) B B^T Phi(t, tau)^T dtau
     P_c(t) = H_c(t, t + delta)^-1,        u = u0 - gamma(t) B(t)^T P_c(t) (x - x0)
 
-``window="past"`` uses the window [t - delta, t] with the same weighting exp(w alpha (t - tau)):
+The guarantee (NOTES.md item 8). With the corrected identity for dP_c/dt, V = e^T P_c e along the
+linearised closed loop e' = (A - gamma B B^T P_c) e satisfies
+
+    dV/dt = -w alpha V + (1 - 2 gamma) |B^T P_c e|^2 - exp(-w alpha delta) |B(t+delta)^T Phi(t,t+delta)^T P_c e|^2
+          <= -w alpha V          (gamma >= 1/2),
+
+so ||e(t)|| <= sqrt(e(0)^T P_c(0) e(0) / lambda_min(P_c(t))) exp(-(w/2) alpha t) <= sqrt(p_M/p_m) ||e(0)||
+exp(-3 alpha t): the guaranteed local rate is 3 alpha (``rate_bound``), not the 2 alpha p_m/p_M printed
+in the paper (kept as ``rate_bound_printed``, which it always exceeds). :meth:`GainSchedule.error_bound`
+evaluates the time-varying bound; it holds while the window slides (t <= T - delta); in the frozen end
+region V is non-increasing only.
+
+``window="past"`` (Remark 2, kept for study) uses [t - delta, t] with the same weighting:
 P_r(t) = [int_{t-delta}^t exp(w alpha (t - tau)) Phi(t, tau) B B^T Phi(t, tau)^T dtau]^-1. (The paper
-writes H_c(t, t - delta); read literally, with the limits reversed, that integral is negative
-definite. We use the positive definite matrix the control law needs.)
+writes H_c(t, t - delta); read literally, with the limits reversed, that integral is negative definite.)
+The law with P_r is **not stabilizing in general** (NOTES.md item 7): on the unicycle's straight line
+the past window flips the sign of the lateral position gain and the closed loop has an eigenvalue with
+positive real part for every alpha, delta and gamma (``nhstab paper --case remark2-line-past``). The 3
+alpha argument does not apply to it, and no rate bound is reported for it; computing it issues a
+:class:`NotStabilizingWarning`.
+
+``window="frozen-time"`` is the causal alternative (:mod:`nhstab.control.frozen`): Proposition 1 on
+the pair (A(t), B(t)) frozen at the current time, with a hold where that pair is not (or barely)
+controllable. It has the 3 alpha guarantee on LTI nominals and a certified rate w alpha - mu(t) where
+A and B vary slowly (:meth:`GainSchedule.lyapunov_rates`).
 
 The ends of a finite trajectory. A future window needs t + delta <= T and a past one t - delta >= t0.
-Where a window would run off the trajectory the default ``end_strategy="frozen"`` stops sliding it at
-the boundary time s (s = T - delta for the future window, s = t0 + delta for the past one) and carries
-that last whole window's gramian along the nominal's linearised flow:
+Where a window would run off the trajectory the ``end_strategy="frozen"`` (the only one) stops sliding
+it at the boundary time s (s = T - delta for the future window, s = t0 + delta for the past one) and
+carries that last whole window's gramian along the nominal's linearised flow:
 
     H(t) = Phi(t, s) H(s) Phi(t, s)^T,   so   dP/dt = -P A - A^T P   there.
 
 P is continuous at s, as far from singular as the last whole window (Phi spans at most delta), and
 along the linearised closed loop V = e^T P e obeys dV/dt = -2 gamma |B^T P e|^2 <= 0: the error keeps
 being driven down wherever the remaining motion can act on it. (Carrying the exponential weighting on
-past s would make P, and with it the gains, shrink by up to exp(w alpha delta) by the end.)
-``end_strategy="switch"`` instead uses the other window there (P_r at the end of a future-window
-schedule, P_c at the start of a past-window one), as Remark 2 suggests; it needs a trajectory of at
-least 2 delta, and the gains jump where it switches.
+past s would make P, and with it the gains, shrink by up to exp(w alpha delta) by the end.) The former
+``"switch"`` strategy (P_r for the last delta seconds of a future-window schedule) was removed: it
+used the past window, which is not stabilizing, and made the gains jump.
 
 Computation: per-interval pieces are integrated to 8th order (``elements``), then every window is an
 associative combination of pieces (``windows``): linear in the number of grid points, with no
@@ -33,19 +54,37 @@ subtraction and nothing spanning more than one window, so long trajectories lose
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputError, NumericalError, SingularGramianError, require_positive
+from ..errors import InputError, NotStabilizingWarning, NumericalError, SingularGramianError, require_positive
 from ..nominal import Nominal
 from .elements import interval_segments, to_end_anchored
+from .frozen import MAX_GAIN, frozen_time_schedule
 from .interpolant import GridInterpolant
 from .windows import Segments, combine, exclusive_prefix, scan, sliding
 
-WINDOWS = ("future", "past")
-END_STRATEGIES = ("frozen", "switch")
+WINDOWS = ("future", "past", "frozen-time")
+END_STRATEGIES = ("frozen",)
+
+#: the one-line warning for the past window (the command line prints it as is)
+PAST_WINDOW_WARNING = (
+    "the past window (Remark 2) is not stabilizing in general: it flips the sign of the lateral position "
+    "gain, so on a straight line at constant speed the closed loop has an eigenvalue with positive real part "
+    "for every alpha, delta and gamma (NOTES.md item 7, `nhstab paper --case remark2-line-past`); use it for "
+    "study only, and --window frozen-time for a causal law that works")
+#: what the reported rate_bound means, per window
+GUARANTEES = {
+    "future": "3 alpha (w alpha / 2): V = e^T P_c e decays at least as exp(-w alpha t) along the linearised closed "
+              "loop while the window slides (NOTES.md item 8); ||e(t)|| <= sqrt(e0^T P_c(0) e0 / lambda_min(P_c(t))) "
+              "exp(-3 alpha t)",
+    "past": "none: the past-window law is not stabilizing in general (NOTES.md item 7)",
+    "frozen-time": "none uniform: V = e^T P e decays at the certified rate w alpha - mu(t) where A, B vary slowly "
+                   "(see lyapunov_rate_min/mean); exactly 3 alpha on time-invariant nominals",
+}
 
 
 @dataclass(frozen=True)
@@ -54,8 +93,10 @@ class StabilizerOptions:
 
     alpha: the rate parameter (> 0); delta: window length in s (> 0); gamma: gain factor, a number or
     a function of time (array in, array out), >= 1/2 everywhere; weight: the weighting constant w of
-    exp(w alpha (t - tau)) (6 in the paper's Proposition 1); window: "future" (P_c) or "past" (P_r);
-    end_strategy: "frozen" or "switch" (see the module docstring); singular_rtol / singular_atol:
+    exp(w alpha (t - tau)) (6 in the paper's Proposition 1); window: "future" (P_c), "past" (P_r, not
+    stabilizing in general: for study) or "frozen-time" (the causal law of :mod:`nhstab.control.frozen`);
+    end_strategy: "frozen" (see the module docstring); max_gain: the frozen-time law holds its last
+    admissible gramian where its gain norm would exceed this; singular_rtol / singular_atol:
     H(t) counts as singular where its smallest eigenvalue is <= max(atol, rtol * lambda_max(H(t))),
     i.e. where it cannot be told from singular in double precision.
     """
@@ -69,6 +110,7 @@ class StabilizerOptions:
     singular_rtol: float = 1e-11
     singular_atol: float = 1e-300
     max_substep_fraction: float = 1.0 / 16.0
+    max_gain: float = MAX_GAIN
 
     def validated(self) -> "StabilizerOptions":
         require_positive("alpha", self.alpha)
@@ -76,8 +118,12 @@ class StabilizerOptions:
         require_positive("weight", self.weight)
         require_positive("singular_rtol", self.singular_rtol)
         require_positive("max_substep_fraction", self.max_substep_fraction)
+        require_positive("max_gain", self.max_gain)
         if self.window not in WINDOWS:
             raise InputError("window", "one of " + ", ".join(WINDOWS), self.window)
+        if self.end_strategy == "switch":
+            raise InputError("end_strategy", "frozen ('switch' was removed: it used the past window P_r, which is "
+                             "not stabilizing in general; see the README)", self.end_strategy)
         if self.end_strategy not in END_STRATEGIES:
             raise InputError("end_strategy", "one of " + ", ".join(END_STRATEGIES), self.end_strategy)
         if not callable(self.gamma):
@@ -105,10 +151,13 @@ class StabilizerOptions:
         return np.full(t.shape, float(self.gamma))
 
     def describe(self) -> dict:
-        return {"alpha": float(self.alpha), "delta": float(self.delta),
-                "gamma": "function" if callable(self.gamma) else float(self.gamma),
-                "weight": float(self.weight), "window": self.window, "end_strategy": self.end_strategy,
-                "weighting": f"exp({self.weight:g} alpha (t - tau))"}
+        d = {"alpha": float(self.alpha), "delta": float(self.delta),
+             "gamma": "function" if callable(self.gamma) else float(self.gamma),
+             "weight": float(self.weight), "window": self.window, "end_strategy": self.end_strategy,
+             "weighting": f"exp({self.weight:g} alpha (t - tau))"}
+        if self.window == "frozen-time":
+            d["max_gain"] = float(self.max_gain)
+        return d
 
 
 @dataclass
@@ -151,8 +200,13 @@ class GainSchedule:
     def diagnose(self, t_from: float | None = None, t_to: float | None = None) -> dict:
         """Diagnostics over the grid points in [t_from, t_to] (default: the whole schedule).
 
-        p_m, p_M: extreme eigenvalues of P; rate_bound = 2 alpha p_m / p_M (Proposition 1's
-        guaranteed rate); the smallest eigenvalue of H and its time; the largest gain norm.
+        p_m, p_M: extreme eigenvalues of P. rate_bound: the guaranteed local rate, 3 alpha (w alpha / 2)
+        for the future window (NOTES.md item 8; see :meth:`error_bound` for its time-varying factor),
+        None for the past window (no guarantee) and the frozen-time law (see lyapunov_rate_*).
+        rate_bound_printed: the paper's printed 2 alpha p_m / p_M (future window only), always below
+        rate_bound. lyapunov_rate_min / _mean: the certified decay rate of V = e^T P e along the
+        linearised closed loop (:meth:`lyapunov_rates`; half of it is the rate of ||e||). Also the
+        smallest eigenvalue of H and its time, and the largest gain norm.
         """
         lo = -np.inf if t_from is None else t_from - 1e-9 * self.h
         hi = np.inf if t_to is None else t_to + 1e-9 * self.h
@@ -166,13 +220,94 @@ class GainSchedule:
         k_min = int(np.argmin(lam[:, 0]))
         gain_norms = np.linalg.norm(self.K[sel], ord=2, axis=(1, 2))
         k_gain = int(np.argmax(gain_norms))
+        alpha, window = float(self.options.alpha), self.options.window
+        intervals = sel[:-1] if sel.size > 1 else np.clip(sel, 0, len(self.t) - 2)   # grid intervals in the span
+        rates = self.lyapunov_rates()[intervals]
         return {
             "p_m": p_m, "p_M": p_M,
-            "rate_bound": 2.0 * float(self.options.alpha) * p_m / p_M,
+            "rate_bound": 0.5 * float(self.options.weight) * alpha if window == "future" else None,
+            "rate_bound_printed": 2.0 * alpha * p_m / p_M if window == "future" else None,
+            "guarantee": GUARANTEES[window],
+            "lyapunov_rate_min": float(np.min(rates)), "lyapunov_rate_mean": float(np.mean(rates)),
             "h_min_eigenvalue": float(lam[k_min, 0]), "h_min_eigenvalue_time_s": float(self.t[sel][k_min]),
             "h_max_eigenvalue": float(lam[:, -1].max()),
             "max_gain_norm": float(gain_norms[k_gain]), "max_gain_norm_time_s": float(self.t[sel][k_gain]),
         }
+
+    def lyapunov_rates(self) -> np.ndarray:
+        """The certified decay rate r_k of V = e^T P e on each grid interval (N - 1,), for the
+        linearised closed loop e' = (A - gamma B B^T P) e with P linear between grid points (as the law
+        interpolates it): dV/dt <= -r V with
+
+            r = -lambda_max(P^-1/2 (A^T P + P A + dP/dt - 2 gamma P B B^T P) P^-1/2),
+
+        dP/dt the interval's difference quotient, averaged over the interval's two ends (accurate to
+        O(h^2)). For the future window r >= w alpha while the window slides (NOTES.md item 8) and r = 0
+        in the frozen end region; for the frozen-time law r = w alpha - mu(t) (:mod:`.frozen`); for the
+        past window r is negative on a straight line (its V is no Lyapunov function)."""
+        cached = self.__dict__.get("_lyapunov_rates")
+        if cached is not None:
+            return cached
+        nom = self.nominal
+        A, B = nom.model.linearize(nom.x, nom.u)
+        dP = np.diff(self.P, axis=0) / self.h
+
+        def rate(idx, dPk):
+            P, Ak, Bk = self.P[idx], A[idx], B[idx]
+            PB = P @ Bk
+            M = np.swapaxes(Ak, -1, -2) @ P + P @ Ak + dPk - 2.0 * self.gamma[idx, None, None] * (PB @ np.swapaxes(PB, -1, -2))
+            Li = np.linalg.inv(np.linalg.cholesky(P))
+            S = Li @ M @ np.swapaxes(Li, -1, -2)
+            return -np.linalg.eigvalsh(0.5 * (S + np.swapaxes(S, -1, -2)))[:, -1]
+
+        k = np.arange(len(self.t) - 1)
+        r = 0.5 * (rate(k, dP) + rate(k + 1, dP))
+        self.__dict__["_lyapunov_rates"] = r
+        return r
+
+    def error_bound(self, e0, t, t_start: float | None = None) -> np.ndarray:
+        """The guaranteed bound on ||e(t)|| of the linearised closed loop started with error e0 at
+        t_start (default: the schedule's start), at the times t >= t_start:
+
+            ||e(t)|| <= sqrt(e0^T P(t_start) e0 / lambda_min(P(t))) exp(-(1/2) int_{t_start}^t r)
+
+        with int r from :meth:`guaranteed_decay`. With w = 6 this is the 3 alpha bound of the future
+        window. The past window has no guarantee: refused.
+        """
+        t = np.asarray(t, dtype=float)
+        exponent = self.guaranteed_decay(t, t_start)
+        t_start = float(self.t[0]) if t_start is None else float(t_start)
+        e0 = np.asarray(e0, dtype=float)
+        V0 = float(e0 @ self.P_at(t_start) @ e0)
+        return np.sqrt(V0 / self.p_min_at(t)) * np.exp(-0.5 * exponent)
+
+    def guaranteed_decay(self, t, t_start: float | None = None) -> np.ndarray:
+        """int_{t_start}^t r: V(t) <= V(t_start) exp(-that) along the linearised closed loop.
+
+        Future window: r = w alpha while the window slides and 0 after it stops (NOTES.md item 8).
+        Frozen-time law: r from :meth:`lyapunov_rates` (a numerical certificate, P linear between grid
+        points). Past window: refused (no guarantee, NOTES.md item 7)."""
+        window = self.options.window
+        if window == "past":
+            raise InputError("window", "future or frozen-time (the past window has no guarantee: it is not "
+                             "stabilizing in general, NOTES.md item 7)", window)
+        t = np.asarray(t, dtype=float)
+        t_start = float(self.t[0]) if t_start is None else float(t_start)
+        if window == "future":
+            until = self.diagnostics.get("sliding_window_until_s", float(self.t[-1]))
+            return float(self.options.weight) * float(self.options.alpha) * (
+                np.minimum(t, until) - min(t_start, until)).clip(0.0)
+        cum = np.concatenate([[0.0], np.cumsum(self.lyapunov_rates() * self.h)])     # int_{t_0}^{t_k} r
+        return np.interp(t, self.t, cum) - np.interp(t_start, self.t, cum)          # r constant per interval
+
+    def p_min_at(self, t) -> np.ndarray:
+        """A lower bound of lambda_min(P(t)) for P linear between grid points: exact at grid points,
+        the smaller end's value between them (lambda_min is concave)."""
+        t = np.asarray(t, dtype=float)
+        lam_P = 1.0 / self.H_eigenvalues[:, -1]
+        k = np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 2)
+        on_grid = np.isclose(t, self.t[k], rtol=0.0, atol=1e-9 * self.h)
+        return np.where(on_grid, lam_P[k], np.minimum(lam_P[k], lam_P[k + 1]))
 
     def evaluator(self) -> GridInterpolant:
         """A fast scalar-time evaluator: ``evaluator()(tau)`` -> (x0, u0, K) (the interpolant)."""
@@ -197,11 +332,18 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
     delta, on the same grid step, and kept on the nominal's own grid, so that every window inside it
     is whole and the end strategy never applies there.
     """
+    if not isinstance(nominal, Nominal):
+        raise InputError("nominal", "a Nominal (nhstab.Nominal.from_samples, or a plan's nominal)",
+                         type(nominal).__name__)
     if options is None:
         options = StabilizerOptions()
+    if not isinstance(options, StabilizerOptions):
+        raise InputError("options", "a StabilizerOptions or None", type(options).__name__)
     if overrides:
         options = StabilizerOptions(**{**options.__dict__, **overrides})
     opts = options.validated()
+    if opts.window == "past":
+        warnings.warn(PAST_WINDOW_WARNING, NotStabilizingWarning, stacklevel=2)
     tail = getattr(nominal, "tail", None)
     if tail is not None and opts.window == "future":
         return _with_tail(nominal, tail, opts)
@@ -213,9 +355,12 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
     T = nom.duration
     h = T / (N - 1)
     delta = float(opts.delta)
-    if delta > T * (1.0 + 1e-12):
+    future = opts.window == "future"
+    frozen_time = opts.window == "frozen-time"
+    if delta > T * (1.0 + 1e-12) and not frozen_time:
         raise InputError("delta", f"at most the trajectory duration {T:.6g} s", delta)
-    delta = min(delta, T)
+    if not frozen_time:                   # the frozen-time window is not a stretch of the nominal
+        delta = min(delta, T)
     cw = float(opts.weight) * float(opts.alpha)
     w = int(math.floor(delta / h + 1e-9))
     phi = delta - w * h
@@ -225,27 +370,23 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
     i_min = N - n_full                                              # first point with t - delta >= t0
     substeps = max(1, int(math.ceil(h / (opts.max_substep_fraction * delta) - 1e-9)))
 
-    E = interval_segments(nom, t[:-1], h, cw, substeps)             # K = N - 1 start-anchored pieces
-    H = np.empty((N, n, n))
-    future = opts.window == "future"
-    if opts.end_strategy == "switch" and 2 * n_full < N:
-        raise InputError("end_strategy", f"'frozen' for a trajectory shorter than 2 delta = {2 * delta:.6g} s",
-                         opts.end_strategy)
-    if future:
-        H[:n_full] = _future_windows(nom, E, w, phi, n_full, cw, substeps).W
-        if n_full < N:
-            if opts.end_strategy == "frozen":
-                H[n_full:] = _frozen_end(nom, E, n_full, delta, cw, substeps)
-            else:
-                H[n_full:] = _past_windows(nom, E, w, phi, n_full, cw, substeps).W[: N - n_full][::-1]
+    gamma = opts.gamma_on(t)
+    frozen_info = None
+    if frozen_time:
+        H, frozen_info = frozen_time_schedule(nom, cw, delta, gamma, float(opts.max_gain), float(opts.singular_rtol),
+                                              float(opts.singular_atol), substeps)
     else:
-        # past windows for i = i_min .. N-1, computed in reversed order
-        H[i_min:] = _past_windows(nom, E, w, phi, n_full, cw, substeps).W[::-1]
-        if i_min > 0:
-            if opts.end_strategy == "frozen":
+        E = interval_segments(nom, t[:-1], h, cw, substeps)             # K = N - 1 start-anchored pieces
+        H = np.empty((N, n, n))
+        if future:
+            H[:n_full] = _future_windows(nom, E, w, phi, n_full, cw, substeps).W
+            if n_full < N:
+                H[n_full:] = _frozen_end(nom, E, n_full, delta, cw, substeps)
+        else:
+            # past windows for i = i_min .. N-1, computed in reversed order
+            H[i_min:] = _past_windows(nom, E, w, phi, n_full, cw, substeps).W[::-1]
+            if i_min > 0:
                 H[:i_min] = _frozen_start(nom, E, w, phi, i_min, cw, substeps)
-            else:
-                H[:i_min] = _future_windows(nom, E, w, phi, i_min, cw, substeps).W
 
     H = 0.5 * (H + np.swapaxes(H, -1, -2))
     if not np.all(np.isfinite(H)):
@@ -260,7 +401,6 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
         raise SingularGramianError(t[k], lam[k, 0], rank, n, thresholds[k], opts.window)
     P = (V / lam[:, None, :]) @ np.swapaxes(V, -1, -2)
     P = 0.5 * (P + np.swapaxes(P, -1, -2))
-    gamma = opts.gamma_on(t)
     B = model.g(nom.x)
     K = gamma[:, None, None] * (np.swapaxes(B, -1, -2) @ P)
 
@@ -271,9 +411,11 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
         "grid_points": N, "grid_step_s": h, "duration_s": T,
         "window_intervals": w, "window_fraction_s": phi, "substeps": substeps,
         "sliding_window_until_s": float(t[n_full - 1]) if future else None,
-        "sliding_window_from_s": float(t[i_min]) if not future else None,
-        **schedule.diagnose(),
+        "sliding_window_from_s": float(t[i_min]) if opts.window == "past" else None,
     }
+    if frozen_info is not None:
+        schedule.diagnostics["frozen_time"] = frozen_info
+    schedule.diagnostics.update(schedule.diagnose())
     return schedule
 
 

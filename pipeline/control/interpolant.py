@@ -27,6 +27,10 @@ class GridInterpolant:
     def __init__(self, t: np.ndarray, x: np.ndarray, xdot: np.ndarray, u: np.ndarray, K: np.ndarray,
                  u_func: Callable | None = None):
         self.t = np.asarray(t, dtype=float)
+        if self.t.ndim != 1 or len(self.t) < 2 or not np.all(np.diff(self.t) > 0):
+            from ..errors import InputError
+
+            raise InputError("t", "a strictly increasing grid of at least 2 times", f"shape {self.t.shape}")
         self.t0 = float(self.t[0])
         self.t_end = float(self.t[-1])
         self.h = float(self.t[1] - self.t[0])

@@ -18,6 +18,10 @@ was given. The format::
     headroom: 0.8                     # plan nominals within this fraction of the input limits
     max_time_s: 120                   # simulated time limit (default: 2 x the active plan + 30 s)
     controller: {kind: gramian, window: future, alpha: 0.1, delta: 6.0, gamma: 1.0, q: [..], r: [..]}
+                                      # kind: gramian | tvlqr | open-loop; window (gramian): future |
+                                      # frozen-time (causal) | past (Remark 2: not stabilizing, study only);
+                                      # max_gain: frozen-time's hold threshold (default 50);
+                                      # gains: auto picks alpha, delta, gamma per plan (gramian; nhstab.tubes)
     noise:
       scale: 1.0                      # multiplies every noise level below (0: noiseless)
       initial: {distribution: gaussian, x: 0.1, y: 0.1, theta: 0.05}   # std (uniform: half-width)
@@ -26,7 +30,8 @@ was given. The format::
       impulses: [{time: 4.0, x: 0.0, y: 0.3}]                          # state jumps at given times
     sensor: {range_m: 8.0, fov_deg: 360, rate_hz: 10, resolution_deg: 0.5}
     monitor: {rate_hz: 10, horizon_s: 8.0}
-    planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.3, space: reeds_shepp, guide: true}   # margin: the robot's
+    planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.3, space: reeds_shepp, guide: true}   # margin: the robot's;
+                                      # margin: auto plans with the error tube's clearance (nhstab.tubes)
     replan: {pause_s: 1.0, max_attempts: 3, max_replans: 10, budget_growth: 4.0}
     tolerance: {position_m: 0.3, heading_rad: 0.2}
 
@@ -59,16 +64,27 @@ DISTRIBUTIONS = ("gaussian", "uniform")
 
 
 def check_number(key: str, v, lo: float = -math.inf, lo_open: bool = False, integer: bool = False):
-    ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
-    if ok and integer:
-        ok = float(v).is_integer()
+    """``v`` as a float (or an int with ``integer``) >= lo (> lo with ``lo_open``), else an InputError
+    naming ``key``. Integers of any size are compared exactly (never converted to float first), and
+    text such as ``1e9`` (a string to YAML 1.1) gets a hint on how to write it."""
+    from ..limits import _short_int, number_hint
+
+    ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+    if ok and isinstance(v, (float, np.floating)):
+        ok = math.isfinite(v) and (not integer or float(v).is_integer())
     if ok:
         ok = v > lo if lo_open else v >= lo
     if not ok:
         kind = "an integer" if integer else "a finite number"
         bound = "" if lo == -math.inf else f" {'>' if lo_open else '>='} {lo:g}"
-        raise InputError(key, kind + bound, v)
-    return int(v) if integer else float(v)
+        raise InputError(key, kind + bound, _short_int(v), detail=number_hint(v))
+    if integer:
+        return int(v)
+    try:
+        return float(v)
+    except OverflowError:
+        raise InputError(key, f"a finite number{'' if lo == -math.inf else ' of moderate size'}", _short_int(v)) \
+            from None
 
 
 @dataclass(frozen=True)
@@ -128,7 +144,11 @@ class MonitorOptions:
     horizon_s: float = 8.0
 
     def validated(self) -> "MonitorOptions":
+        from ..limits import MAX_RATE_HZ
+
         check_number("monitor.rate_hz", self.rate_hz, 0.0, lo_open=True)
+        if self.rate_hz > MAX_RATE_HZ:
+            raise InputError("monitor.rate_hz", f"a rate in (0, {MAX_RATE_HZ:g}] Hz", self.rate_hz)
         check_number("monitor.horizon_s", self.horizon_s, 0.0, lo_open=True)
         return self
 
@@ -137,13 +157,14 @@ class MonitorOptions:
 class PlanningOptions:
     """The planner used for the first plan and every replan (see ``nhstab plan``). ``margin``: the
     clearance every nominal keeps from the obstacles the robot knows of; None for the robot's
-    (``Robot.margin``, see :mod:`nhstab.robot`). ``guide``: the guided search (a grid shortest path
-    sets the subgoals); false searches with OMPL's planner over the whole map."""
+    (``Robot.margin``, see :mod:`nhstab.robot`); "auto" for the smallest margin whose error tube is
+    certified clear (:func:`nhstab.tubes.plan_with_auto_margin`). ``guide``: the guided search (a grid
+    shortest path sets the subgoals); false searches with OMPL's planner over the whole map."""
 
     planner: str = "rrtconnect"
     space: str = "reeds_shepp"
     time_limit_s: float = 2.0
-    margin: float | None = None
+    margin: float | str | None = None
     turning_radius: float | None = None
     guide: bool = True
 
@@ -155,7 +176,10 @@ class PlanningOptions:
         if self.space not in SPACES:
             raise InputError("planning.space", "one of " + ", ".join(SPACES), self.space)
         check_number("planning.time_limit_s", self.time_limit_s, 0.0, lo_open=True)
-        if self.margin is not None:
+        if isinstance(self.margin, str):
+            if self.margin != "auto":
+                raise InputError("planning.margin", "a number >= 0 or auto", self.margin)
+        elif self.margin is not None:
             check_number("planning.margin", self.margin, 0.0)
         if self.turning_radius is not None:
             check_number("planning.turning_radius", self.turning_radius, 0.0, lo_open=True)
@@ -227,9 +251,12 @@ class RunOptions:
     tolerance: ToleranceOptions = field(default_factory=ToleranceOptions)
 
     def validated(self, state_names, n_inputs: int) -> "RunOptions":
-        check_number("seed", self.seed, 0.0, integer=True)
-        check_number("rate_hz", self.rate_hz, 0.0, lo_open=True)
-        check_number("substeps", self.substeps, 1.0, integer=True)
+        from ..limits import (MAX_CONTROL_PERIODS, MAX_RATE_HZ, MAX_SEED, MAX_SUBSTEPS, MIN_RATE_HZ, check_int,
+                              check_range)
+
+        check_int("seed", self.seed, 0, MAX_SEED, "a non-negative integer")
+        check_range("rate_hz", self.rate_hz, MIN_RATE_HZ, MAX_RATE_HZ, "Hz")
+        check_int("substeps", self.substeps, 1, MAX_SUBSTEPS)
         check_number("headroom", self.headroom, 0.0, lo_open=True)
         if self.headroom > 1.0:
             raise InputError("headroom", "a number in (0, 1]", self.headroom)
@@ -237,6 +264,10 @@ class RunOptions:
             raise InputError("saturate", "true or false", self.saturate)
         if self.max_time_s is not None:
             check_number("max_time_s", self.max_time_s, 0.0, lo_open=True)
+            periods = self.max_time_s * self.rate_hz
+            if periods > MAX_CONTROL_PERIODS:
+                raise InputError("max_time_s", f"at most {MAX_CONTROL_PERIODS:,} control periods at rate_hz = "
+                                 f"{self.rate_hz:g} ({MAX_CONTROL_PERIODS / self.rate_hz:g} s)", self.max_time_s)
         self.controller.validated(len(state_names), n_inputs)
         self.noise.validated(state_names)
         self.sensor.validated()
@@ -299,10 +330,8 @@ def _section(name: str, data) -> object:
         raise InputError(name, "a mapping", data)
     data = dict(data)
     if name == "sensor":
-        # degrees in files, radians inside
-        for deg, rad in (("fov_deg", "fov_rad"), ("resolution_deg", "resolution_rad")):
-            if deg in data:
-                data[rad] = math.radians(check_number(f"sensor.{deg}", data.pop(deg)))
+        # degrees in files, radians inside: checked here, in the units the user wrote
+        _sensor_degrees(data)
     if name == "controller" and "kind" not in data and "type" in data:
         data["kind"] = data.pop("type")
     names = {f.name for f in fields(cls)}
@@ -315,6 +344,28 @@ def _section(name: str, data) -> object:
         if key in data and isinstance(data[key], list):
             data[key] = tuple(data[key])
     return replace(getattr(RunOptions(), name), **data)
+
+
+def _sensor_degrees(data: dict) -> None:
+    """``fov_deg`` and ``resolution_deg`` checked in degrees (the errors name the keys the user
+    wrote), then converted to the radians of :class:`SensorOptions` in place."""
+    from ..sensing import MAX_BEAMS
+
+    fov = None
+    if "fov_deg" in data:
+        fov = check_number("sensor.fov_deg", data.pop("fov_deg"), 0.0, lo_open=True)
+        if fov > 360.0:
+            raise InputError("sensor.fov_deg", "a number of degrees in (0, 360] (360: all round)", fov)
+        data["fov_rad"] = math.radians(fov)
+    if "resolution_deg" in data:
+        res = check_number("sensor.resolution_deg", data.pop("resolution_deg"), 0.0, lo_open=True)
+        fov_deg = fov if fov is not None else math.degrees(RunOptions().sensor.fov_rad)
+        if res > fov_deg:
+            raise InputError("sensor.resolution_deg", f"at most the field of view ({fov_deg:g} degrees)", res)
+        if math.ceil(fov_deg / res - 1e-9) > MAX_BEAMS:
+            raise InputError("sensor.resolution_deg", f"coarse enough for at most {MAX_BEAMS} beams over "
+                             f"{fov_deg:g} degrees (>= {fov_deg / MAX_BEAMS:.3g})", res)
+        data["resolution_rad"] = math.radians(res)
 
 
 def options_from_mapping(data: dict, allowed=None, prefix: str = "") -> RunOptions:
@@ -351,17 +402,17 @@ def options_from_mapping(data: dict, allowed=None, prefix: str = "") -> RunOptio
 
 
 def read_yaml_mapping(path: Path, argument: str, what: str) -> dict:
-    """A YAML file whose top level is a mapping; errors name ``argument`` (e.g. ``--config``)."""
-    import yaml
+    """A YAML file whose top level is a mapping, read by nhstab's one safe YAML loader
+    (:func:`nhstab.safe_io.load_yaml_file`: regular files only, bounded size, nesting and alias
+    expansion, duplicate keys refused); errors name ``argument`` (e.g. ``--config``)."""
+    from ..safe_io import load_yaml_file
 
-    try:
-        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(argument, f"an existing {what}", str(path)) from None
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise InputError(argument, "valid YAML", str(path), detail=" ".join(str(exc).split())[:200]) from None
+    data = load_yaml_file(path, argument, what)
     if not isinstance(data, dict):
         raise InputError(argument, "a YAML mapping at the top level", type(data).__name__)
+    for key in data:
+        if not isinstance(key, str):
+            raise InputError(argument, "a mapping with text keys", key)
     return data
 
 

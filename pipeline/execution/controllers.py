@@ -1,7 +1,10 @@
 """Feedback laws about a nominal trajectory, all of the form u = u0(t) - K(t) (x - x0(t)).
 
-* ``gramian``: the paper's law, K = gamma B^T P with P the inverse of the weighted window gramian
-  (future window P_c by default, past window P_r optional), from :func:`nhstab.control.compute_schedule`.
+* ``gramian``: the paper's law, K = gamma B^T P with P the inverse of the weighted window gramian,
+  from :func:`nhstab.control.compute_schedule`: the future window P_c (default, Proposition 1); the
+  causal ``frozen-time`` law (Proposition 1 on the linearisation frozen at the current time, for users
+  who cannot use the future nominal); or the past window P_r of Remark 2, kept for study only: it is
+  not stabilizing in general (a :class:`~nhstab.errors.NotStabilizingWarning` says so).
 * ``tvlqr``: time-varying LQR about the same nominal, K = R^-1 B^T S with the Riccati equation
   -S' = A^T S + S A - S B R^-1 B^T S + Q integrated backwards from S(T) = Q (stated Q, R).
 * ``open-loop``: K = 0, u = u0 (what the nominal alone does under noise).
@@ -17,41 +20,52 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..control import GainSchedule, StabilizerOptions, compute_schedule
+from ..control import WINDOWS, GainSchedule, StabilizerOptions, compute_schedule
 from ..control.interpolant import GridInterpolant
 from ..errors import InputError, NumericalError
 from ..nominal import Nominal
 
 CONTROLLERS = ("gramian", "tvlqr", "open-loop")
-WINDOWS = ("future", "past")
+GAINS = ("default", "auto")
 
 
 @dataclass(frozen=True)
 class ControllerOptions:
-    """kind: one of CONTROLLERS; window: the gramian's window ("future" = P_c, "past" = P_r);
-    alpha, delta, gamma: the gramian law's parameters (None: the robot's defaults); q, r: the
-    diagonals of TVLQR's Q (per state) and R (per input), None for identity."""
+    """kind: one of CONTROLLERS; window: the gramian's window ("future" = P_c, "frozen-time" = the
+    causal law of :mod:`nhstab.control.frozen`, "past" = P_r, not stabilizing in general);
+    alpha, delta, gamma: the gramian law's parameters (None: the robot's defaults); max_gain: the
+    frozen-time law's hold threshold (None: :data:`nhstab.control.frozen.MAX_GAIN`); q, r: the
+    diagonals of TVLQR's Q (per state) and R (per input), None for identity; gains: "default", or
+    "auto" (gramian only): alpha, delta and gamma chosen per plan from a small grid, the narrowest
+    error tube with a saturation bound under 1 % (:func:`nhstab.tubes.choose_gains`)."""
 
     kind: str = "gramian"
     window: str = "future"
     alpha: float | None = None
     delta: float | None = None
     gamma: float | None = None
+    max_gain: float | None = None
     q: tuple[float, ...] | None = None
     r: tuple[float, ...] | None = None
+    gains: str = "default"
 
     def validated(self, n: int, m: int) -> "ControllerOptions":
         if self.kind not in CONTROLLERS:
             raise InputError("controller", "one of " + ", ".join(CONTROLLERS), self.kind)
         if self.window not in WINDOWS:
             raise InputError("controller.window", "one of " + ", ".join(WINDOWS), self.window)
-        for key in ("alpha", "delta"):
+        for key in ("alpha", "delta", "max_gain"):
             v = getattr(self, key)
             if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputError(f"controller.{key}", "a positive finite number", v)
         if self.gamma is not None and not (isinstance(self.gamma, (int, float)) and math.isfinite(self.gamma)
                                            and self.gamma >= 0.5):
             raise InputError("controller.gamma", "a finite number >= 1/2", self.gamma)
+        if self.gains not in GAINS:
+            raise InputError("controller.gains", "one of " + ", ".join(GAINS), self.gains)
+        if self.gains == "auto" and self.kind != "gramian":
+            raise InputError("controller.gains", f"default for the {self.kind} controller (auto tunes the gramian law)",
+                             self.gains)
         for key, size in (("q", n), ("r", m)):
             v = getattr(self, key)
             if v is None:
@@ -63,13 +77,16 @@ class ControllerOptions:
 
     def stabilizer(self, defaults: dict) -> StabilizerOptions:
         params = dict(defaults)
-        for key in ("alpha", "delta", "gamma"):
+        for key in ("alpha", "delta", "gamma", "max_gain"):
             if getattr(self, key) is not None:
                 params[key] = float(getattr(self, key))
         return StabilizerOptions(**params, window=self.window)
 
     def describe(self, n: int, m: int, defaults: dict) -> dict:
         if self.kind == "gramian":
+            if self.gains == "auto":
+                return {"kind": self.kind, "gains": "auto: alpha, delta, gamma chosen per plan (plans[i].gains_auto)",
+                        "window": self.window}
             return {"kind": self.kind, **self.stabilizer(defaults).describe()}
         if self.kind == "tvlqr":
             return {"kind": self.kind, "Q_diagonal": list(self.q or (1.0,) * n),
@@ -145,7 +162,8 @@ def build_law(nominal: Nominal, options: ControllerOptions, defaults: dict,
             schedule = compute_schedule(nom, stab)
         return FeedbackLaw("gramian", schedule.nominal, schedule.t, schedule.K, schedule,
                            {"max_gain_norm": schedule.diagnostics["max_gain_norm"],
-                            "rate_bound": schedule.diagnostics["rate_bound"]})
+                            "rate_bound": schedule.diagnostics["rate_bound"],
+                            "rate_bound_printed": schedule.diagnostics["rate_bound_printed"]})
     if opts.kind == "open-loop":
         return FeedbackLaw("open-loop", nom, nom.t, np.zeros((len(nom.t), model.m, model.n)))
     K = tvlqr_gains(nom, np.asarray(opts.q or np.ones(model.n), dtype=float),

@@ -17,7 +17,6 @@ import numpy as np
 from .. import __version__
 from ..errors import InputError
 from ..robot import make_robot
-from ..records import write_json, write_text
 from .runner import MODES, RunResult
 
 #: a cusp's neighbourhood for the per-cusp error statistics [s]
@@ -117,7 +116,28 @@ def _cusps(result: RunResult, e: np.ndarray) -> list[dict]:
     return out
 
 
-def _plan_entry(rec) -> tuple[dict, dict]:
+def _observed_in_tube(result: RunResult, rec) -> dict | None:
+    """How the run's own samples sat in a plan's predicted tube: the tracking samples that followed
+    it, the fraction inside the full-state p-ellipsoid and inside the pose region of the spatial tube."""
+    lg, tube = result.log, rec.tube
+    sel = np.flatnonzero((lg["plan_id"] == rec.id) & (lg["mode"] == 0))
+    if tube is None or not len(sel):
+        return None
+    k = np.rint((lg["t"][sel] - rec.t_start) / result.info["period_s"]).astype(int)
+    ok = (k >= 0) & (k < len(tube.t))
+    sel, k = sel[ok], k[ok]
+    if not len(sel):
+        return None
+    e = np.zeros((len(tube.t), result.model.n))
+    e[k] = result.model.state_error(lg["x"][sel], lg["x0"][sel])
+    state, pose = tube.inside(e)
+    return {"samples": int(len(k)), "inside_state_ellipsoid": float(state[k].mean()),
+            "inside_tube": float(pose[k].mean()),
+            "note": "this run's tracking samples on this plan inside the predicted p-regions (full-state "
+                    "chi-square ellipsoid; position ellipse and heading band the spatial tube is built from)"}
+
+
+def _plan_entry(rec, result: RunResult | None = None) -> tuple[dict, dict]:
     entry = {"id": rec.id, "trigger": rec.trigger, "t_detect_s": rec.t_detect, "t_start_s": rec.t_start,
              "start_pose": rec.start, "margin_m": rec.margin, "seed": rec.seed, "conflict": rec.conflict,
              "attempts": [{k: v for k, v in a.items() if k != "latency_s"} for a in rec.attempts]}
@@ -129,6 +149,11 @@ def _plan_entry(rec) -> tuple[dict, dict]:
                 timing[key] = metrics.pop(key)
         entry["metrics"] = {**metrics, "duration_s": float(rec.law.t_end - rec.law.t0),
                             "controller_max_gain_norm": rec.law.info.get("max_gain_norm")}
+    if getattr(rec, "tube", None) is not None:
+        entry["tube"] = rec.tube.summary()
+        observed = _observed_in_tube(result, rec) if result is not None else None
+        if observed is not None:
+            entry["tube"]["observed"] = observed
     return entry, timing
 
 
@@ -162,6 +187,8 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
         truth = result.world if result.world is not None else CollisionWorld.from_map(result.map, "all")
         c_min, i_min, b_min = bodies.min_clearance(truth, robot, lg["x"])
         margin = result.options.planning.margin
+        if margin == "auto":           # the first plan's margin, as chosen by its tube
+            margin = result.plans[0].margin if result.plans else 0.0
         free = bodies.free_many(truth, robot, lg["x"], margin)
         hitch = model.hitch_angles(lg["x"])
         clearance = {"min_executed_m": c_min, "time_s": float(lg["t"][i_min]), "pose": poses[i_min],
@@ -176,6 +203,8 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
         truth = result.world if result.world is not None else CollisionWorld.from_map(result.map, "all")
         c_min, i_min = truth.min_clearance(poses, result.footprint)
         margin = result.options.planning.margin
+        if margin == "auto":           # the first plan's margin, as chosen by its tube
+            margin = result.plans[0].margin if result.plans else 0.0
         free = truth.free_many(poses, result.footprint, margin)
         clearance = {"min_executed_m": c_min, "time_s": float(lg["t"][i_min]), "pose": poses[i_min],
                      "margin_m": margin, "samples_below_margin": int((~free).sum()), "samples": len(poses),
@@ -188,7 +217,7 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
                                                         (np.sum((lg["u"] - lg["u0"]) ** 2, axis=0) * dt).tolist())),
                   "saturated_fraction": float(np.mean(np.any(
                       np.isclose(np.abs(lg["u"]), model.input_limits()[:, 1], rtol=0, atol=1e-12), axis=1)))}
-    plans, timings = zip(*(_plan_entry(p) for p in result.plans)) if result.plans else ((), ())
+    plans, timings = zip(*(_plan_entry(p, result) for p in result.plans)) if result.plans else ((), ())
     opts = dataclasses.asdict(dataclasses.replace(result.options, robot=None))
     opts["robot"] = robot.spec()
     return {
@@ -209,6 +238,7 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
         "collision": result.collision,
         "final_error": result.info.get("final_errors"),
         "tracking": tracking,
+        "tube": plans[0].get("tube") if plans else None,
         "clearance": clearance,
         "control_effort": effort,
         "duration_s": float(lg["t"][-1]) if len(lg["t"]) else 0.0,
@@ -219,66 +249,98 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
     }
 
 
+#: every file ``nhstab run`` may write into its folder (an earlier run's are all replaced)
+RUN_FILES = ("run.json", "trajectory.csv", "run_map.png", "run_tracking.png", "run.gif")
+#: every file ``nhstab plan`` may write into its folder
+PLAN_FILES = ("plan.json", "trajectory.csv", "trajectory.npz", "plan.png", "tube.npz")
+
+
 def write_run(result: RunResult, out_dir, map_path: str | None = None, figures: bool = True,
-              animate: bool = False) -> list[Path]:
-    """Write trajectory.csv, run.json and the figures; each file atomically (a file that exists is
-    complete), run.json last."""
-    from ..records import save_figure
+              animate: bool = False, extra_files: dict | None = None) -> list[Path]:
+    """Write trajectory.csv, the figures, run.json (and ``extra_files``: {name: text or bytes}) into
+    ``out_dir`` as one output (:class:`nhstab.records.OutputFolder`): an earlier run's files there
+    are replaced as a whole, never mixed with these, and ``nhstab-manifest.json`` (last) names them.
+    Returns the paths written, the manifest last."""
+    from ..records import OutputFolder
 
-    out_dir = Path(out_dir)
-    written = [write_text(out_dir / "trajectory.csv", trajectory_csv(result))]
-    if figures:
-        from ..report.runs import run_map_figure, run_tracking_figure
+    with OutputFolder(out_dir, "run", owned=RUN_FILES + tuple(extra_files or ()),
+                      info={"status": result.status}) as out:
+        for name, content in (extra_files or {}).items():
+            if isinstance(content, bytes):
+                out.path(name).write_bytes(content)
+            else:
+                out.write_text(name, content)
+        out.write_text("trajectory.csv", trajectory_csv(result))
+        if figures:
+            from ..report.runs import run_map_figure, run_tracking_figure
 
-        written.append(save_figure(run_map_figure(result), out_dir / "run_map.png"))
-        written.append(save_figure(run_tracking_figure(result), out_dir / "run_tracking.png"))
-    if animate:
-        from ..report.runs import write_animation
+            out.save_figure(run_map_figure(result), "run_map.png")
+            out.save_figure(run_tracking_figure(result), "run_tracking.png")
+        if animate:
+            from ..report.runs import write_animation
 
-        written.append(write_animation(result, out_dir / "run.gif"))
-    written.append(write_json(out_dir / "run.json", summary(result, map_path)))
-    return written
+            write_animation(result, out.path("run.gif"))
+        out.write_json("run.json", summary(result, map_path))
+    return out.written
 
 
-
-def plan_record(result, map_label: str, robot, start, goal, path_options) -> dict:
+def plan_record(result, map_label: str, robot, start, goal, path_options, tube=None,
+                extra: dict | None = None) -> dict:
     """The content of plan.json: status, message, inputs (map, robot as used, footprint, poses,
-    options, feasibility residual) and the plan's metrics."""
+    options, feasibility residual), the plan's metrics, its error ``tube`` (a
+    :class:`nhstab.tubes.Tube`) and ``extra`` records (e.g. ``margin_auto``, ``gains_auto``, the
+    tube's noise model)."""
     nom = result.nominal
     inputs = {"map": map_label, "robot": robot.describe(), "footprint": robot.footprint.describe(),
               "start": [float(v) for v in start], "goal": [float(v) for v in goal],
               "path_options": dict(path_options.__dict__),
               "feasibility_residual_m": None if nom is None else nom.feasibility_residual()}
-    return {"status": result.status, "message": result.message, "inputs": inputs, "metrics": result.metrics}
+    out = {"status": result.status, "message": result.message, "inputs": inputs, "metrics": result.metrics}
+    if tube is not None:
+        out["tube"] = tube.summary()
+    out.update(extra or {})
+    return out
 
 
 def write_plan(result, out_dir, m, map_label: str, robot, start, goal, path_options,
-               figures: bool = True) -> list[Path]:
-    """Write trajectory.csv, trajectory.npz, plan.png and plan.json (last) for a successful plan of
-    :func:`nhstab.planning.plan` on map ``m``; each file atomically."""
+               figures: bool = True, tube=None, extra: dict | None = None) -> list[Path]:
+    """Write trajectory.csv, trajectory.npz, plan.png and plan.json for a successful plan of
+    :func:`nhstab.planning.plan` on map ``m``, as one output (:class:`nhstab.records.OutputFolder`).
+    With a ``tube``, plan.png draws it and tube.npz holds its per-sample arrays."""
     import numpy as np
 
     from ..planning import pose_columns
-    from ..records import save_figure
     from ..trajectory_io import write_trajectory
 
     if not result.ok:
         raise InputError("result", "a successful plan (result.ok)", result.status)
+    from ..records import OutputFolder
+
     model, footprint = robot.model, robot.footprint
     path_options = path_options.for_robot(robot)
-    out_dir = Path(out_dir)
     nom = result.nominal
-    written = [write_trajectory(out_dir / "trajectory.csv", nom), write_trajectory(out_dir / "trajectory.npz", nom)]
-    if figures:
-        from ..report.plans import plan_figure
+    with OutputFolder(out_dir, "plan", owned=PLAN_FILES) as out:
+        write_trajectory(out.path("trajectory.csv"), nom)
+        write_trajectory(out.path("trajectory.npz"), nom)
+        if figures:
+            from ..report.plans import plan_figure
+            from ..tubes import certified_text
 
-        met = result.metrics
-        cusps = met["cusps"]
-        title = (f"{m.name}: {model.name}, {met['length_m']:.1f} m, {cusps} cusp{'' if cusps == 1 else 's'}, "
-                 f"min clearance {met['min_clearance_m']:.2f} m")
-        fig = plan_figure(m, nom.x[:, pose_columns(model)],
-                          np.sign(nom.u[:, 0]), footprint, start, goal, title=title, robot=robot, states=nom.x)
-        written.append(save_figure(fig, out_dir / "plan.png"))
-    written.append(write_json(out_dir / "plan.json",
-                              plan_record(result, map_label, robot, start, goal, path_options)))
-    return written
+            met = result.metrics
+            cusps = met["cusps"]
+            title = (f"{m.name}: {model.name}, {met['length_m']:.1f} m, {cusps} cusp{'' if cusps == 1 else 's'}, "
+                     f"min clearance {met['min_clearance_m']:.2f} m")
+            if tube is not None:
+                title += f"\n{tube.probability:g}-tube: reach up to {tube.reach.max():.2f} m, {certified_text(tube)}"
+            fig = plan_figure(m, nom.x[:, pose_columns(model)],
+                              np.sign(nom.u[:, 0]), footprint, start, goal, title=title, tube=tube,
+                              robot=robot, states=nom.x)
+            out.save_figure(fig, "plan.png")
+        if tube is not None:
+            out.write_npz("tube.npz", t=tube.t, poses=tube.poses, mean=tube.mean, cov=tube.cov,
+                          std=tube.std, position_radius=tube.position_radius,
+                          heading_spread=tube.heading_spread, reach=tube.reach, u_mean=tube.u_mean,
+                          u_std=tube.u_std, saturation_per_step=tube.saturation_per_step,
+                          probability=tube.probability)
+        out.write_json("plan.json", plan_record(result, map_label, robot, start, goal, path_options, tube, extra))
+    return out.written

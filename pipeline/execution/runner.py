@@ -81,6 +81,7 @@ class PlanRecord:
     result: PlanResult | None = None
     law: FeedbackLaw | None = None
     conflict: dict | None = None  # for a replan: the first conflicting nominal pose and its clearance
+    tube: object | None = None    # the predicted error tube (nhstab.tubes.Tube)
 
     @property
     def nominal(self):
@@ -180,9 +181,13 @@ class CompositeRun:
     """State of one run; :func:`execute` drives it."""
 
     def __init__(self, m: Map, robot: Robot, start, goal, opts: RunOptions):
+        from ..planning import check_map_budget, check_start_goal
+
         model, fp = robot.model, robot.footprint
+        check_start_goal(np.asarray(start, dtype=float), np.asarray(goal, dtype=float))
         self.m, self.robot, self.model, self.fp = m, robot, model, fp
         opts = opts.validated(model.state_names, model.m)
+        check_map_budget(m, opts.planning.time_limit_s)
         if opts.planning.margin is None:
             opts = dataclasses.replace(opts, planning=dataclasses.replace(opts.planning, margin=robot.margin))
         self.opts = opts
@@ -199,6 +204,10 @@ class CompositeRun:
         self.pose_idx = pose_columns(model)
         #: a robot of several bodies (a car with trailers): every body is checked, the hitch angles too
         self.multibody = len(robot.footprints) > 1
+        if self.multibody and opts.planning.margin == "auto":
+            from ..tubes import SEVERAL_BODIES
+
+            raise InputError("planning.margin", SEVERAL_BODIES, "auto")
         self.known = CollisionWorld.from_map(m, "known")
         self.truth = CollisionWorld.from_map(m, "all")
         self.robot_world = self.known
@@ -226,13 +235,17 @@ class CompositeRun:
         return PathOptions(space=p.space, turning_radius=radius, planner=p.planner,
                            time_limit_s=p.time_limit_s * budget_factor, seed=seed, margin=margin, guide=p.guide)
 
-    def _plan_once(self, start_pose: np.ndarray, attempt_index: int = 0
-                   ) -> tuple[dict, PlanResult | None, FeedbackLaw | None, float]:
-        """One planning call (path, nominal, gains) from start_pose, the ``attempt_index``-th in a row
-        (later attempts get a larger budget); returns (attempt record, result, law, margin used)."""
+    def _plan_once(self, start_pose: np.ndarray, attempt_index: int = 0):
+        """One planning call (path, nominal, gains, error tube) from start_pose, the ``attempt_index``-th
+        in a row (later attempts get a larger budget); returns (attempt record, result, law, margin used,
+        tube). With ``planning.margin: auto`` the call is the tube loop of
+        :func:`nhstab.tubes.plan_with_auto_margin` (its rounds share the call's seed)."""
+        from ..tubes import AUTO_MARGIN_START, plan_with_auto_margin
+
         seed = planner_seed(self.opts.seed, self.planning_calls)
         self.planning_calls += 1
-        margin = self.opts.planning.margin
+        auto = self.opts.planning.margin == "auto"
+        margin = AUTO_MARGIN_START if auto else self.opts.planning.margin
         factor = self.opts.replan.budget_factor(attempt_index)
         attempt = {"seed": seed, "margin": margin, "time_limit_s": self.opts.planning.time_limit_s * factor}
         started = time.perf_counter()
@@ -242,17 +255,26 @@ class CompositeRun:
             clearance = self._clearance(self.robot_world, start_pose)
             if 0 < clearance <= margin:
                 margin = 0.5 * clearance
-                attempt.update(margin=margin, margin_reduced_from=self.opts.planning.margin,
-                               start_clearance_m=clearance)
-        result, law = None, None
+                attempt.update(margin=margin, margin_reduced_from=attempt["margin"], start_clearance_m=clearance)
+        result, law, tube = None, None, None
         try:
             if clearance <= 0:
                 raise InputError("start", "a pose clear of the obstacles", start_pose.round(3).tolist(),
                                  detail=f"clearance {clearance:.3g} m")
-            result = plan(self.m, self.plan_robot, start_pose, self.goal,
-                          self._path_options(seed, margin, factor), TimingOptions(dt=self.T), world=self.robot_world)
-            if result.ok:
-                law = build_law(result.nominal, self.opts.controller, self.stab_defaults, result.schedule)
+            if auto:
+                cap = min(clearance, self.robot_world.clearance(self.goal, self.fp)) - 1e-3
+                result, law, tube, record = plan_with_auto_margin(
+                    lambda mg: self._plan_at(start_pose, seed, mg, attempt, factor), self._tube_of,
+                    self.robot_world, self.fp, cap=cap, start=margin)
+                attempt["margin_auto"] = record
+                if record["margin_m"] is not None:
+                    margin = attempt["margin"] = record["margin_m"]
+            else:
+                result, law = self._plan_at(start_pose, seed, margin, attempt, factor)
+                tube = self._tube_of(law)
+            if law is not None and tube is None:
+                attempt["tube"] = "none: the linearised closed loop diverges under these gains"
+            if law is not None:
                 attempt.update(status="ok", message=result.message)
             else:
                 attempt.update(status=result.status, message=result.message)
@@ -263,7 +285,49 @@ class CompositeRun:
         except PipelineError as exc:   # singular gramian for another window, Riccati failure
             attempt.update(status="not_stabilizable", message=str(exc))
         attempt["latency_s"] = time.perf_counter() - started
-        return attempt, (result if law is not None else None), law, margin
+        return attempt, (result if law is not None else None), law, margin, tube
+
+    def _plan_at(self, start_pose, seed: int, margin: float, attempt: dict, budget_factor: float = 1.0):
+        """plan() at ``margin`` and the feedback law along the nominal (``controller.gains: auto``: chosen
+        by the tube, recorded in the attempt)."""
+        from ..tubes import choose_gains
+
+        result = plan(self.m, self.plan_robot, start_pose, self.goal, self._path_options(seed, margin, budget_factor),
+                      TimingOptions(dt=self.T), world=self.robot_world)
+        if not result.ok:
+            return result, None
+        if self.opts.controller.gains == "auto":
+            law, record = choose_gains(result.nominal, self.stab_defaults, lambda lw: self._tube_of(lw, world=False),
+                                       self.opts.controller.window)
+            attempt["gains_auto"] = record
+        else:
+            law = build_law(result.nominal, self.opts.controller, self.stab_defaults, result.schedule)
+        return result, law
+
+    def _tube_of(self, law: FeedbackLaw, world=True):
+        """The error tube of a nominal of this run (:func:`nhstab.tubes.predict_tube`) under the run's
+        noise, rate and robot, certified against the obstacles the robot knows of now. The first plan
+        starts from the initial error (with the impulses); a replan from a measured state after the
+        pause: sensor noise plus the pause's process noise (impulses are not included)."""
+        from ..tubes import predict_tube
+
+        if law is None:
+            return None
+        names = self.model.state_names
+        initial = None
+        if self.plans:
+            initial = np.diag(self.opts.noise.vector("sensor", names) ** 2
+                              + self.opts.noise.vector("process", names) ** 2 * self.opts.replan.pause_s)
+        try:
+            # a robot of several bodies: the tube is not certified (it would certify the car's body only)
+            certify = world and not self.multibody
+            return predict_tube(law, self.opts.noise, self.fp, self.robot_world if certify else None,
+                                rate_hz=self.opts.rate_hz, substeps=self.opts.substeps, model=self.model,
+                                initial_cov=initial, impulses=not self.plans)
+        except NumericalError:
+            if not world:
+                raise                  # choose_gains skips the setting
+            return None                # no tube: the linearised loop diverges (the run says so)
 
     # ---- the loop -----------------------------------------------------------------------------
     def _record(self, t, x, y, x0, u, u0, plan_id, mode):
@@ -342,24 +406,40 @@ class CompositeRun:
     def _conflict(self, rec: PlanRecord, tau: float) -> dict | None:
         """The first pose of the remaining nominal within the horizon that is not clear of the
         discovered obstacles by the plan's margin (FCL), or None. Only poses within reach of a
-        discovered obstacle's bounding circle go to FCL."""
+        discovered obstacle's bounding circle go to FCL. With ``planning.margin: auto`` the margin at
+        each pose is the larger of the plan's margin and its error tube's reach there: a newly seen
+        obstacle must clear the tube, as the known ones were certified to."""
         if not self.discovered:
             return None
         nom = rec.nominal
         i0, i1 = np.searchsorted(nom.t, [tau, tau + self.opts.monitor.horizon_s])
-        if self.multibody:
+        if self.multibody:          # every body, at the plan's margin (a tube covers one body only)
             return self._conflict_bodies(rec, nom.x[max(i0 - 1, 0):i1 + 1])
-        poses = nom.x[max(i0 - 1, 0):i1 + 1][:, self.pose_idx]
+        lo = max(i0 - 1, 0)
+        poses = nom.x[lo:i1 + 1][:, self.pose_idx]
+        t_from = t_to = nom.t[lo:i1 + 1]             # the nominal's times at each pose (a span when interpolated)
         if len(poses) > 1:
             d = np.diff(poses, axis=0)
             if np.max(np.hypot(d[:, 0], d[:, 1])) > 0.05 or np.max(np.abs(wrap_angle(d[:, 2]))) > 0.05:
-                poses = interpolate_poses(poses, 0.05, 0.05)[0]
-        reach = self.fp.bounding_radius + rec.margin
+                times = t_from
+                poses, seg = interpolate_poses(poses, 0.05, 0.05)
+                t_from, t_to = times[seg], times[np.minimum(seg + 1, len(times) - 1)]
+        margins = np.full(len(poses), rec.margin)
+        tubed = self.opts.planning.margin == "auto" and rec.tube is not None
+        if tubed:
+            tb = rec.tube
+            reach = np.maximum(np.interp(t_from - nom.t[0], tb.t, tb.reach), np.interp(t_to - nom.t[0], tb.t, tb.reach))
+            margins = np.maximum(margins, reach)
         near = np.zeros(len(poses), dtype=bool)
         for centre, radius in self.discovered_discs:
-            near |= np.hypot(poses[:, 0] - centre[0], poses[:, 1] - centre[1]) <= radius + reach
+            near |= np.hypot(poses[:, 0] - centre[0], poses[:, 1] - centre[1]) <= radius + self.fp.bounding_radius + margins
         for k in np.flatnonzero(near):
-            if not self.discovered_world.is_free(poses[k], self.fp, rec.margin):
+            if tubed:
+                c = self.discovered_world.clearance(poses[k], self.fp)
+                if c < margins[k]:
+                    return {"pose": poses[k].tolist(), "clearance_m": c, "margin_m": float(margins[k]),
+                            "tube_reach": True}
+            elif not self.discovered_world.is_free(poses[k], self.fp, rec.margin):
                 return {"pose": poses[k].tolist(), "clearance_m": self.discovered_world.clearance(poses[k], self.fp),
                         "margin_m": rec.margin}
         return None
@@ -388,16 +468,16 @@ class CompositeRun:
         # robot has not moved yet
         attempts = []
         while True:
-            attempt, result, law, margin = self._plan_once(self._start_configuration, len(attempts))
+            attempt, result, law, margin, tube = self._plan_once(self._start_configuration, len(attempts))
             attempts.append(attempt)
             if law is not None or len(attempts) >= opts.replan.max_attempts:
                 break
         first = PlanRecord(0, "initial", 0.0, 0.0, self._start_configuration.copy(), attempt["seed"], margin,
-                           attempts, result, law)
+                           attempts, result, law, tube=tube)
         self.plans.append(first)
         if law is None:
             raise _Stop("no_plan", f"no first plan in {len(attempts)} attempt{'s' if len(attempts) > 1 else ''} "
-                                   f"(last: {attempt['status']}: {attempt['message']})")
+                                   f"(last: {attempt['status']}: {attempt['message']}){self._rate_hint(attempt)}")
         max_time = self._deadline(0.0, law)
         # the initial condition error, about the nominal's first state
         sigma0 = opts.noise.vector("initial", model.state_names)
@@ -439,12 +519,32 @@ class CompositeRun:
             self._record(t, x, y, x0, u, u_ff, rec.id, 0)
             x = self._advance(x, u, t)
 
+    def _rate_hint(self, attempt: dict) -> str:
+        """When a nominal failed its clearance check and the control period is long, say so: the
+        nominal is sampled once per period, and samples far apart cut corners."""
+        step = float(self.plan_model.input_limits()[0, 1]) * self.T
+        if attempt.get("status") == "not_clear" and step > 0.05:
+            return (f" (rate_hz = {self.opts.rate_hz:g}: the nominal is sampled every {self.T:g} s, up to "
+                    f"{step:.2g} m apart, and cuts corners between samples; a rate of at least "
+                    f"{math.ceil(float(self.plan_model.input_limits()[0, 1]) / 0.05):g} Hz keeps them within 5 cm)")
+        return ""
+
     def _deadline(self, t_start: float, law: FeedbackLaw) -> float:
         """The simulated time limit: ``max_time_s`` if given; else twice the active nominal's duration
         plus 30 s from when it began (each replan moves it)."""
+        from ..limits import MAX_CONTROL_PERIODS
+
         if self.opts.max_time_s is not None:
             return self.opts.max_time_s
-        return t_start + 2.0 * (law.t_end - law.t0) + 30.0
+        deadline = t_start + 2.0 * (law.t_end - law.t0) + 30.0
+        if deadline > MAX_CONTROL_PERIODS * self.T:
+            if not self.plans or len(self.plans) == 1 and t_start == 0.0:
+                raise InputError("max_time_s", f"given for a run this long: the default limit, 2 x the plan's "
+                                 f"{law.t_end - law.t0:.0f} s + 30 s, is more than the {MAX_CONTROL_PERIODS:,} "
+                                 f"control periods a run may simulate at rate_hz = {self.opts.rate_hz:g}", None,
+                                 detail="set max_time_s, or a lower rate_hz")
+            deadline = MAX_CONTROL_PERIODS * self.T
+        return deadline
 
     def _replan(self, x, t_detect: float, conflict: dict):
         """Stop; plan from the measured state until a plan is found or attempts run out. Returns the new
@@ -456,7 +556,7 @@ class CompositeRun:
         while True:
             y = self._measure(x)
             start_pose = y[self.robot.configuration_columns] if self.multibody else y[self.pose_idx]
-            attempt, result, law, margin = self._plan_once(start_pose, len(attempts))
+            attempt, result, law, margin, tube = self._plan_once(start_pose, len(attempts))
             attempts.append(attempt)
             # the robot stands still for the pause (sensing goes on)
             t_pause_end = self.k * self.T + self.opts.replan.pause_s
@@ -471,7 +571,7 @@ class CompositeRun:
                 first = False
             if law is not None:
                 rec = PlanRecord(plan_id, "conflict", t_detect, self.k * self.T, start_pose.copy(), attempt["seed"],
-                                 margin, attempts, result, law, conflict)
+                                 margin, attempts, result, law, conflict, tube)
                 self.plans.append(rec)
                 return rec, x
             if len(attempts) >= self.opts.replan.max_attempts:
@@ -539,6 +639,8 @@ def execute(m: Map, *args, **kwargs) -> RunResult:
     opts = given.get("opts") or RunOptions()
     if not isinstance(opts, RunOptions):
         raise InputError("opts", "a RunOptions", type(opts).__name__)
+    if not isinstance(m, Map):
+        raise InputError("map", "a Map (nhstab.load_map(path))", type(m).__name__)
     robot = resolve_robot(given.get("robot") if given.get("robot") is not None else opts.robot, m.robot,
                           source="run options" if given.get("robot") is None and opts.robot is not None else "")
     from ..maps import resolve_poses

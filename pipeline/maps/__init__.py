@@ -15,14 +15,12 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from ..errors import InputError
 from .base import Circle, Map, MapError, OccupancyGrid, Polygon, Pose, Problem, box_polygon
-from .yaml_format import _one_line, is_file
+from .yaml_format import is_file
 
 __all__ = ["Map", "Pose", "Polygon", "Circle", "OccupancyGrid", "Problem", "MapError", "box_polygon", "load_map",
-           "resolve_poses"]
+           "content_hash", "resolve_poses"]
 
 _OPTIONS = {
     "svg": ("convex_hull", "scenarios"),
@@ -50,13 +48,44 @@ def load_map(path: str | Path, **options: Any) -> Map:
 
     ``path`` may also be ``example:NAME``, a map bundled with nhstab (see :mod:`nhstab.examples`).
 
-    A missing file or an unsupported extension raises :class:`MapError` naming the file.
+    A missing file or an unsupported extension raises :class:`MapError` naming the file. Every file
+    is read through :mod:`nhstab.safe_io` (regular files of bounded size, YAML with bounded nesting,
+    aliases and no duplicate keys), and everything built is checked against :mod:`nhstab.limits`.
+    ``meta["files"]`` lists every file read with its SHA-256, and ``meta["content_hash"]`` is their
+    combined digest (:func:`content_hash`).
     """
     from ..examples import resolve_map_path
+    from ..safe_io import content_digest, recording
 
     path = resolve_map_path(path)
     if not is_file(path):
         raise MapError(str(path), "an existing map file", "no such file or not a file")
+    with recording() as files:
+        try:
+            m = _dispatch(path, options)
+        except MapError:
+            raise
+        except InputError as exc:       # a shape or grid beyond nhstab.limits: name the file too
+            if exc.argument.startswith("load_map option") or exc.argument in _OPTION_NAMES:
+                raise
+            raise MapError(f"{path}: {exc.argument}", exc.expected, exc.got) from None
+    files = [dict(f) for f in files]
+    return replace(m, meta={**m.meta, "files": files, "content_hash": content_digest(files)})
+
+
+_OPTION_NAMES = {"cell_size", "unknown", "convex_hull", "scenarios"}
+
+
+def content_hash(path: str | Path, **options: Any) -> str:
+    """SHA-256 (hex) of the bytes of every file the map at ``path`` is built from, in the order they
+    are read: the map file, its base maps, images and scenario lists. Loads the map (so the set of
+    files is exactly what :func:`load_map` reads); the same value is in ``load_map(...).meta
+    ["content_hash"]``, and ``meta["files"]`` lists the files with their own digests. Names do not
+    enter: moving or renaming the files keeps the hash."""
+    return load_map(path, **options).meta["content_hash"]
+
+
+def _dispatch(path: Path, options: dict) -> Map:
     suffix = path.suffix.lower()
     if suffix == ".svg":
         _check_options(path, "svg", options)
@@ -121,15 +150,12 @@ def _load_movingai(path: Path, cell_size: float = 1.0, scenarios: Any = True) ->
 
 
 def _is_ros_yaml(path: Path) -> bool:
-    """Whether a YAML file's top level is a mapping with an ``image`` key (ROS map_server metadata)."""
-    try:
-        doc = yaml.safe_load(path.read_bytes().decode("utf-8"))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MapError(str(path), "a readable UTF-8 YAML file", detail=_one_line(exc)) from None
-    except yaml.YAMLError as exc:
-        raise MapError(str(path), "valid YAML", detail=_one_line(exc)) from None
-    except RecursionError:
-        raise MapError(str(path), "valid YAML", detail="nesting too deep") from None
+    """Whether a YAML file's top level is a mapping with an ``image`` key (ROS map_server metadata).
+    Read with the safe loader, and not recorded: the loader that follows reads the file again."""
+    from ..safe_io import load_yaml_file, not_recorded
+
+    with not_recorded():
+        doc = load_yaml_file(path, what="YAML map file", error=MapError)
     return isinstance(doc, dict) and "image" in doc
 
 

@@ -15,6 +15,28 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
+from ..limits import MAX_CELL_M, MAX_COORD_M, MAX_GRID_CELLS, MIN_CELL_M
+
+
+def check_extent(what: str, values) -> None:
+    """Refuse coordinates beyond +-MAX_COORD_M (see :mod:`nhstab.limits`), naming ``what``."""
+    arr = np.asarray(values, dtype=float)
+    if arr.size and float(np.max(np.abs(arr))) > MAX_COORD_M:
+        raise InputError(what, f"coordinates within +-{MAX_COORD_M:g} m", f"{float(np.max(np.abs(arr))):.6g} m")
+
+
+def check_grid_size(what: str, rows: int, cols: int) -> None:
+    """Refuse a grid of more than MAX_GRID_CELLS cells before it is allocated, naming ``what``."""
+    if rows * cols > MAX_GRID_CELLS:
+        raise InputError(what, f"a grid of at most {MAX_GRID_CELLS:,} cells (4096 x 4096)",
+                         f"{cols} x {rows} = {rows * cols:,} cells")
+
+
+def check_cell_size(what: str, value) -> float:
+    """A grid cell size within [MIN_CELL_M, MAX_CELL_M] metres, or an InputError naming ``what``."""
+    from ..limits import check_range
+
+    return check_range(what, value, MIN_CELL_M, MAX_CELL_M, "m per cell")
 
 
 class MapError(InputError):
@@ -41,6 +63,7 @@ class Polygon:
             raise InputError("polygon", "at least 3 (x, y) vertices", f"shape {v.shape}")
         if not np.all(np.isfinite(v)):
             raise InputError("polygon", "finite vertex coordinates", "NaN or inf")
+        check_extent("polygon", v)
         if signed_area(v) < 0:
             v = v[::-1]
         object.__setattr__(self, "vertices", np.ascontiguousarray(v))
@@ -65,6 +88,7 @@ class Circle:
             raise InputError("circle.center", "two finite numbers", self.center)
         if not (math.isfinite(self.radius) and self.radius > 0):
             raise InputError("circle.radius", "a positive finite number", self.radius)
+        check_extent("circle", [abs(c[0]) + self.radius, abs(c[1]) + self.radius])
         object.__setattr__(self, "center", c)
 
     def bounds(self) -> tuple[float, float, float, float]:
@@ -93,10 +117,14 @@ class OccupancyGrid:
         occ = np.asarray(self.occupied, dtype=bool)
         if occ.ndim != 2 or occ.size == 0:
             raise InputError("grid", "a non-empty 2-D array", f"shape {occ.shape}")
-        if not (math.isfinite(self.resolution) and self.resolution > 0):
-            raise InputError("resolution", "a positive finite number of metres per cell", self.resolution)
+        check_grid_size("grid", *occ.shape)
+        check_cell_size("resolution", self.resolution)
+        origin = tuple(float(v) for v in self.origin)
+        if len(origin) != 3 or not all(math.isfinite(v) for v in origin):
+            raise InputError("origin", "three finite numbers (x, y, yaw)", self.origin)
         object.__setattr__(self, "occupied", occ)
-        object.__setattr__(self, "origin", tuple(float(v) for v in self.origin))
+        object.__setattr__(self, "origin", origin)
+        check_extent("grid", self.corners())
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -164,6 +192,7 @@ class Map:
         b = tuple(float(v) for v in self.bounds)
         if len(b) != 4 or not all(math.isfinite(v) for v in b) or not (b[0] < b[2] and b[1] < b[3]):
             raise InputError("bounds", "finite [xmin, ymin, xmax, ymax] with xmin < xmax and ymin < ymax", self.bounds)
+        check_extent("bounds", b)
         object.__setattr__(self, "bounds", b)
 
     def contains(self, x: float, y: float) -> bool:

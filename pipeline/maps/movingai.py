@@ -91,6 +91,7 @@ def load_movingai_map(path, cell_size: float = 1.0) -> Map:
     if lines[3].strip() != "map":
         raise MapError(f"{path}:4", "the header line 'map'", lines[3])
     height, width = dims["height"], dims["width"]
+    _map_limits(path, height, width, cell_size)
 
     rows = lines[4:4 + height]
     if len(rows) < height:
@@ -189,21 +190,37 @@ def load_movingai_scenarios(path, cell_size: float = 1.0, map_height: int | None
 
 
 def _check_cell_size(cell_size, path: Path) -> float:
+    from ..limits import MAX_CELL_M, MIN_CELL_M
+
     if isinstance(cell_size, bool) or not isinstance(cell_size, (int, float, np.integer, np.floating)):
         raise MapError("cell_size", "a positive finite number of metres per cell", cell_size, detail=f"loading {path}")
     value = float(cell_size)
-    if not (math.isfinite(value) and value > 0):
-        raise MapError("cell_size", "a positive finite number of metres per cell", cell_size, detail=f"loading {path}")
+    if not (math.isfinite(value) and MIN_CELL_M <= value <= MAX_CELL_M):
+        raise MapError("cell_size", f"a number of metres per cell in [{MIN_CELL_M:g}, {MAX_CELL_M:g}]", cell_size,
+                       detail=f"loading {path}")
     return value
+
+
+def _map_limits(path: Path, height: int, width: int, cell_size: float) -> None:
+    """The grid's size and extent against nhstab.limits, before anything is allocated."""
+    from ..errors import InputError
+    from ..limits import MAX_COORD_M
+    from .base import check_grid_size
+
+    try:
+        check_grid_size("grid", height, width)
+    except InputError as exc:
+        raise MapError(str(path), exc.expected, exc.got) from None
+    if max(height, width) * cell_size > MAX_COORD_M:
+        raise MapError(f"{path}", f"a map within {MAX_COORD_M:g} m", f"{width} x {height} cells of {cell_size:g} m",
+                       detail="reduce cell_size")
 
 
 def _read_lines(path: Path) -> list[str]:
     """The file's lines without line endings (LF or CRLF); non-ASCII bytes are errors."""
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise MapError(str(path), "an existing, readable Moving AI file",
-                       detail=" ".join(str(exc.strerror or exc).split())) from None
+    from ..safe_io import read_bytes
+
+    raw = read_bytes(path, what="Moving AI file", error=MapError)
     try:
         text = raw.decode("ascii")
     except UnicodeDecodeError as exc:

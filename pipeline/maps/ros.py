@@ -46,9 +46,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from ..errors import InputError
+from ..safe_io import read_bytes
 from .base import Map, MapError, OccupancyGrid
 
 try:  # Pillow is a required dependency of matplotlib; fall back to matplotlib.image if it is absent.
@@ -145,7 +145,12 @@ def load_ros_map(path, unknown: str = "occupied") -> Map:
     unknown_mask = ~(occupied_src | free_src)
     intermediate = unknown_mask & (values != OCC_GRID_UNKNOWN)
     occupied = occupied_src | unknown_mask if unknown == "occupied" else occupied_src
-    grid = OccupancyGrid(occupied, params.resolution, params.origin, unknown=unknown_mask)
+    try:
+        grid = OccupancyGrid(occupied, params.resolution, params.origin, unknown=unknown_mask)
+    except MapError:
+        raise
+    except InputError as exc:               # the grid's extent beyond nhstab.limits
+        raise MapError(f"{path}: {exc.argument}", exc.expected, exc.got) from None
     height, width = values.shape
     meta = {
         "format": "ros_map_server",
@@ -215,18 +220,12 @@ def map_server_values(image: RasterImage, mode: str = "trinary", negate: bool = 
 
 
 def read_map_yaml(path) -> RosMapParams:
-    """Read and validate a map_server YAML file (strict: only the map_server keys)."""
+    """Read and validate a map_server YAML file (strict: only the map_server keys), with nhstab's
+    safe YAML loader (:mod:`nhstab.safe_io`)."""
+    from ..safe_io import load_yaml_file
+
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise MapError(str(path), "an existing, readable map YAML file", detail=_oneline(exc.strerror or exc)) from None
-    try:
-        doc = yaml.safe_load(raw)
-    except RecursionError:
-        raise MapError(str(path), "valid YAML", detail="nesting too deep") from None
-    except Exception as exc:  # noqa: BLE001 - any parser failure (YAMLError, bad timestamps...) is bad YAML
-        raise MapError(str(path), "valid YAML", detail=_oneline(exc)) from None
+    doc = load_yaml_file(path, what="map YAML file", error=MapError)
     if not isinstance(doc, dict):
         raise MapError(str(path), "a YAML mapping of map_server keys " + _keys_text(ALLOWED_KEYS),
                        type(doc).__name__)
@@ -246,13 +245,18 @@ def read_map_yaml(path) -> RosMapParams:
         image_path = path.parent / image_path
 
     resolution = _number(path, "resolution", doc["resolution"])
-    if not resolution > 0:
-        raise MapError(f"{path}:resolution", "a positive number of metres per pixel", doc["resolution"])
+    from ..limits import MAX_CELL_M, MAX_COORD_M, MIN_CELL_M
+
+    if not MIN_CELL_M <= resolution <= MAX_CELL_M:
+        raise MapError(f"{path}:resolution", f"a number of metres per pixel in [{MIN_CELL_M:g}, {MAX_CELL_M:g}]",
+                       doc["resolution"])
 
     origin = doc["origin"]
     if not isinstance(origin, (list, tuple)) or len(origin) != 3:
         raise MapError(f"{path}:origin", "a list [x, y, yaw] of 3 numbers", origin)
     origin_values = tuple(_number(path, "origin", v) for v in origin)
+    if max(abs(origin_values[0]), abs(origin_values[1])) > MAX_COORD_M:
+        raise MapError(f"{path}:origin", f"a position within +-{MAX_COORD_M:g} m", origin)
 
     negate = doc["negate"]
     if isinstance(negate, bool):
@@ -289,10 +293,7 @@ def read_image(path, referenced_by=None) -> RasterImage:
     """
     path = Path(path)
     try:
-        try:
-            data = path.read_bytes()
-        except OSError as exc:
-            raise _ImageProblem("an existing, readable image file", detail=_oneline(exc.strerror or exc)) from None
+        data = read_bytes(path, what="image file", error=_image_problem)
         if data[:2] in (b"P2", b"P5", b"P3", b"P6"):
             return _read_netpbm(data)
         if data[:2] in (b"P1", b"P4", b"P7"):
@@ -303,6 +304,11 @@ def read_image(path, referenced_by=None) -> RasterImage:
         if referenced_by is not None:
             detail = (detail + "; " if detail else "") + f"image named in {referenced_by}"
         raise MapError(str(path), problem.expected, problem.got, detail=detail) from None
+
+
+def _image_problem(name, expected, got=None, detail=""):
+    """:func:`nhstab.safe_io.read_bytes`'s errors as an _ImageProblem (read_image names the file)."""
+    return _ImageProblem(expected, got, detail=detail)
 
 
 class _ImageProblem(Exception):
@@ -347,6 +353,7 @@ def _read_netpbm(data: bytes) -> RasterImage:
     width, height, maxval = header
     if width < 1 or height < 1:
         raise _ImageProblem("an image of at least 1 x 1 pixels", f"{width} x {height}")
+    _check_pixels(width, height)
     if not 1 <= maxval <= 65535:
         raise _ImageProblem("a PGM/PPM maxval in 1..65535", maxval)
     if pos >= len(data):
@@ -416,6 +423,7 @@ def _read_with_pillow(data: bytes) -> RasterImage:
         return _read_png_with_matplotlib(data)
     try:
         with _PILImage.open(io.BytesIO(data)) as im:
+            _check_pixels(*im.size)             # before the pixels are decoded
             im.load()
             mode = im.mode
             transparent = "transparency" in im.info
@@ -443,6 +451,14 @@ def _read_with_pillow(data: bytes) -> RasterImage:
         raise
     except Exception as exc:  # noqa: BLE001 - Pillow raises many types for corrupt files
         raise _ImageProblem("a readable PGM or PNG image", type(exc).__name__, detail=_oneline(exc)) from None
+
+
+def _check_pixels(width: int, height: int) -> None:
+    from ..limits import MAX_GRID_CELLS
+
+    if width * height > MAX_GRID_CELLS:
+        raise _ImageProblem(f"an image of at most {MAX_GRID_CELLS:,} pixels (4096 x 4096)",
+                            f"{width} x {height} = {width * height:,} pixels")
 
 
 def _read_png_with_matplotlib(data: bytes) -> RasterImage:  # pragma: no cover

@@ -11,7 +11,10 @@ Convention (Bench-MR's loader of the era of the stored files, see ``maps/bench-m
 * world coordinates are ``(x, -y) / 22`` of the SVG user coordinates (``BENCHMR_SCALE``); the
   ``transform`` attributes of groups and paths are ignored, as Bench-MR did;
 * a closing vertex that repeats the first one (to ``CLOSE_TOLERANCE`` = 1e-4 world units: relative
-  coordinates accumulate rounding) and consecutive duplicate vertices are dropped;
+  coordinates accumulate rounding) and consecutive repeated vertices (zero-length edges, to
+  ``REPEAT_TOLERANCE`` = 1e-9 world units) are dropped; the repeated ones are noted in
+  ``meta["notes"]`` (``nhstab map info`` shows them). Real drawings have them (a node placed twice);
+  they carry no shape, so they are cleaned, not refused;
 * Bench-MR replaced non-convex polygons by their convex hull. :func:`load_benchmr_svg` keeps the true
   shapes by default and offers the hull as ``convex_hull=True``;
 * the map bounds are the axis-aligned bounding box of all polygons (Bench-MR's world has no other
@@ -30,10 +33,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ..safe_io import read_bytes, read_text
 from .base import Map, MapError, Polygon, Pose, Problem, signed_area
 
 BENCHMR_SCALE = 1.0 / 22.0
 """World units per SVG user unit in the Bench-MR polygon worlds (``polygon.scaling`` = 0.0454545)."""
+
+REPEAT_TOLERANCE = 1e-9
+"""World units: consecutive vertices this close are one vertex (a zero-length edge is dropped)."""
 
 CLOSE_TOLERANCE = 1e-4
 """World units: a last vertex this close to the first one repeats it (Inkscape's relative coordinates
@@ -57,12 +64,20 @@ def load_benchmr_svg(path: str | Path, convex_hull: bool = False) -> Map:
     raw = _read_svg_polygons(path)
     if not raw:
         raise MapError(str(path), "an SVG with at least one <path> obstacle", "no <path> element")
-    polygons = []
+    polygons, repeats = [], {}
     for k, v in enumerate(raw):
-        v = _clean_ring(v * np.array([BENCHMR_SCALE, -BENCHMR_SCALE]))
+        scaled = v * np.array([BENCHMR_SCALE, -BENCHMR_SCALE])
+        v = _clean_ring(scaled)
+        if _repeats(scaled):
+            repeats[k] = _repeats(scaled)
         if convex_hull:
             v = convex_hull_2d(v)
         polygons.append(_polygon(v, path, f"path #{k}"))
+    notes = []
+    if repeats:
+        which = ", ".join(f"#{k}" for k in list(repeats)[:8]) + (", ..." if len(repeats) > 8 else "")
+        notes.append(f"{path.name}: dropped {sum(repeats.values())} repeated consecutive vertex(es) (zero-length "
+                     f"edges) in {len(repeats)} of {len(raw)} paths ({which})")
     allv = np.concatenate([p.vertices for p in polygons])
     lo, hi = allv.min(axis=0), allv.max(axis=0)
     return Map(
@@ -71,7 +86,7 @@ def load_benchmr_svg(path: str | Path, convex_hull: bool = False) -> Map:
         obstacles=tuple(polygons),
         source=str(path),
         meta={"format": "benchmr_svg", "scale": BENCHMR_SCALE, "polygons": len(polygons),
-              "convex_hull": bool(convex_hull), "bounds_from": "bounding box of all polygons"},
+              "convex_hull": bool(convex_hull), "bounds_from": "bounding box of all polygons", "notes": notes},
     )
 
 
@@ -93,10 +108,7 @@ def load_benchmr_scenarios(csv_path: str | Path) -> dict[str, tuple[Problem, ...
     Each :class:`Problem` is labelled ``"<environment>#<case>"``.
     """
     csv_path = Path(csv_path)
-    try:
-        lines = csv_path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MapError(str(csv_path), "a readable UTF-8 CSV file", detail=str(exc)) from None
+    lines = read_text(csv_path, what="UTF-8 CSV file", error=MapError).splitlines()
     numbered = [(n, line) for n, line in enumerate(lines, 1) if line.strip() and not line.lstrip().startswith("#")]
     if not numbered:
         raise MapError(str(csv_path), "a header line and scenario rows", "no data")
@@ -130,10 +142,7 @@ def load_benchmr_scenarios(csv_path: str | Path) -> dict[str, tuple[Problem, ...
 def benchmr_robot_shapes(csv_path: str | Path) -> dict[str, str]:
     """``{world name: footprint SVG file name}`` from the ``robot_shape`` column of ``polygon_scenarios.csv``."""
     csv_path = Path(csv_path)
-    try:
-        lines = csv_path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MapError(str(csv_path), "a readable UTF-8 CSV file", detail=str(exc)) from None
+    lines = read_text(csv_path, what="UTF-8 CSV file", error=MapError).splitlines()
     rows = list(csv.reader([ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]))
     if not rows or "environment" not in rows[0] or "robot_shape" not in rows[0]:
         raise MapError(f"{csv_path.name}: header", "the columns environment and robot_shape", rows[:1])
@@ -177,7 +186,12 @@ def convex_hull_2d(points: np.ndarray) -> np.ndarray:
 
 
 def _polygon(v: np.ndarray, path: Path, what: str) -> Polygon:
+    from ..limits import MAX_COORD_M
+
     v = _clean_ring(v)
+    if len(v) and not float(np.max(np.abs(v))) <= MAX_COORD_M:
+        raise MapError(f"{path.name}: {what}", f"coordinates within +-{MAX_COORD_M:g} m",
+                       f"{float(np.max(np.abs(v))):.6g} m")
     if len(v) < 3 or abs(signed_area(v)) <= 1e-12:
         raise MapError(f"{path.name}: {what}", "a polygon with at least 3 distinct vertices and non-zero area",
                        f"{len(v)} vertices")
@@ -188,12 +202,23 @@ def _clean_ring(v: np.ndarray, close_tol: float = CLOSE_TOLERANCE) -> np.ndarray
     """Drop consecutive duplicate vertices and closing vertices within ``close_tol`` of the first one."""
     if len(v) == 0:
         return v
-    keep = np.ones(len(v), dtype=bool)
-    keep[1:] = np.any(np.abs(np.diff(v, axis=0)) > 1e-12, axis=1)
+    keep = [0]
+    for i in range(1, len(v)):
+        if np.any(np.abs(v[i] - v[keep[-1]]) > REPEAT_TOLERANCE):
+            keep.append(i)
     v = v[keep]
     while len(v) > 1 and np.all(np.abs(v[-1] - v[0]) <= close_tol):
         v = v[:-1]
     return v
+
+
+def _repeats(v: np.ndarray) -> int:
+    """How many vertices repeat the one before them (not counting a closing vertex that repeats the first)."""
+    if len(v) < 2:
+        return 0
+    same = ~np.any(np.abs(np.diff(v, axis=0)) > REPEAT_TOLERANCE, axis=1)
+    n = int(same.sum())
+    return n
 
 
 # ----------------------------------------------------------------------------------------------
@@ -201,15 +226,10 @@ def _clean_ring(v: np.ndarray, close_tol: float = CLOSE_TOLERANCE) -> np.ndarray
 
 def _read_svg_polygons(path: Path) -> list[np.ndarray]:
     """Vertex arrays (SVG user units, SVG y-down) of every ``<path>`` element, in document order."""
+    data = read_bytes(path, what="SVG file", error=MapError)
     try:
-        exists = path.is_file()
-    except (OSError, ValueError):
-        exists = False
-    if not exists:
-        raise MapError(str(path), "an existing SVG file", "no such file")
-    try:
-        root = ET.parse(path).getroot()
-    except (ET.ParseError, OSError, UnicodeDecodeError) as exc:
+        root = ET.fromstring(data)
+    except (ET.ParseError, UnicodeDecodeError, ValueError) as exc:
         raise MapError(str(path), "a well-formed SVG (XML) file", detail=str(exc)) from None
     out = []
     for k, elem in enumerate(e for e in root.iter() if isinstance(e.tag, str)):

@@ -41,7 +41,7 @@
 # expected and what was given:
 #   * unknown keys at any level (`robot` is checked as a robot description), missing required keys;
 #   * wrong types (booleans and quoted numbers are not numbers), NaN or infinite numbers, numbers
-#     of magnitude above 1e9;
+#     of magnitude above 1e6 (nhstab.limits.MAX_COORD_M);
 #   * a polygon with fewer than 3 distinct points, a self-intersecting, self-touching or
 #     folded-back polygon, or one of zero area; a non-positive radius or box size;
 #   * bounds not ordered (xmin < xmax and ymin < ymax);
@@ -65,7 +65,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from ..errors import PipelineError
 from .base import Circle, Map, MapError, OccupancyGrid, Polygon, Pose, Problem, Shape, box_polygon, signed_area
@@ -81,32 +80,26 @@ _BASE_KEYS = {
 _MAX_BASE_NESTING = 4
 _nesting = [0]
 _MAX_DEPTH = 64
-MAX_ABS = 1e9
+from ..limits import MAX_COORD_M as MAX_ABS  # noqa: E402
 """Largest magnitude accepted for any number in a YAML map (keeps products of coordinates finite)."""
 
 
 def load_yaml_map(path: str | Path) -> Map:
     """Load a map in nhstab's YAML format (see the module docstring) with strict validation."""
+    from ..limits import MAX_YAML_BYTES
+    from ..safe_io import read_text
+
     path = Path(path)
-    if not is_file(path):
-        raise MapError(str(path), "an existing YAML map file", "no such file")
-    try:
-        text = path.read_bytes().decode("utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MapError(str(path), "a readable UTF-8 YAML file", detail=_one_line(exc)) from None
+    text = read_text(path, what="YAML map file", limit=MAX_YAML_BYTES, error=MapError)
     return parse_yaml_map(text, path)
 
 
 def parse_yaml_map(text: str, path: str | Path) -> Map:
     """Build a :class:`Map` from YAML ``text``; ``path`` names it in errors and anchors relative paths."""
+    from ..safe_io import load_yaml
+
     path = Path(path)
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise MapError(str(path), "valid YAML", detail=_one_line(exc)) from None
-    except RecursionError:
-        raise MapError(str(path), "valid YAML", detail="nesting too deep") from None
-    return _Reader(path).map(doc)
+    return _Reader(path).map(load_yaml(text, str(path), MapError))
 
 
 def is_file(path: Path) -> bool:
@@ -217,7 +210,10 @@ class _Reader:
 
     def number(self, value: Any, key: str) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.err(key, "a number", _type_name(value) if not isinstance(value, str) else value)
+            from ..limits import number_hint
+
+            raise self.err(key, "a number", _type_name(value) if not isinstance(value, str) else value,
+                           detail=number_hint(value))
         try:
             x = float(value)
         except OverflowError:
@@ -342,7 +338,7 @@ class _Reader:
         try:
             target = (self.path.parent / rel).resolve()
             ok = target.is_file()
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, RuntimeError) as exc:      # RuntimeError: a symlink loop
             raise self.err(key, expected, rel, detail=_one_line(exc)) from None
         if not ok:
             raise self.err(key, expected, f"{rel} (resolved {target})", detail="no such file")

@@ -1,4 +1,10 @@
-"""Exactly feasible car trajectories along a Reeds-Shepp path (Laumond, Jacobs, Taix, Murray).
+"""Exactly feasible car trajectories along a Reeds-Shepp path.
+
+Two ways. :func:`exact_nominal` (the planner's default) drives the path's arcs and straights as
+they are, each with its steering angle held, the car standing still to steer at the rate limit
+where the angle changes: the nominal lies on the path. :func:`car_nominal` follows Laumond, Jacobs,
+Taix and Murray, smoothing the path with sinusoidal steering (described below); it strays a little
+from the path and needs the search to keep room for that.
 
 A Reeds-Shepp path's curvature jumps where its arcs and straights meet, so a car with the steering
 angle as a state cannot follow it. Take waypoints along the path (at every cusp, and at most
@@ -115,6 +121,46 @@ class _SteerInPlace:
         return u
 
 
+class _Arc:
+    """The car driving a segment with its steering angle held (an arc of curvature tan(phi) / L, or a
+    straight) at constant speed: the exact solution of the model, in closed form."""
+
+    def __init__(self, model: Model, pose, phi: float, direction: int, length: float, speed: float):
+        self.model, self.pose, self.phi, self.direction = model, np.asarray(pose, dtype=float), float(phi), int(direction)
+        L = float(model.wheelbase)
+        self.kappa = math.tan(self.phi) / L
+        # body (rear-axle) speed: the rwd car's input; the fwd car's front wheels run at s / cos(phi)
+        self.body_speed = float(speed) if model.name == "rwd_car" else float(speed) * math.cos(self.phi)
+        duration = max(float(length) / self.body_speed, 1e-9)
+        self.t = np.linspace(0.0, duration, max(2, int(math.ceil(length / 0.05)) + 1))
+        self.x = self.states_at(self.t)
+        self.max_abs_phi = abs(self.phi)
+        self.max_speed = float(speed)
+        self.final_error = np.zeros(model.n)
+
+    def _poses(self, t):
+        u = self.direction * self.body_speed * np.asarray(t, dtype=float)
+        x0, y0, th0 = self.pose
+        k = self.kappa
+        if abs(k) < 1e-12:
+            return x0 + u * math.cos(th0), y0 + u * math.sin(th0), np.full_like(u, th0)
+        th = th0 + k * u
+        return x0 + (np.sin(th) - math.sin(th0)) / k, y0 - (np.cos(th) - math.cos(th0)) / k, th
+
+    def states_at(self, t):
+        t = np.asarray(t, dtype=float)
+        px, py, th = self._poses(t)
+        phi = np.full_like(px, self.phi)
+        cols = (px, py, th, phi) if self.model.name == "rwd_car" else (px, py, phi, th)
+        return np.stack(np.broadcast_arrays(*cols), axis=-1)
+
+    def inputs_at(self, t):
+        t = np.asarray(t, dtype=float)
+        u = np.zeros(t.shape + (2,))
+        u[..., 0] = self.direction * self.max_speed
+        return u
+
+
 class _Joined:
     """The pieces one after the other as one trajectory. Many times at once are evaluated on flat
     tables of all the pieces' phases, with the pieces' own closed forms (``steering``), so the
@@ -133,13 +179,13 @@ class _Joined:
         # per piece, the chart's map back to the world (steer_car's to_world): origin, cos and sin of
         # its heading, theta(0) and the local theta(0)
         self.frame = np.zeros((len(pieces), 6))
-        rows = []       # per phase: kind (0 constant, 3 / 4 sinusoid for z3 / z4, 1 constant v1, -1 steering
-        #                 in place), t0, v1, v2, a, b, w, v2_cos, v2_sin, z_start (4); in place: phi0 and the
-        #                 rate as v1, v2
+        rows = []       # per phase: kind (0 constant, 3 / 4 sinusoid for z3 / z4, 1 constant v1, -1 a piece
+        #                 evaluated by itself: steering in place or a held-steering arc), t0, v1, v2, a, b, w,
+        #                 v2_cos, v2_sin, z_start (4)
         for j, p in enumerate(pieces):
             self.first[j] = len(rows)
-            if isinstance(p, _SteerInPlace):
-                rows.append([-1, 0.0, p.phi0, p.rate, 0, 0, 1.0, 0, 0, *_state(model, p.pose, 0.0)])
+            if isinstance(p, (_SteerInPlace, _Arc)):     # evaluated by the piece itself
+                rows.append([-1, 0.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 0, 0])
                 continue
             self.bounds[j, : len(p.plan.phase_times) - 2] = p.plan.phase_times[1:-1]
             alpha = p.frame["heading"]
@@ -217,11 +263,12 @@ class _Joined:
         x[steer, cx], x[steer, cy] = ox + ca * px - sa * py, oy + sa * px + ca * py
         x[steer, cth], x[steer, cphi] = th0 + (th - th_l0), phi
         u[steer] = _car_inputs(self.name, self.L, zl, v[steer])
-        if in_place.any():
-            r = row[in_place]
-            x[in_place] = self.z_start[:, r].T
-            x[in_place, cphi] = self.v1[r] + self.v2[r] * local[in_place]
-            u[in_place, 0], u[in_place, 1] = 0.0, self.v2[r]
+        if in_place.any():      # steering in place and held-steering arcs: their own closed forms
+            sel = np.flatnonzero(in_place)
+            for jj in np.unique(j[sel]):
+                k = sel[j[sel] == jj]
+                x[k] = self.pieces[jj].states_at(local[k])
+                u[k] = self.pieces[jj].inputs_at(local[k])
         return x, u
 
 
@@ -281,7 +328,11 @@ def _pose_cols(model: Model):
 
 def car_nominal(model: Model, path: GeometricPath, timing: TimingOptions, world: CollisionWorld, fp: Footprint,
                 margin: float, spacing: float = 1.0, min_spacing: float = 0.05,
-                steer_fraction: float = 0.95) -> tuple[Nominal, dict]:
+                steer_fraction: float = 0.95, arc_speed: float | None = None) -> tuple[Nominal, dict]:
+    """The car's nominal along ``path`` (module docstring). The path's exact runs
+    (``path.info["exact_runs"]``: sample ranges (i0, i1, phi, direction) of segments driven with the
+    steering angle ``phi`` held, e.g. the parking maneuvers of :mod:`nhstab.planning.parking`) are
+    driven exactly, at ``arc_speed`` (default: the speed limit), stopping at both ends of each to steer."""
     if model.name not in ("rwd_car", "fwd_car"):
         raise InputError("model", "rwd_car or fwd_car", model.name)
     L = float(model.wheelbase)
@@ -310,6 +361,19 @@ def car_nominal(model: Model, path: GeometricPath, timing: TimingOptions, world:
     arrive[0] = depart[n - 1] = 0.0          # parked with the wheels straight at both ends
     if n - 1 in arrive:
         arrive[n - 1] = steer_for(n - 2)
+    runs = sorted((int(i0), int(i1), float(phi), int(d)) for i0, i1, phi, d in path.info.get("exact_runs", ()))
+    for i0, i1, phi, d in runs:
+        if not (0 <= i0 < i1 <= n - 1) or abs(phi) > float(model.max_steer) + 1e-12:
+            raise InputError("path", "exact runs inside the path, steering within the limit", (i0, i1, phi))
+        for i in (i0, i1):
+            if i not in special:
+                special.add(i)
+                arrive[i], depart[i] = steer_for(i - 1) if i > 0 else 0.0, steer_for(i) if i < n - 1 else 0.0
+        depart[i0], arrive[i1] = phi, phi
+    arrive[0] = depart[n - 1] = 0.0
+    run_of = {}
+    for i0, i1, phi, d in runs:
+        run_of[i0] = (i1, phi, d)
 
     def phi_arrive(i):
         return arrive[i] if i in special else phi_at(i)
@@ -320,7 +384,11 @@ def car_nominal(model: Model, path: GeometricPath, timing: TimingOptions, world:
     # waypoints at the cusps and ends, and at most `spacing` apart between them, away from curvature jumps
     jumps = _curvature_jumps(kappa, sorted(special))
     idx = _waypoints(sigma, sorted(special), jumps, spacing)
-    pieces, subdivisions, in_place, phased = [], 0, 0, 0
+    inside = np.zeros(n, dtype=bool)
+    for i0, i1, _, _ in runs:
+        inside[i0 + 1:i1] = True
+    idx = [i for i in idx if not inside[i]]
+    pieces, subdivisions, in_place, phased, arcs = [], 0, 0, 0, 0
 
     def add_in_place(i):
         nonlocal in_place
@@ -338,6 +406,15 @@ def car_nominal(model: Model, path: GeometricPath, timing: TimingOptions, world:
 
     while stack:
         a, b = stack.pop()
+        if a in run_of and run_of[a][0] == b:          # an exact run: the held-steering arc itself
+            _, phi, d = run_of[a]
+            piece = _Arc(model, samples[a], phi, d, float(sigma[b] - sigma[a]), arc_speed or max_speed)
+            end = piece.states_at(piece.t[-1])
+            piece.final_error = model.state_error(end, _state(model, samples[b], phi))
+            pieces.append(piece)
+            arcs += 1
+            add_in_place(b)
+            continue
         xa, xb = _state(model, samples[a], phi_depart(a)), _state(model, samples[b], phi_arrive(b))
         piece = None
         try:
@@ -375,7 +452,62 @@ def car_nominal(model: Model, path: GeometricPath, timing: TimingOptions, world:
     t = np.linspace(0.0, duration, npts)
     nominal = Nominal.from_functions(model, joined.states, joined.inputs, t)
     return nominal, {"duration_s": duration, "pieces": len(pieces), "subdivisions": subdivisions,
-                     "steer_in_place": in_place, "phased_pieces": phased,
+                     "steer_in_place": in_place, "phased_pieces": phased, "held_steering_arcs": arcs,
                      "direction_reversals": direction_reversals(nominal.x[:, _pose_cols(model)]),
                      "waypoint_spacing_m": spacing, "dt_s": float(t[1] - t[0]),
                      "path_deviation_m": float(max(np.linalg.norm(p.final_error[:2]) for p in pieces))}
+
+
+def exact_nominal(model: Model, path: GeometricPath, timing: TimingOptions,
+                  arc_speed: float | None = None) -> tuple[Nominal, dict]:
+    """The car driving its path exactly: every segment of ``path.info["segments"]`` ((direction,
+    steering angle, length), the path's arcs and straights) with its steering angle held, at the
+    speed limit (or ``arc_speed``), the car stopping to steer in place at the rate limit wherever the
+    steering angle changes (at cusps, where an arc meets a straight or the opposite arc, and at the
+    ends, where the wheels are straight). Each piece starts where the previous one ended, so the
+    nominal is the model's exact solution; ``path_deviation_m`` is how far its end lies from the
+    path's end (round-off and the segments' recovery, ~1e-7 m)."""
+    if model.name not in ("rwd_car", "fwd_car"):
+        raise InputError("model", "rwd_car or fwd_car", model.name)
+    if "segments" not in path.info:
+        raise InputError("path", "a car path with its segments (nhstab.planning.parking)", "no segments")
+    lim = float(model.max_steer)
+    segs = []
+    for d, phi, length in path.info["segments"]:
+        if length <= 1e-9:
+            continue
+        if abs(phi) > lim + 1e-9:
+            raise InputError("path", f"segments steering within the limit {lim:g} rad", phi)
+        phi = float(np.clip(phi, -lim, lim))
+        if segs and segs[-1][0] == d and abs(segs[-1][1] - phi) < 1e-9:
+            segs[-1][2] += length
+        else:
+            segs.append([int(d), phi, float(length)])
+    speed = arc_speed or timing.max_speed or float(model.input_limits()[0, 1])
+    speed = min(speed, float(model.input_limits()[0, 1]))
+    pose = np.asarray(path.samples[0], dtype=float)
+    pieces, phi_now, stops = [], 0.0, 0
+    for d, phi, length in segs:
+        if abs(phi - phi_now) > 1e-12:
+            pieces.append(_SteerInPlace(model, pose, phi_now, phi))
+            stops += 1
+        arc = _Arc(model, pose, phi, d, length, speed)
+        pieces.append(arc)
+        end = arc.states_at(arc.t[-1])
+        pose = end[_pose_cols(model)]
+        phi_now = phi
+    if abs(phi_now) > 1e-12:
+        pieces.append(_SteerInPlace(model, pose, phi_now, 0.0))
+        stops += 1
+    if not pieces:
+        raise InputError("path", "a path that moves", "length 0")
+    joined = _Joined(model, pieces)
+    duration = joined.duration
+    npts = max(2, int(math.ceil(duration / timing.dt)) + 1)
+    t = np.linspace(0.0, duration, npts)
+    nominal = Nominal.from_functions(model, joined.states, joined.inputs, t)
+    deviation = float(np.hypot(*(pose[:2] - path.samples[-1, :2])))
+    return nominal, {"duration_s": duration, "pieces": len(pieces), "held_steering_arcs": len(segs),
+                     "steer_in_place": stops, "phased_pieces": 0, "subdivisions": 0,
+                     "direction_reversals": direction_reversals(nominal.x[:, _pose_cols(model)]),
+                     "dt_s": float(t[1] - t[0]), "path_deviation_m": deviation}

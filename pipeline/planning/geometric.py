@@ -93,8 +93,9 @@ class PathOptions:
         if self.margin is not None and not (isinstance(self.margin, (int, float)) and not isinstance(self.margin, bool)
                                             and math.isfinite(self.margin) and self.margin >= 0):
             raise InputError("margin", "a finite number >= 0", self.margin)
-        if not isinstance(self.seed, (int, np.integer)) or isinstance(self.seed, bool) or self.seed < 0:
-            raise InputError("seed", "a non-negative integer", self.seed)
+        from ..limits import MAX_PLANNER_SEED, check_int
+
+        check_int("seed", self.seed, 0, MAX_PLANNER_SEED, "an integer (OMPL's seed)")
         for key in ("simplify", "guide"):
             if not isinstance(getattr(self, key), bool):
                 raise InputError(key, "true or false", getattr(self, key))
@@ -164,15 +165,19 @@ def path_length(opts: PathOptions, a, b) -> float:
 
 
 def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptions,
-              isolate: bool = False, rig=None) -> GeometricPath:
+              isolate: bool = False, more_starts=(), more_goals=(), rig=None) -> GeometricPath:
     """Plan a collision-free (by ``opts.margin``) path from start to goal; never raises for "no path".
 
     The direct local path if it is free, else the guided search (``opts.guide``), else OMPL's planner
     over the map, within ``opts.time_limit_s`` in all (see the module docstring). With ``isolate``
-    the search runs in a forked child process. ``rig`` (optional): the local planner and checks of a
-    robot of several bodies (module docstring): ``rig.pose_free(x, y, theta)``,
-    ``rig.connect(a, b, stats) -> bool``, ``rig.densify(waypoints) -> (samples, sigma, direction,
-    length)`` and ``rig.bounding_radius``; ``fp`` is then the planned body's footprint (the guide's).
+    the search runs in a forked child process. ``more_starts`` / ``more_goals``: further poses the
+    path may start / end at (OMPL's multiple start states and ``GoalStates``; the guided search joins
+    ``start`` and ``goal`` themselves first where they are more than ``GUIDE_LOOKAHEAD_M`` apart); the result's ``info["start_index"]`` / ``info["goal_index"]`` say which (0:
+    ``start`` / ``goal``, k: the k-th further pose).
+    ``rig`` (optional): the local planner and checks of a robot of several bodies (module docstring):
+    ``rig.pose_free(x, y, theta)``, ``rig.connect(a, b, stats) -> bool``, ``rig.densify(waypoints) ->
+    (samples, sigma, direction, length)`` and ``rig.bounding_radius``; ``fp`` is then the planned body's
+    footprint (the guide's).
     """
     opts = opts.validated()
     if world.bounds is None:
@@ -180,7 +185,7 @@ def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptio
     world.clearance_field()                   # build once (in the parent, if a child plans)
     _ompl()
     if not isolate:
-        return _plan_path(world, fp, start, goal, opts, rig)
+        return _plan_path(world, fp, start, goal, opts, more_starts, more_goals, rig)
     import multiprocessing as mp
 
     ctx = mp.get_context("fork")
@@ -188,7 +193,7 @@ def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptio
 
     def child():
         try:
-            send.send(("ok", _plan_path(world, fp, start, goal, opts, rig)))
+            send.send(("ok", _plan_path(world, fp, start, goal, opts, more_starts, more_goals, rig)))
         except BaseException as exc:           # sent back and re-raised in the parent
             send.send(("error", exc))
 
@@ -196,11 +201,18 @@ def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptio
     proc.start()
     send.close()
     try:
-        kind, value = recv.recv()
-    except EOFError:
+        try:
+            kind, value = recv.recv()
+        except EOFError:
+            proc.join()
+            raise RuntimeError(f"the planning process died (exit code {proc.exitcode})") from None
         proc.join()
-        raise RuntimeError(f"the planning process died (exit code {proc.exitcode})") from None
-    proc.join()
+    finally:
+        # interrupted (Ctrl-C, SIGTERM) while the child plans: it must not outlive the call
+        if proc.is_alive():
+            proc.terminate()
+            proc.join(5.0)
+        recv.close()
     if kind == "error":
         raise value
     return value
@@ -253,9 +265,10 @@ class _Search:
         self.counts["connections_free"] += ok
         return ok
 
-    def ompl(self, a, b, budget: float, bounds, seed: int):
-        """OMPL's planner from a to b within ``bounds`` for at most ``budget`` s: the waypoints of an
-        exact solution (simplified if asked), or None."""
+    def ompl(self, a, b, budget: float, bounds, seed: int, more_starts=(), more_goals=()):
+        """OMPL's planner from a (or one of ``more_starts``) to b (or one of ``more_goals``) within
+        ``bounds`` for at most ``budget`` s: the waypoints of an exact solution (simplified if asked),
+        or None. ``self.start_index`` / ``self.goal_index`` say which start and goal it joins."""
         ob, og, ou = _ompl()
         ou.RNG.setSeed(int(seed))               # before anything in this call makes a generator
         self.counts["ompl_calls"] += 1
@@ -269,7 +282,18 @@ class _Search:
         if self.rig is not None:        # the rig's own pieces, every body checked (module docstring)
             self._validator = _rig_validator(ob, si, self)
             si.setMotionValidator(self._validator)
-        ss.setStartAndGoalStates(_state(space, a), _state(space, b))
+        starts = [np.asarray(a, dtype=float), *more_starts]
+        goals = [np.asarray(b, dtype=float), *more_goals]
+        if len(goals) == 1:
+            ss.setStartAndGoalStates(_state(space, a), _state(space, b))
+        else:
+            ss.setStartState(_state(space, a))
+            goal_set = ob.GoalStates(si)
+            for p in goals:
+                goal_set.addState(_state(space, p))
+            ss.setGoal(goal_set)
+        for p in starts[1:]:
+            ss.addStartState(_state(space, p))
         ss.setPlanner(_planner(og, self.opts.planner, si))
         ss.setup()
         status = ss.solve(max(1e-3, float(budget)))
@@ -281,6 +305,13 @@ class _Search:
             ss.simplifySolution(max(0.05, min(self.left(), float(budget))))
         path = ss.getSolutionPath()
         states = [space.cloneState(path.getState(i)) for i in range(path.getStateCount())]
+        # which of the start / goal poses the path joins (OMPL stores the yaw wrapped)
+        self.start_index = self.goal_index = 0
+        for key, ends, st in (("start_index", starts, states[0]), ("goal_index", goals, states[-1])):
+            w = np.array([st.getX(), st.getY(), st.getYaw()])
+            err = [math.hypot(*(p[:2] - w[:2])) + abs(float(wrap_angle(p[2] - w[2]))) for p in ends]
+            setattr(self, key, int(np.argmin(err)))
+        a, b = starts[self.start_index], goals[self.goal_index]
         out = [np.asarray(a, dtype=float)]
         for k in range(len(states) - 1):
             piece = self._adopt(space, states[k], states[k + 1], 0)
@@ -325,20 +356,28 @@ def _seed(seed: int, k: int) -> int:
     return int(np.random.SeedSequence([int(seed), int(k)]).generate_state(1)[0] % (2**31 - 2)) + 1
 
 
-def _plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptions, rig=None) -> GeometricPath:
+def _plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptions, more_starts=(),
+               more_goals=(), rig=None) -> GeometricPath:
     start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
     search = _Search(world, fp, opts, start, goal, rig)
-    info: dict = {}
+    info: dict = {"start_index": 0, "goal_index": 0}
     waypoints, used, status_text = None, None, ""
     if search.connect(start, goal):
         waypoints, used, status_text = np.array([start, goal]), "direct", "Exact solution (direct connection)"
-    if waypoints is None and opts.guide:
+    several = bool(more_starts or more_goals)
+    if waypoints is None and opts.guide and (not several or math.dist(start[:2], goal[:2]) > GUIDE_LOOKAHEAD_M):
+        # with several starts or goals (the car's maneuvers out of a slot) the guide joins the first of
+        # each, the caller's best guess, where they are further apart than one lookahead of the guide
+        # (closer, the guide reduces to the local path the caller tried already); OMPL then searches
+        # from all of them
         waypoints = _guided(search, start, goal, info)
         if waypoints is not None:
             used, status_text = "guided", f"Exact solution (guided: {len(waypoints) - 1} local paths)"
     if waypoints is None and search.left() > 0:
-        waypoints = search.ompl(start, goal, search.left(), world.bounds, _seed(opts.seed, 0))
+        waypoints = search.ompl(start, goal, search.left(), world.bounds, _seed(opts.seed, 0), more_starts, more_goals)
         used, status_text = opts.planner, search.ompl_status
+        if waypoints is not None:
+            info.update(start_index=search.start_index, goal_index=search.goal_index)
     elapsed = time.perf_counter() - search.started
     st = search.stats
     info.update({"planner_used": used, **search.counts, "fcl_states": st["fcl_states"],
@@ -431,6 +470,35 @@ def _guided(search: _Search, start, goal, info: dict):
         out.extend(nxt[2])
         if pos is goal:
             return np.array(out)
+
+
+def local_length(opts: PathOptions, a, b) -> float:
+    """The length of the shortest local path from pose a to pose b (no obstacles) [m]."""
+    R = float(opts.turning_radius)
+    return float(local_paths.path_length(local_paths.local_path(opts.space, a, b, R), R))
+
+
+def local_segments(opts: PathOptions, a, b, tol: float = 1e-12) -> list[tuple[int, float, float]]:
+    """The local path from pose a to pose b as its segments of constant curvature: [(direction +1/-1,
+    curvature dtheta/dsigma [1/m], length [m]), ...], from the same numpy Reeds-Shepp / Dubins words
+    that :func:`densify` samples (so a nominal built from them follows the checked path exactly).
+    An L segment turns left when driven forward: dtheta/dsigma = +1/R forward, -1/R in reverse."""
+    R = float(opts.turning_radius)
+    out = []
+    for kind, length in local_paths.local_path(opts.space, a, b, R):
+        if abs(length) * R <= tol:
+            continue
+        direction = 1 if length > 0 else -1
+        k = {"L": 1.0 / R, "R": -1.0 / R, "S": 0.0}[kind] * direction
+        out.append((direction, k, abs(length) * R))
+    return out
+
+
+def local_path(opts: PathOptions, a, b, step: float = 0.005):
+    """The shortest local path (Reeds-Shepp or Dubins at ``opts.turning_radius``, no obstacles) from
+    pose a to pose b, sampled every ~step m: (samples (S, 3) from a to b, theta unwrapped; their arc
+    length (S,); the length)."""
+    return densify(opts, np.array([a, b], dtype=float), step)
 
 
 def densify(opts: PathOptions, waypoints: np.ndarray, step: float = 0.005):

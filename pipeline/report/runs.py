@@ -47,6 +47,12 @@ def run_map_figure(result, footprints: int = 12):
         _draw_discovered(ax, shape)
         c = np.asarray(shape.center if isinstance(shape, Circle) else shape.vertices.mean(axis=0))
         ax.annotate(f"seen {d['time_s']:.1f} s", c, fontsize=6, color="tab:red", ha="center")
+    from .plans import draw_tube
+
+    for rec in result.plans:
+        if getattr(rec, "tube", None) is not None:
+            draw_tube(ax, rec.tube, result.footprint, color=PLAN_COLORS[rec.id % len(PLAN_COLORS)], footprints=8,
+                      label=f"tube of nominal {rec.id} (p = {rec.tube.probability:g})", grown_label=rec.id == 0)
     for rec in result.plans:
         if rec.law is None:
             continue

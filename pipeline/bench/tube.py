@@ -1,0 +1,88 @@
+"""``nhstab bench tube``: the error tube's cost against the plan it belongs to, and against the
+straightforward way to compute it."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from .common import _best, machine
+
+SCENARIOS = ("depot_blocked_aisle", "berlin_roadworks", "cluttered_room", "warehouse_aisle_a2", "parking_lot",
+             "warehouse_corridor")
+
+
+def bench_tube(scenarios=SCENARIOS, repeats: int = 5) -> dict:
+    """For the first plan of ``nhstab run example:NAME`` (seed 0, default margin and noise) on each bundled
+    scenario: the time to plan it (path, nominal, clearance check, gain schedule: ``plan`` and
+    ``build_law``) and the time of :func:`nhstab.tubes.predict_tube` on it (covariance, saturation,
+    spatial tube, certified clearance with FCL), both in this process. Target: the tube under 10 % of the
+    plan's time. Baseline (what a competent engineer writes first): the per-step covariance recursion
+    in a Python loop and the FCL clearance measured at every sample; its results are checked equal."""
+    from ..control.tube import propagate_loop, saturation
+    from ..execution.config import NoiseOptions, RunOptions
+    from ..execution.controllers import build_law
+    from ..execution.runner import CompositeRun, planner_seed
+    from ..maps import load_map
+    from ..robot import resolve_robot
+    from ..planning import TimingOptions, plan
+    from ..tubes import _spatial, initial_covariance, predict_tube, run_schedule
+
+    rows = []
+    for name in scenarios:
+        m = load_map(f"example:{name}")
+        rob = resolve_robot(None, m.robot)
+        model, fp = rob.model, rob.footprint
+        run = CompositeRun(m, rob, m.start.as_array(), m.goal.as_array(), RunOptions(seed=0))
+        world = run.robot_world
+        opts = run._path_options(planner_seed(0, 0), run.opts.planning.margin)
+        t0 = time.perf_counter()
+        result = plan(m, run.plan_robot, run.start[:3], run.goal, opts, TimingOptions(dt=run.T), world=world)
+        law = build_law(result.nominal, run.opts.controller, run.stab_defaults, result.schedule)
+        plan_s = time.perf_counter() - t0
+        noise = NoiseOptions()
+
+        def fast():
+            return predict_tube(law, noise, fp, world, rate_hz=run.opts.rate_hz, substeps=run.opts.substeps,
+                                model=model)
+
+        def baseline():
+            names = model.state_names
+            T = 1.0 / run.opts.rate_hz
+            sched = run_schedule(law, T, impulses=noise.impulse_list(names))
+            prop = propagate_loop(model, sched.t, sched.x0, sched.u_ff, sched.K, T, run.opts.substeps,
+                                  initial_covariance(noise, names), noise.vector("sensor", names),
+                                  noise.vector("process", names) * math.sqrt(T), sched.jumps)
+            sat = saturation(prop, sched.K, model.input_limits())
+            tube = _spatial(prop, sched, sat, model, fp, None, 0.997)
+            c = np.array([world.clearance(p, fp) for p in tube.poses]) - tube.reach
+            return tube, float(c.min())
+
+        fast()                                             # warm-up
+        best, median, tube = _best(fast, repeats)
+        base_s, _, (btube, bcert) = _best(baseline, 1)
+        rows.append({"scenario": name, "robot": rob.model.name, "samples": len(tube.t), "plan_s": plan_s,
+                     "tube_best_s": best, "tube_median_s": median, "repeats": repeats,
+                     "tube_over_plan": best / plan_s, "clearance_evaluations": tube.clearance_evaluations,
+                     "baseline_s": base_s, "speedup_vs_baseline": base_s / best,
+                     "certified_clearance_m": tube.certified_clearance,
+                     "baseline_agrees": bool(abs(bcert - tube.certified_clearance) <= 1e-9
+                                             and np.allclose(btube.cov, tube.cov, rtol=1e-9, atol=1e-15))})
+    ratios = [r["tube_over_plan"] for r in rows]
+    return {"benchmark": "tube", "machine": machine(), "rows": rows,
+            "baseline": "the covariance recursion step by step in a Python loop, and FCL clearance at every sample",
+            "max_tube_over_plan": max(ratios), "targets": {"tube_over_plan_max": 0.10},
+            "met": {"under_10pct_of_plan": bool(max(ratios) < 0.10),
+                    "baseline_agrees": all(r["baseline_agrees"] for r in rows)}}
+
+
+def summary_lines(b: dict) -> list[str]:
+    lines = []
+    for r in b["rows"]:
+        lines.append(f"| tube | {r['scenario']} ({r['robot']}, {r['samples']} samples): tube / plan time | "
+                     f"{1e3 * r['tube_best_s']:.1f} ms / {r['plan_s']:.2f} s = {100 * r['tube_over_plan']:.1f} % "
+                     f"({r['speedup_vs_baseline']:.0f}x faster than the baseline) | < 10 % | "
+                     f"{'yes' if r['tube_over_plan'] < 0.10 else 'NO'} |")
+    return lines

@@ -1,0 +1,143 @@
+"""The limits nhstab puts on what it is given, in one place, each with its reason.
+
+Every entry point (command line, run and batch configs, map files, library calls) checks its input
+against these before it allocates or computes anything that grows with them, and refuses what is
+beyond them with one :class:`~nhstab.errors.InputError` naming the key, the limit and the value.
+The README's "Limits" section lists them.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .errors import InputError
+
+# ---- files ------------------------------------------------------------------------------------
+#: largest YAML document (map, run config, batch config, ROS map metadata) [bytes]: the bundled ones
+#: are a few kB, and 1 MiB holds polygons of about 50,000 vertices (parsed in a few seconds);
+#: geometry beyond this belongs in an occupancy image or a Moving AI file
+MAX_YAML_BYTES = 1024 * 1024
+#: deepest nesting of YAML collections: the formats need at most 6 levels; this stays far below
+#: Python's recursion limit, which a deeper document (e.g. 3000 nested lists) would exhaust
+MAX_YAML_DEPTH = 64
+#: most YAML nodes a document may expand to, with every alias counted as a copy of what it names:
+#: a 1 MiB document has fewer nodes than this, so only alias bombs ("billion laughs") reach it
+MAX_YAML_NODES = 2_000_000
+#: largest other input file (map image, Moving AI map, SVG, scenario list, trajectory CSV/NPZ) [bytes]:
+#: a 4096 x 4096 16-bit PGM is 32 MiB, its plain-text (P2) form about 100 MiB
+MAX_FILE_BYTES = 256 * 1024 * 1024
+
+# ---- maps ---------------------------------------------------------------------------------------
+#: largest coordinate magnitude anywhere in a map (bounds, shapes, grid corners, poses) [m]: 1000 km.
+#: Keeps every product of coordinates (areas, FCL's bounding volumes) far from overflow
+MAX_COORD_M = 1e6
+#: finest and coarsest occupancy-grid cell [m]. Below 0.1 mm the cell is smaller than FCL's
+#: tolerances; above 1 km one cell is larger than any map a robot plans on
+MIN_CELL_M = 1e-4
+MAX_CELL_M = 1e3
+#: most cells of one occupancy grid: 4096 x 4096. A grid is read into float64 planes of the image
+#: (about 40 bytes per cell while it is decoded), so this bounds a map's memory to about 0.7 GB
+MAX_GRID_CELLS = 4096 * 4096
+
+#: most FCL objects in one collision world (convex parts of the shapes, plus the rectangles a grid's
+#: occupied cells merge into): each costs about 40 us to build and the distance field's raster is
+#: drawn from them, so this bounds a world's construction to a few seconds. A grid that exceeds it
+#: is mostly isolated noise cells: clean or coarsen it
+MAX_WORLD_OBJECTS = 100_000
+
+# ---- runs ---------------------------------------------------------------------------------------
+#: controller rate [Hz]. Every control period runs the law, the plant's RK4 substeps and the
+#: monitors in Python (tens of microseconds); at 1 kHz a 60 s run is already 60,000 periods and the
+#: zero-order hold is far finer than any robot's dynamics. Below 1 Hz a period is longer than the
+#: robots take to cross their own footprint
+MIN_RATE_HZ = 1.0
+MAX_RATE_HZ = 1000.0
+#: RK4 steps of the plant per control period: 4 already integrate to 1e-10 (tested)
+MAX_SUBSTEPS = 100
+#: most control periods one run may simulate (max_time_s x rate_hz): the run's log keeps about
+#: 0.5 kB per period in memory, so this bounds it to about 1 GB
+MAX_CONTROL_PERIODS = 2_000_000
+#: seeds are non-negative integers below 2**128 (numpy SeedSequence entropy; every stream of a run
+#: is derived from it, so no information of a larger seed could be used anyway)
+MAX_SEED = 2**128 - 1
+#: OMPL seeds its generator with a 32-bit value (nhstab passes seed + 1, and OMPL refuses 0)
+MAX_PLANNER_SEED = 2**31 - 2
+
+# ---- batches ----------------------------------------------------------------------------------
+#: most trials in one batch (cells x trials per cell): each is a full run of seconds, and the batch
+#: keeps every trial's spec and the stored ids in memory (about 1 kB each)
+MAX_BATCH_TRIALS = 1_000_000
+#: a map as data (nhstab.batch.bundle: every file it is built from, shipped to the workers and kept
+#: in the store): at most this many bytes unpacked, and this many files. A map reads at most a few
+#: files (YAML, base maps nested 4 deep, one image or scenario list each); the byte bound is an
+#: image at the file limit with its YAML files, and stops a "zip bomb" in a store before it is
+#: unpacked
+MAX_BUNDLE_BYTES = 2 * MAX_FILE_BYTES
+MAX_BUNDLE_FILES = 64
+
+# ---- planning ---------------------------------------------------------------------------------
+#: the assumed cost of one validity check that reaches FCL [s] (the slow case: measured at about 64 us,
+#: see `nhstab bench planning`). A planning budget must afford one crossing of the map at the
+#: checking resolution at this cost, or the map is refused before anything is built
+FCL_CHECK_S = 64e-6
+
+
+def check_int(key: str, value, lo: int, hi: int, what: str = "an integer") -> int:
+    """``value`` as an int in [lo, hi], or an InputError naming ``key``. Works for integers of any
+    size (no conversion to float); integral floats are accepted."""
+    import numpy as np
+
+    v = None
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        v = int(value)
+    elif isinstance(value, (float, np.floating)) and math.isfinite(value) and float(value).is_integer():
+        v = int(value)
+    if v is None or not lo <= v <= hi:
+        raise InputError(key, f"{what} in [{_fmt_int(lo)}, {_fmt_int(hi)}]", _short_int(value),
+                         detail=number_hint(value))
+    return v
+
+
+def check_range(key: str, value, lo: float, hi: float, unit: str = "") -> float:
+    """``value`` as a finite float in [lo, hi], or an InputError naming ``key`` (with the YAML hint
+    for text like ``1e9``)."""
+    import numpy as np
+
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    v = math.nan
+    if ok:
+        try:
+            v = float(value)
+        except OverflowError:
+            v = math.inf
+    if not (math.isfinite(v) and lo <= v <= hi):
+        u = f" {unit}" if unit else ""
+        raise InputError(key, f"a number in [{lo:g}, {hi:g}]{u}", _short_int(value), detail=number_hint(value))
+    return v
+
+
+def number_hint(value) -> str:
+    """For text that YAML 1.1 leaves as a string although it looks like a number in exponent form
+    (``1e9``, ``5E-3``): a hint on how to write it; else ""."""
+    import re
+
+    if isinstance(value, str) and re.fullmatch(r"\s*[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+\s*", value):
+        mant, _, exp = value.strip().lower().partition("e")
+        fixed = (mant if "." in mant else mant + ".0") + "e" + exp
+        return f"YAML 1.1 reads {value.strip()} as text: write {fixed}"
+    return ""
+
+
+def _fmt_int(v: int) -> str:
+    for minus in (0, 1, 2):
+        k = (v + minus).bit_length() - 1
+        if v >= 10**6 and v + minus == 2**k:
+            return f"2**{k}" + (f" - {minus}" if minus else "")
+    return f"{v:,}" if abs(v) >= 10**4 else str(v)
+
+
+def _short_int(value):
+    """Huge integers shown by their size, not their hundreds of digits."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**18:
+        return f"an integer of about {int(abs(value).bit_length() * math.log10(2)) + 1} digits"
+    return value
