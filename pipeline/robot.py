@@ -141,22 +141,22 @@ class Robot:
         """A start or goal as the planning configuration (x, y, theta[, theta1 .. thetaN]): from a pose
         (x, y, theta) (a car_trailer's trailers then in line with the car), a configuration, or a full
         state. Raises :class:`InputError` naming ``name`` otherwise."""
+        sizes = "a pose of three finite numbers (x, y, theta)" if not self.trailers else (
+            "a pose of three finite numbers (x, y, theta; the trailers in line with the car) or x, y, theta, "
+            + ", ".join(f"theta{i}" for i in range(1, self.trailers + 1)))
         try:
             arr = np.asarray(value, dtype=float).reshape(-1)
         except (TypeError, ValueError):
-            raise InputError(name, "a pose of three numbers (x, y, theta)", value) from None
+            raise InputError(name, sizes, value) from None
         cols = self.configuration_columns
         if not np.all(np.isfinite(arr)):
-            raise InputError(name, "finite numbers", value)
+            raise InputError(name, sizes, value)
         if len(arr) == self.model.n and len(arr) != len(cols):
             return arr[cols]
         if len(arr) == len(cols):
             return arr.copy()
         if len(arr) == 3 and self.trailers:
             return np.concatenate([arr, np.full(self.trailers, arr[2])])
-        sizes = "three numbers (x, y, theta)" if not self.trailers else (
-            "x, y, theta (trailers in line) or x, y, theta, " + ", ".join(f"theta{i}" for i in
-                                                                          range(1, self.trailers + 1)))
         raise InputError(name, sizes, value if arr.size < 12 else f"{arr.size} numbers")
 
     @property
