@@ -142,10 +142,10 @@ class _Arc:
         u = self.direction * self.body_speed * np.asarray(t, dtype=float)
         x0, y0, th0 = self.pose
         k = self.kappa
-        if abs(k) < 1e-12:
-            return x0 + u * math.cos(th0), y0 + u * math.sin(th0), np.full_like(u, th0)
-        th = th0 + k * u
-        return x0 + (np.sin(th) - math.sin(th0)) / k, y0 - (np.cos(th) - math.cos(th0)) / k, th
+        # the arc as a chord (no cancellation on nearly straight arcs; see parking.segment_poses)
+        half = 0.5 * k * u
+        chord = u * np.sinc(half / np.pi)
+        return x0 + chord * np.cos(th0 + half), y0 + chord * np.sin(th0 + half), th0 + k * u
 
     def states_at(self, t):
         t = np.asarray(t, dtype=float)
