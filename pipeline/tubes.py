@@ -510,6 +510,19 @@ def choose_gains(nominal, defaults: dict, tube_of, window: str = "future", *,
     return law, record
 
 
+def certified_text(tube) -> str:
+    """The tube's certified clearance for a message, or that it was not certified (no world: e.g. a robot
+    of several bodies, whose tube is certified for no body)."""
+    if tube.certified_clearance is None:
+        return "clearance not certified (a robot of several bodies)"
+    return f"certified clearance {tube.certified_clearance:+.3f} m"
+
+
+#: the refusal of ``margin: auto`` for a robot of several bodies (a car with trailers)
+SEVERAL_BODIES = ("a margin in metres for a robot of several bodies (the error tube's clearance is certified "
+                  "for one footprint; margin auto is for one-body robots)")
+
+
 def plan_and_tube(m, robot, start, goal, path_options, timing_options, *, margin="auto",
                   gains: str = "default", noise=None, probability: float = DEFAULT_PROBABILITY,
                   rate_hz: float = 50.0, substeps: int = 4, world=None, plan_robot=None):
@@ -535,6 +548,9 @@ def plan_and_tube(m, robot, start, goal, path_options, timing_options, *, margin
     model, fp = plan_robot.model, robot.footprint
     noise = NoiseOptions() if noise is None else noise
     noise.validated(model.state_names)
+    several = len(robot.footprints) > 1           # a car with trailers: no certified clearance
+    if several and margin == "auto":
+        raise InputError("--margin", SEVERAL_BODIES, margin)
     world = world or CollisionWorld.from_map(m, "known")
     defaults = dict(robot.stabilizer)
     extra = {"tube_model": {"noise": noise.describe(model.state_names), "rate_hz": rate_hz, "substeps": substeps,
@@ -544,7 +560,8 @@ def plan_and_tube(m, robot, start, goal, path_options, timing_options, *, margin
     path_options = path_options.for_robot(plan_robot)
 
     def tube_of(law, certify=True):
-        return predict_tube(law, noise, fp, world if certify else None, rate_hz=rate_hz, substeps=substeps,
+        return predict_tube(law, noise, fp, world if certify and not several else None, rate_hz=rate_hz,
+                            substeps=substeps,
                             model=robot.model, probability=probability)
 
     def plan_at(mg):

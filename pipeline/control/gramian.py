@@ -341,6 +341,11 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
     Raises :class:`SingularGramianError` (naming the time and the smallest eigenvalue) where the
     window gramian is singular, and :class:`InputError` for bad options or a trajectory shorter
     than delta.
+
+    A nominal with a ``tail`` (:class:`~nhstab.nominal.Nominal`: a feasible continuation past its
+    end) and a future window: the schedule is computed on the nominal continued by its tail over
+    delta, on the same grid step, and kept on the nominal's own grid, so that every window inside it
+    is whole and the end strategy never applies there.
     """
     if not isinstance(nominal, Nominal):
         raise InputError("nominal", "a Nominal (nhstab.Nominal.from_samples, or a plan's nominal)",
@@ -354,6 +359,9 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
     opts = options.validated()
     if opts.window == "past":
         warnings.warn(PAST_WINDOW_WARNING, NotStabilizingWarning, stacklevel=2)
+    tail = getattr(nominal, "tail", None)
+    if tail is not None and opts.window == "future":
+        return _with_tail(nominal, tail, opts)
     nom = nominal if nominal.is_uniform() else nominal.resampled(len(nominal.t))
     model = nom.model
     n = model.n
@@ -423,6 +431,37 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
     if frozen_info is not None:
         schedule.diagnostics["frozen_time"] = frozen_info
     schedule.diagnostics.update(schedule.diagnose())
+    return schedule
+
+
+def _with_tail(nominal: Nominal, tail: Nominal, opts: StabilizerOptions) -> GainSchedule:
+    """The future-window schedule of ``nominal`` computed on it continued by ``tail`` (over delta, or
+    all of the tail if shorter), restricted to the nominal's grid."""
+    nom = nominal if nominal.is_uniform() else nominal.resampled(len(nominal.t))
+    h = float(nom.t[1] - nom.t[0])
+    T = float(nom.t[-1])
+    extra = int(math.ceil(min(float(opts.delta), float(tail.t[-1] - tail.t[0])) / h - 1e-9))
+    if extra < 1:
+        return compute_schedule(nom, opts)
+    t_ext = np.concatenate([nom.t, T + h * np.arange(1, extra + 1)])
+    t_ext[-1] = min(t_ext[-1], T + float(tail.t[-1] - tail.t[0]))
+    shift = float(tail.t[0]) - T
+
+    def x_func(tau):
+        tau = np.asarray(tau, dtype=float)
+        return np.where((tau <= T)[..., None], nom.at(np.minimum(tau, T))[0], tail.at(np.maximum(tau, T) + shift)[0])
+
+    def u_func(tau):
+        tau = np.asarray(tau, dtype=float)
+        return np.where((tau <= T)[..., None], nom.at(np.minimum(tau, T))[1], tail.at(np.maximum(tau, T) + shift)[1])
+
+    joined = Nominal.from_functions(nom.model, x_func, u_func, t_ext)
+    full = compute_schedule(joined, opts)
+    N = len(nom.t)
+    schedule = GainSchedule(t=nom.t.copy(), H=full.H[:N], P=full.P[:N], K=full.K[:N],
+                            H_eigenvalues=full.H_eigenvalues[:N], gamma=full.gamma[:N], options=opts, nominal=nom)
+    schedule.diagnostics = {**full.diagnostics, "grid_points": N, "duration_s": T,
+                            "tail_s": float(t_ext[-1] - T), **schedule.diagnose()}
     return schedule
 
 
