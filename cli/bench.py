@@ -19,16 +19,37 @@ def _emit(result: dict, out: Path):
 @click.group(invoke_without_command=True)
 @click.option("--out-dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results/bench"),
               show_default=True, help="Folder for bench.json and summary.md (when run without a subcommand).")
+@click.option("--only", default=None, metavar="NAME[,NAME...]",
+              help="Run only these benchmarks and merge their results into OUT_DIR/bench.json (the others "
+                   "kept as they were), then rewrite summary.md from the merged file.")
 @click.pass_context
-def bench(ctx, out_dir):
+def bench(ctx, out_dir, only):
     """Run every benchmark (no subcommand) or one of them. Writes JSON."""
     if ctx.invoked_subcommand is not None:
         return 0
     from nhstab.bench import BENCHMARKS, summary_markdown
+    from nhstab.errors import InputError
     from nhstab.records import write_json, write_text
 
     results = {}
-    for name, fn in BENCHMARKS.items():
+    names = list(BENCHMARKS)
+    if only is not None:
+        names = [n.strip() for n in only.split(",") if n.strip()]
+        unknown = [n for n in names if n not in BENCHMARKS]
+        if unknown or not names:
+            raise InputError("--only", f"benchmark names from {', '.join(BENCHMARKS)}", only)
+        previous = out_dir / "bench.json"
+        if previous.is_file():
+            try:
+                results = json.loads(previous.read_text())
+            except (OSError, ValueError) as exc:
+                raise InputError("--out-dir", "a folder whose bench.json is readable JSON (to merge into)",
+                                 f"{previous}: {exc}") from None
+            if not isinstance(results, dict):
+                raise InputError("--out-dir", "a bench.json holding an object", str(previous))
+        results = {k: v for k, v in results.items() if k in BENCHMARKS}
+    for name in names:
+        fn = BENCHMARKS[name]
         click.echo(f"running {name} ...", err=True)
         results[name] = fn()
         write_json(out_dir / "bench.json", results)      # keep what is done if a later one fails

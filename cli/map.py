@@ -20,8 +20,9 @@ def parse_pose(name: str, text: str | None):
         values = [float(v) for v in parts]
     except ValueError:
         raise InputError(name, "x,y,theta (metres, metres, radians)", text) from None
-    if len(values) != 3 or not all(abs(v) < float("inf") for v in values):
-        raise InputError(name, "x,y,theta (metres, metres, radians), finite", text)
+    if not 3 <= len(values) <= 12 or not all(abs(v) < float("inf") for v in values):
+        raise InputError(name, "x,y,theta (metres, metres, radians), finite; a car with trailers may add "
+                         "their headings theta1,...", text)
     return tuple(values)
 
 

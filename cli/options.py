@@ -48,7 +48,7 @@ def robot_options(f):
     f = click.option("--robot-config", "robot_config", type=click.Path(path_type=Path), default=None,
                      help="Robot description (YAML: model, parameters, footprint, margin, ...); overrides --robot.")(f)
     f = click.option("--robot", default=None,
-                     help="Robot model with its built-in description: unicycle, rwd_car, fwd_car "
+                     help="Robot model with its built-in description: unicycle, rwd_car, fwd_car, car_trailer "
                           "(default: the config's, else the map's robot block, else unicycle).")(f)
     return f
 

@@ -61,7 +61,7 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     from nhstab.execution.config import NoiseOptions
     from nhstab.execution.runner import derated
     from nhstab.planning import PathOptions, TimingOptions
-    from nhstab.tubes import plan_and_tube
+    from nhstab.tubes import certified_text, plan_and_tube
 
     margin = None if margin is None else parse_margin("--margin", margin)
     if not (0.0 < probability < 1.0):
@@ -106,7 +106,7 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
                f"max gain {met['max_gain_norm']:.3g}")
     click.echo(f"tube (p = {tube.probability:g}, noise x{noise_scale:g}): position radius up to "
                f"{tube.position_radius.max():.3f} m, heading spread up to {tube.heading_spread.max():.3f} rad, "
-               f"certified clearance {tube.certified_clearance:+.3f} m, saturation probability <= "
+               f"{certified_text(tube)}, saturation probability <= "
                f"{tube.saturation['run_bound']:.3g}")
     if tube.saturation["run_bound"] > 0.01 and headroom == 1.0:
         click.echo("note: the nominal may use the full input limits, so the feedback saturates; nhstab run plans "

@@ -130,6 +130,7 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
                       robot_key: str = "robot", extra_files: dict | None = None) -> int:
     from nhstab.errors import InputError
     from nhstab.execution import execute, write_run
+    from nhstab.tubes import certified_text
     from nhstab.planning import PLANNABLE
 
     if robot.model.name not in PLANNABLE:
@@ -152,7 +153,7 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
         if rec.tube is not None:
             tb = rec.tube
             click.echo(f"plan {rec.id} tube (p = {tb.probability:g}): position radius up to "
-                       f"{tb.position_radius.max():.3f} m, certified clearance {tb.certified_clearance:+.3f} m, "
+                       f"{tb.position_radius.max():.3f} m, {certified_text(tb)}, "
                        f"saturation probability <= {tb.saturation['run_bound']:.3g}")
     click.echo(f"{replans} replan(s), {len(result.discovered)} obstacle(s) discovered, "
                f"{result.log['t'][-1] if len(result.log['t']) else 0:.1f} s simulated in {result.wall_time_s:.1f} s")

@@ -55,7 +55,14 @@ def _check_increasing(t: np.ndarray) -> None:
 
 
 class Nominal:
-    """A nominal trajectory of a model. Build it with one of the ``from_*`` constructors."""
+    """A nominal trajectory of a model. Build it with one of the ``from_*`` constructors.
+
+    ``tail`` (optional, None by default) is a feasible continuation of the motion past the end, a
+    :class:`Nominal` starting where this one ends: not a part of the plan (nothing follows it), but
+    the future windows of the gramian law look into it, so that every window inside the plan is a
+    whole one (:func:`nhstab.control.compute_schedule`; the paper's nominals are defined for all t).
+    A planner sets it where the plan ends in motion (a car with a trailer reversing into a dock).
+    """
 
     def __init__(self, model: Model, t: np.ndarray, x: np.ndarray, u: np.ndarray,
                  x_func: ArrayFn | None = None, u_func: ArrayFn | None = None, source: str = "samples"):
@@ -75,6 +82,7 @@ class Nominal:
             u_func = _LinearInterpolant(t, u)
         self._x_func = x_func
         self._u_func = u_func
+        self.tail: Nominal | None = None
 
     # ---- constructors --------------------------------------------------------------------------
     @classmethod

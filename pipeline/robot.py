@@ -7,7 +7,7 @@ and the outputs, which record :meth:`Robot.describe`. Users describe their own r
 the ``robot:`` block of map, run and batch files::
 
     robot:
-      model: rwd_car            # heisenberg | unicycle | fwd_car | rwd_car
+      model: rwd_car            # heisenberg | unicycle | fwd_car | rwd_car | car_trailer
       wheelbase: 2.7            # the model's parameters by their names: max_speed, max_steer,
       max_steer: 0.7            #   max_steer_rate, max_turn_rate, ...
       max_steer_rate: 0.6
@@ -17,6 +17,11 @@ the ``robot:`` block of map, run and batch files::
       margin: 0.1               # planning margin [m]
       stabilizer: {alpha: 0.1, delta: 6.0, gamma: 1.0, end_strategy: extend}   # the gramian law's defaults
       turning_radius: 5.0       # planning turning radius [m] (default: the rule below)
+
+A ``car_trailer`` also takes ``hitch_lengths: [d1, ...]`` (one per trailer, the model's list-valued
+parameter) and ``trailer_footprint`` (one footprint spec for every trailer, or a list with one per
+trailer, each in its trailer's frame: x forward from the trailer's axle centre); ``footprint`` is
+the car's.
 
 Every key but ``model`` is optional; an unknown key, a wrong type, NaN or a value out of range is
 refused with one :class:`InputError` naming the key. A polygon footprint is in the robot's frame:
@@ -67,9 +72,18 @@ MODEL_DEFAULTS: dict[str, dict] = {
     "heisenberg": {"footprint": {"radius": 0.1}, "margin": 0.1,
                    "stabilizer": {"alpha": 1.0, "delta": 1.0, "gamma": 1.0, "end_strategy": "frozen"},
                    "turning_radius": ("fixed", 0.5)},
+    # the rwd_car towing a 2.5 x 1.8 m trailer whose axle is 3 m behind the hitch; the turning radius
+    # is the trailer's axle path's (the planned point), 3.5 times its smallest steady turn: the hitch
+    # angle changes only gradually, and on those arcs the steady steering angle is half its limit
+    # (nhstab.planning.trailer). Its end strategy stays frozen, with which its defaults were chosen.
+    "car_trailer": {"footprint": {"rectangle": {"length": 4.2, "width": 1.8, "rear_overhang": 0.9}},
+                    "trailer_footprint": {"rectangle": {"length": 2.5, "width": 1.8, "rear_overhang": 1.0}},
+                    "margin": 0.3,
+                    "stabilizer": {"alpha": 0.05, "delta": 10.0, "gamma": 1.0, "end_strategy": "frozen"},
+                    "turning_radius": ("factor", 5.0)},
 }
 #: the robot keys other than the model's parameters
-ROBOT_KEYS = ("model", "footprint", "margin", "stabilizer", "turning_radius", "name")
+ROBOT_KEYS = ("model", "footprint", "margin", "stabilizer", "turning_radius", "name", "trailer_footprint")
 STABILIZER_KEYS = ("alpha", "delta", "gamma", "end_strategy")
 #: the stabilizer keys that are numbers (end_strategy is one of the gain schedule's END_STRATEGIES)
 STABILIZER_NUMBERS = ("alpha", "delta", "gamma")
@@ -91,6 +105,8 @@ class Robot:
     source: str = "default"
     #: what the description did to its input (e.g. repeated polygon vertices dropped)
     notes: tuple = ()
+    #: the trailers' footprints (a car_trailer's, one per trailer, each in its trailer's frame)
+    trailer_footprints: tuple = ()
 
     # ---- layout -----------------------------------------------------------------------------
     @property
@@ -110,11 +126,56 @@ class Robot:
         return names.index("phi") if "phi" in names else None
 
     @property
+    def configuration_columns(self) -> list[int]:
+        """Indices of the planning configuration in the state: (x, y, theta), then a car_trailer's
+        trailer headings theta1 .. thetaN."""
+        names = list(self.model.state_names)
+        return self.pose_columns + [names.index(f"theta{i}") for i in range(1, self.trailers + 1)]
+
+    @property
+    def trailers(self) -> int:
+        return int(getattr(self.model, "trailers", 0))
+
+    @property
+    def footprints(self) -> tuple:
+        """One footprint per body: the robot's, then each trailer's."""
+        return (self.footprint, *self.trailer_footprints)
+
+    def body_poses(self, x) -> np.ndarray:
+        """Poses (..., bodies, 3) of every body's reference point at states x (..., n); a single-body
+        robot's is its (x, y, theta)."""
+        x = np.asarray(x, dtype=float)
+        if self.trailers:
+            return self.model.body_poses(x)
+        return x[..., self.pose_columns][..., None, :]
+
+    def configuration(self, value, name: str = "pose") -> np.ndarray:
+        """A start or goal as the planning configuration (x, y, theta[, theta1 .. thetaN]): from a pose
+        (x, y, theta) (a car_trailer's trailers then in line with the car), a configuration, or a full
+        state. Raises :class:`InputError` naming ``name`` otherwise."""
+        sizes = "a pose of three finite numbers (x, y, theta)" if not self.trailers else (
+            "a pose of three finite numbers (x, y, theta; the trailers in line with the car) or x, y, theta, "
+            + ", ".join(f"theta{i}" for i in range(1, self.trailers + 1)))
+        try:
+            arr = np.asarray(value, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            raise InputError(name, sizes, value) from None
+        cols = self.configuration_columns
+        if not np.all(np.isfinite(arr)):
+            raise InputError(name, sizes, value)
+        if len(arr) == self.model.n and len(arr) != len(cols):
+            return arr[cols]
+        if len(arr) == len(cols):
+            return arr.copy()
+        if len(arr) == 3 and self.trailers:
+            return np.concatenate([arr, np.full(self.trailers, arr[2])])
+        raise InputError(name, sizes, value if arr.size < 12 else f"{arr.size} numbers")
+
+    @property
     def min_turning_radius(self) -> float:
-        """L / tan(max_steer) for the cars; 0 for robots that turn in place."""
-        if hasattr(self.model, "max_steer") and hasattr(self.model, "wheelbase"):
-            return float(self.model.wheelbase / math.tan(self.model.max_steer))
-        return 0.0
+        """L / tan(max_steer) for the cars (a car_trailer: its last trailer's axle's smallest steady
+        turn, :attr:`CarTrailer.min_turning_radius`); 0 for robots that turn in place."""
+        return _min_radius(self.model)
 
     def input_limits(self) -> np.ndarray:
         return self.model.input_limits()
@@ -130,22 +191,47 @@ class Robot:
     def spec(self) -> dict:
         """The YAML form of this robot (every key explicit): ``robot_from_spec(r.spec())`` gives it back."""
         fp = self.footprint
-        if fp.radius is not None:
-            fps = {"radius": float(fp.radius)}
-        else:
-            fps = {"polygon": [[float(a), float(b)] for a, b in fp.vertices]}
-        return {"model": self.model.name, **{k: float(v) for k, v in self.model.params().items()},
-                "footprint": fps, "margin": float(self.margin),
+        trailers = {}
+        if self.trailer_footprints:
+            trailers = {"trailer_footprint": [_footprint_spec(f) for f in self.trailer_footprints]}
+        return {"model": self.model.name, **{k: _plain(v) for k, v in self.model.params().items()},
+                "footprint": _footprint_spec(fp), **trailers, "margin": float(self.margin),
                 "stabilizer": {k: (float(self.stabilizer[k]) if k in STABILIZER_NUMBERS else str(self.stabilizer[k]))
                                for k in STABILIZER_KEYS},
                 "turning_radius": float(self.turning_radius), "name": self.name or self.model.name}
 
     def describe(self) -> dict:
         """What results record: the spec, the state layout, the limits and where it came from."""
+        labels = {"trailer_footprint_labels": [f.label for f in self.trailer_footprints]} \
+            if self.trailer_footprints else {}
         return {**self.spec(), "state_names": list(self.model.state_names),
-                "input_names": list(self.model.input_names), "footprint_label": self.footprint.label,
+                "input_names": list(self.model.input_names), "footprint_label": self.footprint.label, **labels,
                 "min_turning_radius_m": self.min_turning_radius, "source": self.source,
                 **({"notes": list(self.notes)} if self.notes else {})}
+
+
+def _plain(v):
+    """A model parameter for YAML and JSON: floats, lists of floats."""
+    if isinstance(v, (list, tuple)):
+        return [float(a) for a in v]
+    return float(v)
+
+
+def _footprint_spec(fp: Footprint) -> dict:
+    if fp.radius is not None:
+        return {"radius": float(fp.radius)}
+    return {"polygon": [[float(a), float(b)] for a, b in fp.vertices]}
+
+
+def _min_radius(model: Model) -> float:
+    """The model's smallest planning turning radius: its own ``min_turning_radius`` where it defines
+    one, L / tan(max_steer) for a car, 0 for robots that turn in place."""
+    own = getattr(type(model), "min_turning_radius", None)
+    if isinstance(own, property):
+        return float(model.min_turning_radius)
+    if hasattr(model, "max_steer") and hasattr(model, "wheelbase"):
+        return float(model.wheelbase / math.tan(model.max_steer))
+    return 0.0
 
 
 def default_footprint(model_name: str) -> Footprint:
@@ -203,7 +289,9 @@ def robot_from_spec(spec, where: str = "robot", source: str = "default") -> Robo
         if not isinstance(key, str) or (key not in ROBOT_KEYS and key not in param_names):
             allowed = ", ".join([*ROBOT_KEYS, *param_names])
             raise InputError(f"{where}.{key}", f"a {name} robot key: one of {allowed}", key)
-    params = {k: _number(f"{where}.{k}", spec[k], 0.0, lo_open=True) for k in param_names if k in spec}
+    lists = {f.name for f in dataclasses.fields(model_cls) if f.init and isinstance(f.default, tuple)}
+    params = {k: (_numbers(f"{where}.{k}", spec[k]) if k in lists else _number(f"{where}.{k}", spec[k], 0.0, lo_open=True))
+              for k in param_names if k in spec}
     try:
         model = make_model(name, **params)
     except InputError as exc:
@@ -230,12 +318,28 @@ def robot_from_spec(spec, where: str = "robot", source: str = "default") -> Robo
                 continue
             lo, lo_open = (0.5, False) if k == "gamma" else (0.0, True)
             stab[k] = _number(f"{where}.stabilizer.{k}", v, lo, lo_open=lo_open)
-    r_min = float(model.wheelbase / math.tan(model.max_steer)) if hasattr(model, "max_steer") else 0.0
+    trailer_fps: tuple = ()
+    n_trailers = int(getattr(model, "trailers", 0))
+    if "trailer_footprint" in spec and not n_trailers:
+        raise InputError(f"{where}.trailer_footprint", "only with a model that tows trailers (car_trailer)", name)
+    if n_trailers:
+        given = spec.get("trailer_footprint", defaults.get("trailer_footprint"))
+        if isinstance(given, list):
+            if len(given) != n_trailers:
+                raise InputError(f"{where}.trailer_footprint", f"one footprint for every trailer, or a list of "
+                                 f"{n_trailers} (one per trailer)", f"a list of {len(given)}")
+            trailer_fps = tuple(parse_footprint(g, f"{where}.trailer_footprint[{i}]", notes)
+                                for i, g in enumerate(given))
+        else:
+            one = parse_footprint(given, f"{where}.trailer_footprint", notes)
+            trailer_fps = (one,) * n_trailers
+    r_min = _min_radius(model)
     if "turning_radius" in spec:
         radius = _number(f"{where}.turning_radius", spec["turning_radius"], 0.0, lo_open=True)
         if radius < r_min - 1e-9:
-            raise InputError(f"{where}.turning_radius", f"at least the car's minimum turning radius "
-                             f"L / tan(max_steer) = {r_min:.4g} m", radius)
+            what = ("the last trailer's smallest steady turning radius" if n_trailers else
+                    "the car's minimum turning radius L / tan(max_steer)")
+            raise InputError(f"{where}.turning_radius", f"at least {what} = {r_min:.4g} m", radius)
     else:
         kind, value = defaults["turning_radius"]
         radius = value if kind == "fixed" else value * r_min
@@ -243,7 +347,7 @@ def robot_from_spec(spec, where: str = "robot", source: str = "default") -> Robo
     if not isinstance(label, str) or not label.strip():
         raise InputError(f"{where}.name", "a non-empty string", label)
     return Robot(model=model, footprint=fp, margin=margin, stabilizer=stab, turning_radius=float(radius),
-                 name=label, source=source, notes=tuple(notes))
+                 name=label, source=source, notes=tuple(notes), trailer_footprints=trailer_fps)
 
 
 def parse_footprint(spec, where: str = "footprint", notes: list | None = None) -> Footprint:
@@ -383,6 +487,16 @@ def _number(key: str, v, lo: float = -math.inf, lo_open: bool = False) -> float:
         hint = " (YAML reads 1e9 as a string: write 1.0e9)" if isinstance(v, str) and _looks_numeric(v) else ""
         raise InputError(key, f"a finite number{bound}{hint}", v)
     return float(v)
+
+
+def _numbers(key: str, v) -> list[float]:
+    """A list-valued model parameter (e.g. ``hitch_lengths``): a list of positive finite numbers (a
+    single number is a list of one)."""
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        v = [v]
+    if not isinstance(v, list) or not v or len(v) > 64:
+        raise InputError(key, "a non-empty list of positive numbers, e.g. [3.0]", _kind(v))
+    return [_number(f"{key}[{i}]", a, 0.0, lo_open=True) for i, a in enumerate(v)]
 
 
 def _looks_numeric(s: str) -> bool:

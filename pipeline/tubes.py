@@ -282,14 +282,17 @@ def certified_clearance(world, fp: Footprint, poses: np.ndarray, reach: np.ndarr
     the number of FCL clearance queries made.
 
     Poses are visited in order of a lower bound of c_k - reach_k (the distance field's disc cover, and
-    for a polygon footprint whose discs are clear its outline) until that bound is no better than the
-    best value found; a measured c_j > 0 also bounds its neighbours i by c_j - 1 mm - (how far the
+    for a polygon footprint whose discs are clear its outline, computed only for the poses still below
+    the value measured at the pose of the smallest disc bound, which goes first) until that bound is no
+    better than the best value found; a measured c_j > 0 also bounds its neighbours i by c_j - 1 mm - (how far the
     footprint moved from j to i: |translation| + rho |rotation|, rho the farthest footprint point, 0 for a
     disc), as in :meth:`CollisionWorld.min_clearance`."""
     from .clearance_field import disc_cover
 
     poses = np.asarray(poses, dtype=float)
     reach = np.asarray(reach, dtype=float)
+    if not len(poses):
+        return math.inf, -1, math.nan, 0
     field = world.clearance_field()
     if field is None:
         c = np.array([world.clearance(p, fp) for p in poses])
@@ -300,21 +303,14 @@ def certified_clearance(world, fp: Footprint, poses: np.ndarray, reach: np.ndarr
     bound = np.full(len(poses), np.inf)
     for (u, v), rad in zip(centres, radii):
         bound = np.minimum(bound, field.at(poses[:, 0] + cth * u - sth * v, poses[:, 1] + sth * u + cth * v) - rad)
-    if fp.radius is None:
-        clear = bound > 0.0
-        if clear.any():
-            bound[clear] = np.maximum(bound[clear], field.outline_bound(poses[clear], fp))
     key = bound - reach
-    order = np.argsort(key, kind="stable")
     vouched = np.full(len(poses), -np.inf)
     span, gap = 4 * world.VOUCH_SPAN, world.VOUCH_GAP
     rho = 0.0 if fp.radius is not None else fp.bounding_radius      # a disc does not move when it turns
     best, best_k, best_c, evals = math.inf, -1, math.nan, 0
-    for k in order:
-        if key[k] >= best:
-            break
-        if vouched[k] - reach[k] >= best:
-            continue
+
+    def measure(k):
+        nonlocal best, best_k, best_c, evals
         ck = world.clearance(poses[k], fp)
         evals += 1
         if ck - reach[k] < best:
@@ -324,6 +320,23 @@ def certified_clearance(world, fp: Footprint, poses: np.ndarray, reach: np.ndarr
             d = poses[near] - poses[k]
             moved = np.hypot(d[:, 0], d[:, 1]) + rho * np.abs(d[:, 2])
             vouched[near] = np.maximum(vouched[near], ck - gap - moved)
+
+    # the pose of the smallest bound first: what it measures leaves only the poses whose bound is below
+    # it, and only those need the (costlier) outline bound of a polygon footprint
+    k0 = int(np.argmin(key))
+    measure(k0)
+    cand = np.flatnonzero(key < best)
+    cand = cand[cand != k0]
+    if fp.radius is None:
+        clear = cand[bound[cand] > 0.0]
+        if len(clear):
+            key[clear] = np.maximum(bound[clear], field.outline_bound(poses[clear], fp)) - reach[clear]
+    for k in cand[np.argsort(key[cand], kind="stable")]:
+        if key[k] >= best:
+            break
+        if vouched[k] - reach[k] >= best:
+            continue
+        measure(k)
     return float(best), best_k, float(best_c), evals
 
 
@@ -497,6 +510,19 @@ def choose_gains(nominal, defaults: dict, tube_of, window: str = "future", *,
     return law, record
 
 
+def certified_text(tube) -> str:
+    """The tube's certified clearance for a message, or that it was not certified (no world: e.g. a robot
+    of several bodies, whose tube is certified for no body)."""
+    if tube.certified_clearance is None:
+        return "clearance not certified (a robot of several bodies)"
+    return f"certified clearance {tube.certified_clearance:+.3f} m"
+
+
+#: the refusal of ``margin: auto`` for a robot of several bodies (a car with trailers)
+SEVERAL_BODIES = ("a margin in metres for a robot of several bodies (the error tube's clearance is certified "
+                  "for one footprint; margin auto is for one-body robots)")
+
+
 def plan_and_tube(m, robot, start, goal, path_options, timing_options, *, margin="auto",
                   gains: str = "default", noise=None, probability: float = DEFAULT_PROBABILITY,
                   rate_hz: float = 50.0, substeps: int = 4, world=None, plan_robot=None):
@@ -522,6 +548,9 @@ def plan_and_tube(m, robot, start, goal, path_options, timing_options, *, margin
     model, fp = plan_robot.model, robot.footprint
     noise = NoiseOptions() if noise is None else noise
     noise.validated(model.state_names)
+    several = len(robot.footprints) > 1           # a car with trailers: no certified clearance
+    if several and margin == "auto":
+        raise InputError("--margin", SEVERAL_BODIES, margin)
     world = world or CollisionWorld.from_map(m, "known")
     defaults = dict(robot.stabilizer)
     extra = {"tube_model": {"noise": noise.describe(model.state_names), "rate_hz": rate_hz, "substeps": substeps,
@@ -531,7 +560,8 @@ def plan_and_tube(m, robot, start, goal, path_options, timing_options, *, margin
     path_options = path_options.for_robot(plan_robot)
 
     def tube_of(law, certify=True):
-        return predict_tube(law, noise, fp, world if certify else None, rate_hz=rate_hz, substeps=substeps,
+        return predict_tube(law, noise, fp, world if certify and not several else None, rate_hz=rate_hz,
+                            substeps=substeps,
                             model=robot.model, probability=probability)
 
     def plan_at(mg):

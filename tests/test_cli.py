@@ -137,3 +137,24 @@ def test_every_benchmark_has_a_subcommand():
     from nhstab.bench import BENCHMARKS
 
     assert set(SUBCOMMANDS) == set(BENCHMARKS)
+
+
+def test_bench_only_merges_into_the_existing_results(runner, tmp_path, monkeypatch):
+    """`nhstab bench --only a,b` runs those benchmarks, keeps the others' stored results, and rewrites
+    summary.md from the merged file; an unknown name is one line naming --only (exit code 2)."""
+    import nhstab.bench as bench_pkg
+
+    calls = []
+    fake = {"gains": lambda: calls.append("gains") or {"new": 1}, "collision": lambda: calls.append("collision") or {}}
+    monkeypatch.setattr(bench_pkg, "BENCHMARKS", fake)
+    monkeypatch.setattr(bench_pkg, "summary_markdown", lambda results: "# merged\n" + json.dumps(results, sort_keys=True))
+    (tmp_path / "bench.json").write_text(json.dumps({"gains": {"old": 1}, "collision": {"kept": True}}))
+    res = runner.invoke(cli, ["bench", "--out-dir", str(tmp_path), "--only", "gains"])
+    assert res.exit_code == 0, res.output
+    assert calls == ["gains"]
+    merged = json.loads((tmp_path / "bench.json").read_text())
+    assert merged == {"gains": {"new": 1}, "collision": {"kept": True}}
+    assert json.loads((tmp_path / "summary.md").read_text().split("\n", 1)[1]) == merged
+    res = runner.invoke(cli, ["bench", "--out-dir", str(tmp_path), "--only", "gains,nope"])
+    _one_line_error(res, "--only", "nope")
+    assert json.loads((tmp_path / "bench.json").read_text()) == merged

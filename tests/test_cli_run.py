@@ -58,7 +58,7 @@ def test_windows_on_a_real_map_frozen_time_reaches_the_goal_past_warns(tmp_path)
     import numpy as np
 
     from nhstab.collision import CollisionWorld
-    from nhstab.geometry import default_footprint
+    from nhstab.robot import default_footprint
     from nhstab.maps import load_map
 
     out = tmp_path / "frozen"

@@ -15,7 +15,7 @@ steer = st.floats(-1.2, 1.2, allow_nan=False)       # |phi| < pi/2 for the rwd c
 speed = st.floats(-3.0, 3.0, allow_nan=False)
 
 
-def _state(name, vals):
+def _state(name, vals, extra=(0.3,)):
     m = make_model(name)
     if name == "heisenberg":
         return np.array(vals[:3])
@@ -25,6 +25,8 @@ def _state(name, vals):
         return np.array([vals[0], vals[1], vals[3], vals[2]])   # (x, y, phi, theta)
     if name == "rwd_car":
         return np.array([vals[0], vals[1], vals[2], vals[3]])   # (x, y, theta, phi)
+    if name == "car_trailer":                                   # (x, y, theta, phi, theta1, ..., thetaN)
+        return np.array([vals[0], vals[1], vals[2], vals[3], *extra[: m.n - 4]])
     raise AssertionError(m)
 
 
@@ -39,10 +41,11 @@ def _central_jacobian(fun, x, eps=1e-6):
 
 @pytest.mark.parametrize("name", MODEL_NAMES)
 @settings(max_examples=60, deadline=None)
-@given(vals=st.tuples(coord, coord, angle, steer), u=st.tuples(speed, speed))
-def test_jacobians_match_central_differences(name, vals, u):
+@given(vals=st.tuples(coord, coord, angle, steer), u=st.tuples(speed, speed),
+       extra=st.lists(angle, min_size=8, max_size=8))
+def test_jacobians_match_central_differences(name, vals, u, extra):
     m = make_model(name)
-    x = _state(name, vals)
+    x = _state(name, vals, extra)
     u = np.array(u)
     # d(g(x) u)/dx and df/dx against central differences; tolerance: eps^2 truncation + roundoff
     num_gu = _central_jacobian(lambda z: m.g(z) @ u, x)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
 from shapely.geometry import Polygon as SPolygon
@@ -61,6 +61,8 @@ def shapely_clearance(m: Map, fp, poses) -> float:
 @settings(max_examples=40, deadline=None)
 @given(st.sampled_from(["rwd_car", "fwd_car"]), st.sampled_from([1, -1]), st.floats(-0.55, 0.55),
        st.floats(0.05, 6.0))
+@example("rwd_car", 1, 1e-11, 1.0)      # a nearly straight arc: the quotient form lost 2e-5 m here
+@example("fwd_car", -1, -3e-9, 6.0)
 def test_segment_poses_are_the_models_solution(name, direction, phi, length):
     """A held-steering segment's closed form equals the model integrated under constant inputs."""
     model = make_model(name)
@@ -333,3 +335,20 @@ def test_parks_under_default_noise(name, seed):
     assert shapely_clearance(m, robot.footprint, x[::5, :3]) > 0.0
     at_stop = np.mean(np.abs(x[:, 3]) >= robot.model.max_steer - 1e-9)
     assert at_stop <= 0.05
+
+
+@pytest.mark.parametrize("name", ["rwd_car", "fwd_car"])
+@pytest.mark.parametrize("phi", [1e-11, -3e-9, 0.0, 0.4])
+def test_an_exact_arc_piece_is_the_models_solution_also_when_nearly_straight(name, phi):
+    """The car nominal's held-steering piece (its closed form, evaluated as a chord) equals the model
+    integrated under its own inputs, to 1e-7 m, on nearly straight arcs too (the quotient form
+    (sin theta - sin theta0) / kappa lost 2e-5 m at phi = 1e-11)."""
+    from nhstab.planning.cars import _Arc
+
+    model = make_model(name)
+    pose = np.array([1.0, -2.0, 0.7])
+    piece = _Arc(model, pose, phi, -1, 5.0, 0.8)
+    t_end = float(piece.t[-1])
+    sol = solve_ivp(lambda t, x: model.rhs(x, piece.inputs_at(t)), (0.0, t_end), piece.states_at(0.0),
+                    rtol=1e-11, atol=1e-12)
+    assert np.allclose(sol.y[:, -1], piece.states_at(t_end), atol=1e-7)

@@ -81,7 +81,7 @@ def test_builtin_robots_keep_the_old_defaults():
     assert u.turning_radius == 0.5 and c.turning_radius == pytest.approx(1.25 * 2.5 / math.tan(0.6))
     assert u.footprint.radius == 0.3
     assert np.allclose(c.footprint.vertices, [[-0.9, -0.9], [3.3, -0.9], [3.3, 0.9], [-0.9, 0.9]])
-    assert set(MODEL_DEFAULTS) == {"unicycle", "rwd_car", "fwd_car", "heisenberg"}
+    assert set(MODEL_DEFAULTS) == {"unicycle", "rwd_car", "fwd_car", "heisenberg", "car_trailer"}
 
 
 def test_repeated_polygon_vertices_are_cleaned_and_noted():

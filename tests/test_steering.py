@@ -379,7 +379,8 @@ def test_check_limits():
     (lambda: steer_chained([0, 0, 0], [1, 1, 1], -1.0), "T"),
     (lambda: steer_chained([0, 0, 0], [1, 1, 1], float("nan")), "T"),
     (lambda: steer_chained([0, 0], [1, 1], 1.0), "z0"),
-    (lambda: steer_chained([0, 0, 0, 0, 0], [1, 1, 1, 1, 1], 1.0), "z0"),
+    (lambda: steer_chained([0] * 11, [1] * 11, 1.0), "z0"),          # dimensions 3 .. 10
+    (lambda: steer_chained_constant_v1([0, 0, 0, 0, 0], [1, 1, 1, 1, 1], 1.0), "z0"),   # 3 or 4
     (lambda: steer_chained([0, 0, 0], [1, 1, 1, 1], 1.0), "zf"),
     (lambda: steer_chained([0, 0, float("nan")], [1, 1, 1], 1.0), "z0"),
     (lambda: steer_chained([0, 0, 0], [1, 1, np.inf], 1.0), "zf"),

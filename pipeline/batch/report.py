@@ -88,6 +88,13 @@ def cell_table(trials: list[dict]) -> list[dict]:
         for key in ("min_clearance_m", "final_position_error_m", "replans", "max_error_norm", "margin_m"):
             vals = [_m(t, key) for t in done if _m(t, key) is not None]
             row[f"{key}_median"] = float(np.median(vals)) if vals else math.nan
+        if any(_m(t, "jackknife") is not None for t in done):     # a car with trailers
+            k = sum(1 for t in done if _m(t, "jackknife"))
+            rate, lo, hi = wilson(k, len(done))
+            row.update({"jackknife_count": k, "jackknife_rate": rate, "jackknife_lo": lo, "jackknife_hi": hi})
+            for key in ("max_abs_hitch_angle_rad", "final_trailer_position_error_m"):
+                vals = [_m(t, key) for t in done if _m(t, key) is not None and _m(t, key) == _m(t, key)]
+                row[f"{key}_median"] = float(np.median(vals)) if vals else math.nan
         _tube_cells(row, done)
         lat = [x for t in done for x in (t.get("timings") or {}).get("replan_latencies_s", [])]
         row["replan_latency_median_s"] = float(np.median(lat)) if lat else math.nan
@@ -109,7 +116,7 @@ def _tube_cells(row: dict, done: list[dict]) -> None:
         row.update({f"tube_{key}_rate": rate, f"tube_{key}_lo": lo, f"tube_{key}_hi": hi,
                     f"tube_{key}_trial_sd": float(per.std(ddof=1)) if len(per) > 1 else math.nan,
                     f"tube_{key}_min_trial": float(per.min()) if len(per) else math.nan})
-    cert = [_m(t, "tube_certified_clearance_m") for t in with_tube]
+    cert = [c for c in (_m(t, "tube_certified_clearance_m") for t in with_tube) if c is not None]
     sat = [_m(t, "tube_saturation_probability") for t in with_tube]
     row["tube_certified_clearance_median_m"] = float(np.median(cert)) if cert else math.nan
     row["tube_saturation_median"] = float(np.median(sat)) if sat else math.nan
@@ -120,7 +127,9 @@ def trials_csv(trials: list[dict]) -> str:
             "final_position_error_m", "final_heading_error_rad", "replans", "discovered", "rms_error_norm",
             "max_error_norm", "rms_position_error_m", "max_position_error_m", "duration_s", "e0_norm", "p_m", "p_M",
             "rate_bound", "rate_bound_printed", "tube_certified_clearance_m", "tube_saturation_probability",
-            "tube_max_position_radius_m", "tube_samples", "tube_inside", "tube_inside_state"]
+            "tube_max_position_radius_m", "tube_samples", "tube_inside", "tube_inside_state",
+            "jackknife", "max_abs_hitch_angle_rad", "final_trailer_position_error_m",
+            "final_trailer_heading_error_rad"]
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["id", "cell", "trial", "seed", "map", "robot", "controller", "window", "alpha", "delta", "gamma",
@@ -421,6 +430,18 @@ def _fmt(v, digits=3):
     return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{digits}g}"
 
 
+TRAILER_NOTE = ("Cars with trailers: a jackknife (a hitch angle beyond the jackknife limit) ends a trial as a "
+                "collision of the rig with itself and is counted in the collision rate above too; the hitch angle "
+                "is the largest |theta_(i-1) - theta_i| of the trial, the final error the last trailer's axle's.")
+
+
+def _trailer_table(rows):
+    """The trailer columns of the cells whose trials carry them (header, rows)."""
+    header = ["cell", "jackknife", "median max hitch angle [rad]", "median final trailer error [m]"]
+    return header, [[_label(r), _fmt_rate(r, "jackknife"), _fmt(r["max_abs_hitch_angle_rad_median"]),
+                     _fmt(r["final_trailer_position_error_m_median"])] for r in rows if "jackknife_rate" in r]
+
+
 def write_report(store_path, out_dir=None) -> list[Path]:
     """Write report.html, report.md, trials.csv and figures/*.png next to the store (or in out_dir)."""
     from ..errors import InputError
@@ -547,6 +568,11 @@ def _write_report(out, db, trials, config, vers, rows, figs, runs=()) -> None:
     md = [f"# {title}", "", intro, "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     md += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in table_rows]
     md.append("")
+    trailer_header, trailer_rows = _trailer_table(rows)
+    if trailer_rows:
+        md += [TRAILER_NOTE, "", "| " + " | ".join(trailer_header) + " |", "|" + "---|" * len(trailer_header)]
+        md += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in trailer_rows]
+        md.append("")
     paired = paired_outcomes(trials)
     paired_header = ["map / noise", "controller", "reached where the reference reached", "collisions"]
     paired_rows = [[f"{r['map']} / noise {r['noise']:g}", r["controller"],
@@ -587,6 +613,11 @@ def _write_report(out, db, trials, config, vers, rows, figs, runs=()) -> None:
          "<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in header) + "</tr>"]
     h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in table_rows]
     h.append("</table>")
+    if trailer_rows:
+        h += [f"<p>{html.escape(TRAILER_NOTE)}</p>",
+              "<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in trailer_header) + "</tr>"]
+        h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in trailer_rows]
+        h.append("</table>")
     if paired:
         h.append(f"<p><b>Same seeds, against the reference ({html.escape(paired[0]['reference'])}).</b> On the seeds "
                  "where the reference reached the goal, how often each other controller did too; and its collisions "

@@ -186,6 +186,13 @@ def _run(spec: dict, bundle=None) -> dict:
                 tau = lg["t"][:last:step] - first.t_start
                 series["bound"] = schedule.error_bound(e0, np.clip(tau, schedule.t[0], schedule.t[-1])).tolist()
     timings = {"run_wall_s": result.wall_time_s, "replan_latencies_s": s["timing"]["replan_latencies_s"]}
+    if rob.trailers:        # a car with trailers: the docked trailer's errors, the hitch, jackknifes
+        fe = s["final_error"] or {}
+        metrics.update({
+            "final_trailer_position_error_m": (fe.get("trailer_position_m") or [None])[-1],
+            "final_trailer_heading_error_rad": (fe.get("trailer_heading_rad") or [None])[-1],
+            "max_abs_hitch_angle_rad": max(s["clearance"].get("max_abs_hitch_angle_rad") or [float("nan")]),
+            "jackknife": bool(result.collision and result.collision.get("kind") == "jackknife")})
     metrics["robot_spec"] = rob.spec()          # the robot as used, in the store
     return {"status": result.status, "metrics": metrics, "series": series, "timings": timings,
             "error": None if result.status != "numerical_failure" else result.message}

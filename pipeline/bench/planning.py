@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -22,6 +23,9 @@ SCALE_TARGETS = {"unicycle": (0.99, 1.0), "rwd_car": (0.95, 3.0)}
 EXPONENT_MAX = 1.2
 LENGTH_RATIO_MAX = 1.15
 VALIDITY_US_MAX = 2.0
+#: issue 13 item 3: the outputs after the nominal (residual, figure, files) within this share of a plan
+DIAGNOSTICS_SHARE_MAX = 0.10
+DIAGNOSTICS_PROBLEMS = 3
 #: the planning margin of the scale series [m] (the built-in robots' own margins are for noisy runs)
 SCALE_MARGIN_M = 0.1
 
@@ -151,6 +155,7 @@ def scale_series(robot: str, longest_buckets: int = 4, per_bucket: int = 10, spr
                 row["length_ratio"] = r.path.length / row["grid_shortest_m"]
         out.append(row)
     ok = [r for r in out if r["within_budget"]]
+    diagnostics = _diagnostics_cost(m, rob, world, ok, DIAGNOSTICS_PROBLEMS) if robot == "unicycle" else None
     attempted = len(out)
     rate = len(ok) / attempted if attempted else 0.0
     times = np.array([r["time_s"] for r in ok])
@@ -163,6 +168,8 @@ def scale_series(robot: str, longest_buckets: int = 4, per_bucket: int = 10, spr
     met = {"success": bool(rate >= success_min), "median": bool(median is not None and median < median_max),
            "exponent": bool(exponent is not None and exponent <= EXPONENT_MAX),
            "validity check": bool(per_state and float(np.median(per_state)) <= VALIDITY_US_MAX)}
+    if diagnostics is not None:
+        met["diagnostics share"] = bool(diagnostics["median_share"] < DIAGNOSTICS_SHARE_MAX)
     if robot == "unicycle":
         met["length ratio"] = bool(ratios and float(np.median(ratios)) <= LENGTH_RATIO_MAX)
     return {"robot": robot, "map": f"movingai/{name}", "cell_size_m": cell, "cell_size_why": why,
@@ -175,7 +182,50 @@ def scale_series(robot: str, longest_buckets: int = 4, per_bucket: int = 10, spr
             "validity_us_per_state_median": float(np.median(per_state)) if per_state else None,
             "fcl_fraction_median": float(np.median([r["fcl_fraction"] for r in out if r.get("fcl_fraction") is not None]))
             if out else None,
-            "margin_m": SCALE_MARGIN_M, "met": met}
+            "margin_m": SCALE_MARGIN_M, "diagnostics": diagnostics, "met": met}
+
+
+def _diagnostics_cost(m, rob, world, ok_rows: list[dict], count: int) -> dict | None:
+    """On the ``count`` longest nominals of the series: the time ``nhstab plan`` spends after the nominal
+    and its gains are ready (:func:`nhstab.execution.outputs.write_plan`: the feasibility residual in
+    plan.json, plan.png, trajectory.csv and .npz, written to a temporary folder) against the time to
+    the nominal (the plan timed again, same seed). Measured in this process after one warm-up write, so
+    neither includes Python's imports (matplotlib's import, about half a second, is paid once per
+    process by any figure)."""
+    import shutil
+    import tempfile
+
+    from ..execution.outputs import write_plan
+    from ..planning import PathOptions, plan
+
+    rows = sorted(ok_rows, key=lambda r: -r["duration_s"])[:count]
+    if not rows:
+        return None
+    tmp = Path(tempfile.mkdtemp(prefix="nhstab-bench-diag-"))
+    out = []
+    try:
+        for i, row in enumerate(rows):
+            p = m.problems[row["problem"]]
+            start, goal = p.start.as_array(), p.goal.as_array()
+            opts = PathOptions(time_limit_s=SCALE_SERIES[rob.name][2], seed=row["problem"], margin=SCALE_MARGIN_M)
+            t0 = time.perf_counter()
+            r = plan(m, rob, start, goal, opts, world=world)
+            planned = time.perf_counter() - t0
+            if not r.ok:
+                continue
+            if i == 0:                                   # warm-up: imports and font caches
+                write_plan(r, tmp / "warm", m, "bench", rob, start, goal, opts)
+            t1 = time.perf_counter()
+            write_plan(r, tmp / f"p{i}", m, "bench", rob, start, goal, opts)
+            written = time.perf_counter() - t1
+            out.append({"problem": row["problem"], "duration_s": r.nominal.duration, "plan_s": planned,
+                        "diagnostics_s": written, "share": written / (planned + written)})
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    if not out:
+        return None
+    shares = [o["share"] for o in out]
+    return {"problems": out, "median_share": float(np.median(shares)), "target_share_max": DIAGNOSTICS_SHARE_MAX}
 
 
 def summary_lines(p: dict) -> list[str]:
@@ -210,6 +260,13 @@ def summary_lines(p: dict) -> list[str]:
             target = f"<= {LENGTH_RATIO_MAX:g}" if "length ratio" in s["met"] else "-"
             lines.append(f"| planning | {head}: median path length / guide's grid shortest path | "
                          f"{s['median_length_ratio']:.3f} | {target} | {yes.get('length ratio', '-')} |")
+        d = s.get("diagnostics")
+        if d:
+            durations = ", ".join(f"{o['duration_s']:.0f}" for o in d["problems"])
+            lines.append(f"| planning | {head}: outputs after the nominal (residual, plan.png, files) as a share of "
+                         f"the plan's time, median over the {len(d['problems'])} longest nominals ({durations} s) | "
+                         f"{100 * d['median_share']:.0f} % | < {100 * d['target_share_max']:.0f} % | "
+                         f"{'yes' if d['median_share'] < d['target_share_max'] else 'NO'} |")
         if s["validity_us_per_state_median"] is not None:
             lines.append(f"| planning | {head}: validity check per state (median; states reaching FCL: "
                          f"{100 * s['fcl_fraction_median']:.1f} %) | {s['validity_us_per_state_median']:.2f} us | "

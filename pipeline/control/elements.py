@@ -17,7 +17,7 @@ import numpy as np
 from scipy.integrate import DOP853
 
 from ..nominal import Nominal
-from .windows import Segments
+from .windows import Segments, transposed
 
 _A = np.asarray(DOP853.A, dtype=float)[: DOP853.n_stages, : DOP853.n_stages]
 _B = np.asarray(DOP853.B, dtype=float)
@@ -26,8 +26,11 @@ _STAGES = DOP853.n_stages
 # the strictly lower triangle of the tableau, row by row: row i holds a_i0 .. a_i(i-1)
 _A_LOWER = np.concatenate([_A[i, :i] for i in range(_STAGES)])
 _PAIR_START = np.concatenate([[0], np.cumsum(np.arange(_STAGES))]).astype(int)
-#: intervals integrated at once (bounds the memory of the stage arrays)
-CHUNK = 8192
+#: intervals integrated at once: bounds the memory of the stage arrays, and keeps them in the CPU's
+#: cache (the twelve stages reuse them; 512 intervals of a 4-state model are about 1 MB, and run 2.5x
+#: faster per interval than 8192 on our machine). Every interval is integrated on its own, so the
+#: result does not depend on the chunk.
+CHUNK = 512
 
 
 def interval_segments(nominal: Nominal, starts: np.ndarray, length: float | np.ndarray,
@@ -90,7 +93,7 @@ def _dop853(A_all: np.ndarray, B_all: np.ndarray, weights: np.ndarray, h: np.nda
             kX[i] = -(Xi @ A_all[:, col])
             if _B[i] != 0.0:
                 XB = Xi @ B_all[:, col]
-                dW += (_B[i] * weights[:, col])[:, None, None] * (XB @ np.swapaxes(XB, -1, -2))
+                dW += (_B[i] * weights[:, col])[:, None, None] * (XB @ transposed(XB))
         X = X + h[:, None, None] * np.tensordot(_B, kX, axes=1)
         W = W + h[:, None, None] * dW
     W = 0.5 * (W + np.swapaxes(W, -1, -2))
@@ -102,5 +105,5 @@ def to_end_anchored(seg: Segments, c: float) -> Segments:
     P = Phi(end, start) and W with weight exp(c (end - tau)). Used for past windows."""
     F = np.linalg.inv(seg.P)
     scale = np.exp(c * seg.d)[:, None, None]
-    W = scale * (F @ seg.W @ np.swapaxes(F, -1, -2))
+    W = scale * (F @ seg.W @ transposed(F))
     return Segments(F, 0.5 * (W + np.swapaxes(W, -1, -2)), seg.d.copy())

@@ -84,7 +84,7 @@ from ..nominal import Nominal
 from .elements import interval_segments, to_end_anchored
 from .frozen import MAX_GAIN, frozen_time_schedule
 from .interpolant import GridInterpolant
-from .windows import Segments, combine, exclusive_prefix, scan, sliding
+from .windows import Segments, combine, exclusive_prefix, scan, sliding, transposed
 
 WINDOWS = ("future", "past", "frozen-time")
 END_STRATEGIES = ("frozen", "extend")
@@ -237,8 +237,7 @@ class GainSchedule:
         p_m = float(np.min(1.0 / lam[:, -1]))
         p_M = float(np.max(1.0 / lam[:, 0]))
         k_min = int(np.argmin(lam[:, 0]))
-        gain_norms = np.linalg.norm(self.K[sel], ord=2, axis=(1, 2))
-        k_gain = int(np.argmax(gain_norms))
+        k_gain, max_gain = _largest_norm(self.K[sel])
         alpha, window = float(self.options.alpha), self.options.window
         intervals = sel[:-1] if sel.size > 1 else np.clip(sel, 0, len(self.t) - 2)   # grid intervals in the span
         rates = self.lyapunov_rates()[intervals]
@@ -250,7 +249,7 @@ class GainSchedule:
             "lyapunov_rate_min": float(np.min(rates)), "lyapunov_rate_mean": float(np.mean(rates)),
             "h_min_eigenvalue": float(lam[k_min, 0]), "h_min_eigenvalue_time_s": float(self.t[sel][k_min]),
             "h_max_eigenvalue": float(lam[:, -1].max()),
-            "max_gain_norm": float(gain_norms[k_gain]), "max_gain_norm_time_s": float(self.t[sel][k_gain]),
+            "max_gain_norm": max_gain, "max_gain_norm_time_s": float(self.t[sel][k_gain]),
         }
 
     def lyapunov_rates(self) -> np.ndarray:
@@ -270,17 +269,18 @@ class GainSchedule:
         nom = self.nominal
         A, B = nom.model.linearize(nom.x, nom.u)
         dP = np.diff(self.P, axis=0) / self.h
+        # per grid point, once: the part of M without dP/dt, and P^-1/2 as the inverse Cholesky factor
+        P = self.P
+        PB = P @ B
+        Q = np.swapaxes(A, -1, -2) @ P + P @ A - 2.0 * self.gamma[:, None, None] * (PB @ transposed(PB))
+        Li = np.linalg.inv(np.linalg.cholesky(P))
+        LiT = np.swapaxes(Li, -1, -2)
 
-        def rate(idx, dPk):
-            P, Ak, Bk = self.P[idx], A[idx], B[idx]
-            PB = P @ Bk
-            M = np.swapaxes(Ak, -1, -2) @ P + P @ Ak + dPk - 2.0 * self.gamma[idx, None, None] * (PB @ np.swapaxes(PB, -1, -2))
-            Li = np.linalg.inv(np.linalg.cholesky(P))
-            S = Li @ M @ np.swapaxes(Li, -1, -2)
+        def rate(idx):
+            S = Li[idx] @ (Q[idx] + dP) @ LiT[idx]
             return -np.linalg.eigvalsh(0.5 * (S + np.swapaxes(S, -1, -2)))[:, -1]
 
-        k = np.arange(len(self.t) - 1)
-        r = 0.5 * (rate(k, dP) + rate(k + 1, dP))
+        r = 0.5 * (rate(slice(None, -1)) + rate(slice(1, None)))
         self.__dict__["_lyapunov_rates"] = r
         return r
 
@@ -339,12 +339,32 @@ class GainSchedule:
         return u0 - self.gain_at(tau) @ e
 
 
+def _largest_norm(K: np.ndarray) -> tuple[int, float]:
+    """The (first) index and the value of the largest spectral norm among matrices K (N, m, n): the
+    same as the argmax of ``np.linalg.norm(K, ord=2, axis=(1, 2))``, with an SVD only for the matrices
+    that can hold it: ||K||_2 <= ||K||_F, and ||K||_2 >= ||K||_F / sqrt(rank), so a matrix whose
+    Frobenius norm is below the largest one's / sqrt(min(m, n)) is not the largest (a relative
+    allowance of 1e-9 covers rounding)."""
+    fro = np.sqrt(np.einsum("kij,kij->k", K, K))
+    top = fro.max()
+    keep = np.flatnonzero(fro >= top / math.sqrt(min(K.shape[1:])) * (1.0 - 1e-9)) if np.isfinite(top) \
+        else np.arange(len(K))          # a non-finite gain: every matrix goes to the SVD, as before
+    norms = np.linalg.norm(K[keep], ord=2, axis=(1, 2))
+    k = int(np.argmax(norms))
+    return int(keep[k]), float(norms[k])
+
+
 def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None, **overrides) -> GainSchedule:
     """Gain schedule of the gramian stabilizer along ``nominal``.
 
     Raises :class:`SingularGramianError` (naming the time and the smallest eigenvalue) where the
     window gramian is singular, and :class:`InputError` for bad options or a trajectory shorter
     than delta.
+
+    A nominal with a ``tail`` (:class:`~nhstab.nominal.Nominal`: a feasible continuation past its
+    end) and a future window: the schedule is computed on the nominal continued by its tail over
+    delta, on the same grid step, and kept on the nominal's own grid, so that every window inside it
+    is whole and the end strategy never applies there.
     """
     if not isinstance(nominal, Nominal):
         raise InputError("nominal", "a Nominal (nhstab.Nominal.from_samples, or a plan's nominal)",
@@ -358,6 +378,9 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
     opts = options.validated()
     if opts.window == "past":
         warnings.warn(PAST_WINDOW_WARNING, NotStabilizingWarning, stacklevel=2)
+    tail = getattr(nominal, "tail", None)
+    if tail is not None and opts.window == "future":
+        return _with_tail(nominal, tail, opts)
     nom = nominal if nominal.is_uniform() else nominal.resampled(len(nominal.t))
     model = nom.model
     n = model.n
@@ -424,7 +447,7 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
         k = int(np.argmax(bad))
         rank = int(np.sum(lam[k] > thresholds[k]))
         raise SingularGramianError(t[k], lam[k, 0], rank, n, thresholds[k], opts.window)
-    P = (V / lam[:, None, :]) @ np.swapaxes(V, -1, -2)
+    P = (V / lam[:, None, :]) @ transposed(V)
     P = 0.5 * (P + np.swapaxes(P, -1, -2))
     B = model.g(nom.x)
     K = gamma[:, None, None] * (np.swapaxes(B, -1, -2) @ P)
@@ -442,6 +465,37 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
     if frozen_info is not None:
         schedule.diagnostics["frozen_time"] = frozen_info
     schedule.diagnostics.update(schedule.diagnose())
+    return schedule
+
+
+def _with_tail(nominal: Nominal, tail: Nominal, opts: StabilizerOptions) -> GainSchedule:
+    """The future-window schedule of ``nominal`` computed on it continued by ``tail`` (over delta, or
+    all of the tail if shorter), restricted to the nominal's grid."""
+    nom = nominal if nominal.is_uniform() else nominal.resampled(len(nominal.t))
+    h = float(nom.t[1] - nom.t[0])
+    T = float(nom.t[-1])
+    extra = int(math.ceil(min(float(opts.delta), float(tail.t[-1] - tail.t[0])) / h - 1e-9))
+    if extra < 1:
+        return compute_schedule(nom, opts)
+    t_ext = np.concatenate([nom.t, T + h * np.arange(1, extra + 1)])
+    t_ext[-1] = min(t_ext[-1], T + float(tail.t[-1] - tail.t[0]))
+    shift = float(tail.t[0]) - T
+
+    def x_func(tau):
+        tau = np.asarray(tau, dtype=float)
+        return np.where((tau <= T)[..., None], nom.at(np.minimum(tau, T))[0], tail.at(np.maximum(tau, T) + shift)[0])
+
+    def u_func(tau):
+        tau = np.asarray(tau, dtype=float)
+        return np.where((tau <= T)[..., None], nom.at(np.minimum(tau, T))[1], tail.at(np.maximum(tau, T) + shift)[1])
+
+    joined = Nominal.from_functions(nom.model, x_func, u_func, t_ext)
+    full = compute_schedule(joined, opts)
+    N = len(nom.t)
+    schedule = GainSchedule(t=nom.t.copy(), H=full.H[:N], P=full.P[:N], K=full.K[:N],
+                            H_eigenvalues=full.H_eigenvalues[:N], gamma=full.gamma[:N], options=opts, nominal=nom)
+    schedule.diagnostics = {**full.diagnostics, "grid_points": N, "duration_s": T,
+                            "tail_s": float(t_ext[-1] - T), **schedule.diagnose()}
     return schedule
 
 
@@ -595,7 +649,7 @@ def _carry(G: np.ndarray, Phi_back: np.ndarray, scale: float = 1.0) -> np.ndarra
     """Carry a gramian G given at time a along the linearised flow to times t:
     scale * Phi(t, a) G Phi(t, a)^T, given Phi_back = Phi(a, t)."""
     F = np.linalg.inv(Phi_back)
-    return scale * (F @ G @ np.swapaxes(F, -1, -2))
+    return scale * (F @ G @ transposed(F))
 
 
 def _frozen_end(nom: Nominal, E: Segments, n_full: int, delta: float, cw: float, substeps: int) -> np.ndarray:

@@ -62,6 +62,7 @@ from scipy.special import ndtr, owens_t
 
 from ..errors import InputError, NumericalError
 from ..models import Model
+from .windows import transposed
 
 
 @dataclass
@@ -171,7 +172,7 @@ def _block_scan(A: np.ndarray, M: np.ndarray, b: np.ndarray, S0: np.ndarray, m0:
         starts_S[i + 1] = P[i, L] @ starts_S[i] @ P[i, L].T + C[i, L]
         starts_m[i + 1] = P[i, L] @ starts_m[i] + c[i, L]
     Pj = P[:, :L]
-    S = Pj @ starts_S[:B, None] @ np.swapaxes(Pj, -1, -2) + C[:, :L]
+    S = Pj @ starts_S[:B, None] @ transposed(Pj) + C[:, :L]
     mvec = np.einsum("blij,bj->bli", Pj, starts_m[:B]) + c[:, :L]
     # padded steps are the identity map, so the value after step N is the one at index N
     S = np.concatenate([S.reshape(B * L, n, n), starts_S[B:]])[:N + 1]
@@ -219,7 +220,7 @@ def propagate(model: Model, t: np.ndarray, x0: np.ndarray, u_ff: np.ndarray, K: 
         raise NumericalError(f"the linearised closed loop diverges: the error covariance is unbounded from "
                              f"t = {float(np.asarray(t)[k]):.3g} s (the gains destabilise the sampled loop)")
     u_mean = u_ff - np.einsum("kij,kj->ki", K, mean[:-1])
-    u_cov = K @ (cov[:-1] + np.diag(R)[None]) @ np.swapaxes(K, -1, -2)
+    u_cov = K @ (cov[:-1] + np.diag(R)[None]) @ transposed(K)
     return CovariancePropagation(np.asarray(t, dtype=float), mean, cov, u_mean, u_cov, A, G, Phi, Gamma, drift,
                                  R, Q)
 

@@ -9,8 +9,8 @@ was given. The format::
     robot: rwd_car                    # a model name, or a robot description (default: the map's):
                                       #   {model: rwd_car, wheelbase: 2.7, footprint: {...}, margin: 0.1, ...}
                                       #   (see nhstab.robot)
-    start: [x, y, theta]              # default: the map's
-    goal: [x, y, theta]
+    start: [x, y, theta]              # default: the map's (car_trailer: [x, y, theta, theta1, ...] gives the
+    goal: [x, y, theta]               #   trailers' headings; three numbers put them in line with the car)
     seed: 0                           # root seed: initial error, sensor and process noise, planner
     rate_hz: 50                       # controller rate (zero-order hold)
     substeps: 4                       # RK4 steps of the plant per control period
@@ -51,12 +51,15 @@ from ..errors import InputError
 from ..sensing import SensorOptions
 from .controllers import ControllerOptions
 
-#: default noise per state name: initial error std, sensor std, process intensity [unit/sqrt(s)]
+#: default noise per state name: initial error std, sensor std, process intensity [unit/sqrt(s)]; a
+#: trailer's heading theta1 .. theta8 (car_trailer) as the car's heading
 DEFAULT_NOISE = {
     "initial": {"x": 0.10, "y": 0.10, "theta": 0.05, "phi": 0.0},
     "sensor": {"x": 0.02, "y": 0.02, "theta": 0.01, "phi": 0.005},
     "process": {"x": 0.02, "y": 0.02, "theta": 0.01, "phi": 0.0},
 }
+for _kind in DEFAULT_NOISE.values():
+    _kind.update({f"theta{_i}": _kind["theta"] for _i in range(1, 9)})
 DISTRIBUTIONS = ("gaussian", "uniform")
 
 
@@ -282,8 +285,9 @@ _TOP = {f.name for f in fields(RunOptions)} | {"map"}
 
 
 def check_pose(key: str, v):
-    if not (isinstance(v, (list, tuple)) and len(v) == 3):
-        raise InputError(key, "[x, y, theta] (three numbers)", v)
+    """[x, y, theta], or for a car with trailers [x, y, theta, theta1, ...] (the robot checks the length)."""
+    if not (isinstance(v, (list, tuple)) and 3 <= len(v) <= 12):
+        raise InputError(key, "[x, y, theta] (three numbers; a car with trailers may add their headings)", v)
     return tuple(check_number(f"{key}[{i}]", c) for i, c in enumerate(v))
 
 

@@ -180,7 +180,26 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
 
     poses = lg["x"][:, pose_columns(model)]
     clearance = {}
-    if len(poses):
+    robot = result.robot if result.robot is not None else make_robot(model, footprint=result.footprint)
+    if len(poses) and len(robot.footprints) > 1:
+        from .. import bodies
+
+        truth = result.world if result.world is not None else CollisionWorld.from_map(result.map, "all")
+        c_min, i_min, b_min = bodies.min_clearance(truth, robot, lg["x"])
+        margin = result.options.planning.margin
+        if margin == "auto":           # the first plan's margin, as chosen by its tube
+            margin = result.plans[0].margin if result.plans else 0.0
+        free = bodies.free_many(truth, robot, lg["x"], margin)
+        hitch = model.hitch_angles(lg["x"])
+        clearance = {"min_executed_m": c_min, "time_s": float(lg["t"][i_min]), "pose": poses[i_min],
+                     "body": "car" if b_min == 0 else f"trailer {b_min}",
+                     "body_pose": robot.body_poses(lg["x"][i_min])[b_min],
+                     "margin_m": margin, "samples_below_margin": int((~free).sum()), "samples": len(poses),
+                     "max_abs_hitch_angle_rad": np.abs(hitch).max(axis=0).tolist(),
+                     "jackknife_limit_rad": float(model.jackknife_limit),
+                     "note": "signed clearance of every body's footprint (the car and each trailer) at every control "
+                             "sample to known and unknown obstacles; the smallest over the bodies"}
+    elif len(poses):
         truth = result.world if result.world is not None else CollisionWorld.from_map(result.map, "all")
         c_min, i_min = truth.min_clearance(poses, result.footprint)
         margin = result.options.planning.margin
@@ -199,13 +218,15 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
                   "saturated_fraction": float(np.mean(np.any(
                       np.isclose(np.abs(lg["u"]), model.input_limits()[:, 1], rtol=0, atol=1e-12), axis=1)))}
     plans, timings = zip(*(_plan_entry(p, result) for p in result.plans)) if result.plans else ((), ())
-    robot = result.robot if result.robot is not None else make_robot(model, footprint=result.footprint)
     opts = dataclasses.asdict(dataclasses.replace(result.options, robot=None))
     opts["robot"] = robot.spec()
     return {
         "status": result.status, "message": result.message,
         "inputs": {"map": map_path, "map_name": result.map.name, "robot": robot.describe(),
-                   "footprint": result.footprint.describe(), "start": result.start, "goal": result.goal,
+                   "footprint": result.footprint.describe(),
+                   **({"trailer_footprints": [f.describe() for f in robot.trailer_footprints]}
+                      if robot.trailer_footprints else {}),
+                   "start": result.start, "goal": result.goal,
                    "options": opts, "noise": result.options.noise.describe(model.state_names),
                    "controller": result.options.controller.describe(model.n, model.m, robot.stabilizer),
                    "nhstab_version": __version__},
@@ -303,16 +324,17 @@ def write_plan(result, out_dir, m, map_label: str, robot, start, goal, path_opti
         write_trajectory(out.path("trajectory.npz"), nom)
         if figures:
             from ..report.plans import plan_figure
+            from ..tubes import certified_text
 
             met = result.metrics
             cusps = met["cusps"]
             title = (f"{m.name}: {model.name}, {met['length_m']:.1f} m, {cusps} cusp{'' if cusps == 1 else 's'}, "
                      f"min clearance {met['min_clearance_m']:.2f} m")
             if tube is not None:
-                title += (f"\n{tube.probability:g}-tube: reach up to {tube.reach.max():.2f} m, certified clearance "
-                          f"{tube.certified_clearance:+.3f} m")
+                title += f"\n{tube.probability:g}-tube: reach up to {tube.reach.max():.2f} m, {certified_text(tube)}"
             fig = plan_figure(m, nom.x[:, pose_columns(model)],
-                              np.sign(nom.u[:, 0]), footprint, start, goal, title=title, tube=tube)
+                              np.sign(nom.u[:, 0]), footprint, start, goal, title=title, tube=tube,
+                              robot=robot, states=nom.x)
             out.save_figure(fig, "plan.png")
         if tube is not None:
             out.write_npz("tube.npz", t=tube.t, poses=tube.poses, mean=tube.mean, cov=tube.cov,

@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import bodies
 from ..collision import CollisionWorld, interpolate_poses
 from ..errors import InputError, NumericalError, PipelineError
 from ..geometry import Footprint, wrap_angle
@@ -192,11 +193,21 @@ class CompositeRun:
         self.opts = opts
         self.start = np.asarray(start, dtype=float)
         self.goal = np.asarray(goal, dtype=float)
+        #: the planning configuration of the start (x, y, theta, and a car_trailer's trailer headings)
+        self._start_configuration = robot.configuration(self.start, "start")
+        if robot.trailers:
+            self.goal = robot.configuration(self.goal, "goal")
         self.T = 1.0 / opts.rate_hz
         self.plant = Plant(model, self.T, opts.substeps)
         self.plan_model = derated(model, opts.headroom) if opts.headroom < 1.0 else model
         self.plan_robot = robot.with_model(self.plan_model)
         self.pose_idx = pose_columns(model)
+        #: a robot of several bodies (a car with trailers): every body is checked, the hitch angles too
+        self.multibody = len(robot.footprints) > 1
+        if self.multibody and opts.planning.margin == "auto":
+            from ..tubes import SEVERAL_BODIES
+
+            raise InputError("planning.margin", SEVERAL_BODIES, "auto")
         self.known = CollisionWorld.from_map(m, "known")
         self.truth = CollisionWorld.from_map(m, "all")
         self.robot_world = self.known
@@ -241,7 +252,7 @@ class CompositeRun:
         clearance = math.inf
         if self.plans:
             # the robot may have come closer to an obstacle than the margin before it saw it
-            clearance = self.robot_world.clearance(start_pose, self.fp)
+            clearance = self._clearance(self.robot_world, start_pose)
             if 0 < clearance <= margin:
                 margin = 0.5 * clearance
                 attempt.update(margin=margin, margin_reduced_from=attempt["margin"], start_clearance_m=clearance)
@@ -308,7 +319,9 @@ class CompositeRun:
             initial = np.diag(self.opts.noise.vector("sensor", names) ** 2
                               + self.opts.noise.vector("process", names) ** 2 * self.opts.replan.pause_s)
         try:
-            return predict_tube(law, self.opts.noise, self.fp, self.robot_world if world else None,
+            # a robot of several bodies: the tube is not certified (it would certify the car's body only)
+            certify = world and not self.multibody
+            return predict_tube(law, self.opts.noise, self.fp, self.robot_world if certify else None,
                                 rate_hz=self.opts.rate_hz, substeps=self.opts.substeps, model=self.model,
                                 initial_cov=initial, impulses=not self.plans)
         except NumericalError:
@@ -346,9 +359,35 @@ class CompositeRun:
 
     def _check_collision(self, x, t):
         pose = x[self.pose_idx]
-        if self.truth.in_collision(pose, self.fp):
-            self.collision = {"time_s": t, "pose": pose.tolist()}
-            raise _Stop("collision", f"collision at t = {t:.2f} s at pose {np.round(pose, 3).tolist()}")
+        if not self.multibody:
+            if self.truth.in_collision(pose, self.fp):
+                self.collision = {"time_s": t, "pose": pose.tolist()}
+                raise _Stop("collision", f"collision at t = {t:.2f} s at pose {np.round(pose, 3).tolist()}")
+            return
+        # a jackknife (a hitch angle beyond the limit) is a collision of the rig with itself
+        hitch = self.model.hitch_angles(x)
+        over = np.flatnonzero(np.abs(hitch) > self.model.jackknife_limit)
+        if len(over):
+            i = int(over[0])
+            self.collision = {"time_s": t, "pose": pose.tolist(), "kind": "jackknife", "body": i + 1,
+                              "hitch_angle_rad": float(hitch[i])}
+            raise _Stop("collision", f"jackknife at t = {t:.2f} s: hitch angle {i + 1} is {hitch[i]:.3f} rad, beyond "
+                                     f"the limit {self.model.jackknife_limit:g} rad (pose {np.round(pose, 3).tolist()})")
+        b = bodies.collides(self.truth, self.robot, x)
+        if b is not None:
+            where = self.robot.body_poses(x)[b]
+            self.collision = {"time_s": t, "pose": pose.tolist(), "kind": "obstacle", "body": b,
+                              "body_pose": where.tolist()}
+            name = "the car" if b == 0 else f"trailer {b}"
+            raise _Stop("collision", f"collision of {name} at t = {t:.2f} s at pose {np.round(where, 3).tolist()}")
+
+    def _clearance(self, world: CollisionWorld, config) -> float:
+        """The robot's clearance at a planning configuration (the smallest over its bodies)."""
+        if not self.multibody:
+            return world.clearance(config[:3], self.fp)
+        x = np.zeros(self.model.n)
+        x[self.robot.configuration_columns] = config
+        return bodies.clearance(world, self.robot, x)[0]
 
     def _sense(self, x, t):
         scan = self.sensor.scan(x[self.pose_idx])
@@ -374,6 +413,8 @@ class CompositeRun:
             return None
         nom = rec.nominal
         i0, i1 = np.searchsorted(nom.t, [tau, tau + self.opts.monitor.horizon_s])
+        if self.multibody:          # every body, at the plan's margin (a tube covers one body only)
+            return self._conflict_bodies(rec, nom.x[max(i0 - 1, 0):i1 + 1])
         lo = max(i0 - 1, 0)
         poses = nom.x[lo:i1 + 1][:, self.pose_idx]
         t_from = t_to = nom.t[lo:i1 + 1]             # the nominal's times at each pose (a span when interpolated)
@@ -403,6 +444,22 @@ class CompositeRun:
                         "margin_m": rec.margin}
         return None
 
+    def _conflict_bodies(self, rec: PlanRecord, states: np.ndarray) -> dict | None:
+        """:meth:`_conflict` for a robot of several bodies: every body's poses along the states
+        (interpolated so that no body moves more than 5 cm between samples)."""
+        states = bodies.interpolate_states(self.robot, states, 0.05, 0.05)
+        poses = self.robot.body_poses(states)
+        for b, fp in enumerate(self.robot.footprints):
+            reach = fp.bounding_radius + rec.margin
+            near = np.zeros(len(states), dtype=bool)
+            for centre, radius in self.discovered_discs:
+                near |= np.hypot(poses[:, b, 0] - centre[0], poses[:, b, 1] - centre[1]) <= radius + reach
+            for k in np.flatnonzero(near):
+                if not self.discovered_world.is_free(poses[k, b], fp, rec.margin):
+                    return {"pose": states[k][self.pose_idx].tolist(), "body": b, "body_pose": poses[k, b].tolist(),
+                            "clearance_m": self.discovered_world.clearance(poses[k, b], fp), "margin_m": rec.margin}
+        return None
+
     def run(self) -> tuple[str, str]:
         opts, model = self.opts, self.model
         every_sense = max(1, round(opts.rate_hz / opts.sensor.rate_hz))
@@ -411,12 +468,12 @@ class CompositeRun:
         # robot has not moved yet
         attempts = []
         while True:
-            attempt, result, law, margin, tube = self._plan_once(self.start[:3], len(attempts))
+            attempt, result, law, margin, tube = self._plan_once(self._start_configuration, len(attempts))
             attempts.append(attempt)
             if law is not None or len(attempts) >= opts.replan.max_attempts:
                 break
-        first = PlanRecord(0, "initial", 0.0, 0.0, self.start[:3].copy(), attempt["seed"], margin, attempts,
-                           result, law, tube=tube)
+        first = PlanRecord(0, "initial", 0.0, 0.0, self._start_configuration.copy(), attempt["seed"], margin,
+                           attempts, result, law, tube=tube)
         self.plans.append(first)
         if law is None:
             raise _Stop("no_plan", f"no first plan in {len(attempts)} attempt{'s' if len(attempts) > 1 else ''} "
@@ -498,7 +555,7 @@ class CompositeRun:
         every_sense = max(1, round(self.opts.rate_hz / self.opts.sensor.rate_hz))
         while True:
             y = self._measure(x)
-            start_pose = y[self.pose_idx]
+            start_pose = y[self.robot.configuration_columns] if self.multibody else y[self.pose_idx]
             attempt, result, law, margin, tube = self._plan_once(start_pose, len(attempts))
             attempts.append(attempt)
             # the robot stands still for the pause (sensing goes on)
@@ -524,16 +581,35 @@ class CompositeRun:
                                              f"(last: {attempt['status']}: {attempt['message']})")
 
     def _final(self, x) -> tuple[str, str]:
-        pose = x[self.pose_idx]
-        pos_err = float(np.hypot(*(pose[:2] - self.goal[:2])))
-        head_err = float(abs(wrap_angle(pose[2] - self.goal[2])))
-        self.final_errors = {"position_m": pos_err, "heading_rad": head_err}
+        self.final_errors = final_errors(self.robot, x, self.goal)
+        pos_err, head_err = self.final_errors["position_m"], self.final_errors["heading_rad"]
         tol = self.opts.tolerance
         text = f"position error {pos_err:.3f} m, heading error {head_err:.3f} rad"
+        if self.multibody:      # the docked body: the last trailer (its axle and heading); the car's is reported
+            pos_err = self.final_errors["trailer_position_m"][-1]
+            head_err = self.final_errors["trailer_heading_rad"][-1]
+            text = (f"trailer position error {pos_err:.3f} m, trailer heading error {head_err:.3f} rad (car: "
+                    f"{self.final_errors['position_m']:.3f} m, {self.final_errors['heading_rad']:.3f} rad)")
         if pos_err <= tol.position_m and head_err <= tol.heading_rad:
             return "reached", f"goal reached: {text}"
         return "missed_goal", (f"the last nominal ended outside the goal tolerance ({text}; tolerance "
                                f"{tol.position_m:g} m, {tol.heading_rad:g} rad)")
+
+
+def final_errors(robot: Robot, x, goal) -> dict:
+    """Position and heading errors of the state x against the goal (a pose or a configuration): the
+    robot's reference point, and for a car with trailers every trailer's axle and heading too."""
+    x = np.asarray(x, dtype=float)
+    pose = x[robot.pose_columns]
+    out = {"position_m": float(np.hypot(*(pose[:2] - np.asarray(goal[:2], dtype=float)))),
+           "heading_rad": float(abs(wrap_angle(pose[2] - goal[2])))}
+    if robot.trailers:
+        g = np.zeros(robot.model.n)
+        g[robot.configuration_columns] = robot.configuration(goal, "goal")
+        now, want = robot.body_poses(x)[1:], robot.body_poses(g)[1:]
+        out["trailer_position_m"] = [float(v) for v in np.hypot(*(now[:, :2] - want[:, :2]).T)]
+        out["trailer_heading_rad"] = [float(v) for v in np.abs(wrap_angle(now[:, 2] - want[:, 2]))]
+    return out
 
 
 def execute(m: Map, *args, **kwargs) -> RunResult:
@@ -589,9 +665,7 @@ def _execute(m: Map, robot: Robot, start, goal, opts: RunOptions) -> RunResult:
         status, message = "numerical_failure", str(exc)
     log = run.log.arrays(model.n, model.m)
     if run.final_errors is None and len(log["t"]):
-        pose = log["x"][-1][run.pose_idx]
-        run.final_errors = {"position_m": float(np.hypot(*(pose[:2] - run.goal[:2]))),
-                            "heading_rad": float(abs(wrap_angle(pose[2] - run.goal[2])))}
+        run.final_errors = final_errors(robot, log["x"][-1], run.goal)
     seeds = {"root": int(opts.seed), "planner_calls": [a["seed"] for p in run.plans for a in p.attempts],
              "streams": "numpy SeedSequence([root, stream, 0]); streams initial=0, sensor=1, process=2; "
                         "planner call i: SeedSequence([root, 3, i])"}

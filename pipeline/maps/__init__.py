@@ -193,6 +193,7 @@ def _pose_or(value, default: Pose | None, name: str):
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
         raise InputError(name, "a pose of three numbers (x, y, theta)", value) from None
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value)
+    if arr.ndim != 1 or not 3 <= arr.shape[0] <= 12 or not np.all(np.isfinite(arr)):
+        raise InputError(name, "a pose of three finite numbers (x, y, theta; a car with trailers may add their "
+                         "headings)", value)
     return arr

@@ -6,6 +6,7 @@ import dataclasses
 
 from ..errors import InputError, UnknownModelError
 from .base import Model
+from .car_trailer import CarTrailer
 from .fwd_car import FwdCar
 from .heisenberg import Heisenberg
 from .rwd_car import RwdCar
@@ -16,6 +17,7 @@ MODELS: dict[str, type[Model]] = {
     "unicycle": Unicycle,
     "fwd_car": FwdCar,
     "rwd_car": RwdCar,
+    "car_trailer": CarTrailer,
 }
 
 
@@ -33,4 +35,4 @@ def make_model(name: str, **params) -> Model:
     return cls(**params)
 
 
-__all__ = ["MODELS", "Model", "make_model", "Heisenberg", "Unicycle", "FwdCar", "RwdCar"]
+__all__ = ["MODELS", "Model", "make_model", "Heisenberg", "Unicycle", "FwdCar", "RwdCar", "CarTrailer"]

@@ -37,7 +37,7 @@ MARGIN_PAD = {"unicycle": 0.02, "rwd_car": 0.05, "fwd_car": 0.05}
 #: needs no room to stray; the search keeps this much more than the margin only so that poses between
 #: the search's checked samples and the nominal's keep the margin too
 EXACT_PAD = 0.01
-PLANNABLE = ("unicycle", "rwd_car", "fwd_car")
+PLANNABLE = ("unicycle", "rwd_car", "fwd_car", "car_trailer")
 
 
 def pose_columns(model: Model) -> list[int]:
@@ -170,8 +170,12 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
     path_opts = (path_opts or PathOptions()).for_robot(robot).validated()
     timing_opts = (timing_opts or TimingOptions()).validated()
     stab_opts = (stab_opts or StabilizerOptions(**robot.stabilizer)).validated()
-    start, goal = _pose(start, "start", model), _pose(goal, "goal", model)
     check_map_budget(m, path_opts.time_limit_s, path_opts.resolution)
+    if model.name == "car_trailer":       # the trailer's path, the rig checked (nhstab.planning.trailer)
+        from .trailer import plan_trailer
+
+        return plan_trailer(m, robot, start, goal, path_opts, timing_opts, stab_opts, check_resolution, world)
+    start, goal = _pose(start, "start", model), _pose(goal, "goal", model)
     check_start_goal(start, goal)
     if model.name != "unicycle" and path_opts.turning_radius < min_turning_radius(model) - 1e-9:
         raise InputError("turning_radius", f"at least the {model.name}'s minimum turning radius "

@@ -142,10 +142,10 @@ class _Arc:
         u = self.direction * self.body_speed * np.asarray(t, dtype=float)
         x0, y0, th0 = self.pose
         k = self.kappa
-        if abs(k) < 1e-12:
-            return x0 + u * math.cos(th0), y0 + u * math.sin(th0), np.full_like(u, th0)
-        th = th0 + k * u
-        return x0 + (np.sin(th) - math.sin(th0)) / k, y0 - (np.cos(th) - math.cos(th0)) / k, th
+        # the arc as a chord (no cancellation on nearly straight arcs; see parking.segment_poses)
+        half = 0.5 * k * u
+        chord = u * np.sinc(half / np.pi)
+        return x0 + chord * np.cos(th0 + half), y0 + chord * np.sin(th0 + half), th0 + k * u
 
     def states_at(self, t):
         t = np.asarray(t, dtype=float)
@@ -195,6 +195,8 @@ class _Joined:
                 kind = {"constant": 0, "constant_v1": 1}.get(ph.kind, ph.k)
                 rows.append([kind, ph.t0, ph.v1, ph.v2, ph.a, ph.b, ph.w, ph.v2_cos, ph.v2_sin, *ph.z_start])
         rows = np.array(rows, dtype=float)
+        self._held_table(pieces)
+        self.all_held = bool(np.all(rows[:, 0] < 0))
         self.kind = rows[:, 0].astype(int)
         self.t0, self.v1, self.v2, self.a, self.b, self.w, self.v2_cos, self.v2_sin = rows[:, 1:9].T
         self.z_start = rows[:, 9:].T                     # (4, rows)
@@ -230,6 +232,8 @@ class _Joined:
     def _table(self, tt: np.ndarray):
         j = np.clip(np.searchsorted(self.starts, tt, side="right") - 1, 0, len(self.pieces) - 1)
         local = np.clip(tt - self.starts[j], 0.0, self.lengths[j])
+        if self.all_held:             # an exact nominal: arcs and steering in place only
+            return self._held(j, local)
         row = self.first[j] + (self.bounds[j, 0] <= local) + (self.bounds[j, 1] <= local)
         kind = self.kind[row]
         tau = local - self.t0[row]
@@ -265,10 +269,57 @@ class _Joined:
         u[steer] = _car_inputs(self.name, self.L, zl, v[steer])
         if in_place.any():      # steering in place and held-steering arcs: their own closed forms
             sel = np.flatnonzero(in_place)
-            for jj in np.unique(j[sel]):
-                k = sel[j[sel] == jj]
-                x[k] = self.pieces[jj].states_at(local[k])
-                u[k] = self.pieces[jj].inputs_at(local[k])
+            x[sel], u[sel] = self._held(j[sel], local[sel])
+        return x, u
+
+    def _held_table(self, pieces: list) -> None:
+        """Per piece, the parameters of the closed forms of :class:`_Arc` and :class:`_SteerInPlace`, so
+        that :meth:`_held` evaluates all of them at once with the same operations as their
+        ``states_at`` / ``inputs_at`` (the same values, bit for bit: tests/test_fast_paths.py)."""
+        P = len(pieces)
+        self.h_arc = np.zeros(P, dtype=bool)        # an arc (else steering in place, or not held)
+        self.h_pose = np.zeros((P, 3))
+        self.h_speed = np.zeros(P)                  # direction * body speed (arc), rate (steering)
+        self.h_kappa = np.zeros(P)                  # the arc's curvature
+        self.h_phi = np.zeros(P)                    # held angle (arc), start angle (steering)
+        self.h_input = np.zeros(P)                  # direction * max speed (arc)
+        for q, p in enumerate(pieces):
+            if isinstance(p, _Arc):
+                self.h_arc[q] = True
+                self.h_pose[q] = p.pose
+                self.h_speed[q] = p.direction * p.body_speed
+                self.h_kappa[q] = p.kappa
+                self.h_phi[q], self.h_input[q] = p.phi, p.direction * p.max_speed
+            elif isinstance(p, _SteerInPlace):
+                self.h_pose[q] = p.pose
+                self.h_speed[q], self.h_phi[q] = p.rate, p.phi0
+
+    def _held(self, j: np.ndarray, local: np.ndarray):
+        """States and inputs of the pieces ``j`` (arcs or steering in place) at their local times."""
+        rwd = self.name == "rwd_car"
+        x = np.empty((len(j), self.model.n))
+        u = np.zeros((len(j), 2))
+        cx, cy, cth, cphi = (0, 1, 2, 3) if rwd else (0, 1, 3, 2)
+        x[:, cx], x[:, cy], x[:, cth] = self.h_pose[j].T
+        arc = self.h_arc[j]
+        steer = np.flatnonzero(~arc)
+        if len(steer):
+            js = j[steer]
+            x[steer, cphi] = self.h_phi[js] + self.h_speed[js] * local[steer]
+            u[steer, 1] = self.h_speed[js]
+        arcs = np.flatnonzero(arc)
+        if len(arcs):                 # _Arc._poses: the arc as a chord
+            ja = j[arcs]
+            s = self.h_speed[ja] * local[arcs]
+            x0, y0, th0 = self.h_pose[ja].T
+            k = self.h_kappa[ja]
+            half = 0.5 * k * s
+            chord = s * np.sinc(half / np.pi)
+            x[arcs, cx] = x0 + chord * np.cos(th0 + half)
+            x[arcs, cy] = y0 + chord * np.sin(th0 + half)
+            x[arcs, cth] = th0 + k * s
+            x[arcs, cphi] = self.h_phi[ja]
+            u[arcs, 0] = self.h_input[ja]
         return x, u
 
 

@@ -26,6 +26,15 @@ generators exist; each OMPL call here seeds it first and builds its planner afte
 seed gives the same plan in-process, whatever ran before (tested against a fresh process).
 ``isolate=True`` still plans in a forked child process. OMPL's own log output is switched off: the
 result carries the status.
+
+A robot of several bodies (a car towing a trailer) plans the poses of one reference body (the
+trailer's axle) with a *rig* (``plan_path(..., rig=...)``, :mod:`nhstab.planning.trailer`) that
+brings its own local planner: a pose stands for a whole state of the robot (the rig), the rig
+checks the pose (every body) and joins two poses with its own exact steering, checked with every
+body (``rig.connect``); the search (direct, guided, OMPL) is the same. OMPL checks its motions with
+``rig.connect`` too (a Python motion validator instead of its discrete one), so every motion of its
+solution is a checked piece of the rig, and the path is sampled along those pieces (``rig.densify``).
+Reeds-Shepp distances at the planning turning radius remain OMPL's metric.
 """
 
 from __future__ import annotations
@@ -156,7 +165,7 @@ def path_length(opts: PathOptions, a, b) -> float:
 
 
 def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptions,
-              isolate: bool = False, more_starts=(), more_goals=()) -> GeometricPath:
+              isolate: bool = False, more_starts=(), more_goals=(), rig=None) -> GeometricPath:
     """Plan a collision-free (by ``opts.margin``) path from start to goal; never raises for "no path".
 
     The direct local path if it is free, else the guided search (``opts.guide``), else OMPL's planner
@@ -165,6 +174,10 @@ def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptio
     path may start / end at (OMPL's multiple start states and ``GoalStates``; the guided search joins
     ``start`` and ``goal`` themselves first where they are more than ``GUIDE_LOOKAHEAD_M`` apart); the result's ``info["start_index"]`` / ``info["goal_index"]`` say which (0:
     ``start`` / ``goal``, k: the k-th further pose).
+    ``rig`` (optional): the local planner and checks of a robot of several bodies (module docstring):
+    ``rig.pose_free(x, y, theta)``, ``rig.connect(a, b, stats) -> bool``, ``rig.densify(waypoints) ->
+    (samples, sigma, direction, length)`` and ``rig.bounding_radius``; ``fp`` is then the planned body's
+    footprint (the guide's).
     """
     opts = opts.validated()
     if world.bounds is None:
@@ -172,7 +185,7 @@ def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptio
     world.clearance_field()                   # build once (in the parent, if a child plans)
     _ompl()
     if not isolate:
-        return _plan_path(world, fp, start, goal, opts, more_starts, more_goals)
+        return _plan_path(world, fp, start, goal, opts, more_starts, more_goals, rig)
     import multiprocessing as mp
 
     ctx = mp.get_context("fork")
@@ -180,7 +193,7 @@ def plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptio
 
     def child():
         try:
-            send.send(("ok", _plan_path(world, fp, start, goal, opts, more_starts, more_goals)))
+            send.send(("ok", _plan_path(world, fp, start, goal, opts, more_starts, more_goals, rig)))
         except BaseException as exc:           # sent back and re-raised in the parent
             send.send(("error", exc))
 
@@ -219,14 +232,15 @@ GUIDED_SHARE = 0.5
 class _Search:
     """One planning call: the local paths, the checks and their counts, the deadline, OMPL calls."""
 
-    def __init__(self, world: CollisionWorld, fp: Footprint, opts: PathOptions, start, goal):
-        self.world, self.fp, self.opts = world, fp, opts
+    def __init__(self, world: CollisionWorld, fp: Footprint, opts: PathOptions, start, goal, rig=None):
+        self.world, self.fp, self.opts, self.rig = world, fp, opts, rig
         self.radius = float(opts.turning_radius)
         self.started = time.perf_counter()
         self.deadline = self.started + float(opts.time_limit_s)
         self.stats = {"states": 0, "fcl_states": 0, "time_s": 0.0}
         self.counts = {"connections_tried": 0, "connections_free": 0, "ompl_calls": 0, "ompl_exact": 0}
-        self._check = world.state_checker(fp, opts.margin)
+        self._check = world.state_checker(fp, opts.margin) if rig is None else rig.pose_free
+        self.bounding_radius = float(fp.bounding_radius if rig is None else rig.bounding_radius)
         self.ompl_status = ""
 
     def left(self) -> float:
@@ -242,9 +256,12 @@ class _Search:
     def connect(self, a, b) -> bool:
         """Is the local path from pose a to pose b free (sampled every ``resolution`` m)?"""
         self.counts["connections_tried"] += 1
-        seg = local_paths.local_path(self.opts.space, a, b, self.radius)
-        poses = local_paths.sample_every(a, seg, self.radius, self.opts.resolution, include_start=False)
-        ok = self.world.motion_free(poses, self.fp, self.opts.margin, self.stats)
+        if self.rig is not None:
+            ok = bool(self.rig.connect(a, b, self.stats))
+        else:
+            seg = local_paths.local_path(self.opts.space, a, b, self.radius)
+            poses = local_paths.sample_every(a, seg, self.radius, self.opts.resolution, include_start=False)
+            ok = self.world.motion_free(poses, self.fp, self.opts.margin, self.stats)
         self.counts["connections_free"] += ok
         return ok
 
@@ -262,6 +279,9 @@ class _Search:
         # OMPL's own discrete motion validator (C++: it visits a motion's states in bisection order, so
         # a motion through an obstacle costs a few state checks, and most motions RRT tries are such)
         si.setStateValidityCheckingResolution(min(0.5, self.opts.resolution / max(space.getMaximumExtent(), 1e-9)))
+        if self.rig is not None:        # the rig's own pieces, every body checked (module docstring)
+            self._validator = _rig_validator(ob, si, self)
+            si.setMotionValidator(self._validator)
         starts = [np.asarray(a, dtype=float), *more_starts]
         goals = [np.asarray(b, dtype=float), *more_goals]
         if len(goals) == 1:
@@ -319,6 +339,16 @@ class _Search:
         return None if second is None else first + second
 
 
+def _rig_validator(ob, si, search: "_Search"):
+    """An OMPL motion validator that checks a motion as ``search.connect`` does (the rig's piece)."""
+
+    class RigMotionValidator(ob.MotionValidator):
+        def checkMotion(self, s1, s2, *rest):
+            return search.connect((s1.getX(), s1.getY(), s1.getYaw()), (s2.getX(), s2.getY(), s2.getYaw()))
+
+    return RigMotionValidator(si)
+
+
 def _seed(seed: int, k: int) -> int:
     """OMPL's seed for the k-th OMPL call of a planning call with ``seed`` (k = 0: seed + 1, as before)."""
     if k == 0:
@@ -327,9 +357,9 @@ def _seed(seed: int, k: int) -> int:
 
 
 def _plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOptions, more_starts=(),
-               more_goals=()) -> GeometricPath:
+               more_goals=(), rig=None) -> GeometricPath:
     start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
-    search = _Search(world, fp, opts, start, goal)
+    search = _Search(world, fp, opts, start, goal, rig)
     info: dict = {"start_index": 0, "goal_index": 0}
     waypoints, used, status_text = None, None, ""
     if search.connect(start, goal):
@@ -355,8 +385,12 @@ def _plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOpti
     if waypoints is None:
         return GeometricPath("failed", status_text or "No solution (time limit)", np.zeros((0, 3)), np.zeros((0, 3)),
                              np.zeros(0), np.zeros(0), 0.0, 0, elapsed, st["states"], st["time_s"], opts, info)
-    samples, sigma, length = densify(opts, waypoints, step=min(0.005, opts.resolution / 2))
-    direction, cusps = path_directions(samples)
+    if rig is not None:
+        samples, sigma, direction, length = rig.densify(waypoints)
+        cusps = int(np.sum(direction[1:] != direction[:-1]))
+    else:
+        samples, sigma, length = densify(opts, waypoints, step=min(0.005, opts.resolution / 2))
+        direction, cusps = path_directions(samples)
     return GeometricPath("exact", status_text, waypoints, samples, sigma, direction, length, cusps, elapsed,
                          st["states"], st["time_s"], opts, info)
 
@@ -378,7 +412,7 @@ def _guided(search: _Search, start, goal, info: dict):
     min_step = max(0.5, R)
     window = max(1.0, R)
     local_reach = max(3.0, 3.0 * R)
-    pad = max(2.0, 3.0 * R) + float(search.fp.bounding_radius)
+    pad = max(2.0, 3.0 * R) + search.bounding_radius
     budget_cap = max(LOCAL_MIN_BUDGET_S, LOCAL_BUDGET_FRACTION * float(opts.time_limit_s))
 
     def subgoal(s: float):

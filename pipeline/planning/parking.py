@@ -156,14 +156,17 @@ class Segment:
 def segment_poses(pose, seg: Segment, wheelbase: float, s) -> np.ndarray:
     """Rear-axle poses (..., 3) after driving distances ``s`` (>= 0) along ``seg`` from ``pose``:
     theta = theta0 + kappa u, with u = direction s and kappa = tan(phi) / L; on an arc
-    x = x0 + (sin theta - sin theta0) / kappa, y = y0 - (cos theta - cos theta0) / kappa."""
+    x = x0 + (sin theta - sin theta0) / kappa, y = y0 - (cos theta - cos theta0) / kappa, evaluated as
+    the chord x = x0 + u c cos(theta0 + kappa u / 2), y = y0 + u c sin(theta0 + kappa u / 2) with
+    c = sin(kappa u / 2) / (kappa u / 2): the same numbers without the cancellation of the quotient
+    form on nearly straight arcs (kappa -> 0), where it is the straight line."""
     x0, y0, th0 = (float(v) for v in pose)
     u = seg.direction * np.asarray(s, dtype=float)
     k = math.tan(seg.phi) / wheelbase
-    if abs(k) < 1e-12:
-        return np.stack([x0 + u * math.cos(th0), y0 + u * math.sin(th0), np.full_like(u, th0)], axis=-1)
-    th = th0 + k * u
-    return np.stack([x0 + (np.sin(th) - math.sin(th0)) / k, y0 - (np.cos(th) - math.cos(th0)) / k, th], axis=-1)
+    half = 0.5 * k * u
+    chord = u * np.sinc(half / np.pi)              # np.sinc(x) = sin(pi x) / (pi x)
+    mid = th0 + half
+    return np.stack([x0 + chord * np.cos(mid), y0 + chord * np.sin(mid), th0 + k * u], axis=-1)
 
 
 @dataclass(frozen=True)

@@ -1,9 +1,9 @@
 """Exact steering of chained-form systems with sinusoids (Murray & Sastry 1990/1993) and its use
 for the Heisenberg system and the two kinematic cars.
 
-Chained form (one chain, dimension n = 3 or 4)
-----------------------------------------------
-    z1' = v1,   z2' = v2,   z3' = z2 v1,   z4' = z3 v1.
+Chained form (one chain, dimension 3 <= n <= 10)
+-----------------------------------------------
+    z1' = v1,   z2' = v2,   z3' = z2 v1,   ...,   zn' = z(n-1) v1.
 
 Steering algorithm (:func:`steer_chained`), total time T split into n - 1 phases (equal lengths
 unless ``phase_fractions`` is given):
@@ -25,8 +25,21 @@ c_4 = 4 dz4 w^3 / pi). ``amplitude="balanced"`` (default) takes a = beta |b| >= 
 sign(b) = sign(c_k), so |b| = (|c_k| / beta^(k-2))^(1/(k-1)) (``balance`` beta = 1 by default:
 |a| = |b|); a positive number fixes a and gives b = c_k / a^(k-2).
 
+Any dimension n: phase k's net motion of z_k is the Murray-Sastry formula
+    dz_k = (a / 2w)^(k-2) b / (k-2)! * 2 pi / w,
+and it also moves every z_j, j > k, by an amount that does not depend on the start state either
+(every start-state term is an iterated integral of v1 alone over a period, (int v1)^m / m! = 0).
+Phases are solved in order k = 3, ..., n, each for the error its predecessors left in z_k.
+
 Every phase integrates in closed form, so :class:`SteeringPlan` evaluates states and inputs
-exactly (round-off only) at any time.
+exactly (round-off only) at any time. For n <= 4 the formulas are written out below; for n >= 5 the
+states are exponential polynomials, finite sums of c t^p exp(i q w t) (:class:`_ExpPoly`): v1 and v2
+are such sums, and the chain's products and integrals of them are again such sums, with the exact
+antiderivative int_0^t tau^p e^(lam tau) dtau = e^(lam t) sum_(r<=p) (-1)^r p!/(p-r)! t^(p-r) / lam^(r+1)
+- (-1)^p p! / lam^(p+1) (lam = i q w != 0; t^(p+1)/(p+1) for q = 0). The net motions of such a
+phase are those sums at t = 2 pi / w, where every exp(i q w t) is exactly 1. Constant phases are
+polynomials: z_k(t) = sum_(i=2..k) z_is (v1 t)^(k-i) / (k-i)! + v2 t (v1 t)^(k-2) / (k-1)!.
+(tests/test_trailer_steering.py checks both against DOP853 integration, and the formula above.)
 
 Constant-v1 steering (:func:`steer_chained_constant_v1`)
 --------------------------------------------------------
@@ -52,12 +65,27 @@ For n = 3 the z4 row drops out: b1 = 0 and v2 = b0 + b2 sin(w t) (2 x 2 determin
 Time scaling: with tau = t / T the states depend on (c T, b T) only and the solution has b ~ 1/T,
 so a longer T traces the same path with inputs divided by T (as the phased plans do).
 
-The cars' charts to and from this form, and car steering, are in :mod:`nhstab.planning.car_charts`.
+Polynomial steering with v1 constant (:func:`steer_chained_polynomial`, any n >= 3)
+-----------------------------------------------------------------------------------
+v1 = c = (z1f - z1s) / T and v2 a polynomial of degree n - 2 in s = t / T, v2 = sum_j b_j s^j. Then
+every z_k is a polynomial in s:
+    z_k(s) = sum_(i=2..k) z_is (c T s)^(k-i) / (k-i)!  +  T (c T)^(k-2) sum_j b_j j! s^(j+k-1) / (j+k-1)!,
+so the targets z_k(1) = z_kf (k = 2..n) are the linear system M b = r with
+    M[k, j] = j! / (j + k - 1)!,   r_k = (z_kf - sum_(i=2..k) z_is (c T)^(k-i) / (k-i)!) / (T (c T)^(k-2)),
+a Hilbert-like (n - 1) x (n - 1) matrix, nonsingular: it is the Gram-type matrix of the moments of
+independent monomials (for n = 5 its condition number is about 2e4). It needs c != 0. As z1 = z1s + c t
+moves uniformly, z_n is then a polynomial of degree 2n - 3 in z1 that matches z_n and its first
+n - 2 derivatives with respect to z1 at both ends: the Hermite interpolant of the flat output. The
+motion never reverses (v1 keeps its sign) and never oscillates more than that interpolant.
+
+The cars' charts to and from this form, and car steering, are in :mod:`nhstab.planning.car_charts`;
+the car with one trailer's in :mod:`nhstab.planning.trailer_charts`.
 """
 
 from __future__ import annotations
 
 import bisect
+import functools
 import math
 from dataclasses import dataclass
 
@@ -68,12 +96,16 @@ from ..errors import InputError, require_finite, require_positive
 __all__ = [
     "SteeringPlan", "SteeringPhase", "STEERING_MODES",
     "chained_rhs", "net_motion", "net_displacement", "steer_chained", "steer_chained_constant_v1", "steer_heisenberg",
+    "steer_chained_polynomial", "MAX_CHAINED",
 ]
 
 _TWO_PI = 2.0 * math.pi
 #: the chained-form steering methods: the phased sinusoids of :func:`steer_chained` and the constant-v1
 #: sinusoid of :func:`steer_chained_constant_v1`
-STEERING_MODES = ("phased", "constant_v1")
+STEERING_MODES = ("phased", "constant_v1", "polynomial")
+#: the largest chained dimension the steering functions accept
+MAX_CHAINED = 10
+_SIZES = tuple(range(3, MAX_CHAINED + 1))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -130,7 +162,7 @@ def chained_rhs(z, v):
 
 
 def _check_phase_args(k, a, b, w, z_start):
-    z = _vector("z_start", z_start, (3, 4))
+    z = _vector("z_start", z_start, _SIZES)
     n = z.shape[0]
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 3 <= int(k) <= n:
         raise InputError("k", f"an integer in 3..{n} (the chained dimension is {n})", k)
@@ -141,7 +173,7 @@ def net_displacement(k: int, a: float, b: float, w: float, z_start) -> np.ndarra
     """Change of the whole chained state over one period P = 2 pi / w of phase k.
 
     Phase k applies v1 = a sin(w t), v2 = b cos((k - 2) w t), t in [0, P], from ``z_start``
-    (length n = 3 or 4, 3 <= k <= n). Closed form, derived from the chained equations with
+    (length n, 3 <= k <= n). For n <= 4, closed form, derived from the chained equations with
     c = cos(w t), s = sin(w t) (see :func:`_sin_phase` for the full time laws):
 
     * k = 3: z1 = z1s + (a/w)(1 - c), z2 = z2s + (b/w) s,
@@ -152,12 +184,21 @@ def net_displacement(k: int, a: float, b: float, w: float, z_start) -> np.ndarra
       z4 = ... + (a^2 b / (3 w^2)) int_0^t sin^4 = ... -> dz4 = (a^2 b/(3w^2)) (3 pi/(4 w))
       = pi a^2 b / (4 w^3).
 
+    For n >= 5, the exponential-polynomial series of the phase (module docstring) at t = P:
+    z_k moves by the Murray-Sastry amount and every z_j, j > k, by a^(j-2) b times a number that
+    depends on w, j and k only.
+
     All start-state terms vanish over a full period, so the result does not depend on
     ``z_start`` (only its length n is used).
     """
     k, a, b, w, z = _check_phase_args(k, a, b, w, z_start)
     n = z.shape[0]
     d = np.zeros(n)
+    if n >= 5:
+        series = _sin_series(np.zeros(n), k, a, b, w, n)
+        for j in range(k - 1, n):
+            d[j] = series[j].at_period()
+        return d
     if k == 3:
         d[2] = math.pi * a * b / w**2
         if n == 4:
@@ -168,15 +209,106 @@ def net_displacement(k: int, a: float, b: float, w: float, z_start) -> np.ndarra
 
 
 def net_motion(k: int, a: float, b: float, w: float, z_start) -> float:
-    """Change of z_k (1-based, k = 3 or 4) over one period of v1 = a sin(w t), v2 = b cos((k-2) w t).
+    """Change of z_k (1-based, 3 <= k <= n) over one period of v1 = a sin(w t), v2 = b cos((k-2) w t).
 
     Murray-Sastry closed form: dz_k = (a / (2 w))^(k-2) * b / (k-2)! * 2 pi / w, i.e.
     pi a b / w^2 for k = 3 and pi a^2 b / (4 w^3) for k = 4 (derivation in
-    :func:`net_displacement`), whatever ``z_start``; ``z_start`` (length 3 or 4) fixes the
+    :func:`net_displacement`), whatever ``z_start``; ``z_start`` (length n) fixes the
     dimension, so k <= len(z_start).
     """
     k_checked = _check_phase_args(k, a, b, w, z_start)[0]
-    return float(net_displacement(k, a, b, w, z_start)[k_checked - 1])
+    if k_checked <= 4:
+        return float(net_displacement(k, a, b, w, z_start)[k_checked - 1])
+    return _net_coefficient(k_checked, float(w)) * float(a) ** (k_checked - 2) * float(b)
+
+
+def _net_coefficient(k: int, w: float) -> float:
+    """dz_k / (a^(k-2) b) over one period of phase k: (1 / (2 w))^(k-2) / (k-2)! * 2 pi / w."""
+    return (0.5 / w) ** (k - 2) / math.factorial(k - 2) * _TWO_PI / w
+
+
+# ---- exponential polynomials: exact phase laws of any dimension --------------------------------
+class _ExpPoly:
+    """f(t) = Re sum_(p, q) c[p, q] t^p exp(i q w t): the states of a chained-form phase whose inputs
+    are trigonometric polynomials in w t (module docstring). Coefficients are complex; the real
+    functions here carry conjugate pairs, and the real part removes the round-off between them."""
+
+    __slots__ = ("w", "terms", "_arrays")
+
+    def __init__(self, w: float, terms: dict):
+        self.w, self.terms, self._arrays = float(w), terms, None
+
+    @classmethod
+    def constant(cls, w: float, value: float) -> "_ExpPoly":
+        return cls(w, {(0, 0): complex(value)})
+
+    def plus_constant(self, value: float) -> "_ExpPoly":
+        terms = dict(self.terms)
+        terms[(0, 0)] = terms.get((0, 0), 0j) + value
+        return _ExpPoly(self.w, terms)
+
+    def times(self, factor: dict) -> "_ExpPoly":
+        """This times sum_(dq) f[dq] exp(i dq w t) (``factor``: {dq: f})."""
+        out: dict = {}
+        for (p, q), c in self.terms.items():
+            for dq, f in factor.items():
+                key = (p, q + dq)
+                out[key] = out.get(key, 0j) + c * f
+        return _ExpPoly(self.w, out)
+
+    def integral(self) -> "_ExpPoly":
+        """int_0^t of this, exactly (the antiderivative of the module docstring)."""
+        out: dict = {}
+
+        def add(key, value):
+            out[key] = out.get(key, 0j) + value
+
+        for (p, q), c in self.terms.items():
+            if c == 0:
+                continue
+            if q == 0:
+                add((p + 1, 0), c / (p + 1))
+                continue
+            lam = 1j * q * self.w
+            falling = 1.0                                   # p! / (p - r)!
+            for r in range(p + 1):
+                add((p - r, q), c * (-1) ** r * falling / lam ** (r + 1))
+                falling *= p - r
+            add((0, 0), -c * (-1) ** p * math.factorial(p) / lam ** (p + 1))
+        return _ExpPoly(self.w, out)
+
+    def __call__(self, t) -> np.ndarray:
+        if self._arrays is None:
+            keys = list(self.terms)
+            self._arrays = (np.array([p for p, _ in keys], dtype=float), np.array([q for _, q in keys], dtype=float),
+                            np.array([self.terms[k] for k in keys], dtype=complex))
+        p, q, c = self._arrays
+        t = np.asarray(t, dtype=float)[..., None]
+        return np.sum(c * t**p * np.exp((1j * self.w) * q * t), axis=-1).real
+
+    def at_period(self) -> float:
+        """The value at t = 2 pi / w (every exp(i q w t) is 1 there)."""
+        P = _TWO_PI / self.w
+        return float(sum((c * P**p for (p, q), c in self.terms.items()), 0j).real)
+
+
+@functools.lru_cache(maxsize=256)
+def _cached_series(zs: tuple, k: int, a: float, b: float, w: float, n: int) -> tuple:
+    """:func:`_sin_series` kept for the phases evaluated again and again (an integrator's calls)."""
+    return tuple(_sin_series(np.array(zs), k, a, b, w, n))
+
+
+def _sin_series(zs: np.ndarray, k: int, a: float, b: float, w: float, n: int) -> list:
+    """The states of phase k (v1 = a sin(w t), v2 = b cos((k-2) w t)) from ``zs`` as _ExpPoly series,
+    the first ``n``: z1 = z1s + int v1, z2 = z2s + int v2, z_j = z_js + int z_(j-1) v1."""
+    v1 = {1: a / 2j, -1: -a / 2j}
+    m = k - 2
+    one = _ExpPoly.constant(w, 1.0)
+    z = [one.times(v1).integral().plus_constant(float(zs[0])),
+         _ExpPoly(w, {(0, m): b / 2, (0, -m): b / 2}).integral().plus_constant(float(zs[1]))]
+    for j in range(2, n):
+        z.append(z[-1].times(v1).integral().plus_constant(float(zs[j])))
+    return z
 
 
 # ---- closed-form phase laws ---------------------------------------------------------------------
@@ -191,6 +323,13 @@ def _constant_phase(zs: np.ndarray, v1: float, v2: float, t: np.ndarray, coords:
     out[..., 2] = zs[2] + v1 * (zs[1] * t + 0.5 * v2 * t**2)
     if n == 4:
         out[..., 3] = zs[3] + v1 * (zs[2] * t + v1 * (0.5 * zs[1] * t**2 + v2 * t**3 / 6.0))
+    elif n >= 5:        # z_k = sum_(i=2..k) z_is (v1 t)^(k-i) / (k-i)! + v2 t (v1 t)^(k-2) / (k-1)!
+        r = v1 * t
+        for k in range(4, n + 1):
+            acc = v2 * t * r ** (k - 2) / math.factorial(k - 1)
+            for i in range(2, k + 1):
+                acc = acc + zs[i - 1] * r ** (k - i) / math.factorial(k - i)
+            out[..., k - 1] = acc
     return out
 
 
@@ -200,6 +339,10 @@ def _sin_phase(zs: np.ndarray, k: int, a: float, b: float, w: float, t: np.ndarr
     only the first ``coords`` (>= 3) of them if given. ``zs`` (n, ...) and a, b, w may also hold
     one phase per time (arrays shaped as t)."""
     n = zs.shape[0] if coords is None else coords
+    if n >= 5 or k >= 5:        # exact exponential-polynomial series (module docstring)
+        series = _cached_series(tuple(float(v) for v in np.asarray(zs, dtype=float)), int(k), float(a), float(b),
+                                float(w), n)
+        return np.stack([zj(t) for zj in series], axis=-1)
     c, s = np.cos(w * t), np.sin(w * t)
     one_c = 1.0 - c
     out = np.empty(t.shape + (n,))
@@ -240,8 +383,9 @@ def _constant_v1_phase(zs: np.ndarray, c, b0, b1, b2, w, t: np.ndarray, coords: 
 
 @dataclass(frozen=True)
 class SteeringPhase:
-    """One phase of a plan. ``kind`` is "constant" (inputs v1, v2), "sinusoid" (k, a, b, w) or
-    "constant_v1" (v1 constant, v2(t) = v2 + v2_cos cos(w t) + v2_sin sin(w t))."""
+    """One phase of a plan. ``kind`` is "constant" (inputs v1, v2), "sinusoid" (k, a, b, w),
+    "constant_v1" (v1 constant, v2(t) = v2 + v2_cos cos(w t) + v2_sin sin(w t)) or "polynomial"
+    (v1 constant, v2 = sum_j v2_poly[j] (tau / (t1 - t0))^j)."""
 
     kind: str
     t0: float
@@ -256,10 +400,14 @@ class SteeringPhase:
     w: float = 0.0
     v2_cos: float = 0.0
     v2_sin: float = 0.0
+    v2_poly: tuple = ()
 
     def inputs(self, tau: np.ndarray) -> np.ndarray:
         out = np.empty(tau.shape + (2,))
-        if self.kind == "constant":
+        if self.kind == "polynomial":
+            out[..., 0] = self.v1
+            out[..., 1] = np.polynomial.polynomial.polyval(tau / (self.t1 - self.t0), np.asarray(self.v2_poly))
+        elif self.kind == "constant":
             out[..., 0] = self.v1
             out[..., 1] = self.v2
         elif self.kind == "constant_v1":
@@ -271,6 +419,8 @@ class SteeringPhase:
         return out
 
     def states(self, tau: np.ndarray, coords: int | None = None) -> np.ndarray:
+        if self.kind == "polynomial":
+            return _polynomial_phase(self.z_start, self.v1, np.asarray(self.v2_poly), self.t1 - self.t0, tau, coords)
         if self.kind == "constant":
             return _constant_phase(self.z_start, self.v1, self.v2, tau, coords)
         if self.kind == "constant_v1":
@@ -281,10 +431,10 @@ class SteeringPhase:
 @dataclass(frozen=True)
 class SteeringPlan:
     """A piecewise chained-form plan: ``mode`` "phased" (constant, then one sinusoid per higher
-    coordinate) or "constant_v1" (one phase).
+    coordinate), "constant_v1" or "polynomial" (one phase).
 
     ``phase_times`` holds the phase boundaries 0 = t_0 < t_1 < ... = T (n of them for "phased", 2 for
-    "constant_v1"). Inputs are right-continuous at the boundaries (the value of the later phase; at T
+    "constant_v1" and "polynomial"). Inputs are right-continuous at the boundaries (the value of the later phase; at T
     the last phase's).
     """
 
@@ -378,14 +528,17 @@ def _amplitudes(k: int, c: float, amplitude, balance: float) -> tuple[float, flo
 
 def steer_chained(z0, zf, T: float = 1.0, *, amplitude="balanced", balance: float = 1.0,
                   phase_fractions=None) -> SteeringPlan:
-    """Murray-Sastry sinusoidal steering of the chained form from ``z0`` to ``zf`` in time ``T``.
+    """Murray-Sastry sinusoidal steering of the chained form (any dimension 3 <= n <= 10) from ``z0``
+    to ``zf`` in time ``T``.
 
     Phases (see the module docstring): constant inputs for z1, z2, then for k = 3..n one period
     of v1 = a sin(w t), v2 = b cos((k-2) w t) with w = 2 pi / (phase length). Amplitude
     equations (closed form, :func:`net_motion`):
         phase z3: pi a b / w^2 = z3f - z3(after phase 1)    -> a b = c3 = dz3 w^2 / pi;
                   it moves z4 by -pi a^2 b / w^3 (n = 4), which phase z4 also corrects;
-        phase z4: pi a^2 b / (4 w^3) = z4f - z4(after phase z3) -> a^2 b = c4 = 4 dz4 w^3 / pi.
+        phase z4: pi a^2 b / (4 w^3) = z4f - z4(after phase z3) -> a^2 b = c4 = 4 dz4 w^3 / pi;
+        phase zk: (1 / 2w)^(k-2) / (k-2)! (2 pi / w) a^(k-2) b = dz_k  (any k); each phase's motion
+                  of the later coordinates (:func:`net_displacement`) is added before they are solved.
     ``amplitude``: "balanced" (a = ``balance`` * |b| >= 0, i.e. |a| = |b| for balance = 1) or a
     positive number fixing a. The chained form is invariant under z -> (z1/l, l z2, z3, z4/l),
     (v1, v2) -> (v1/l, l v2); balanced amplitudes in those scaled coordinates are balance = l^2
@@ -427,7 +580,10 @@ def steer_chained(z0, zf, T: float = 1.0, *, amplitude="balanced", balance: floa
         dk = zf[k - 1] - z[k - 1]
         if abs(dk) <= 8.0 * np.finfo(float).eps * max(1.0, abs(zf[k - 1]), abs(z[k - 1])):
             dk = 0.0        # round-off sized correction: idle phase instead of (dk)^(1/(k-1)) motions
-        c = dk * w**2 / math.pi if k == 3 else 4.0 * dk * w**3 / math.pi
+        if k <= 4:
+            c = dk * w**2 / math.pi if k == 3 else 4.0 * dk * w**3 / math.pi
+        else:
+            c = dk / _net_coefficient(k, w)
         a, b = _amplitudes(k, c, amplitude, balance)
         z_end = z + net_displacement(k, a, b, w, z)
         z_end[: k] = zf[: k]                # exact by construction; remove round-off
@@ -436,9 +592,9 @@ def steer_chained(z0, zf, T: float = 1.0, *, amplitude="balanced", balance: floa
     return SteeringPlan(z0=z0, zf=zf, T=T, phase_times=times, phases=tuple(phases), amplitude=amplitude)
 
 
-def _chained_pair(z0, zf) -> tuple[np.ndarray, np.ndarray]:
-    z0 = _vector("z0", z0, (3, 4))
-    zf = _vector("zf", zf, (3, 4))
+def _chained_pair(z0, zf, sizes=_SIZES) -> tuple[np.ndarray, np.ndarray]:
+    z0 = _vector("z0", z0, sizes)
+    zf = _vector("zf", zf, sizes)
     if zf.shape != z0.shape:
         raise InputError("zf", f"a vector of the same length as z0 ({z0.shape[0]})", f"length {zf.shape[0]}")
     return z0, zf
@@ -453,9 +609,10 @@ def steer_chained_constant_v1(z0, zf, T: float = 1.0) -> SteeringPlan:
     its sign is the direction z1 moves. States and inputs are exact closed forms
     (:func:`_constant_v1_phase`), the end state equals ``zf`` up to round-off (set exactly in the
     plan's ``phases[0].z_end``). Refuses (:class:`InputError` on ``zf``) when z1f = z1s: then c = 0
-    and the system is singular (z3, z4 cannot move).
+    and the system is singular (z3, z4 cannot move). Dimension 3 or 4 (any dimension:
+    :func:`steer_chained_polynomial`).
     """
-    z0, zf = _chained_pair(z0, zf)
+    z0, zf = _chained_pair(z0, zf, (3, 4))
     T = require_positive("T", T)
     n = z0.shape[0]
     if zf[0] == z0[0]:
@@ -473,6 +630,63 @@ def steer_chained_constant_v1(z0, zf, T: float = 1.0) -> SteeringPlan:
     phase = SteeringPhase("constant_v1", 0.0, T, z0.copy(), zf.copy(), v1=c, v2=b0, v2_cos=b1, v2_sin=b2, w=w)
     return SteeringPlan(z0=z0, zf=zf, T=T, phase_times=np.array([0.0, T]), phases=(phase,),
                         amplitude="none", mode="constant_v1")
+
+
+def _polynomial_coefficients(zs: np.ndarray, c: float, b: np.ndarray, T: float, n: int) -> list[np.ndarray]:
+    """Coefficients in s = t / T (lowest degree first) of z_2 .. z_n under v1 = c, v2 = sum_j b_j s^j:
+    z_k(s) = sum_(i=2..k) z_is (c T)^(k-i) s^(k-i) / (k-i)! + T (c T)^(k-2) sum_j b_j j! s^(j+k-1) / (j+k-1)!."""
+    cT = c * T
+    out = []
+    for k in range(2, n + 1):
+        coef = np.zeros(len(b) + k - 1)
+        for i in range(2, k + 1):
+            coef[k - i] += zs[i - 1] * cT ** (k - i) / math.factorial(k - i)
+        for j, bj in enumerate(b):
+            coef[j + k - 1] += T * cT ** (k - 2) * bj * math.factorial(j) / math.factorial(j + k - 1)
+        out.append(coef)
+    return out
+
+
+def _polynomial_phase(zs: np.ndarray, c: float, b: np.ndarray, T: float, t: np.ndarray,
+                      coords: int | None = None) -> np.ndarray:
+    """States under v1 = c, v2 = sum_j b_j (t / T)^j (module docstring), by Horner's rule on the
+    coefficients of :func:`_polynomial_coefficients`."""
+    n = zs.shape[0] if coords is None else coords
+    t = np.asarray(t, dtype=float)
+    s = t / T
+    out = np.empty(s.shape + (n,))
+    out[..., 0] = zs[0] + c * t
+    for k, coef in enumerate(_polynomial_coefficients(zs, c, b, T, n), start=2):
+        out[..., k - 1] = np.polynomial.polynomial.polyval(s, coef)
+    return out
+
+
+def steer_chained_polynomial(z0, zf, T: float = 1.0) -> SteeringPlan:
+    """Steer the chained form (any dimension 3 <= n <= 10) from ``z0`` to ``zf`` in time ``T`` with v1
+    constant and v2 a polynomial of degree n - 2 in t / T (module docstring: the linear system and
+    why it is the Hermite interpolant of the flat output z_n as a function of z1).
+
+    v1 = c = (z1f - z1s) / T keeps its sign, so a vehicle driven this way never reverses within the
+    piece. States and inputs are exact closed forms (polynomials); the end state equals ``zf`` up to
+    round-off (set exactly in ``phases[0].z_end``). Refuses (:class:`InputError` on ``zf``) when
+    z1f = z1s (c = 0: the higher coordinates cannot move).
+    """
+    z0, zf = _chained_pair(z0, zf)
+    T = require_positive("T", T)
+    n = z0.shape[0]
+    if zf[0] == z0[0]:
+        raise InputError("zf", "a z1 different from z0's (constant v1 = (z1f - z1s) / T must not vanish)", zf)
+    c = (zf[0] - z0[0]) / T
+    cT = c * T
+    M = np.array([[math.factorial(j) / math.factorial(j + k - 1) for j in range(n - 1)] for k in range(2, n + 1)])
+    rhs = np.empty(n - 1)
+    for k in range(2, n + 1):
+        free = sum(z0[i - 1] * cT ** (k - i) / math.factorial(k - i) for i in range(2, k + 1))
+        rhs[k - 2] = (zf[k - 1] - free) / (T * cT ** (k - 2))
+    b = np.linalg.solve(M, rhs)
+    phase = SteeringPhase("polynomial", 0.0, T, z0.copy(), zf.copy(), v1=c, v2_poly=tuple(float(v) for v in b))
+    return SteeringPlan(z0=z0, zf=zf, T=T, phase_times=np.array([0.0, T]), phases=(phase,), amplitude="none",
+                        mode="polynomial")
 
 
 def steer_heisenberg(x0, xf, T: float = 1.0, **kwargs) -> SteeringPlan:

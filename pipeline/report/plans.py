@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib import patches
 
-from .maps import map_figure
+from .maps import add_shape, map_figure
 
 
 def grown_outline(fp, pose, radius: float, arc_points: int = 8) -> np.ndarray:
@@ -39,10 +39,10 @@ def draw_tube(ax, tube, fp, color="tab:blue", footprints: int = 14, label: str |
     p, r = tube.poses, tube.position_radius
     nrm = np.column_stack([-np.sin(p[:, 2]), np.cos(p[:, 2])])
     left, right = p[:, :2] + r[:, None] * nrm, p[:, :2] - r[:, None] * nrm
-    ax.add_patch(patches.Polygon(np.vstack([left, right[::-1]]), closed=True, facecolor=color, alpha=0.18, lw=0,
+    add_shape(ax, patches.Polygon(np.vstack([left, right[::-1]]), closed=True, facecolor=color, alpha=0.18, lw=0,
                                  label=label or f"{tube.probability:g}-tube: position radius"))
     for j, k in enumerate(np.linspace(0, len(p) - 1, footprints).astype(int)):
-        ax.add_patch(patches.Polygon(grown_outline(fp, p[k], tube.reach[k]), closed=True, fill=False, edgecolor=color,
+        add_shape(ax, patches.Polygon(grown_outline(fp, p[k], tube.reach[k]), closed=True, fill=False, edgecolor=color,
                                      lw=0.6, ls=":", label="footprint grown by the tube's reach" if j == 0 and grown_label else None))
     if tube.certified_index is not None:
         k = tube.certified_index
@@ -50,10 +50,13 @@ def draw_tube(ax, tube, fp, color="tab:blue", footprints: int = 14, label: str |
                 ls="none", label=f"certified clearance {tube.certified_clearance:+.3f} m")
 
 
-def plan_figure(m, poses, direction, fp, start, goal, title=None, footprints: int = 14, tube=None):
+def plan_figure(m, poses, direction, fp, start, goal, title=None, footprints: int = 14, tube=None, robot=None,
+                states=None):
     """``poses`` (N, 3) along the nominal; ``direction`` (N,) sign of the speed (+1 / -1 / 0); ``tube``
-    (optional): the plan's :class:`nhstab.tubes.Tube`."""
-    fig = map_figure(m, start=start, goal=goal, footprint=fp, title=title)
+    (optional): the plan's :class:`nhstab.tubes.Tube`. A robot of several bodies (``robot`` with the
+    nominal's ``states``) is drawn with every body."""
+    rig = robot if robot is not None and len(robot.footprints) > 1 and states is not None else None
+    fig = map_figure(m, start=start, goal=goal, footprint=fp, title=title, robot=rig)
     ax = fig.axes[0]
     if tube is not None:
         draw_tube(ax, tube, fp, footprints=footprints)
@@ -62,7 +65,12 @@ def plan_figure(m, poses, direction, fp, start, goal, title=None, footprints: in
     ax.plot(poses[:, 0], fwd, color="tab:orange", lw=1.6, label="nominal, forward")
     ax.plot(poses[:, 0], rev, color="tab:purple", lw=1.6, ls="--", label="nominal, reverse")
     for k in np.linspace(0, len(poses) - 1, footprints).astype(int)[1:-1]:
-        ax.add_patch(patches.Polygon(fp.outline_at(poses[k]), closed=True, fill=False, edgecolor="tab:orange",
+        if rig is not None:
+            from .maps import draw_rig
+
+            draw_rig(ax, rig, states[k], color="tab:orange", fill=False, lw=0.7)
+            continue
+        add_shape(ax, patches.Polygon(fp.outline_at(poses[k]), closed=True, fill=False, edgecolor="tab:orange",
                                      lw=0.7, alpha=0.7))
     ax.legend(fontsize=7, loc="upper right", framealpha=0.85)
     return fig

@@ -28,11 +28,19 @@ def _poses(result, x):
     return x[:, pose_columns(result.model)]
 
 
+def _rig(result):
+    """The run's robot when it has several bodies (a car with trailers), else None."""
+    robot = getattr(result, "robot", None)
+    return robot if robot is not None and len(robot.footprints) > 1 else None
+
+
 def run_map_figure(result, footprints: int = 12):
     lg = result.log
     title = (f"{result.map.name}: {result.model.name}, {result.options.controller.kind} -- {result.status}, "
              f"{sum(p.trigger != 'initial' for p in result.plans)} replan(s)")
-    fig = map_figure(result.map, start=result.start, goal=result.goal, footprint=result.footprint, title=title)
+    rig = _rig(result)
+    fig = map_figure(result.map, start=result.start, goal=result.goal, footprint=result.footprint, title=title,
+                     robot=rig)
     ax = fig.axes[0]
     for d in result.discovered:
         shape = result.map.unknown_obstacles[d["index"]]
@@ -54,14 +62,26 @@ def run_map_figure(result, footprints: int = 12):
     if len(lg["t"]):
         p = _poses(result, lg["x"])
         ax.plot(p[:, 0], p[:, 1], color="k", lw=1.0, label="executed")
-        for k in np.linspace(0, len(p) - 1, footprints).astype(int):
-            ax.add_patch(patches.Polygon(result.footprint.outline_at(p[k]), closed=True, fill=False,
-                                         edgecolor="0.35", lw=0.5))
+        if rig is not None:         # every body, and the trailers' axle paths
+            from .maps import draw_rig
+
+            tp = rig.body_poses(lg["x"])
+            for b in range(1, tp.shape[1]):
+                ax.plot(tp[:, b, 0], tp[:, b, 1], color="k", lw=0.8, ls=":",
+                        label="executed (trailer axle)" if b == 1 else None)
+            for k in np.linspace(0, len(p) - 1, footprints).astype(int):
+                draw_rig(ax, rig, lg["x"][k], color="0.35", fill=False, lw=0.5)
+        else:
+            for k in np.linspace(0, len(p) - 1, footprints).astype(int):
+                ax.add_patch(patches.Polygon(result.footprint.outline_at(p[k]), closed=True, fill=False,
+                                             edgecolor="0.35", lw=0.5))
     for rec in result.plans[1:]:
         ax.plot(*rec.start[:2], marker="X", color="tab:red", ms=8, ls="none",
                 label="replan" if rec.id == 1 else None)
     if result.collision:
-        ax.plot(*result.collision["pose"][:2], marker="*", color="red", ms=14, ls="none", label="collision")
+        where = result.collision.get("body_pose", result.collision["pose"])
+        label = "jackknife" if result.collision.get("kind") == "jackknife" else "collision"
+        ax.plot(*where[:2], marker="*", color="red", ms=14, ls="none", label=label)
     _zoom(ax, result)
     ax.legend(fontsize=6, loc="upper right", framealpha=0.85)
     return fig
@@ -122,8 +142,10 @@ def write_animation(result, path, fps: int = 8, max_frames: int = 120, dpi: int 
     lg = result.log
     p = _poses(result, lg["x"])
     frames = np.unique(np.linspace(0, len(p) - 1, min(max_frames, len(p))).astype(int))
+    rig = _rig(result)
     fig = map_figure(result.map, start=result.start, goal=result.goal, footprint=result.footprint,
-                     title=f"{result.map.name}: {result.model.name}, {result.options.controller.kind} control")
+                     title=f"{result.map.name}: {result.model.name}, {result.options.controller.kind} control",
+                     robot=rig)
     fig.set_dpi(dpi)
     ax = fig.axes[0]
     canvas = fig.canvas
@@ -132,9 +154,16 @@ def write_animation(result, path, fps: int = 8, max_frames: int = 120, dpi: int 
     background = canvas.copy_from_bbox(fig.bbox)
     trail, = ax.plot([], [], color="k", lw=1.0, animated=True)
     nominal, = ax.plot([], [], color="tab:orange", lw=1.0, ls="--", animated=True)
-    body = patches.Polygon(result.footprint.outline_at(p[0]), closed=True, color="tab:green", alpha=0.6,
-                           animated=True)
-    ax.add_patch(body)
+    shapes = rig.footprints if rig is not None else (result.footprint,)
+
+    def outlines(k):
+        if rig is None:
+            return [result.footprint.outline_at(p[k])]
+        return [fp.outline_at(q) for fp, q in zip(shapes, rig.body_poses(lg["x"][k]))]
+
+    body = [patches.Polygon(o, closed=True, color="tab:green", alpha=0.6, animated=True) for o in outlines(0)]
+    for b in body:
+        ax.add_patch(b)
     label = ax.text(0.02, 0.02, "", transform=ax.transAxes, fontsize=8, animated=True,
                     bbox=dict(facecolor="white", alpha=0.8, lw=0))
     seen = []
@@ -151,9 +180,10 @@ def write_animation(result, path, fps: int = 8, max_frames: int = 120, dpi: int 
             q = _poses(result, rec.law.nominal.x)
             nominal.set_data(q[:, 0], q[:, 1])
         trail.set_data(p[:k + 1, 0], p[:k + 1, 1])
-        body.set_xy(result.footprint.outline_at(p[k]))
+        for b, o in zip(body, outlines(k)):
+            b.set_xy(o)
         label.set_text(f"t = {lg['t'][k]:.1f} s   plan {rec.id}   {MODE_TEXT[lg['mode'][k]]}")
-        for artist in (*(patch for _, patch in seen), nominal, trail, body, label):
+        for artist in (*(patch for _, patch in seen), nominal, trail, *body, label):
             ax.draw_artist(artist)
         canvas.blit(fig.bbox)
         images.append(Image.frombuffer("RGBA", canvas.get_width_height(), bytes(canvas.buffer_rgba()))

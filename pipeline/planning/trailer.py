@@ -1,0 +1,654 @@
+"""Planning a car with one trailer: a Reeds-Shepp path of the trailer's axle, searched with the whole
+rig checked, then an exactly feasible motion of the rig along it: the model driven by a tracking law
+and integrated, ending in one chained-form piece that meets the goal exactly (Tilbury, Laumond,
+Murray, Sastry, Walsh 1992 for the chained form; Laumond, Jacobs, Taix, Murray 1994 for following a
+geometric path).
+
+The path
+--------
+The trailer's axle point is a flat output of the car with a trailer (:mod:`nhstab.planning.
+trailer_charts`): the trailer moves like a car of wheelbase d "steered" by the hitch angle
+D = theta - theta1, with curvature tan(D) / d. So the geometric search plans the *trailer's* path: a
+Reeds-Shepp path at the planning turning radius R1 (:func:`~nhstab.planning.geometric.plan_path`, the
+machinery every robot uses: the direct connection, the guided subgoals, OMPL's RRTConnect in the gaps;
+only exact solutions count). Along it the hitch angle of steady motion is fixed by each segment's
+turn, D = atan(d / R1) on a left arc, -atan(d / R1) on a right arc, 0 on a straight, forward and in
+reverse alike, so the whole rig's place is known at every sample: the car's rear axle d ahead of the
+trailer's along theta1, its heading theta1 + D. :class:`TrailerRig` checks every local path with both
+bodies placed so (margin plus ``MARGIN_PAD``), and OMPL validates its motions with that check (a
+Python motion validator). Cusps and reversing are Reeds-Shepp's own; the goal's trailer heading is
+the goal pose of the trailer's path. Three constraints shape the path for the rig: every run between
+cusps of a local path is at least ``MIN_RUN_HITCHES`` hitch lengths long (after a reversal the hitch
+angle needs room to settle); the path leaves the start along a straight (``START_RUN_HITCHES``) and
+arrives at the goal along a straight (``GOAL_RUN_HITCHES``, else the shorter one), with no cusp where
+those straights join (:func:`_search`: the rig starts and ends straight); R1 is five times the
+trailer's smallest steady turn (the robot's rule), where the steady steering angle is 0.23 rad.
+
+The motion
+----------
+A Reeds-Shepp path's curvature jumps, and the hitch angle, which sets the trailer's curvature, is a
+state that changes only gradually (D' = v (tan(phi)/L - sin(D)/d), |phi| limited). So the rig is
+*driven* along the path, run by run (:class:`_Tracker`): a flat-output tracking law asks for the
+trailer's curvature (the path's, a little ahead, corrected by the lateral and heading errors), i.e. a
+hitch angle D*, steers so that D follows it (tan(phi) = L (sin(D)/d - k s (D - D*)), s the direction:
+in reverse the car steers the trailer back, within the hitch angles it can still straighten,
+asin(d tan(phi_max) / L)), and moves phi at a bounded rate; the model (RK4, 8 steps per control
+period, inputs a first-order hold of the law's commands) is integrated, so the motion is exactly a
+motion of the model. On the last run a chained-form polynomial piece
+(:func:`~nhstab.planning.steering.steer_chained_polynomial` through
+:func:`~nhstab.planning.trailer_charts.steer_trailer`) joins the calmest tracked state (smallest
+steering and hitch angles) between 3 and 40 m before the goal to the goal state exactly, within the
+limits (steering within ``STEER_FRACTION``, hitch within ``JACKKNIFE_FRACTION`` of the jackknife
+limit) and clear of the obstacles. A path whose motion fails (no feasible final piece, the nominal
+not clear) is replaced by another one (OMPL over the map with the next seed), ``NOMINAL_ATTEMPTS``
+at most. The nominal carries a *tail* (:attr:`~nhstab.nominal.Nominal.tail`: the rig driving on past
+the goal) so that the gramian law's future windows are whole up to the goal: the frozen end strategy
+carries the last whole window along the linearised flow, which in reverse is unstable, and the gains
+faded exactly where the trailer backs into the dock (tests/test_trailer_planning.py).
+
+Alternatives considered, and what they did on the loading dock
+---------------------------------------------------------------
+* A search whose local planner is the polynomial steering between poses where the rig stands straight
+  (exact, nothing approximated after the search): between two such poses an 8 m piece along an arc
+  keeps within 0.9 of the steering limit only from a radius of about 14 m on
+  (tests/test_trailer_planning.py), so OMPL found almost no feasible motions.
+* Steering pieces between *calm* waypoints of the Reeds-Shepp path (the path's steady states, as the
+  cars' planner joins its waypoints): a straight rig cannot enter an arc at once, and the pieces that
+  must change the hitch angle across a curvature jump needed steering angles of 0.8-1.3 rad.
+* Driving each reverse run backwards in time (forward motion is stable, and its time reversal is an
+  exact motion): a Reeds-Shepp cusp joins arcs of opposite turn, so the runs on its two sides meet
+  the cusp with opposite hitch angles and poses up to 2 m apart, and no piece joined them.
+* A control-based OMPL planner on the model (``ompl.control``) reaches the goal only within a region
+  and propagates the model in Python at every step; a Reeds-Shepp search for the *car* with the
+  trailer integrated behind it jackknifes in reverse.
+What remains hard is the reversal itself: at a Reeds-Shepp cusp the hitch angle must swing from one
+arc's to the other's while reversing, and the tracked motion leaves the path there by up to a metre
+(the search's pad and the final check cover it). N >= 2 trailers are modelled, simulated and checked,
+but not planned: the chained chart here is the one-trailer one.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from .. import bodies
+from ..collision import CollisionWorld
+from ..control import StabilizerOptions, compute_schedule
+from ..errors import InputError, PipelineError, SingularGramianError
+from ..geometry import wrap_angle
+from ..maps.base import Map, MapError
+from ..nominal import Nominal
+from . import local_paths
+from .geometric import GeometricPath, PathOptions, densify, path_directions, plan_path
+from .timing import TimingOptions
+from .trailer_charts import steer_trailer
+
+#: plans keep every hitch angle within this fraction of the jackknife limit (room for the feedback)
+JACKKNIFE_FRACTION = 0.8
+#: and the steering angle within this fraction of its limit
+STEER_FRACTION = 0.9
+#: the geometric search keeps this much more than the margin: the tracked motion leaves the path where
+#: its curvature jumps (the hitch angle follows gradually)
+MARGIN_PAD = 0.3
+#: the path leaves the start along a straight this many hitch lengths long (forward or in reverse)
+START_RUN_HITCHES = 1.25
+#: the tracking law's gains: lateral error [1/m^2], heading error [1/m], hitch angle [1/m], steering
+#: angle [1/s] (module docstring)
+TRACK_GAINS = (0.15, 0.8, 3.0, 8.0)
+#: the tracking law asks for hitch angles within this fraction of the largest one the car can still
+#: straighten in reverse, asin(d tan(phi_max) / L)
+RECOVERABLE_FRACTION = 0.6
+#: the tracking law's curvature feedforward looks this many hitch lengths ahead along the path
+PREVIEW_HITCHES = 0.3
+#: a run between two cusps of a local path is at least this many hitch lengths long
+MIN_RUN_HITCHES = 2.0
+#: the path arrives at the goal along a straight this many hitch lengths long where there is room (the
+#: tracked motion settles on it before the final piece), else along the shorter run-up
+GOAL_RUN_HITCHES = 3.0
+#: the straight-ends combinations are ordered by Reeds-Shepp length plus this much per cusp [m]
+CUSP_COST_M = 10.0
+#: a path whose nominal fails is replaced by another one (OMPL over the map, the next seed), at most this
+#: many paths and while the time spent is below this factor times the planning budget
+NOMINAL_ATTEMPTS = 4
+NOMINAL_BUDGET_FACTOR = 3.0
+#: the nominal's tail (the motion continued past the goal for the gain schedule's windows) [s]
+TAIL_S = 20.0
+#: the final piece starts between the first and last of these distances from the goal (trailer's axle) [m]
+FINAL_PIECE_M = (3.0, 4.5, 6.0, 8.0, 10.0, 12.0, 15.0, 20.0, 25.0, 30.0, 40.0)
+#: the final piece is tried from at most this many starts (the calmest in each band of FINAL_PIECE_M)
+FINAL_TRIES = 10
+
+
+class TrailerPlanningError(PipelineError):
+    """The steering pieces could not follow the trailer's path feasibly, even lengthened or split."""
+
+
+def trailer_pose(model, config) -> np.ndarray:
+    """The trailer's axle pose (x1, y1, theta1) of a configuration (x, y, theta, theta1) or a state."""
+    d = float(model.hitch_lengths[0])
+    config = np.asarray(config, dtype=float)
+    th1 = float(config[-1])
+    return np.array([float(config[0]) - d * math.cos(th1), float(config[1]) - d * math.sin(th1), th1])
+
+
+def _turn_signs(segments, fractions) -> np.ndarray:
+    """+1 on a left turn, -1 on a right turn, 0 on a straight at the given fractions of a Reeds-Shepp
+    path's length (a sample on a boundary belongs to the later segment, as in local_paths.sample). A
+    towed body turns the same way forward and in reverse, so this fixes the steady hitch angle."""
+    f = np.clip(np.asarray(fractions, dtype=float), 0.0, 1.0)
+    lengths = np.array([abs(v) for _, v in segments])
+    total = float(lengths.sum())
+    if total <= 0.0:
+        return np.zeros(len(f))
+    signs = np.array([{"L": 1.0, "R": -1.0}.get(kind, 0.0) for kind, _ in segments])
+    return signs[np.minimum(np.searchsorted(np.cumsum(lengths), f * total, side="right"), len(segments) - 1)]
+
+
+def _runs(segments, radius: float) -> list[float]:
+    """Lengths [m] of the runs of one direction of travel of a Reeds-Shepp path (zero-length segments
+    dropped)."""
+    runs: list[list] = []
+    for _, v in segments:
+        if abs(v) * radius < 1e-9:
+            continue
+        sign = v > 0
+        if runs and runs[-1][0] == sign:
+            runs[-1][1] += abs(v) * radius
+        else:
+            runs.append([sign, abs(v) * radius])
+    return [r[1] for r in runs]
+
+
+def _short_run(segments, radius: float, min_run: float) -> bool:
+    """Has the path a cusp next to a run shorter than ``min_run``? (A path of one run has no cusp; a
+    path's first and last runs count too, since the next local path may reverse again at the join.)"""
+    runs = _runs(segments, radius)
+    return len(runs) > 1 and any(r < min_run for r in runs)
+
+
+def _cusp_count(segments, radius: float) -> int:
+    return max(0, len(_runs(segments, radius)) - 1)
+
+
+class TrailerRig:
+    """The checks of the geometric search for a car with one trailer, planned by the trailer's axle
+    pose (``rig`` of :func:`~nhstab.planning.geometric.plan_path`; module docstring)."""
+
+    def __init__(self, world: CollisionWorld, robot, margin: float, opts: PathOptions):
+        self.world, self.robot, self.margin, self.opts = world, robot, float(margin), opts
+        self.car_fp, self.trailer_fp = robot.footprints
+        self.d = float(robot.model.hitch_lengths[0])
+        self.radius = float(opts.turning_radius)
+        self.hitch_on_arcs = math.atan(self.d / self.radius)
+        self._trailer = world.state_checker(self.trailer_fp, margin)
+        self.bounding_radius = max(self.trailer_fp.bounding_radius, self.d + self.car_fp.bounding_radius)
+        #: the poses where straight ends join the searched path, and the directions they are driven in
+        self.depart, self.depart_dir, self.arrive, self.arrive_dir = None, 1.0, None, 1.0
+
+    def pose_free(self, x: float, y: float, th: float) -> bool:
+        """The trailer's body at its axle pose (x, y, th): a necessary condition for the rig (the car's
+        place depends on how the path turns there)."""
+        return self._trailer(x, y, th)
+
+    def car_poses(self, poses: np.ndarray, turns: np.ndarray) -> np.ndarray:
+        """The car's rear-axle poses with the trailer's axle at ``poses`` on segments turning ``turns``."""
+        th = poses[:, 2]
+        return np.column_stack([poses[:, 0] + self.d * np.cos(th), poses[:, 1] + self.d * np.sin(th),
+                                th + np.asarray(turns) * self.hitch_on_arcs])
+
+    def connect(self, a, b, stats: dict | None = None) -> bool:
+        """Is the trailer's Reeds-Shepp path from pose a to b free for both bodies (sampled every
+        ``resolution`` m), and, if it reverses, every run at least ``MIN_RUN_HITCHES`` hitch lengths
+        long (the rig needs room to settle its hitch angle after each reversal)?"""
+        seg = local_paths.reeds_shepp(a, b, self.radius)
+        if _short_run(seg, self.radius, MIN_RUN_HITCHES * self.d):
+            return False
+        # no cusp where a straight end joins (see _search)
+        moving = [v for _, v in seg if abs(v) * self.radius > 1e-9]
+        for end, want, first in ((self.depart, self.depart_dir, True), (self.arrive, self.arrive_dir, False)):
+            if end is not None and moving and np.allclose(a if first else b, end, atol=1e-9):
+                if (moving[0] if first else moving[-1]) * want < 0:
+                    return False
+        n = max(1, int(math.ceil(local_paths.path_length(seg, self.radius) / self.opts.resolution)))
+        fractions = np.arange(1, n + 1) / n
+        poses = local_paths.sample(a, seg, self.radius, fractions)
+        return (self.world.motion_free(poses, self.trailer_fp, self.margin, stats)
+                and self.world.motion_free(self.car_poses(poses, _turn_signs(seg, fractions)), self.car_fp,
+                                           self.margin, stats))
+
+    def densify(self, waypoints):
+        samples, sigma, length = densify(self.opts, waypoints, step=min(0.005, self.opts.resolution / 2))
+        direction, _ = path_directions(samples)
+        return samples, sigma, direction, length
+
+
+def _search(world: CollisionWorld, robot, rig: TrailerRig, opts: PathOptions, x_start, x_goal,
+            run: float) -> GeometricPath:
+    """The trailer's path from start to goal, with straight ends: the rig starts and ends straight, and
+    its hitch angle needs about ``2 run`` of path to settle on an arc, so the search joins a pose ``run``
+    ahead of or behind the start (forward or reverse run-up) to one ``GOAL_RUN_HITCHES`` hitch lengths
+    (else ``run``) before or beyond the goal (arriving forward or in reverse; the tracked motion settles
+    on that straight before the final piece). The combinations are tried in order of their
+    Reeds-Shepp length plus ``CUSP_COST_M`` per cusp (and once more for the short arrival) while the
+    budget lasts, each with at least half of it, and then the path from the start to the goal itself."""
+    model = robot.model
+    ps, pg = trailer_pose(model, x_start), trailer_pose(model, x_goal)
+    R = float(opts.turning_radius)
+
+    def moved(p, dist):
+        return np.array([p[0] + dist * math.cos(p[2]), p[1] + dist * math.sin(p[2]), p[2]])
+
+    combos = []
+    for ds in (run, -run):
+        for dg in (GOAL_RUN_HITCHES * float(model.hitch_lengths[0]), run):
+            for sign in (1.0, -1.0):
+                s1, g1 = moved(ps, ds), moved(pg, sign * dg)
+                seg = [("S", ds / R), *local_paths.reeds_shepp(s1, g1, R), ("S", -sign * dg / R)]
+                cost = local_paths.path_length(seg, R) + CUSP_COST_M * _cusp_count(seg, R) + (CUSP_COST_M if dg == run
+                                                                                               else 0.0)
+                combos.append((cost, s1, g1))
+    combos.sort(key=lambda c: c[0])
+    started = time.perf_counter()
+    budget = float(opts.time_limit_s)
+    last = None
+    for k, (_, s1, g1) in enumerate(combos):
+        left = budget - (time.perf_counter() - started)
+        if left <= 0.05 * budget:
+            break
+        rig.depart = rig.arrive = None
+        if not (rig.pose_free(*s1) and rig.pose_free(*g1) and rig.connect(ps, s1) and rig.connect(g1, pg)):
+            continue
+        rig.depart, rig.depart_dir = s1, math.copysign(1.0, float(np.dot(s1[:2] - ps[:2], [math.cos(ps[2]), math.sin(ps[2])])))
+        rig.arrive, rig.arrive_dir = g1, math.copysign(1.0, float(np.dot(pg[:2] - g1[:2], [math.cos(pg[2]), math.sin(pg[2])])))
+        path = plan_path(world, rig.trailer_fp, s1, g1, replace(opts, time_limit_s=max(0.5 * budget, left / 2)
+                                                                if k < len(combos) - 1 else left), rig=rig)
+        last = path
+        if path.status == "exact":
+            waypoints = np.vstack([ps, path.waypoints, pg])
+            samples, sigma, direction, length = rig.densify(waypoints)
+            cusps = int(np.sum(direction[1:] != direction[:-1]))
+            info = {**path.info, "start_straight_m": run, "goal_straight_m": float(np.hypot(*(g1[:2] - pg[:2])))}
+            return replace(path, waypoints=waypoints, samples=samples, sigma=sigma, direction=direction,
+                           length=length, cusps=cusps, planning_time_s=time.perf_counter() - started, info=info)
+    rig.depart = rig.arrive = None
+    left = budget - (time.perf_counter() - started)
+    if left > 0.05 * budget or last is None:
+        path = plan_path(world, rig.trailer_fp, ps, pg, replace(opts, time_limit_s=max(left, 0.05 * budget)), rig=rig)
+        return replace(path, planning_time_s=time.perf_counter() - started)
+    return replace(last, planning_time_s=time.perf_counter() - started)
+
+
+def check_configuration(m: Map, robot, config, name: str, world: CollisionWorld) -> float:
+    """A start or goal configuration of a car_trailer: the hitch angle within the jackknife limit, every
+    body inside the map's bounds and clear of the obstacles; returns the smallest clearance over the
+    bodies. Raises :class:`InputError` / :class:`MapError` naming ``name``."""
+    model = robot.model
+    hitch = float(wrap_angle(config[2] - config[3]))
+    if abs(hitch) > model.jackknife_limit:
+        raise InputError(name, f"a hitch angle |theta - theta1| within the jackknife limit "
+                         f"{model.jackknife_limit:g} rad", np.round(config, 4).tolist(),
+                         detail=f"|theta - theta1| = {abs(hitch):.3f} rad")
+    x = np.array([config[0], config[1], config[2], 0.0, config[3]])
+    names = ("car", "trailer")
+    out = math.inf
+    for b, (pose, fp) in enumerate(zip(robot.body_poses(x), robot.footprints)):
+        where = f"{m.source or m.name}: {name} ({names[b]})"
+        if not m.contains(pose[0], pose[1]):
+            raise MapError(where, f"inside the bounds {list(m.bounds)}", np.round(pose, 4).tolist())
+        c = world.clearance(pose, fp)
+        if c < 0:
+            raise MapError(where, f"a pose where the {names[b]}'s footprint is free", np.round(pose, 4).tolist(),
+                           detail=f"it overlaps an obstacle by {-c:.3g} m")
+        out = min(out, c)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# the nominal along the trailer's path
+# ---------------------------------------------------------------------------------------------
+def _cusps(direction: np.ndarray, sigma: np.ndarray, min_run: float) -> list[int]:
+    """Sample indices of the path's cusps, without those that bound a run shorter than ``min_run``
+    (a run at an end loses its inner cusp, a run in between both of its cusps)."""
+    n = len(sigma)
+    cusps = [int(i) for i in np.flatnonzero(direction[1:] != direction[:-1]) + 1]
+    while True:
+        ends = [0, *cusps, n - 1]
+        short = [k for k in range(len(ends) - 1) if sigma[ends[k + 1]] - sigma[ends[k]] < min_run]
+        if not short or not cusps:
+            return cusps
+        k = short[0]
+        drop = {ends[k], ends[k + 1]} - {0, n - 1}
+        cusps = [c for c in cusps if c not in drop]
+
+
+class _Tracker:
+    """The rig driven along the trailer's path by a flat-output tracking law (module docstring), its
+    inputs a first-order hold of the law's commands one control period late, integrated with RK4."""
+
+    def __init__(self, robot, timing: TimingOptions, speed: float, substeps: int = 8):
+        m = robot.model
+        self.robot, self.model = robot, m
+        self.L, self.d = float(m.wheelbase), float(m.hitch_lengths[0])
+        self.dt, self.speed, self.substeps = float(timing.dt), float(speed), int(substeps)
+        self.steer_cap = STEER_FRACTION * float(m.max_steer)
+        self.rate_cap = STEER_FRACTION * float(m.max_steer_rate)
+        # the hitch angle the car can still straighten in reverse: sin(D) / d < tan(phi) / L
+        recoverable = math.asin(min(1.0, self.d * math.tan(self.steer_cap) / self.L))
+        self.hitch_cap = min(JACKKNIFE_FRACTION * float(m.jackknife_limit), RECOVERABLE_FRACTION * recoverable)
+        self.steps_per_m = 1.0 / max(self.speed * self.dt, 1e-9)
+
+    def _command(self, x, ref, kappa_ref: float, direction: float) -> np.ndarray:
+        """The law at state x about path pose ``ref`` with curvature ``kappa_ref`` (heading-forward)."""
+        d, L = self.d, self.L
+        th1 = float(x[4])
+        x1, y1 = float(x[0]) - d * math.cos(th1), float(x[1]) - d * math.sin(th1)
+        c, s = math.cos(ref[2]), math.sin(ref[2])
+        e_y = -s * (x1 - ref[0]) + c * (y1 - ref[1])
+        e_th = float(wrap_angle(th1 - ref[2]))
+        kappa = kappa_ref - TRACK_GAINS[0] * e_y - TRACK_GAINS[1] * direction * math.sin(e_th)
+        D_des = max(-self.hitch_cap, min(self.hitch_cap, math.atan(d * kappa)))
+        D = float(wrap_angle(x[2] - th1))
+        tan_phi = L * (math.sin(D) / d - TRACK_GAINS[2] * direction * (D - D_des))
+        phi_des = max(-self.steer_cap, min(self.steer_cap, math.atan(tan_phi)))
+        omega = max(-self.rate_cap, min(self.rate_cap, TRACK_GAINS[3] * (phi_des - float(x[3]))))
+        return np.array([direction * self.speed, omega])
+
+    def step(self, x, u0, u1) -> np.ndarray:
+        """x one control period later under u linear from u0 to u1 (RK4, ``substeps`` steps; the model's
+        right-hand side written out on Python floats, the same as ``CarTrailer.rhs`` for one trailer)."""
+        L, d = self.L, self.d
+        cos, sin, tan = math.cos, math.sin, math.tan
+
+        def f(px, py, th, phi, th1, v, w):
+            dl = th - th1
+            return cos(th) * v, sin(th) * v, tan(phi) / L * v, w, v * sin(dl) / d
+
+        h = self.dt / self.substeps
+        s = [float(v) for v in x]
+        v0, w0, dv, dw = float(u0[0]), float(u0[1]), float(u1[0] - u0[0]), float(u1[1] - u0[1])
+        for k in range(self.substeps):
+            a, b, c = k / self.substeps, (k + 0.5) / self.substeps, (k + 1) / self.substeps
+            k1 = f(*s, v0 + a * dv, w0 + a * dw)
+            k2 = f(*(si + 0.5 * h * ki for si, ki in zip(s, k1)), v0 + b * dv, w0 + b * dw)
+            k3 = f(*(si + 0.5 * h * ki for si, ki in zip(s, k2)), v0 + b * dv, w0 + b * dw)
+            k4 = f(*(si + h * ki for si, ki in zip(s, k3)), v0 + c * dv, w0 + c * dw)
+            s = [si + (h / 6.0) * (p + 2.0 * q + 2.0 * r + t) for si, p, q, r, t in zip(s, k1, k2, k3, k4)]
+        return np.array(s)
+
+    def run(self, x, u, samples, sigma, kappa, i0: int, i1: int, direction: float, stop_before: float = 0.0):
+        """Drive along samples i0 .. i1 (one run) from state x with the last input u, until the trailer's
+        projection on the path is within ``stop_before`` of sample i1. Returns the states and inputs of
+        every control sample after the first (lists), and the final state and input."""
+        xs, us = [], []
+        j = i0
+        end_sigma = sigma[i1] - stop_before
+        limit = int(4 * (sigma[i1] - sigma[i0] + 5.0) * self.steps_per_m) + 50
+        d = self.d
+        sx, sy = samples[:, 0].tolist(), samples[:, 1].tolist()
+        for _ in range(limit):
+            th1 = float(x[4])
+            p = (float(x[0]) - d * math.cos(th1), float(x[1]) - d * math.sin(th1))
+            # the projection: walk ahead while the samples come nearer (monotone along the run)
+            best = (sx[j] - p[0]) ** 2 + (sy[j] - p[1]) ** 2
+            while j < i1:
+                nxt = (sx[j + 1] - p[0]) ** 2 + (sy[j + 1] - p[1]) ** 2
+                if nxt > best:
+                    break
+                j, best = j + 1, nxt
+            ref = samples[j]
+            along = direction * ((p[0] - ref[0]) * math.cos(ref[2]) + (p[1] - ref[1]) * math.sin(ref[2]))
+            if sigma[j] + along >= end_sigma - 1e-9 or j >= i1:
+                break
+            # the curvature a little ahead: the hitch angle needs that long to follow it
+            k = min(int(np.searchsorted(sigma, sigma[j] + PREVIEW_HITCHES * d)), i1 - 1, len(kappa) - 1)
+            cmd = self._command(x, ref, direction * float(kappa[max(k, j)]), direction)
+            x = self.step(x, u, cmd)
+            u = cmd
+            xs.append(x)
+            us.append(u)
+        return xs, us, x, u
+
+
+def trailer_nominal(robot, path: GeometricPath, timing: TimingOptions, world: CollisionWorld, margin: float,
+                    start_state: np.ndarray, goal_state: np.ndarray, min_run: float = 0.5,
+                    speed_fraction: float = 0.6) -> tuple[Nominal, dict]:
+    """An exactly feasible nominal of the car with one trailer along ``path`` (the trailer axle's
+    Reeds-Shepp path) from ``start_state`` to ``goal_state`` (full states): the rig driven by the
+    tracking law up to a few metres before the goal, then one polynomial steering piece to the goal
+    exactly (module docstring). Runs between cusps shorter than ``min_run`` (Reeds-Shepp's small
+    back-and-forth moves) are skipped. Raises :class:`TrailerPlanningError` when no final piece is
+    feasible or the tracked motion leaves the limits."""
+    model = robot.model
+    samples, sigma, direction = path.samples, path.sigma, path.direction
+    n = len(samples)
+    kappa = np.where(np.diff(sigma) > 1e-12, np.diff(samples[:, 2]) / np.maximum(np.diff(sigma), 1e-300), 0.0)
+    max_speed = timing.max_speed or float(model.input_limits()[0, 1])
+    tracker = _Tracker(robot, timing, speed_fraction * max_speed)
+    ends = [0, *_cusps(direction, sigma, min_run), n - 1]
+    x = np.array(start_state, dtype=float)
+    u = np.zeros(2)
+    xs, us = [x], [u]
+    # every run but the last to its end, the last to its end too (the final piece starts before it)
+    marks = []
+    for k, (i0, i1) in enumerate(zip(ends[:-1], ends[1:])):
+        dirn = 1.0 if float(np.sum(direction[i0:i1] * np.diff(sigma[i0:i1 + 1]))) >= 0 else -1.0
+        new_x, new_u, x, u = tracker.run(x, u, samples, sigma, kappa, i0, i1, dirn)
+        xs += new_x
+        us += new_u
+        marks.append((len(xs) - 1, dirn))
+    last_dir = marks[-1][1]
+    first_of_last = (marks[-2][0] if len(marks) > 1 else 0)
+    x_arr, u_arr = np.array(xs), np.array(us)
+    # the final piece: from a tracked state at least `lead` metres before the goal (trailer's axle)
+    trailer_xy = robot.body_poses(x_arr)[:, 1, :2]
+    goal_xy = robot.body_poses(goal_state)[1, :2]
+    dist = np.hypot(*(trailer_xy - goal_xy).T)
+    hitch_cap = JACKKNIFE_FRACTION * float(model.jackknife_limit)
+    steer_cap = STEER_FRACTION * float(model.max_steer)
+    final, tried = None, []
+    # candidate starts of the final piece on the last run, FINAL_PIECE_M[0] to FINAL_PIECE_M[-1] from the
+    # goal: the calmest first (smallest steering and hitch angles: the piece starts from them), at most
+    # FINAL_TRIES of them, spread over the distances
+    on_last = (np.arange(len(x_arr)) >= first_of_last) & (dist >= FINAL_PIECE_M[0]) & (dist <= FINAL_PIECE_M[-1])
+    cand = np.flatnonzero(on_last)
+    if len(cand):
+        calm = np.abs(x_arr[cand, 3]) + np.abs(model.hitch_angles(x_arr[cand])[:, 0])
+        bins = np.digitize(dist[cand], FINAL_PIECE_M)
+        order = []
+        for b in np.unique(bins):
+            sel = cand[bins == b]
+            order.append(int(sel[np.argmin(calm[bins == b])]))
+        order.sort(key=lambda k: float(np.abs(x_arr[k, 3]) + abs(model.hitch_angles(x_arr[k])[0])))
+        cand = order[:FINAL_TRIES]
+    for k in cand:
+        lead = float(dist[k])
+        try:
+            piece = steer_trailer(model, x_arr[k], goal_state, T=None, mode="polynomial")
+            if piece.max_speed > tracker.speed:        # no faster than the tracked motion
+                piece = steer_trailer(model, x_arr[k], goal_state, T=piece.T * piece.max_speed / tracker.speed,
+                                      frame=piece.frame["heading"], mode="polynomial")
+        except InputError as exc:
+            tried.append(f"{lead:.1f} m: {exc.expected}")
+            continue
+        ok = (math.copysign(1.0, piece.plan.phases[0].v1) == last_dir and piece.max_abs_phi <= steer_cap + 1e-9
+              and piece.max_abs_hitch <= hitch_cap + 1e-9 and piece.max_speed <= max_speed * 1.001
+              and bool(bodies.free_many(world, robot, piece.x, margin).all()))
+        tried.append(f"{lead:.1f} m: max |phi| {piece.max_abs_phi:.2f}, max |hitch| {piece.max_abs_hitch:.2f}")
+        if ok:
+            final = (k, piece)
+            break
+    if final is None:
+        raise TrailerPlanningError("no feasible final piece from the tracked motion to the goal (" + "; ".join(tried)
+                                   + ")")
+    k, piece = final
+    t_track = timing.dt * np.arange(k + 1)
+    x_track, u_track = x_arr[: k + 1], u_arr[: k + 1]
+    hitches = model.hitch_angles(x_track)[:, 0]
+    if np.abs(hitches).max() > hitch_cap + 1e-6 or np.abs(x_track[:, 3]).max() > float(model.max_steer):
+        raise TrailerPlanningError(f"the tracked motion leaves the limits (max |hitch| {np.abs(hitches).max():.3f} rad, "
+                                   f"max |phi| {np.abs(x_track[:, 3]).max():.3f} rad)")
+    joined = _TrackedThenPiece(model, t_track, x_track, u_track, piece)
+    npts = max(2, int(math.ceil(joined.duration / timing.dt)) + 1)
+    t = np.linspace(0.0, joined.duration, npts)
+    nominal = Nominal.from_functions(model, joined.states, joined.inputs, t)
+    # the motion continued past the goal, for the gramian law's future windows only (Nominal.tail): the
+    # rig driving on at its final speed with the steering held
+    v_end = float(piece.inputs_at(np.array([piece.T]))[0, 0])
+    t_tail = np.linspace(0.0, TAIL_S, int(round(TAIL_S / timing.dt)) + 1)
+    nominal.tail = Nominal.from_inputs(model, lambda tau: np.tile([v_end, 0.0], (np.size(tau), 1)),
+                                       nominal.x[-1], t_tail)
+    from .cars import direction_reversals
+
+    hitches = model.hitch_angles(nominal.x)[:, 0]
+    return nominal, {"duration_s": joined.duration, "tracked_s": float(t_track[-1]), "final_piece_s": piece.T,
+                     "final_piece_from_goal_m": float(dist[k]), "runs": len(ends) - 1,
+                     "direction_reversals": direction_reversals(robot.body_poses(nominal.x)[:, 1]),
+                     "dt_s": float(t[1] - t[0]), "speed_m_s": tracker.speed,
+                     "max_abs_hitch_angle_rad": float(np.abs(hitches).max()),
+                     "jackknife_limit_rad": float(model.jackknife_limit),
+                     "max_abs_steering_rad": float(np.abs(nominal.x[:, 3]).max()),
+                     "steering_limit_rad": float(model.max_steer),
+                     "final_piece_end_error": float(np.abs(piece.final_error).max())}
+
+
+class _TrackedThenPiece:
+    """The tracked motion (samples on a uniform grid: x by cubic Hermite with the model's slopes, u
+    linear, which is how it was integrated up to the RK4 error), then the final piece (closed form)."""
+
+    def __init__(self, model, t, x, u, piece):
+        from scipy.interpolate import CubicHermiteSpline
+
+        self.model, self.piece = model, piece
+        self.t_switch = float(t[-1])
+        self.duration = self.t_switch + float(piece.T)
+        self._x = CubicHermiteSpline(t, x, model.rhs(x, u), axis=0) if len(t) > 1 else None
+        self._t, self._u, self._x0 = t, u, x[0]
+
+    def _split(self, t):
+        tt = np.clip(np.atleast_1d(np.asarray(t, dtype=float)).reshape(-1), 0.0, self.duration)
+        return tt, tt <= self.t_switch
+
+    def states(self, t) -> np.ndarray:
+        tt, first = self._split(t)
+        out = np.empty((len(tt), self.model.n))
+        if first.any():
+            out[first] = self._x(tt[first]) if self._x is not None else self._x0
+        if (~first).any():
+            out[~first] = self.piece.states_at(tt[~first] - self.t_switch)
+        return out
+
+    def inputs(self, t) -> np.ndarray:
+        tt, first = self._split(t)
+        out = np.empty((len(tt), 2))
+        if first.any():
+            for j in range(2):
+                out[first, j] = np.interp(tt[first], self._t, self._u[:, j])
+        if (~first).any():
+            out[~first] = self.piece.inputs_at(tt[~first] - self.t_switch)
+        return out
+
+
+# ---------------------------------------------------------------------------------------------
+# planning
+# ---------------------------------------------------------------------------------------------
+def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts: TimingOptions,
+                 stab_opts: StabilizerOptions, check_resolution: float = 0.05, world: CollisionWorld | None = None):
+    """:func:`nhstab.planning.plan` for a car_trailer with one trailer (module docstring). ``start`` and
+    ``goal``: poses (x, y, theta) with the trailer in line, configurations (x, y, theta, theta1), or
+    full states."""
+    from . import PlanResult
+
+    model = robot.model
+    if model.trailers != 1:
+        raise InputError("robot", "a car_trailer with one trailer (nhstab plans N = 1; the model itself takes "
+                         "any N)", f"{model.trailers} trailers")
+    world = world or CollisionWorld.from_map(m, "known")
+    start_c, goal_c = robot.configuration(start, "start"), robot.configuration(goal, "goal")
+    clearances = {"start": check_configuration(m, robot, start_c, "start", world),
+                  "goal": check_configuration(m, robot, goal_c, "goal", world)}
+    for key, c in clearances.items():
+        if c <= path_opts.margin:
+            value = start_c if key == "start" else goal_c
+            raise InputError(key, f"a configuration whose every body is at least the margin {path_opts.margin:g} m "
+                             f"from the known obstacles", np.round(value, 4).tolist(), detail=f"clearance {c:.3g} m")
+    if path_opts.turning_radius < model.min_turning_radius - 1e-9:
+        raise InputError("turning_radius", f"at least the trailer's smallest steady turning radius "
+                         f"{model.min_turning_radius:.4g} m", path_opts.turning_radius)
+    if path_opts.space != "reeds_shepp":
+        raise InputError("space", "reeds_shepp (a car with a trailer reverses)", path_opts.space)
+    started = time.perf_counter()
+    x_start = np.array([start_c[0], start_c[1], start_c[2], 0.0, start_c[3]])
+    x_goal = np.array([goal_c[0], goal_c[1], goal_c[2], 0.0, goal_c[3]])
+    pad_margin = min(path_opts.margin + MARGIN_PAD, min(clearances.values()) - 1e-3)
+    search = replace(path_opts, margin=max(path_opts.margin, pad_margin))
+    rig = TrailerRig(world, robot, search.margin, search)
+    run_up = START_RUN_HITCHES * float(model.hitch_lengths[0])
+    budget = NOMINAL_BUDGET_FACTOR * float(path_opts.time_limit_s)
+    attempts: list = []
+    result = None
+    for k in range(NOMINAL_ATTEMPTS):
+        # the first path from the guided search (if asked), the next ones from OMPL over the whole map with
+        # the next seeds: a path whose motion the rig cannot follow is replaced by another one
+        opts_k = search if k == 0 else replace(search, guide=False, seed=int(
+            np.random.SeedSequence([int(search.seed), 15, k]).generate_state(1)[0] % (2**31 - 2)))
+        path = _search(world, robot, rig, opts_k, x_start, x_goal, run_up)
+        metrics = {"planner": path_opts.planner, "planner_used": path.info.get("planner_used"),
+                   "planner_status": path.planner_status, "planning_time_s": time.perf_counter() - started,
+                   "validity_calls": path.validity_calls,
+                   "validity_us_per_state": 1e6 * path.validity_time_s / max(path.validity_calls, 1),
+                   "start_clearance_m": clearances["start"], "goal_clearance_m": clearances["goal"],
+                   "planned_body": "trailer 1 (its axle)", "hitch_angle_on_arcs_rad": rig.hitch_on_arcs}
+        if path.status != "exact":
+            tried = (f"{path_opts.planner} for the trailer's axle in the reeds_shepp space (turning radius "
+                     f"{path_opts.turning_radius:g} m, margin {path_opts.margin:g} m) for {opts_k.time_limit_s:g} s "
+                     f"with seed {opts_k.seed}")
+            result = ("no_path", f"no collision-free path found: tried {tried}; OMPL: {path.planner_status}", path,
+                      None, metrics)
+        else:
+            try:
+                nominal, tinfo = trailer_nominal(robot, path, timing_opts, world, path_opts.margin, x_start, x_goal)
+            except TrailerPlanningError as exc:
+                result = ("infeasible", f"the path was found but could not be made feasible for the car with a "
+                          f"trailer: {exc}", path, None, metrics)
+            else:
+                check = bodies.check_path(world, robot, nominal.x, margin=path_opts.margin, resolution=check_resolution)
+                metrics.update({
+                    "length_m": path.length, "cusps": path.cusps,
+                    "max_curvature_per_m": 1.0 / path_opts.turning_radius, "waypoints": len(path.waypoints), **tinfo,
+                    "min_clearance_m": check.min_clearance, "min_clearance_pose": check.min_clearance_pose,
+                    "min_clearance_body": ("car", "trailer 1")[check.min_clearance_body],
+                    "clearance_check_resolution_m": check_resolution, "clearance_samples": check.samples,
+                    "max_abs_inputs": np.max(np.abs(nominal.u), axis=0), "input_limits": model.input_limits()[:, 1],
+                })
+                if check.clear:
+                    result = None
+                    break
+                result = ("not_clear", f"the nominal comes within {check.min_clearance:.3g} m of an obstacle "
+                          f"(margin {path_opts.margin:g} m) with its {('car', 'trailer')[check.min_clearance_body]} at "
+                          f"{np.round(check.min_clearance_pose, 3).tolist()}", path, nominal, metrics)
+        attempts.append(f"{result[0]} ({'guided' if k == 0 and search.guide else f'seed {opts_k.seed}'})")
+        if time.perf_counter() - started >= budget:
+            break
+    if result is not None:
+        status, message, path, nominal, metrics = result
+        metrics.update({"time_to_nominal_s": time.perf_counter() - started, "path_attempts": attempts})
+        if len(attempts) > 1:
+            message += f" (after {len(attempts)} paths: " + ", ".join(attempts) + ")"
+        return PlanResult(status, message, path, nominal, metrics=metrics)
+    metrics["path_attempts"] = attempts + ["ok"]
+    try:
+        schedule = compute_schedule(nominal, stab_opts)
+    except SingularGramianError as exc:
+        metrics["time_to_nominal_s"] = time.perf_counter() - started
+        return PlanResult("not_stabilizable", str(exc), path, nominal, metrics=metrics)
+    dg = schedule.diagnostics
+    metrics.update({"robot": robot.name, "stabilizer": stab_opts.describe(), "h_min_eigenvalue": dg["h_min_eigenvalue"],
+                    "h_min_eigenvalue_time_s": dg["h_min_eigenvalue_time_s"], "max_gain_norm": dg["max_gain_norm"],
+                    "p_m": dg["p_m"], "p_M": dg["p_M"], "rate_bound": dg["rate_bound"],
+                    "time_to_nominal_s": time.perf_counter() - started})
+    return PlanResult("ok", "exact path of the trailer, feasible nominal of the rig, every body clear by the margin, "
+                      "gain schedule computed", path, nominal, schedule, metrics)
