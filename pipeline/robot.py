@@ -15,7 +15,7 @@ the ``robot:`` block of map, run and batch files::
       footprint:                # one of: {radius: R} | {rectangle: {length, width, rear_overhang}} |
         polygon: [[-0.9, -0.95], [3.6, -0.95], [3.6, 0.95], [-0.9, 0.95]]   # {polygon: [...]}
       margin: 0.1               # planning margin [m]
-      stabilizer: {alpha: 0.1, delta: 6.0, gamma: 1.0}   # the gramian law's defaults
+      stabilizer: {alpha: 0.1, delta: 6.0, gamma: 1.0, end_strategy: extend}   # the gramian law's defaults
       turning_radius: 5.0       # planning turning radius [m] (default: the rule below)
 
 A ``car_trailer`` also takes ``hitch_lengths: [d1, ...]`` (one per trailer, the model's list-valued
@@ -29,7 +29,12 @@ x forward from the reference point (the rear axle of a car, the centre of the un
 left; a rectangle's ``rear_overhang`` is how far the body reaches behind the reference point.
 
 Defaults per model (:data:`MODEL_DEFAULTS`): the footprint, the planning margin, the stabilizer
-parameters (chosen by ``nhstab sweep``, results/planning/sweep.md) and the turning-radius rule. The
+parameters (alpha, delta, gamma chosen by ``nhstab sweep``, results/planning/sweep.md; the end of the
+gain schedule, :data:`nhstab.control.gramian.END_STRATEGIES`) and the turning-radius rule. The cars'
+schedules end with ``extend``: a car nominal that drives a straight run into its goal keeps its window
+sliding along that run's continuation, where the last whole window carried along the flow
+(``frozen``) let the largest gain grow to 55-80 on the parking suite's tight bays and ended the runs
+farther from the goal (README, Parking). The
 rule: the unicycle plans with a 0.5 m radius (it could turn in place; a radius keeps the path smooth
 and the gramian well conditioned); a car plans with 1.25 times its minimum turning radius
 R_min = L / tan(max_steer), so that the feedback keeps steering authority: on an arc of radius
@@ -54,27 +59,34 @@ from .models import MODELS, Model, make_model
 #: radius rule (("fixed", metres) or ("factor", multiple of the minimum turning radius))
 MODEL_DEFAULTS: dict[str, dict] = {
     "unicycle": {"footprint": {"radius": 0.3}, "margin": 0.1,
-                 "stabilizer": {"alpha": 0.2, "delta": 2.0, "gamma": 1.0}, "turning_radius": ("fixed", 0.5)},
+                 "stabilizer": {"alpha": 0.2, "delta": 2.0, "gamma": 1.0, "end_strategy": "frozen"},
+                 "turning_radius": ("fixed", 0.5)},
     # a car's body reaches 3.3 m ahead of its rear axle, where a heading error of 0.05 rad already
     # moves it by 0.17 m, so cars keep more room than the unicycle
     "rwd_car": {"footprint": {"rectangle": {"length": 4.2, "width": 1.8, "rear_overhang": 0.9}}, "margin": 0.3,
-                "stabilizer": {"alpha": 0.1, "delta": 6.0, "gamma": 1.0}, "turning_radius": ("factor", 1.25)},
+                "stabilizer": {"alpha": 0.1, "delta": 6.0, "gamma": 1.0, "end_strategy": "extend"},
+                "turning_radius": ("factor", 1.25)},
     "fwd_car": {"footprint": {"rectangle": {"length": 1.6, "width": 0.8, "rear_overhang": 0.3}}, "margin": 0.2,
-                "stabilizer": {"alpha": 0.2, "delta": 3.0, "gamma": 1.0}, "turning_radius": ("factor", 1.25)},
+                "stabilizer": {"alpha": 0.2, "delta": 3.0, "gamma": 1.0, "end_strategy": "extend"},
+                "turning_radius": ("factor", 1.25)},
     "heisenberg": {"footprint": {"radius": 0.1}, "margin": 0.1,
-                   "stabilizer": {"alpha": 1.0, "delta": 1.0, "gamma": 1.0}, "turning_radius": ("fixed", 0.5)},
+                   "stabilizer": {"alpha": 1.0, "delta": 1.0, "gamma": 1.0, "end_strategy": "frozen"},
+                   "turning_radius": ("fixed", 0.5)},
     # the rwd_car towing a 2.5 x 1.8 m trailer whose axle is 3 m behind the hitch; the turning radius
     # is the trailer's axle path's (the planned point), 3.5 times its smallest steady turn: the hitch
     # angle changes only gradually, and on those arcs the steady steering angle is half its limit
-    # (nhstab.planning.trailer)
+    # (nhstab.planning.trailer). Its end strategy stays frozen, with which its defaults were chosen.
     "car_trailer": {"footprint": {"rectangle": {"length": 4.2, "width": 1.8, "rear_overhang": 0.9}},
                     "trailer_footprint": {"rectangle": {"length": 2.5, "width": 1.8, "rear_overhang": 1.0}},
-                    "margin": 0.3, "stabilizer": {"alpha": 0.05, "delta": 10.0, "gamma": 1.0},
+                    "margin": 0.3,
+                    "stabilizer": {"alpha": 0.05, "delta": 10.0, "gamma": 1.0, "end_strategy": "frozen"},
                     "turning_radius": ("factor", 5.0)},
 }
 #: the robot keys other than the model's parameters
 ROBOT_KEYS = ("model", "footprint", "margin", "stabilizer", "turning_radius", "name", "trailer_footprint")
-STABILIZER_KEYS = ("alpha", "delta", "gamma")
+STABILIZER_KEYS = ("alpha", "delta", "gamma", "end_strategy")
+#: the stabilizer keys that are numbers (end_strategy is one of the gain schedule's END_STRATEGIES)
+STABILIZER_NUMBERS = ("alpha", "delta", "gamma")
 #: how close consecutive polygon vertices may be and still count as distinct [m]
 _SAME_POINT = 1e-9
 
@@ -86,7 +98,7 @@ class Robot:
     model: Model
     footprint: Footprint
     margin: float
-    stabilizer: dict = field(default_factory=dict)      # alpha, delta, gamma
+    stabilizer: dict = field(default_factory=dict)      # alpha, delta, gamma, end_strategy
     turning_radius: float = 0.5                          # planning radius [m]
     name: str = ""                                       # a label (default: the model's name)
     #: where the description came from ("default", a file, "map", "run config", ...)
@@ -184,7 +196,8 @@ class Robot:
             trailers = {"trailer_footprint": [_footprint_spec(f) for f in self.trailer_footprints]}
         return {"model": self.model.name, **{k: _plain(v) for k, v in self.model.params().items()},
                 "footprint": _footprint_spec(fp), **trailers, "margin": float(self.margin),
-                "stabilizer": {k: float(self.stabilizer[k]) for k in STABILIZER_KEYS},
+                "stabilizer": {k: (float(self.stabilizer[k]) if k in STABILIZER_NUMBERS else str(self.stabilizer[k]))
+                               for k in STABILIZER_KEYS},
                 "turning_radius": float(self.turning_radius), "name": self.name or self.model.name}
 
     def describe(self) -> dict:
@@ -292,10 +305,17 @@ def robot_from_spec(spec, where: str = "robot", source: str = "default") -> Robo
     if "stabilizer" in spec:
         given = spec["stabilizer"]
         if not isinstance(given, dict):
-            raise InputError(f"{where}.stabilizer", "a mapping with alpha, delta, gamma", _kind(given))
+            raise InputError(f"{where}.stabilizer", "a mapping with alpha, delta, gamma, end_strategy", _kind(given))
         for k, v in given.items():
             if k not in STABILIZER_KEYS:
                 raise InputError(f"{where}.stabilizer.{k}", "one of " + ", ".join(STABILIZER_KEYS), k)
+            if k == "end_strategy":
+                from .control.gramian import END_STRATEGIES
+
+                if v not in END_STRATEGIES:
+                    raise InputError(f"{where}.stabilizer.end_strategy", "one of " + ", ".join(END_STRATEGIES), v)
+                stab[k] = v
+                continue
             lo, lo_open = (0.5, False) if k == "gamma" else (0.0, True)
             stab[k] = _number(f"{where}.stabilizer.{k}", v, lo, lo_open=lo_open)
     trailer_fps: tuple = ()

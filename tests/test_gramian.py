@@ -52,6 +52,134 @@ def test_heisenberg_line_closed_form(alpha, delta):
     assert np.max(np.abs(dets / det - 1)) < 1e-8
 
 
+@pytest.mark.parametrize("alpha,delta", [(1.0, 1.0), (0.3, 0.7)])
+def test_extend_end_is_the_closed_form_on_the_whole_line(alpha, delta):
+    """end_strategy="extend": the Heisenberg line continued under u0 = (0, 1) held is the same line, so
+    every grid point's window, those that run off the end included, is the closed form's."""
+    nom = heisenberg_line(5.0, hz=200.0)
+    s = compute_schedule(nom, StabilizerOptions(alpha=alpha, delta=delta, end_strategy="extend"))
+    assert s.diagnostics["end"].startswith("extend")
+    Hc, _ = heisenberg_line_H(s.t, alpha, delta)
+    assert rel(s.H, Hc).max() < 1e-8
+    with pytest.warns(NotStabilizingWarning):
+        p = compute_schedule(nom, StabilizerOptions(alpha=alpha, delta=delta, window="past", end_strategy="extend"))
+    assert p.diagnostics["end"].startswith("extend")
+    # the past window [t - delta, t] of the line is the future window of the line started delta earlier,
+    # carried to t (Phi = I: A = 0); weights exp(w alpha (t - tau)) = exp(w alpha delta) exp(w alpha (t - delta - tau))
+    Hp, _ = heisenberg_line_H(s.t - delta, alpha, delta)
+    import math
+    # carry H_c(t - delta, t) to t: Phi = I, weight shift exp(w alpha delta)
+    assert rel(p.H, math.exp(6.0 * alpha * delta) * Hp).max() < 1e-8
+
+
+def _car_nominal(segments, dt=0.05):
+    """A rwd_car nominal driving ``segments`` (direction, steering, length) exactly (closed forms)."""
+    from types import SimpleNamespace
+
+    from nhstab.planning import TimingOptions
+    from nhstab.planning.cars import exact_nominal
+
+    path = SimpleNamespace(info={"segments": segments}, samples=np.zeros((2, 3)))
+    return exact_nominal(make_model("rwd_car"), path, TimingOptions(dt=dt))[0]
+
+
+def test_extend_end_equals_the_sliding_window_of_the_longer_run():
+    """A car that reverses a straight run into its goal: with "extend" the schedule at every grid point
+    equals the ordinary sliding future window of the same nominal with that run 10.5 m longer (built
+    independently, in closed form, on the same grid), to 1e-10; and the largest gain stays that of the
+    sliding part, where "frozen" lets it grow at the end (the parking suite's tight bays)."""
+    pre = [(1, 0.0, 2.0), (1, 0.5, 2.0), (-1, -0.5, 2.0)]
+    short = _car_nominal(pre + [(-1, 0.0, 3.0)])
+    longer = _car_nominal(pre + [(-1, 0.0, 3.0 + 10.5)])
+    h = short.t[1] - short.t[0]
+    grid = h * np.arange(len(short.t) + 200)
+    longer = Nominal.from_functions(short.model, longer._x_func, longer._u_func, grid)
+    opts = StabilizerOptions(alpha=0.1, delta=6.0)
+    ext = compute_schedule(short, opts, end_strategy="extend")
+    ref = compute_schedule(longer, opts)
+    N = len(short.t)
+    assert ref.diagnostics["sliding_window_until_s"] >= short.t[-1]
+    assert rel(ext.H, ref.H[:N]).max() < 1e-10
+    assert rel(ext.P, ref.P[:N]).max() < 1e-8
+    frozen = compute_schedule(short, opts)
+    sliding = frozen.t <= frozen.diagnostics["sliding_window_until_s"]
+    g_frozen = np.linalg.norm(frozen.K, ord=2, axis=(1, 2))
+    g_ext = np.linalg.norm(ext.K, ord=2, axis=(1, 2))
+    assert np.allclose(g_ext[sliding], g_frozen[sliding], rtol=1e-9)
+    assert g_ext.max() <= 1.2 * g_frozen[sliding].max() and g_frozen.max() > 3 * g_frozen[sliding].max()
+
+
+def test_extend_drives_on_under_the_last_real_move_where_the_robot_ends_at_rest():
+    """A car that ends steering in place (every car nominal that ends on an arc steers its wheels
+    straight at the end, and the input held there would steer past max_steer): "extend" continues
+    under its last real move, the reverse at full speed, with the steering rate zeroed, i.e. along the
+    straight it ends on. Every window then equals, to 1e-10, the sliding future window of the same
+    nominal with a reverse straight appended in closed form. The frozen end it replaces
+    carries the window of T - delta along the flow, which counts the control already spent before t:
+    over the last window its gain fell to a fraction of the sliding part's (on the parking suite the
+    tracking error then grew in the last reverse arc until the car touched the curb or missed the goal)."""
+    opts = StabilizerOptions(alpha=0.1, delta=6.0)
+    segments = [(1, 0.0, 2.0), (1, 0.5, 4.0), (-1, -0.5, 3.0)]
+    steering = _car_nominal(segments)                                  # ends steering back to 0 in place
+    assert abs(steering.u[-1, 0]) < 1e-12 and abs(steering.u[-1, 1]) > 0
+    s = compute_schedule(steering, opts, end_strategy="extend")
+    assert "last real move" in s.diagnostics["end"] and "steers in place" in s.diagnostics["end"]
+    # the reference: the same nominal, then the reverse straight in closed form (wheels straight, the
+    # arc's speed), on the same grid
+    T, xT = steering.t[-1], steering.x[-1]
+    v = steering.u[np.flatnonzero(np.abs(steering.u[:, 0]) > 0)[-1], 0]
+    assert abs(xT[3]) < 1e-12 and v < 0
+
+    def x_func(tau):
+        tau = np.asarray(tau, dtype=float)
+        d = v * np.maximum(tau - T, 0.0)[..., None]
+        straight = xT + d * np.array([np.cos(xT[2]), np.sin(xT[2]), 0.0, 0.0])
+        return np.where((tau <= T)[..., None], steering._x_func(np.minimum(tau, T)), straight)
+
+    def u_func(tau):
+        tau = np.asarray(tau, dtype=float)
+        return np.where((tau <= T)[..., None], steering._u_func(np.minimum(tau, T)), np.array([v, 0.0]))
+
+    h = steering.t[1] - steering.t[0]
+    grid = h * np.arange(len(steering.t) + 200)
+    ref = compute_schedule(Nominal.from_functions(steering.model, x_func, u_func, grid), opts)
+    N = len(steering.t)
+    assert ref.diagnostics["sliding_window_until_s"] >= steering.t[-1]
+    assert rel(s.H, ref.H[:N]).max() < 1e-10
+    frozen = compute_schedule(steering, opts)
+    assert frozen.diagnostics["end"] == "frozen"
+    sliding = frozen.t <= frozen.diagnostics["sliding_window_until_s"]
+    g_frozen = np.linalg.norm(frozen.K, ord=2, axis=(1, 2))
+    g_ext = np.linalg.norm(s.K, ord=2, axis=(1, 2))
+    moving_end = (~sliding) & (np.abs(steering.u[:, 0]) > 0)           # the end region while the car drives
+    # the frozen end's gain falls to under a quarter of the continued window's while the car still drives
+    # (0.14 here), where the extended schedule's stays within the sliding part's range
+    assert (g_frozen[moving_end] / g_ext[moving_end]).min() < 0.25
+    assert g_ext.max() <= 1.2 * g_frozen[sliding].max()
+
+
+def test_extend_continues_a_robot_that_ends_standing_still_and_refuses_one_that_never_moves():
+    """A unicycle that drives, turns and ends at rest (last input zero) continues under its last real
+    move; a car that only steers in place never moves, so there is nothing to continue (the frozen
+    end, and the schedule would be singular anyway)."""
+    from nhstab.control.gramian import _held_inputs
+
+    t = np.linspace(0.0, 2 * np.pi, 252)          # the unicycle drives and turns, and ends at rest
+    still = Nominal.from_inputs(make_model("unicycle"), lambda s: np.stack([np.sin(s), 1 - np.cos(s)], -1),
+                                np.zeros(3), t)
+    assert np.allclose(still.u[-1], 0.0, atol=1e-12)
+    s = compute_schedule(still, StabilizerOptions(alpha=0.1, delta=1.0, end_strategy="extend"))
+    assert "last real move" in s.diagnostics["end"] and "stands still" in s.diagnostics["end"]
+    (u, _), = _held_inputs(still, True)
+    speed = np.linalg.norm(still.model.rhs(still.x, still.u), axis=1)
+    assert np.linalg.norm(still.model.rhs(still.x[-1], u)) >= 0.5 * speed.max() - 1e-12
+    car = make_model("rwd_car")
+    tt = np.linspace(0.0, 1.0, 51)
+    in_place = Nominal.from_inputs(car, lambda s: np.stack([0 * s, 0.3 + 0 * s], -1), np.zeros(4), tt)
+    why = _held_inputs(in_place, True)
+    assert isinstance(why, str) and why.startswith("frozen") and "never moves" in why
+
+
 def test_long_trajectory_keeps_accuracy():
     """2000 s Heisenberg line: H33 ~ t^2 ~ 4e6, nothing re-anchored by hand; still 1e-8 relative.
     (Its H has condition number ~t^4, past what double precision can invert meaningfully, so this

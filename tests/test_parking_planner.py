@@ -238,20 +238,18 @@ def test_parks_in_scenes(car, kind, size):
     r = plan(m, robot, start, goal, PathOptions(time_limit_s=5.0, seed=3))
     t = check_plan(m, robot, r, goal, 0.1)
     assert t["steering_within_limit"] and t["duration_within_bound"]
-    if (kind, size, car) == ("bay90", 5.0, "rwd_car"):
-        # known limitation (README, Planning): reversing 5 m straight into a bay off a tight aisle, the
-        # gain schedule's frozen end window lets the largest gain grow past the bound (65-70 here)
-        assert t["max_gain_norm"] < 100.0, t
-    else:
-        assert t["gain_within_bound"], t
+    # also reversing 5 m straight into a bay off a tight aisle: with the frozen end window the largest
+    # gain grew past the bound there (65-70); the cars' extend end keeps it within
+    assert t["gain_within_bound"], t
     if kind == "parallel" and size <= 1.0:
         assert r.metrics["cusps"] >= 2                                 # more than one maneuver
 
 
 SUITE = ["parallel_rwd_car_110", "parallel_rwd_car_105", "parallel_van_100", "perpendicular_rwd_car_aisle160",
          "angled60_rwd_car_aisle200", "perpendicular_van_aisle160", "angled45_rwd_car_aisle200"]
-#: bays off the tightest aisles: plans that keep the duration and steering bounds; their gains end
-#: above the bound (the known limitation above), measured here
+#: bays off the tightest aisles: their plans end with a straight run into the bay or a short arc after a
+#: cusp, where the frozen end window let the largest gain grow to 55-80; with the extend end (the cars'
+#: default) they are worth tracking like the rest
 TIGHT = ["perpendicular_rwd_car_aisle130", "angled60_rwd_car_aisle150"]
 
 
@@ -275,7 +273,7 @@ def test_parks_in_tight_bays(name):
     r = plan(m, robot, m.start.as_array(), goal, PathOptions(time_limit_s=5.0, seed=0))
     t = check_plan(m, robot, r, goal, robot.margin)
     assert t["steering_within_limit"] and t["duration_within_bound"]
-    assert t["max_gain_norm"] < 100.0, t
+    assert t["gain_within_bound"], t
 
 
 def test_plan_on_a_real_map_reports_item_4_metrics():

@@ -74,9 +74,10 @@ def test_builtin_robots_keep_the_old_defaults():
     execution.DEFAULT_MARGIN, geometry.DEFAULT_FOOTPRINTS, the turning-radius rule)."""
     u, c, f = default_robot("unicycle"), default_robot("rwd_car"), default_robot("fwd_car")
     assert (u.margin, c.margin, f.margin) == (0.1, 0.3, 0.2)
-    assert u.stabilizer == {"alpha": 0.2, "delta": 2.0, "gamma": 1.0}
-    assert c.stabilizer == {"alpha": 0.1, "delta": 6.0, "gamma": 1.0}
-    assert f.stabilizer == {"alpha": 0.2, "delta": 3.0, "gamma": 1.0}
+    assert u.stabilizer == {"alpha": 0.2, "delta": 2.0, "gamma": 1.0, "end_strategy": "frozen"}
+    # the cars' schedules keep sliding along a final straight run's continuation (README, Parking)
+    assert c.stabilizer == {"alpha": 0.1, "delta": 6.0, "gamma": 1.0, "end_strategy": "extend"}
+    assert f.stabilizer == {"alpha": 0.2, "delta": 3.0, "gamma": 1.0, "end_strategy": "extend"}
     assert u.turning_radius == 0.5 and c.turning_radius == pytest.approx(1.25 * 2.5 / math.tan(0.6))
     assert u.footprint.radius == 0.3
     assert np.allclose(c.footprint.vertices, [[-0.9, -0.9], [3.3, -0.9], [3.3, 0.9], [-0.9, 0.9]])
@@ -102,6 +103,8 @@ def test_repeated_polygon_vertices_are_cleaned_and_noted():
     ({"turning_radius": 1.0}, "robot.turning_radius"),          # below R_min = 2.7 / tan(0.7)
     ({"stabilizer": {"gamma": 0.3}}, "robot.stabilizer.gamma"),
     ({"stabilizer": {"beta": 1.0}}, "robot.stabilizer.beta"),
+    ({"stabilizer": {"end_strategy": "sideways"}}, "robot.stabilizer.end_strategy"),
+    ({"stabilizer": {"end_strategy": 1.0}}, "robot.stabilizer.end_strategy"),
     ({"footprint": {"polygon": [[0, 0], [1, 1], [1, 0], [0, 1]]}}, "robot.footprint.polygon"),   # a bow tie
     ({"footprint": {"polygon": [[0, 0], [1, 0], [1, 0]]}}, "robot.footprint.polygon"),
     ({"footprint": {"rectangle": {"length": 4.0}}}, "robot.footprint.rectangle.width"),

@@ -352,7 +352,8 @@ def run_gains(trials: int = TRIALS, root_seed: int = ROOT_SEED, cases=CASES, noi
         pick_s = time.perf_counter() - started
         entry = {"robot": robot, "map": map_name, "defaults": dict(run.stab_defaults), "choice": record["chosen"],
                  "met": record["met"], "grid": record["grid"], "choose_wall_s": pick_s, "monte_carlo": {}}
-        for label, gains in (("default", dict(run.stab_defaults)), ("auto", record["chosen"])):
+        defaults = {k: run.stab_defaults[k] for k in ("alpha", "delta", "gamma")}     # the controller's knobs
+        for label, gains in (("default", defaults), ("auto", record["chosen"])):
             lw = _law(run, result, "gramian", **gains)
             tube = tube_of(lw, certify=True)
             sim = simulate_shared(lw, seeds, noise, rate_hz=run.opts.rate_hz, substeps=run.opts.substeps,

@@ -33,7 +33,7 @@ controllable. It has the 3 alpha guarantee on LTI nominals and a certified rate 
 A and B vary slowly (:meth:`GainSchedule.lyapunov_rates`).
 
 The ends of a finite trajectory. A future window needs t + delta <= T and a past one t - delta >= t0.
-Where a window would run off the trajectory the ``end_strategy="frozen"`` (the only one) stops sliding
+Where a window would run off the trajectory the ``end_strategy="frozen"`` (the default) stops sliding
 it at the boundary time s (s = T - delta for the future window, s = t0 + delta for the past one) and
 carries that last whole window's gramian along the nominal's linearised flow:
 
@@ -45,6 +45,25 @@ being driven down wherever the remaining motion can act on it. (Carrying the exp
 past s would make P, and with it the gains, shrink by up to exp(w alpha delta) by the end.) The former
 ``"switch"`` strategy (P_r for the last delta seconds of a future-window schedule) was removed: it
 used the past window, which is not stabilizing, and made the gains jump.
+
+``end_strategy="extend"`` keeps the window sliding: past the end it runs along the nominal's
+continuation under its last input held (before the start, under its first input held, for a past
+window), x' = f(x) + g(x) u0(T) from x0(T), integrated to 1e-12 (DOP853). The windows are then the
+paper's own, on the continued trajectory. Where the robot is at rest at the end (its last input is
+zero, or it only steers: every car nominal that ends on an arc steers its wheels straight in place
+before it stops, and holding that input would steer past the limit), the continuation drives on as
+the robot last really moved: the input of the last grid point where the pose moved at least half as
+fast as anywhere on the nominal, with the inputs that act only on limited states (the steering rate)
+zeroed, so the car drives on at its final steering angle (``_held_inputs``). Why: the frozen end
+carries the window [s, s + delta] to t > s, H(t) = Phi(t, s) H(s) Phi(t, s)^T, which still counts the
+control spent in [s, t] as if it were to come; over the last window the gains fall (on the parking
+suite's last reverse arc into a slot to a tenth of the sliding part's), the tracking error grows
+under the process noise while the car reverses towards the curb, and the car touched it or missed
+the goal (3-4 of 28 runs of ``tests/test_parking_runs.py``). Along the continuation the window sees
+the motion the car is in, and the gains stay those of the sliding part. Where no continuation is
+usable (the robot never moves, the continuation leaves the model's state limits within delta, or its
+window gramian is singular), the end falls back to "frozen"; ``diagnostics["end"]`` says which end
+was used, under which input, and why.
 
 Computation: per-interval pieces are integrated to 8th order (``elements``), then every window is an
 associative combination of pieces (``windows``): linear in the number of grid points, with no
@@ -68,7 +87,7 @@ from .interpolant import GridInterpolant
 from .windows import Segments, combine, exclusive_prefix, scan, sliding, transposed
 
 WINDOWS = ("future", "past", "frozen-time")
-END_STRATEGIES = ("frozen",)
+END_STRATEGIES = ("frozen", "extend")
 
 #: the one-line warning for the past window (the command line prints it as is)
 PAST_WINDOW_WARNING = (
@@ -95,7 +114,7 @@ class StabilizerOptions:
     a function of time (array in, array out), >= 1/2 everywhere; weight: the weighting constant w of
     exp(w alpha (t - tau)) (6 in the paper's Proposition 1); window: "future" (P_c), "past" (P_r, not
     stabilizing in general: for study) or "frozen-time" (the causal law of :mod:`nhstab.control.frozen`);
-    end_strategy: "frozen" (see the module docstring); max_gain: the frozen-time law holds its last
+    end_strategy: "frozen" or "extend" (see the module docstring); max_gain: the frozen-time law holds its last
     admissible gramian where its gain norm would exceed this; singular_rtol / singular_atol:
     H(t) counts as singular where its smallest eigenvalue is <= max(atol, rtol * lambda_max(H(t))),
     i.e. where it cannot be told from singular in double precision.
@@ -122,7 +141,7 @@ class StabilizerOptions:
         if self.window not in WINDOWS:
             raise InputError("window", "one of " + ", ".join(WINDOWS), self.window)
         if self.end_strategy == "switch":
-            raise InputError("end_strategy", "frozen ('switch' was removed: it used the past window P_r, which is "
+            raise InputError("end_strategy", "frozen or extend ('switch' was removed: it used the past window P_r, which is "
                              "not stabilizing in general; see the README)", self.end_strategy)
         if self.end_strategy not in END_STRATEGIES:
             raise InputError("end_strategy", "one of " + ", ".join(END_STRATEGIES), self.end_strategy)
@@ -387,7 +406,9 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
 
     gamma = opts.gamma_on(t)
     frozen_info = None
+    end = "none: every window fits" if n_full == N else opts.end_strategy
     if frozen_time:
+        end = "none: the frozen-time window is not a stretch of the nominal"
         H, frozen_info = frozen_time_schedule(nom, cw, delta, gamma, float(opts.max_gain), float(opts.singular_rtol),
                                               float(opts.singular_atol), substeps)
     else:
@@ -396,12 +417,24 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
         if future:
             H[:n_full] = _future_windows(nom, E, w, phi, n_full, cw, substeps).W
             if n_full < N:
-                H[n_full:] = _frozen_end(nom, E, n_full, delta, cw, substeps)
+                extended = None
+                if opts.end_strategy == "extend":
+                    extended, end = _extended_windows(nom, E, w, phi, cw, substeps, opts, future=True)
+                if extended is not None:
+                    H[n_full:] = extended[n_full:]
+                else:
+                    H[n_full:] = _frozen_end(nom, E, n_full, delta, cw, substeps)
         else:
             # past windows for i = i_min .. N-1, computed in reversed order
             H[i_min:] = _past_windows(nom, E, w, phi, n_full, cw, substeps).W[::-1]
             if i_min > 0:
-                H[:i_min] = _frozen_start(nom, E, w, phi, i_min, cw, substeps)
+                extended = None
+                if opts.end_strategy == "extend":
+                    extended, end = _extended_windows(nom, E, w, phi, cw, substeps, opts, future=False)
+                if extended is not None:
+                    H[:i_min] = extended[:i_min]
+                else:
+                    H[:i_min] = _frozen_start(nom, E, w, phi, i_min, cw, substeps)
 
     H = 0.5 * (H + np.swapaxes(H, -1, -2))
     if not np.all(np.isfinite(H)):
@@ -427,6 +460,7 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
         "window_intervals": w, "window_fraction_s": phi, "substeps": substeps,
         "sliding_window_until_s": float(t[n_full - 1]) if future else None,
         "sliding_window_from_s": float(t[i_min]) if opts.window == "past" else None,
+        "end": end,
     }
     if frozen_info is not None:
         schedule.diagnostics["frozen_time"] = frozen_info
@@ -486,6 +520,129 @@ def _past_windows(nom: Nominal, E: Segments, w: int, phi: float, count: int, cw:
         frac = to_end_anchored(interval_segments(nom, ends - phi, phi, cw, substeps), cw)
         R = combine(R, frac, cw)
     return R
+
+
+def _held_inputs(nom: Nominal, future: bool):
+    """The inputs the continuation may hold past the end (``future``) or before the start, in order of
+    preference: a list of (input, what it is), or a reason why there is none.
+
+    The input there, if it moves the robot's pose (and then the same with the steering rate zeroed,
+    in case holding it would steer past the limit). Where the robot is at rest there (its input is
+    zero, or it only drives states with limits, as a car steering its wheels straight in place before
+    it stops), the continuation drives on as the robot last really moved: the input of the last
+    (first) grid point where the pose moved at least half as fast as anywhere on the nominal, with the
+    inputs that act only on limited states (the steering rate) set to zero, so that the car drives on
+    at its final steering angle."""
+    model = nom.model
+    i = -1 if future else 0
+    x_end, u_end = nom.x[i], nom.u[i]
+    lim = model.state_limits()
+    limited = np.all(np.isfinite(lim), axis=1)                       # e.g. a car's steering angle
+    acts = np.abs(np.asarray(model.g(x_end))) > 1e-12                # (n, m): which input drives which state
+    steering_only = acts.any(axis=0) & ~np.any(acts & ~limited[:, None], axis=0)
+    scale = max(float(np.max(np.abs(nom.u))), 1e-300)
+    nonzero = np.abs(u_end) > 1e-9 * scale
+    end = "last" if future else "first"
+    if np.any(nonzero & ~steering_only):
+        out = [(u_end, f"its {end} input")]
+        if np.any(nonzero & steering_only):
+            out.append((np.where(steering_only, 0.0, u_end), f"its {end} input with the steering rate zeroed"))
+        return out
+    speed = np.linalg.norm(model.rhs(nom.x, nom.u)[:, ~limited], axis=1)
+    moving = np.flatnonzero(speed >= 0.5 * speed.max()) if speed.max() > 0 else np.array([], dtype=int)
+    if not moving.size:
+        return f"frozen: the nominal's {end} input is zero and it never moves (the robot stands still)"
+    j = int(moving[-1] if future else moving[0])
+    u = np.where(steering_only, 0.0, nom.u[j])
+    at_rest = "steers in place" if np.any(nonzero) else "stands still"
+    return [(u, f"its {end} real move (the robot {at_rest} at its {'end' if future else 'start'}; the input "
+                f"at t = {nom.t[j]:.6g} s with the steering rate zeroed)")]
+
+
+def _continuation(nom: Nominal, length: float, future: bool):
+    """The nominal continued past its end (``future``) or before its start under the first usable
+    input of :func:`_held_inputs` held, on the nominal's grid step, at least ``length`` long: (times,
+    dense states, input, what was held) or a reason why it is unusable (the robot never moves, or
+    every continuation leaves the model's state limits)."""
+    from scipy.integrate import solve_ivp
+
+    model = nom.model
+    h = float(nom.t[1] - nom.t[0])
+    k = int(math.ceil(length / h - 1e-9))
+    x_end = nom.x[-1] if future else nom.x[0]
+    held = _held_inputs(nom, future)
+    if isinstance(held, str):
+        return held
+    sign = 1.0 if future else -1.0
+    t_rel = sign * h * np.arange(1, k + 1)
+    lim = model.state_limits()
+    why = None
+    for u_end, what in held:
+        sol = solve_ivp(lambda _, x: model.rhs(x, u_end), (0.0, t_rel[-1]), x_end, method="DOP853",
+                        t_eval=t_rel, dense_output=True, rtol=1e-12, atol=1e-13)
+        if not sol.success or not np.all(np.isfinite(sol.y)):
+            why = why or "frozen: the continuation under the held input could not be integrated"
+            continue
+        out = (sol.y.T < lim[:, 0] - 1e-9) | (sol.y.T > lim[:, 1] + 1e-9)
+        if np.any(out):
+            j = int(np.argmax(np.any(out, axis=1)))
+            why = why or (f"frozen: the continuation under the held input leaves the state limits after "
+                          f"{abs(t_rel[j]):.3g} s (shorter than delta)")
+            continue
+        return t_rel, sol.sol, u_end, what
+    return why
+
+
+def _extended_windows(nom: Nominal, E: Segments, w: int, phi: float, cw: float, substeps: int,
+                      opts: StabilizerOptions, future: bool):
+    """The window gramians at every grid point of ``nom``, the windows that run off its end (or start)
+    continued along :func:`_continuation`; (H (N, n, n), what was done) or (None, why not)."""
+    N = len(nom.t)
+    h = float(nom.t[1] - nom.t[0])
+    cont = _continuation(nom, (w + 1) * h, future)
+    if isinstance(cont, str):
+        return None, cont
+    t_rel, dense, u_held, what = cont
+    model = nom.model
+    k = len(t_rel)
+    T_edge = float(nom.t[-1] if future else nom.t[0])
+    t_all = np.concatenate([nom.t, T_edge + t_rel]) if future else np.concatenate([T_edge + t_rel[::-1], nom.t])
+
+    def x_func(tau):
+        tau = np.asarray(tau, dtype=float)
+        out = np.empty(tau.shape + (model.n,))
+        inside = (tau <= T_edge) if future else (tau >= T_edge)
+        if inside.any():
+            out[inside] = nom.at(tau[inside])[0]
+        if (~inside).any():
+            out[~inside] = np.asarray(dense(tau[~inside] - T_edge)).T
+        return out
+
+    def u_func(tau):
+        tau = np.asarray(tau, dtype=float)
+        out = np.empty(tau.shape + (model.m,))
+        inside = (tau <= T_edge) if future else (tau >= T_edge)
+        if inside.any():
+            out[inside] = nom.at(tau[inside])[1]
+        out[~inside] = u_held
+        return out
+
+    ext = Nominal(model, t_all, x_func(t_all), u_func(t_all), x_func=x_func, u_func=u_func, source="continued")
+    if future:
+        tail = interval_segments(ext, t_all[N - 1:-1], h, cw, substeps)
+        E_all = Segments(np.concatenate([E.P, tail.P]), np.concatenate([E.W, tail.W]), np.concatenate([E.d, tail.d]))
+        H = _future_windows(ext, E_all, w, phi, N, cw, substeps).W
+    else:
+        head = interval_segments(ext, t_all[:k], h, cw, substeps)
+        E_all = Segments(np.concatenate([head.P, E.P]), np.concatenate([head.W, E.W]), np.concatenate([head.d, E.d]))
+        H = _past_windows(ext, E_all, w, phi, N, cw, substeps).W[::-1]
+    H = 0.5 * (H + np.swapaxes(H, -1, -2))
+    lam = np.linalg.eigvalsh(H)
+    if not np.all(np.isfinite(lam)) or np.any(lam[:, 0] <= np.maximum(float(opts.singular_atol),
+                                                                      float(opts.singular_rtol) * np.abs(lam[:, -1]))):
+        return None, "frozen: the window along the continuation is singular"
+    where = "past its end" if future else "before its start"
+    return H, f"extend: the nominal continued {k * h:.6g} s {where} under {what} held"
 
 
 def _carry(G: np.ndarray, Phi_back: np.ndarray, scale: float = 1.0) -> np.ndarray:

@@ -100,6 +100,7 @@ class CarOptions:
     far_branches_first: bool = True
     attempts: int = 4
     nominal: str = "exact"
+    probe_share: float = 0.1
 
     def validated(self) -> "CarOptions":
         def num(key, lo, hi=math.inf, lo_open=False):
@@ -120,6 +121,7 @@ class CarOptions:
         num("shuffle_guidance_s_per_m", 0.0)
         num("open_clearance_m", 0.0)
         num("direct_share", 0.0, 1.0)
+        num("probe_share", 0.0, 1.0)
         num("default_radius_share", 0.0, 1.0)
         if self.straight_reach_m is not None:
             num("straight_reach_m", 0.0)
@@ -437,17 +439,54 @@ def shuffle_search(world: CollisionWorld, fp: Footprint, model: Model, root, mar
                    opts: CarOptions, speed: float, deadline: float = math.inf) -> Tree:
     """Unparking by short moves, where the full-lock tree finds no way out (slots shorter than the
     single-maneuver length): a best-first search over moves of ``shuffle_step_m`` forward or
-    backward with the steering at the lock angle to either side, from ``root``, poses
-    merged on a grid of ``shuffle_grid_m`` and 0.02 rad. A move's cost is its time at ``speed`` plus
-    the time to steer in place to its angle at the rate limit, plus ``shuffle_cusp_s`` per reversal.
+    backward with the steering at the lock angle to either side, from ``root``, poses merged on a
+    lattice of ``shuffle_grid_m`` and 0.02 rad. A move's cost is its time at ``speed`` plus the time to
+    steer in place to its angle at the rate limit, plus ``shuffle_cusp_s`` per reversal. Its moves
+    include changing the lock while driving on (the sideways shuffle drivers use in tight slots:
+    forward left, forward right), which the alternating tree never does.
+
     The search stops at ``escaped_enough`` poses where the car is out (open by ``open_margin`` and
-    with clearance ``open_clearance_m``: surely so by the distance field), or after
-    ``shuffle_expansions`` poses. Its moves include changing the lock while driving on (the sideways
-    shuffle drivers use in tight slots: forward left, forward right), which the alternating tree
-    never does. Candidates: the poses that got out, each with its merged moves as its maneuver."""
+    with clearance ``open_clearance_m``: surely so by the distance field), after ``shuffle_expansions``
+    poses, or at ``deadline``. Merging poses on a lattice can lose the way out of a very tight slot
+    (two poses in one cell, only the one dropped can go on; measured: the van of the parking suite in
+    its 0.9 x L1 slot exhausts the 3 cm lattice after 246 poses): a search that runs out of poses
+    without getting out is repeated on a lattice twice as fine, down to ``shuffle_grid_m`` / 4, while
+    the deadline allows. The poses of a batch of the best ``SHUFFLE_BATCH`` open ones are expanded
+    together (one collision query for all their moves). Candidates: the poses that got out, each
+    with its merged moves as its maneuver."""
+    started = time.perf_counter()
+    tree = Tree(np.asarray(root, dtype=float))
+    expanded = checked = 0
+    grid = opts.shuffle_grid_m
+    tree.lattices = []
+    for level in range(3):
+        found, exhausted, n_exp, n_chk = _shuffle(world, fp, model, tree.root, margin, open_margin, opts, speed,
+                                                  deadline, grid, opts.shuffle_expansions - expanded)
+        expanded += n_exp
+        checked += n_chk
+        tree.lattices.append({"grid_m": grid, "expanded": n_exp, "escaped": len(found), "exhausted": exhausted})
+        tree.candidates = found
+        if found or not exhausted or expanded >= opts.shuffle_expansions or time.perf_counter() >= deadline:
+            break
+        grid /= 2
+    tree.arcs, tree.poses_checked = expanded, checked
+    tree.candidates.sort(key=lambda c: c.cost_s)
+    tree.time_s = time.perf_counter() - started
+    return tree
+
+
+#: open poses of the shuffle search expanded together (one collision query for all their moves)
+SHUFFLE_BATCH = 8
+
+
+def _shuffle(world: CollisionWorld, fp: Footprint, model: Model, root, margin: float, open_margin: float,
+             opts: CarOptions, speed: float, deadline: float, g: float, budget: int):
+    """One best-first shuffle search on a lattice of ``g`` m and 0.02 rad (see :func:`shuffle_search`):
+    (candidates, exhausted: no open pose left, poses expanded, poses checked)."""
     import heapq
 
-    started = time.perf_counter()
+    from ..clearance_field import disc_cover
+
     L = float(model.wheelbase)
     phi_lock = float(model.max_steer) - opts.steering_reserve_rad
     rate = float(model.max_steer_rate)
@@ -456,87 +495,99 @@ def shuffle_search(world: CollisionWorld, fp: Footprint, model: Model, root, mar
     sub = h * np.arange(1, n_sub + 1) / n_sub
     # lock moves only: straight moves are the unparking tree's (its branches)
     prims = [(d, p) for d in (1, -1) for p in (phi_lock, -phi_lock)]
-    root = np.asarray(root, dtype=float)
-    tree = Tree(root)
+    n_prim = len(prims)
     field = world.clearance_field()
-    g = opts.shuffle_grid_m
-
-    def key(p):
-        return (int(round(p[0] / g)), int(round(p[1] / g)), int(round(p[2] / 0.02)))
-
-    from ..clearance_field import disc_cover
-
     centres, radii = disc_cover(fp)
     centres, radii = np.asarray(centres, dtype=float).reshape(-1, 2), np.asarray(radii, dtype=float)
     target = max(open_margin, opts.open_clearance_m)
 
-    def lower_clearance(p):
-        """A lower bound of the footprint's clearance at pose p (distance field, disc cover)."""
+    def key(p):
+        return (int(round(p[0] / g)), int(round(p[1] / g)), int(round(p[2] / 0.02)))
+
+    def h_cost(P):
+        """Greedy guidance towards room: the clearance still missing at poses P (a lower bound by the
+        distance field and the footprint's disc cover), in seconds (A* with an inadmissible heuristic:
+        a way out, not the shortest one)."""
         if field is None:
-            return 0.0
-        c, s_ = math.cos(p[2]), math.sin(p[2])
-        xs = p[0] + c * centres[:, 0] - s_ * centres[:, 1]
-        ys = p[1] + s_ * centres[:, 0] + c * centres[:, 1]
-        return float(np.min(field.at(xs, ys) - radii))
+            return np.zeros(len(P))
+        c, s_ = np.cos(P[:, 2])[:, None], np.sin(P[:, 2])[:, None]
+        xs = P[:, 0, None] + c * centres[:, 0] - s_ * centres[:, 1]
+        ys = P[:, 1, None] + s_ * centres[:, 0] + c * centres[:, 1]
+        low = np.min(field.at(xs, ys) - radii, axis=1)
+        return opts.shuffle_guidance_s_per_m * np.maximum(0.0, target - low)
 
-    def h_cost(p):
-        # greedy guidance towards room: the clearance still missing, in seconds (A* with an
-        # inadmissible heuristic: a way out, not the shortest one)
-        return opts.shuffle_guidance_s_per_m * max(0.0, target - lower_clearance(p))
+    def is_out(P):
+        if field is not None:
+            return field.surely_free(P, fp, target)
+        return np.array([world.clearance(p, fp) >= opts.open_clearance_m for p in P])
 
-    best = {key(root): 0.0}
+    def maneuver(k):
+        moves = []
+        while k in parent:
+            pk, _, d, ph = parent[k]
+            moves.append(Segment(d, ph, h))
+            k = pk
+        segs = []
+        for seg in reversed(moves):
+            if segs and segs[-1].direction == seg.direction and segs[-1].phi == seg.phi:
+                segs[-1] = Segment(seg.direction, seg.phi, segs[-1].length + seg.length)
+            else:
+                segs.append(seg)
+        return Maneuver(root, tuple(segs), L)
+
+    root = np.asarray(root, dtype=float)
+    k0 = key(root)
+    best = {k0: 0.0}
     parent = {}                                  # key -> (parent key, pose, d, phi)
-    heap = [(h_cost(root), 0, key(root), tuple(root), 0, 0.0, 0.0)]
-    counter = 1
-    expanded = 0
-    while heap and expanded < opts.shuffle_expansions and len(tree.candidates) < opts.escaped_enough \
-            and time.perf_counter() < deadline:
-        _, _, k, pose, last_d, last_phi, cost = heapq.heappop(heap)
-        if best.get(k, math.inf) < cost - 1e-12:
+    heap = [(float(h_cost(root[None, :])[0]), 0, k0, tuple(root), 0, 0.0, 0.0)]
+    counter, expanded, checked = 1, 0, 0
+    found: list = []
+    while heap and expanded < budget and len(found) < opts.escaped_enough and time.perf_counter() < deadline:
+        batch = []
+        while heap and len(batch) < SHUFFLE_BATCH:
+            item = heapq.heappop(heap)
+            if best.get(item[2], math.inf) >= item[6] - 1e-12:
+                batch.append(item)
+        if not batch:
+            break
+        expanded += len(batch)
+        P = np.array([it[3] for it in batch])
+        out = is_out(P)
+        out[[it[2] == k0 for it in batch]] = False
+        for it, o in zip(batch, out):
+            if o:
+                man = maneuver(it[2])
+                found.append(Candidate(man.end, man, it[6], True))
+        batch = [it for it, o in zip(batch, out) if not o]
+        if not batch:
             continue
-        expanded += 1
-        p = np.array(pose)
-        if k != key(root):
-            out = field.surely_free(p[None, :], fp, max(open_margin, opts.open_clearance_m))[0] \
-                if field is not None else world.clearance(p, fp) >= opts.open_clearance_m
-            if out:
-                moves = []
-                kk = k
-                while kk in parent:
-                    pk, _, d, ph = parent[kk]
-                    moves.append(Segment(d, ph, h))
-                    kk = pk
-                segs = []
-                for seg in reversed(moves):
-                    if segs and segs[-1].direction == seg.direction and segs[-1].phi == seg.phi:
-                        segs[-1] = Segment(seg.direction, seg.phi, segs[-1].length + seg.length)
-                    else:
-                        segs.append(seg)
-                man = Maneuver(root, tuple(segs), L)
-                tree.candidates.append(Candidate(man.end, man, cost, True))
-                continue
-        poses = np.concatenate([segment_poses(p, Segment(d, ph, 0.0), L, sub) for d, ph in prims])
-        ends = poses.reshape(len(prims), len(sub), 3)[:, -1]
-        free = world.free_many(ends, fp, margin)            # the moves' ends first, then the way there
-        if free.any():
-            inner = poses.reshape(len(prims), len(sub), 3)[free, :-1].reshape(-1, 3)
-            if len(inner):
-                free[free] = world.free_many(inner, fp, margin).reshape(int(free.sum()), len(sub) - 1).all(axis=1)
-        tree.poses_checked += len(poses)
-        for (d, ph), ok, q in zip(prims, free, poses.reshape(len(prims), len(sub), 3)[:, -1]):
-            if not ok:
-                continue
+        # every move of every pose of the batch: the moves' ends first, then the way there
+        poses = np.stack([np.concatenate([segment_poses(np.array(it[3]), Segment(d, ph, 0.0), L, sub)
+                                          for d, ph in prims]) for it in batch]).reshape(len(batch), n_prim, n_sub, 3)
+        ends = poses[:, :, -1].reshape(-1, 3)
+        free = world.free_many(ends, fp, margin).reshape(len(batch), n_prim)
+        checked += len(ends)
+        if n_sub > 1 and free.any():
+            inner = poses[free][:, :-1].reshape(-1, 3)
+            free[free] = world.free_many(inner, fp, margin).reshape(int(free.sum()), n_sub - 1).all(axis=1)
+            checked += len(inner)
+        bi, pi = np.nonzero(free)
+        if not len(bi):
+            continue
+        Q = poses[bi, pi, -1]
+        hq = h_cost(Q)
+        for b, p_, q, hh in zip(bi, pi, Q, hq):
+            _, _, k, _, last_d, last_phi, cost = batch[b]
+            d, ph = prims[p_]
             c = cost + h / speed + abs(ph - last_phi) / rate + (opts.shuffle_cusp_s if last_d and d != last_d else 0.0)
             kq = key(q)
             if c < best.get(kq, math.inf) - 1e-12:
                 best[kq] = c
                 parent[kq] = (k, q, d, ph)
-                heapq.heappush(heap, (c + h_cost(q), counter, kq, tuple(q), d, ph, c))
+                heapq.heappush(heap, (c + float(hh), counter, kq, tuple(q), d, ph, c))
                 counter += 1
-    tree.arcs = expanded
-    tree.candidates.sort(key=lambda c: c.cost_s)
-    tree.time_s = time.perf_counter() - started
-    return tree
+    exhausted = not heap and len(found) < opts.escaped_enough
+    return found, exhausted, expanded, checked
 
 
 # ---------------------------------------------------------------------------------------------
@@ -630,7 +681,7 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
 
     grown = set()
 
-    def grow(key, options=None):
+    def grow(key, options=None, shuffle=True):
         pose = start if key == "start" else goal
         grown.add(key)
         t = unparking_tree(world, fp, model, np.asarray(pose, dtype=float), opts.margin, open_margin,
@@ -638,22 +689,76 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
         info["stages"].append({"stage": f"unparking {key}", "branches": getattr(t, "branches", 0), "arcs": t.arcs,
                                "poses_checked": t.poses_checked, "open_candidates": len(t.candidates),
                                "escaped": sum(c.escaped for c in t.candidates), "time_s": t.time_s})
-        if not any(c.escaped for c in t.candidates) and options is None:
-            # the search gets at most half of what is left (the connection needs the rest)
-            sh = shuffle_search(world, fp, model, np.asarray(pose, dtype=float), opts.margin, open_margin, parking,
-                                speed, deadline=time.perf_counter() + 0.5 * max(left(), 0.0))
-            info["stages"].append({"stage": f"shuffle {key}", "expanded": sh.arcs, "poses_checked": sh.poses_checked,
-                                   "escaped": len(sh.candidates), "time_s": sh.time_s})
-            t.candidates = sh.candidates + t.candidates
+        if not any(c.escaped for c in t.candidates) and options is None and shuffle:
+            t.candidates = shuffled(key) + t.candidates
         root = np.asarray(pose, dtype=float)
         # a side without open poses searches from its end itself, at the margin the end allows
         return t.candidates[: parking.candidates] or [Candidate(root, Maneuver(root, (), L), 0.0, True)]
 
+    def shuffled(key):
+        """The shuffle search's candidates from the side's end; it gets at most half of what is left
+        (the connection needs the rest)."""
+        pose = np.asarray(start if key == "start" else goal, dtype=float)
+        sh = shuffle_search(world, fp, model, pose, opts.margin, open_margin, parking, speed,
+                            deadline=time.perf_counter() + 0.5 * max(left(), 0.0))
+        info["stages"].append({"stage": f"shuffle {key}", "expanded": sh.arcs, "poses_checked": sh.poses_checked,
+                               "escaped": len(sh.candidates), "lattices": sh.lattices, "time_s": sh.time_s})
+        return sh.candidates
+
+    def search_margin_now():
+        return open_margin if all(world.free_many(np.array([c.pose for c in sides[k]]), fp, open_margin).all()
+                                  for k in sides) else search_margin
+
+    # 4. (defined here, used below) OMPL between the two sides' open poses, each radius in turn; then
+    # further searches with new seeds at the radius that worked. RRTConnect puts every start state in
+    # its tree at once but takes goal states in one by one, growing the goal tree from each before it
+    # takes the next, so a first goal state in a slot can stall it: the side with more candidates (the
+    # confined end's) gives the start states, and the search runs backwards when that is the goal side
+    # (a Reeds-Shepp path driven backwards is one; a Dubins path is not, so Dubins searches run
+    # forwards). The goal states are ordered by clearance, the most open first.
+    def search(radius, budget, few: int | None = None):
+        S, G = sides["start"], sides["goal"]
+        if few is not None:          # the cheapest candidates only (those that got out first)
+            S, G = S[:few], G[:few]
+        backwards = opts.space == "reeds_shepp" and len(G) > len(S)
+        A, B = (G, S) if backwards else (S, G)
+        B = sorted(B, key=lambda c: -world.clearance(c.pose, fp)) if len(B) > 1 else B
+        p = run_ompl(A[0].pose, B[0].pose, radius, budget, margin, [c.pose for c in A[1:]], [c.pose for c in B[1:]])
+        if p.status != "exact":
+            return None
+        a_end, b_end = A[p.info["start_index"]], B[p.info["goal_index"]]
+        if backwards:
+            return _finish(p, p.waypoints[::-1], b_end.maneuver, a_end.maneuver, info, started, "search", model, shortcut,
+                           backwards=True)
+        return _finish(p, p.waypoints, a_end.maneuver, b_end.maneuver, info, started, "search", model, shortcut)
+
+    stuck = set()
     for key in ("start", "goal"):
         if sides[key] is None:
-            sides[key] = grow(key)
-    margin = open_margin if all(world.free_many(np.array([c.pose for c in sides[k]]), fp, open_margin).all()
-                                for k in sides) else search_margin
+            sides[key] = grow(key, shuffle=False)
+            if not any(c.escaped for c in sides[key]):
+                stuck.add(key)
+    # the trees' open poses are worth a probe where some got at least half a car length from their end
+    # (out of a bay into an aisle); in a slot shorter than L1 they all stay inside it
+    reached = {k: max((float(np.hypot(*(c.pose[:2] - c.maneuver.start[:2]))) for c in sides[k]), default=0.0)
+               for k in stuck}
+    margin = search_margin_now()
+    worked = None
+    if stuck and left() > 0 and min(reached.values()) >= 0.5 * length:
+        # No unparking sequence got out (into the open or onto a corridor). Out of a bay off a narrow
+        # aisle the tree's open poses are out all the same (the open room of 0.75 m is not there to
+        # reach): a short search from them first (probe_share of the budget); only if it finds nothing,
+        # the shuffle search (slots shorter than L1), whose way out is added to the candidates.
+        found = search(r_default, min(left(), parking.probe_share * float(opts.time_limit_s)))
+        info["stages"][-1]["probe"] = True
+        if found is not None:
+            worked = r_default
+            stuck = set()
+            yield found
+    if stuck and worked is None:
+        for key in sorted(stuck):
+            sides[key] = (shuffled(key) + sides[key])[: parking.candidates]
+        margin = search_margin_now()
     S, G = sides["start"], sides["goal"]
     # 3. direct local paths between the cheapest pairs (maneuvers plus the local path's estimated
     # time), at each radius; each free one is a solution
@@ -678,31 +783,7 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
                 t0 = time.perf_counter()
         info["stages"].append({"stage": "direct", "radius_m": radius, "pairs_tried": tried, "found": False,
                                "time_s": time.perf_counter() - t0})
-    # 4. OMPL between the two sides' open poses, each radius in turn; then further searches with new
-    # seeds at the radius that worked. RRTConnect puts every start state in its tree at once but
-    # takes goal states in one by one, growing the goal tree from each before it takes the next, so
-    # a first goal state in a slot can stall it: the side with more candidates (the confined end's)
-    # gives the start states, and the search runs backwards when that is the goal side (a
-    # Reeds-Shepp path driven backwards is one; a Dubins path is not, so Dubins searches run
-    # forwards). The goal states are ordered by clearance, the most open first.
-    def search(radius, budget, few: int | None = None):
-        S, G = sides["start"], sides["goal"]
-        if few is not None:          # the cheapest candidates only (those that got out first)
-            S, G = S[:few], G[:few]
-        backwards = opts.space == "reeds_shepp" and len(G) > len(S)
-        A, B = (G, S) if backwards else (S, G)
-        B = sorted(B, key=lambda c: -world.clearance(c.pose, fp)) if len(B) > 1 else B
-        p = run_ompl(A[0].pose, B[0].pose, radius, budget, margin, [c.pose for c in A[1:]], [c.pose for c in B[1:]])
-        if p.status != "exact":
-            return None
-        a_end, b_end = A[p.info["start_index"]], B[p.info["goal_index"]]
-        if backwards:
-            return _finish(p, p.waypoints[::-1], b_end.maneuver, a_end.maneuver, info, started, "search", model, shortcut,
-                           backwards=True)
-        return _finish(p, p.waypoints, a_end.maneuver, b_end.maneuver, info, started, "search", model, shortcut)
-
-    worked = None
-    if lazy:        # the corridor ends as they are, with a share of the budget, before their trees
+    if lazy and worked is None:        # the corridor ends as they are, with a share of the budget, before their trees
         found = search(r_default, left() * parking.default_radius_share)
         if found is not None:
             worked = r_default

@@ -33,7 +33,8 @@ def sweep(map_path, seed: int = 1) -> dict:
     m = load_map(map_path)
     rows = []
     for name, grid in GRID.items():
-        r = plan(m, default_robot(name), m.start.as_array(), m.goal.as_array(),
+        robot = default_robot(name)
+        r = plan(m, robot, m.start.as_array(), m.goal.as_array(),
                  PathOptions(time_limit_s=5.0, seed=seed, margin=0.1))
         if r.nominal is None:
             rows.append({"robot": name, "error": r.message})
@@ -43,7 +44,8 @@ def sweep(map_path, seed: int = 1) -> dict:
                 entry = {"robot": name, "alpha": alpha, "delta": delta, "gamma": 1.0,
                          "plan_length_m": r.metrics["length_m"], "plan_duration_s": r.metrics["duration_s"]}
                 try:
-                    d = compute_schedule(r.nominal, StabilizerOptions(alpha=alpha, delta=delta)).diagnostics
+                    d = compute_schedule(r.nominal, StabilizerOptions(
+                        alpha=alpha, delta=delta, end_strategy=robot.stabilizer["end_strategy"])).diagnostics
                     entry.update({k: d[k] for k in ("h_min_eigenvalue", "max_gain_norm", "rate_bound",
                                                     "rate_bound_printed", "p_m", "p_M")})
                 except SingularGramianError as exc:
