@@ -327,3 +327,19 @@ def test_paired_outcomes_count_on_the_reference_seeds():
     assert (r["reference"], r["also_reached"], r["reference_reached"], r["collisions"], r["trials"]) == \
         ("gramian future", 2, 3, 1, 4)
     assert rows["tvlqr"]["reference_reached"] == 1 and rows["tvlqr"]["also_reached"] == 1
+
+
+def test_a_large_batch_draws_a_bounded_set_of_cells_in_its_time_series_figures():
+    """Up to FIGURE_CELLS_MAX cells every cell is drawn; beyond it the cells at noise 1 in table order,
+    cut at the maximum, and the caption note says how many of how many."""
+    from nhstab.batch.report import FIGURE_CELLS_MAX, figure_rows
+
+    few = [{"cell": f"c{i}", "noise": 1.0} for i in range(FIGURE_CELLS_MAX)]
+    assert figure_rows(few) == (few, "")
+    many = [{"cell": f"c{i}", "noise": [0.5, 1.0, 2.0][i % 3]} for i in range(3 * FIGURE_CELLS_MAX + 3)]
+    shown, note = figure_rows(many)
+    assert len(shown) == FIGURE_CELLS_MAX and all(r["noise"] == 1.0 for r in shown)
+    assert [r["cell"] for r in shown] == [r["cell"] for r in many if r["noise"] == 1.0][:FIGURE_CELLS_MAX]
+    assert f"{FIGURE_CELLS_MAX} of the {len(many)} cells" in note
+    no_default = [{"cell": f"c{i}", "noise": 2.0} for i in range(FIGURE_CELLS_MAX + 1)]
+    assert figure_rows(no_default)[0] == no_default[:FIGURE_CELLS_MAX]

@@ -185,6 +185,24 @@ def rates_figure(rows):
     return fig
 
 
+#: the per-cell time-series figures (envelopes, tubes: a row of panels per cell) draw at most this many
+#: cells, so that a large batch's report stays readable and small; the tables and trials.csv have them all
+FIGURE_CELLS_MAX = 12
+
+
+def figure_rows(rows: list[dict]) -> tuple[list[dict], str]:
+    """The cells the per-cell time-series figures draw, and the note their captions carry: every cell
+    up to FIGURE_CELLS_MAX; beyond it the cells at the default noise level (1) in table order, cut at
+    FIGURE_CELLS_MAX (or the first cells, if no cell is at noise 1)."""
+    if len(rows) <= FIGURE_CELLS_MAX:
+        return rows, ""
+    default = [r for r in rows if r.get("noise") == 1.0]
+    pool, which = (default, "the cells at noise 1, in table order") if default else (rows, "in table order")
+    shown = pool[:FIGURE_CELLS_MAX]
+    return shown, (f" Drawn: {len(shown)} of the {len(rows)} cells ({which}; at most {FIGURE_CELLS_MAX}); "
+                   "the tables and trials.csv hold every cell.")
+
+
 def envelope_figure(trials, rows):
     """Per gramian cell (and the baselines beside them): percentiles of ||e(t)|| over trials, and the
     median over trials of each trial's own gramian bound."""
@@ -328,6 +346,8 @@ def paired_figure(trials):
     fig, ax = subplots(figsize=(5.5, 5), layout="constrained")
     markers = {"open-loop": "x", "tvlqr": "o", "gramian past": "v", "gramian frozen-time": "^"}
     lo, hi = np.inf, -np.inf
+    many = len(pairs) > 6              # a legend entry per map and noise would bury the axes: one per controller
+    labelled = set()
     for (mp, _, noise), ctrls in pairs:
         for base, vals in ctrls.items():
             if base == ref:
@@ -335,9 +355,15 @@ def paired_figure(trials):
             ks = sorted(set(vals) & set(ctrls[ref]))
             xs = np.array([vals[k] for k in ks], float)
             ys = np.array([ctrls[ref][k] for k in ks], float)
-            ax.scatter(xs, ys, marker=markers.get(base, "s"), s=18, label=f"{base}, {mp}, noise {noise:g}")
-            lo, hi = min(lo, np.nanmin([xs.min(), ys.min()])), max(hi, np.nanmax([xs.max(), ys.max()]))
-    ax.plot([lo, hi], [lo, hi], color="0.5", lw=0.8)
+            label = (None if base in labelled else base) if many else f"{base}, {mp}, noise {noise:g}"
+            labelled.add(base)
+            ax.scatter(xs, ys, marker=markers.get(base, "s"), s=18, label=label)
+            both = np.concatenate([xs, ys])
+            both = both[np.isfinite(both)]
+            if len(both):
+                lo, hi = min(lo, float(both.min())), max(hi, float(both.max()))
+    if np.isfinite(lo):
+        ax.plot([lo, hi], [lo, hi], color="0.5", lw=0.8)
     ax.set_xlabel("baseline: min executed clearance [m]")
     ax.set_ylabel(f"{ref}: min executed clearance [m] (same seed)")
     ax.grid(alpha=0.3)
@@ -461,8 +487,9 @@ def write_report(store_path, out_dir=None) -> list[Path]:
     if not isinstance(config, dict) or not isinstance(vers, dict):
         raise InputError("STORE", "a batch store whose config and versions are mappings", str(db))
     rows = cell_table(trials)
-    figs = {"rates": rates_figure(rows), "envelopes": envelope_figure(trials, rows),
-            "distributions": distributions_figure(trials, rows), "tubes": tube_figure(trials, rows),
+    drawn, _ = figure_rows(rows)
+    figs = {"rates": rates_figure(rows), "envelopes": envelope_figure(trials, drawn),
+            "distributions": distributions_figure(trials, rows), "tubes": tube_figure(trials, drawn),
             "paired": paired_figure(trials),
             "noise": noise_figure(rows)}
     owned = REPORT_FILES + tuple(f"figures/{name}.png" for name in figs)     # those not drawn this time too
@@ -525,6 +552,7 @@ def _kbytes(n) -> str:
 
 def _write_report(out, db, trials, config, vers, rows, figs, runs=()) -> None:
     out.write_text("trials.csv", trials_csv(trials))
+    _, drawn_note = figure_rows(rows)
     for name, fig in figs.items():
         if fig is not None:
             out.save_figure(fig, f"figures/{name}.png", dpi=90)
@@ -537,12 +565,12 @@ def _write_report(out, db, trials, config, vers, rows, figs, runs=()) -> None:
                      "before nhstab recorded it per trial: ||e(0)|| sqrt(p_M/p_m) exp(-3 alpha t)), for the "
                      "frozen-time law its certified bound; none for the past window, which has no guarantee. "
                      "Sensor noise, disturbances and the 50 Hz hold are outside the bound: the envelopes may "
-                     "cross it.",
+                     "cross it." + drawn_note,
         "distributions": "Minimum executed clearance (orange: the margin, red: contact), final position error, "
                          "replans and replan latency per cell.",
         "tubes": "Predicted error tube against the observed error, per state: RMS over trials of e(t) while following "
                  "the first plan (black) and the RMS each trial's own tube predicts, sqrt(mean of sigma^2 + m^2) "
-                 "(blue, dashed).",
+                 "(blue, dashed)." + drawn_note,
         "paired": "The same seeds under two controllers: each point is one trial.",
         "noise": "Success rate against the noise level, per controller.",
     }
