@@ -67,7 +67,7 @@ SUBCOMMANDS = {
     "planning": "Time to a feasible, stabilizable nominal over 20 fixed start/goal pairs on two maps, two robots, "
                 "and the scale series on the Moving AI NewYork_1_512 scenarios.",
     "parking": "Planning on the parking suite: success within 5 s over 10 seeds, time, cusps, duration and gain "
-               "against their bounds, per case (about 10-25 minutes).",
+               "against their bounds, per case (a few minutes; longer where searches fail and use their budget).",
     "run": "Composite controller: replan latency on the depot and warehouse scenarios; cost of a control update.",
     "batch": "Batch throughput: vectorised Hilare trials on one and two workers against the competent per-trial "
              "baseline (a naive one as an extra row), full map trials.",

@@ -134,9 +134,10 @@ def bench_batch(k: int = 4000, competent_trials: int = 400, naive_trials: int = 
                 repeats: int = 5) -> dict:
     """Batch throughput: trials per second for the paper's Hilare sinusoid with sensor noise (2 pi s
     at 50 Hz) vectorised over trials that share the nominal, on one worker process and on two at once
-    (each its own process, one thread; best of ``repeats``, wall time from submitting both to both
-    done), against the competent per-trial baseline (Python floats, RK4, precomputed gains) timed the
-    same way on the same seeds, and the naive per-trial solve_ivp loop as an extra row; and full map
+    (each its own process, one thread; best of ``repeats``, wall time from submitting the tasks to all
+    done, the same for one worker and for two), against the competent per-trial baseline (Python
+    floats, RK4, precomputed gains) on the same seeds, timed inside its worker (its task overheads
+    left out: conservative for the vectorised runner's speed-up), and the naive per-trial solve_ivp loop as an extra row; and full map
     trials (plan, execute, sense, monitor, replan) on the bundled cluttered room."""
     import multiprocessing as mp
 
@@ -149,7 +150,14 @@ def bench_batch(k: int = 4000, competent_trials: int = 400, naive_trials: int = 
         os.environ.setdefault(var, "1")
     ctx = mp.get_context("fork")
     with ctx.Pool(1) as pool:
-        one = min(pool.map(_shared_worker, [(k, 0)])[0][0] for _ in range(repeats))
+        # one worker timed as the two are below: wall time from submitting to done, in this process (the
+        # law built in the worker, the task sent and the result received are in both)
+        ones = []
+        for _ in range(repeats):
+            started = time.perf_counter()
+            pool.map(_shared_worker, [(k, 0)])
+            ones.append(time.perf_counter() - started)
+        one = min(ones)
         competent = min(pool.map(_competent_worker, [(competent_trials, 0)])[0][0] for _ in range(repeats))
     with ctx.Pool(2) as pool:
         two = []
