@@ -233,6 +233,94 @@ class CollisionWorld:
         return self._distance(_pose(pose), fp)
 
     def _distance(self, pose, fp: Footprint) -> float:
+        near = self._distance_near(pose, fp)
+        if near is not None:
+            return near
+        return self._distance_broadphase(pose, fp)
+
+    def _aabbs(self) -> np.ndarray:
+        """(n, 4) xmin, ymin, xmax, ymax of every obstacle object, in the order of ``_objects``."""
+        boxes = self.__dict__.get("_aabb")
+        if boxes is None:
+            boxes = np.empty((len(self._geoms), 4))
+            for i, geom in enumerate(self._geoms):
+                outline = self._outline[id(geom)]
+                if outline[0] == "circle":
+                    (cx, cy), r = outline[1], float(outline[2])
+                    boxes[i] = (cx - r, cy - r, cx + r, cy + r)
+                else:
+                    v = np.asarray(outline[1], dtype=float)
+                    boxes[i] = (v[:, 0].min(), v[:, 1].min(), v[:, 0].max(), v[:, 1].max())
+            self.__dict__["_aabb"] = boxes
+        return boxes
+
+    def _distance_near(self, pose, fp: Footprint):
+        """The exact distance from the footprint at ``pose`` to the nearest obstacle when it is positive,
+        else None (touching or overlapping: the callers fall back to the broad-phase queries). The same
+        objects are visited in increasing order of a lower bound of their distance (between the
+        footprint's bounding box, or a disc's centre less its radius, and the object's bounding box)
+        until that bound reaches the best distance found. FCL decides whether the footprint overlaps an
+        object whose box it meets; the distance to a separated object is measured exactly in the plane
+        (:func:`_exact_distance`: vertex to edge both ways, or point to polygon for discs and circles).
+        FCL's own distance is not used for the value: for a car's prism it was off by up to 0.9 m at true
+        distances of 0.3-2 m on grid maps (GJK), while its contact verdicts are exact."""
+        boxes = self._aabbs()
+        if not len(boxes):
+            return None
+        if fp.radius is not None:               # the disc's centre to each box, less the radius
+            px, py = float(pose[0]), float(pose[1])
+            dx = np.maximum(np.maximum(boxes[:, 0] - px, px - boxes[:, 2]), 0.0)
+            dy = np.maximum(np.maximum(boxes[:, 1] - py, py - boxes[:, 3]), 0.0)
+            lower = np.hypot(dx, dy) - fp.radius
+        else:                                   # the footprint's box to each box
+            v = transform_points(fp.vertices, pose)
+            x0, y0 = v.min(axis=0)
+            x1, y1 = v.max(axis=0)
+            dx = np.maximum(np.maximum(boxes[:, 0] - x1, x0 - boxes[:, 2]), 0.0)
+            dy = np.maximum(np.maximum(boxes[:, 1] - y1, y0 - boxes[:, 3]), 0.0)
+            lower = np.hypot(dx, dy)
+        robot = self._robot(fp, pose)
+        quads, is_quad = self._quad_table()
+        robot_v = None if fp.radius is not None else transform_points(fp.vertices, pose)
+        order = np.argsort(lower, kind="stable")
+        best, pos = math.inf, 0
+        while pos < len(order) and lower[order[pos]] < best:
+            chunk = order[pos:pos + 64]
+            pos += len(chunk)
+            chunk = chunk[lower[chunk] < best]
+            for i in chunk[lower[chunk] <= 0.0]:     # boxes meet: FCL decides overlap (the authority on contact)
+                for o in robot:
+                    res = fcl.DistanceResult()
+                    if float(fcl.distance(o, self._objects[i], _DISTANCE_REQUEST, res)) <= 0.0:
+                        return None
+            q = chunk[is_quad[chunk]]                # separated: the plane distance, exactly
+            if len(q):
+                d = _quad_distances(fp, pose, robot_v, quads[q])
+                if d.min() <= 0.0:
+                    return None
+                best = min(best, float(d.min()))
+            for i in chunk[~is_quad[chunk]]:
+                d = _exact_distance(fp, pose, self._outline[id(self._geoms[i])])
+                if d <= 0.0:
+                    return None
+                best = min(best, d)
+        return best
+
+    def _quad_table(self):
+        """(n, 4, 2) vertices of the four-cornered obstacle outlines (grid boxes, walls, rectangles) and
+        the (n,) mask of which objects they are, for the batched exact distances."""
+        table = self.__dict__.get("_quads")
+        if table is None:
+            quads = np.zeros((len(self._geoms), 4, 2))
+            mask = np.zeros(len(self._geoms), dtype=bool)
+            for i, geom in enumerate(self._geoms):
+                outline = self._outline[id(geom)]
+                if outline[0] == "poly" and len(outline[1]) == 4:
+                    quads[i], mask[i] = np.asarray(outline[1], dtype=float), True
+            table = self.__dict__["_quads"] = (quads, mask)
+        return table
+
+    def _distance_broadphase(self, pose, fp: Footprint) -> float:
         best = math.inf
         for o in self._robot(fp, pose):
             data = fcl.DistanceData()
@@ -249,6 +337,12 @@ class CollisionWorld:
         return self._clearance(_pose(pose), fp)
 
     def _clearance(self, pose, fp: Footprint) -> float:
+        near = self._distance_near(pose, fp)
+        if near is not None:
+            return near
+        return self._clearance_broadphase(pose, fp)
+
+    def _clearance_broadphase(self, pose, fp: Footprint) -> float:
         if not self._in_collision(pose, fp):
             return self._distance(pose, fp)
         deepest = 0.0
@@ -587,8 +681,50 @@ def _exact_distance(fp: Footprint, pose, outline) -> float:
         if outline[0] == "circle":
             return float(np.hypot(*(centre - outline[1])) - outline[2] - fp.radius)
         return point_polygon_distance(centre, outline[1]) - fp.radius
-    # polygon footprint, circle obstacle
-    return point_polygon_distance(outline[1], transform_points(fp.vertices, pose)) - outline[2]
+    robot = transform_points(fp.vertices, pose)
+    if outline[0] == "circle":                  # polygon footprint, circle obstacle
+        return point_polygon_distance(outline[1], robot) - outline[2]
+    return polygon_distance(robot, np.asarray(outline[1], dtype=float))
+
+
+def _segment_gaps2(points: np.ndarray, starts: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Squared distances from points (..., p, 2) to segments start + [0, 1] edge (..., e, 2): (..., p, e)."""
+    rel = points[..., :, None, :] - starts[..., None, :, :]
+    den = np.maximum(np.einsum("...ek,...ek->...e", edges, edges), 1e-300)[..., None, :]
+    t = np.clip(np.einsum("...pek,...ek->...pe", rel, edges) / den, 0.0, 1.0)
+    gap = rel - t[..., None] * edges[..., None, :, :]
+    return np.einsum("...k,...k->...", gap, gap)
+
+
+def _quad_distances(fp: Footprint, pose, robot_v, quads: np.ndarray) -> np.ndarray:
+    """Exact distances from the footprint at ``pose`` (``robot_v``: its world outline, None for a disc)
+    to each of ``quads`` (k, 4, 2), none of which it overlaps: the disc's centre to the quad's edges less
+    its radius, or the smallest vertex-to-edge distance both ways."""
+    edges = np.roll(quads, -1, axis=1) - quads
+    if robot_v is None:
+        c = np.asarray(pose[:2], dtype=float)[None, None, :]
+        return np.sqrt(_segment_gaps2(np.broadcast_to(c, (len(quads), 1, 2)), quads, edges).min(axis=(1, 2))) \
+            - fp.radius
+    r_edges = np.roll(robot_v, -1, axis=0) - robot_v
+    k = len(quads)
+    one = _segment_gaps2(np.broadcast_to(robot_v, (k,) + robot_v.shape), quads, edges).min(axis=(1, 2))
+    two = _segment_gaps2(quads, np.broadcast_to(robot_v, (k,) + robot_v.shape),
+                         np.broadcast_to(r_edges, (k,) + r_edges.shape)).min(axis=(1, 2))
+    return np.sqrt(np.minimum(one, two))
+
+
+def polygon_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """The distance between two simple polygons that do not overlap (neither inside the other): the
+    smallest distance from a vertex of one to an edge of the other, both ways (exact in the plane)."""
+    def one_way(points, poly):
+        s0 = poly
+        e = np.roll(poly, -1, axis=0) - s0                                    # (m, 2) edges
+        rel = points[:, None, :] - s0[None, :, :]                             # (n, m, 2)
+        t = np.clip(np.einsum("nmk,mk->nm", rel, e) / np.maximum(np.einsum("mk,mk->m", e, e), 1e-300), 0.0, 1.0)
+        gap = rel - t[:, :, None] * e[None, :, :]
+        return float(np.sqrt(np.min(np.einsum("nmk,nmk->nm", gap, gap))))
+
+    return min(one_way(a, b), one_way(b, a))
 
 
 def _pose(value, name: str = "pose") -> np.ndarray:
