@@ -280,44 +280,53 @@ class CollisionWorld:
             dy = np.maximum(np.maximum(boxes[:, 1] - y1, y0 - boxes[:, 3]), 0.0)
             lower = np.hypot(dx, dy)
         robot = self._robot(fp, pose)
-        quads, is_quad = self._quad_table()
+        polys, circles, kind = self._shape_tables()
         robot_v = None if fp.radius is not None else transform_points(fp.vertices, pose)
         order = np.argsort(lower, kind="stable")
-        best, pos = math.inf, 0
+        best, pos, size = math.inf, 0, 8
         while pos < len(order) and lower[order[pos]] < best:
-            chunk = order[pos:pos + 64]
-            pos += len(chunk)
+            chunk = order[pos:pos + size]           # 8, then 32, 128, ...: most queries end in the first
+            pos, size = pos + len(chunk), 4 * size
             chunk = chunk[lower[chunk] < best]
             for i in chunk[lower[chunk] <= 0.0]:     # boxes meet: FCL decides overlap (the authority on contact)
                 for o in robot:
                     res = fcl.DistanceResult()
                     if float(fcl.distance(o, self._objects[i], _DISTANCE_REQUEST, res)) <= 0.0:
                         return None
-            q = chunk[is_quad[chunk]]                # separated: the plane distance, exactly
-            if len(q):
-                d = _quad_distances(fp, pose, robot_v, quads[q])
-                if d.min() <= 0.0:
-                    return None
-                best = min(best, float(d.min()))
-            for i in chunk[~is_quad[chunk]]:
+            kinds = kind[chunk]                      # separated: the plane distance, exactly
+            for sel, measure in ((chunk[kinds == 1], lambda q: _poly_distances(fp, pose, robot_v, polys[q])),
+                                 (chunk[kinds == 2], lambda q: _circle_distances(fp, pose, robot_v, circles[q]))):
+                if len(sel):
+                    d = float(measure(sel).min())
+                    if d <= 0.0:
+                        return None
+                    best = min(best, d)
+            for i in chunk[kinds == 0]:
                 d = _exact_distance(fp, pose, self._outline[id(self._geoms[i])])
                 if d <= 0.0:
                     return None
                 best = min(best, d)
         return best
 
-    def _quad_table(self):
-        """(n, 4, 2) vertices of the four-cornered obstacle outlines (grid boxes, walls, rectangles) and
-        the (n,) mask of which objects they are, for the batched exact distances."""
-        table = self.__dict__.get("_quads")
+    def _shape_tables(self):
+        """The obstacle outlines as arrays for the batched exact distances: (n, POLY_PAD, 2) vertices of
+        the polygons of at most POLY_PAD corners (repeating the last one: a zero-length edge changes no
+        distance), (n, 3) circles (centre, radius), and the (n,) kind of each object (1 such a polygon,
+        2 a circle, 0 another polygon, measured one at a time)."""
+        table = self.__dict__.get("_tables")
         if table is None:
-            quads = np.zeros((len(self._geoms), 4, 2))
-            mask = np.zeros(len(self._geoms), dtype=bool)
+            n = len(self._geoms)
+            polys, circles, kind = np.zeros((n, POLY_PAD, 2)), np.zeros((n, 3)), np.zeros(n, dtype=np.int8)
             for i, geom in enumerate(self._geoms):
                 outline = self._outline[id(geom)]
-                if outline[0] == "poly" and len(outline[1]) == 4:
-                    quads[i], mask[i] = np.asarray(outline[1], dtype=float), True
-            table = self.__dict__["_quads"] = (quads, mask)
+                if outline[0] == "circle":
+                    circles[i] = (*outline[1], outline[2])
+                    kind[i] = 2
+                elif len(outline[1]) <= POLY_PAD:
+                    v = np.asarray(outline[1], dtype=float)
+                    polys[i, :len(v)], polys[i, len(v):] = v, v[-1]
+                    kind[i] = 1
+            table = self.__dict__["_tables"] = (polys, circles, kind)
         return table
 
     def _distance_broadphase(self, pose, fp: Footprint) -> float:
@@ -696,10 +705,23 @@ def _segment_gaps2(points: np.ndarray, starts: np.ndarray, edges: np.ndarray) ->
     return np.einsum("...k,...k->...", gap, gap)
 
 
-def _quad_distances(fp: Footprint, pose, robot_v, quads: np.ndarray) -> np.ndarray:
+#: obstacle polygons of at most this many corners are measured in batches (:meth:`CollisionWorld._shape_tables`)
+POLY_PAD = 8
+
+
+def _circle_distances(fp: Footprint, pose, robot_v, circles: np.ndarray) -> np.ndarray:
+    """Exact distances from the footprint at ``pose`` to each of ``circles`` (k, 3: centre, radius),
+    none of which it overlaps (so no centre lies inside the footprint)."""
+    if robot_v is None:
+        return np.hypot(circles[:, 0] - pose[0], circles[:, 1] - pose[1]) - circles[:, 2] - fp.radius
+    r_edges = np.roll(robot_v, -1, axis=0) - robot_v
+    return np.sqrt(_segment_gaps2(circles[:, :2], robot_v, r_edges).min(axis=1)) - circles[:, 2]
+
+
+def _poly_distances(fp: Footprint, pose, robot_v, quads: np.ndarray) -> np.ndarray:
     """Exact distances from the footprint at ``pose`` (``robot_v``: its world outline, None for a disc)
-    to each of ``quads`` (k, 4, 2), none of which it overlaps: the disc's centre to the quad's edges less
-    its radius, or the smallest vertex-to-edge distance both ways."""
+    to each of the polygons ``quads`` (k, c, 2), none of which it overlaps: the disc's centre to the
+    polygon's edges less its radius, or the smallest vertex-to-edge distance both ways."""
     edges = np.roll(quads, -1, axis=1) - quads
     if robot_v is None:
         c = np.asarray(pose[:2], dtype=float)[None, None, :]
