@@ -105,7 +105,15 @@ def test_the_committed_older_store_still_reports(tmp_path):
     for r in gram:
         assert float(r["rate_bound"]) == pytest.approx(0.6, rel=1e-9)       # 3 alpha, alpha = 0.2
         assert float(r["rate_bound_printed"]) < 0.05
-    assert "| depot-blocked-aisle / gramian / noise 1 | 16 |" in (tmp_path / "report.md").read_text()
+    md = (tmp_path / "report.md").read_text()
+    assert "| depot-blocked-aisle / gramian / noise 1 | 16 |" in md
+    # every table is closed: Markdown tables end in a blank line (else the next paragraph is read as a row),
+    # and every HTML table is closed (the paired table was not)
+    lines = md.splitlines()
+    assert "Same seeds" in md
+    assert all(not nxt or nxt.startswith("|") for cur, nxt in zip(lines, lines[1:]) if cur.startswith("|"))
+    page = (tmp_path / "report.html").read_text()
+    assert page.count("<table>") == page.count("</table>") >= 2
 
 
 def test_store_records_a_trial_once(tmp_path):

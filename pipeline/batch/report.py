@@ -550,6 +550,20 @@ def _kbytes(n) -> str:
     return f"{n / 1000:.1f} kB" if isinstance(n, (int, float)) else "-"
 
 
+def _md_table(header, rows) -> list[str]:
+    """A Markdown table (cells' "|" written "/"), ended by a blank line so that the next paragraph is
+    not read as one of its rows."""
+    line = lambda cells: "| " + " | ".join(str(c).replace("|", "/") for c in cells) + " |"  # noqa: E731
+    return [line(header), "|" + "---|" * len(header), *(line(r) for r in rows), ""]
+
+
+def _html_table(header, rows) -> list[str]:
+    """An HTML table, escaped and closed."""
+    return (["<table><tr>" + "".join(f"<th>{html.escape(str(c))}</th>" for c in header) + "</tr>"]
+            + ["<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows]
+            + ["</table>"])
+
+
 def _write_report(out, db, trials, config, vers, rows, figs, runs=()) -> None:
     out.write_text("trials.csv", trials_csv(trials))
     _, drawn_note = figure_rows(rows)
@@ -593,14 +607,10 @@ def _write_report(out, db, trials, config, vers, rows, figs, runs=()) -> None:
     ran = runs_text(runs)
     if ran:
         intro += " Runs: " + ran
-    md = [f"# {title}", "", intro, "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    md += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in table_rows]
-    md.append("")
+    md = [f"# {title}", "", intro, "", *_md_table(header, table_rows)]
     trailer_header, trailer_rows = _trailer_table(rows)
     if trailer_rows:
-        md += [TRAILER_NOTE, "", "| " + " | ".join(trailer_header) + " |", "|" + "---|" * len(trailer_header)]
-        md += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in trailer_rows]
-        md.append("")
+        md += [TRAILER_NOTE, "", *_md_table(trailer_header, trailer_rows)]
     paired = paired_outcomes(trials)
     paired_header = ["map / noise", "controller", "reached where the reference reached", "collisions"]
     paired_rows = [[f"{r['map']} / noise {r['noise']:g}", r["controller"],
@@ -610,23 +620,18 @@ def _write_report(out, db, trials, config, vers, rows, figs, runs=()) -> None:
     if paired:
         md += [f"**Same seeds, against the reference ({paired[0]['reference']}).** On the seeds where the reference "
                "reached the goal, how often each other controller did too; and its collisions over all its "
-               "seeds.", "", "| " + " | ".join(paired_header) + " |", "|" + "---|" * len(paired_header)]
-        md += ["| " + " | ".join(row) + " |" for row in paired_rows]
+               "seeds.", "", *_md_table(paired_header, paired_rows)]
     tube_rows = [r for r in rows if r.get("tube_samples")]
     if tube_rows:
         md += [f"**Error tubes.** Coverage: the fraction of the trials' tracking samples (first plan) inside their "
                f"plan's p-tube (p = {tube_rows[0]['tube_probability']:g}; the pose region of the spatial tube, and the "
                "full-state p-ellipsoid), Wilson 95% over samples (correlated within a trial, so too narrow: the "
                "standard deviation of the per-trial fractions and the lowest one are beside it).", "",
-               "| " + " | ".join(TUBE_HEADER) + " |", "|" + "---|" * len(TUBE_HEADER)]
-        md += ["| " + " | ".join(c.replace("|", "/") for c in _tube_row(r)) + " |" for r in tube_rows]
-        md.append("")
+               *_md_table(TUBE_HEADER, [_tube_row(r) for r in tube_rows])]
     if errors:
         md += ["## Errors", "", "Trials that failed by error (an exception, not an outcome such as a collision), by "
                "message; each is in `trials.csv` with status `error`.", "",
-               "| " + " | ".join(ERROR_HEADER) + " |", "|" + "---|" * len(ERROR_HEADER)]
-        md += ["| " + " | ".join(c.replace("|", "/") for c in _error_row(e)) + " |" for e in errors]
-        md.append("")
+               *_md_table(ERROR_HEADER, [_error_row(e) for e in errors])]
     for name, fig in figs.items():
         if fig is not None:
             md += [f"![{name}](figures/{name}.png)", "", captions[name], ""]
@@ -638,32 +643,22 @@ def _write_report(out, db, trials, config, vers, rows, figs, runs=()) -> None:
          "table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px}"
          "th{background:#f2f2f2}img{max-width:100%}figcaption{font-size:13px;color:#555;margin-bottom:2em}"
          "</style></head><body>", f"<h1>{html.escape(title)}</h1>", f"<p>{html.escape(intro)}</p>",
-         "<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in header) + "</tr>"]
-    h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in table_rows]
-    h.append("</table>")
+         *_html_table(header, table_rows)]
     if trailer_rows:
-        h += [f"<p>{html.escape(TRAILER_NOTE)}</p>",
-              "<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in trailer_header) + "</tr>"]
-        h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in trailer_rows]
-        h.append("</table>")
+        h += [f"<p>{html.escape(TRAILER_NOTE)}</p>", *_html_table(trailer_header, trailer_rows)]
     if paired:
         h.append(f"<p><b>Same seeds, against the reference ({html.escape(paired[0]['reference'])}).</b> On the seeds "
                  "where the reference reached the goal, how often each other controller did too; and its collisions "
                  "over all its seeds.</p>")
-        h.append("<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in paired_header) + "</tr>")
-        h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in paired_rows]
+        h += _html_table(paired_header, paired_rows)
     if tube_rows:
         h.append("<h2>Error tubes</h2><p>Coverage of each trial's first-plan p-tube over its tracking samples; "
                  "Wilson 95% over samples (correlated within a trial: too narrow), per-trial spread beside it.</p>")
-        h.append("<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in TUBE_HEADER) + "</tr>")
-        h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in _tube_row(r)) + "</tr>" for r in tube_rows]
-        h.append("</table>")
+        h += _html_table(TUBE_HEADER, [_tube_row(r) for r in tube_rows])
     if errors:
         h.append("<h2>Errors</h2><p>Trials that failed by error (an exception, not an outcome such as a collision), "
                  "by message; each is in trials.csv with status error.</p>")
-        h.append("<table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in ERROR_HEADER) + "</tr>")
-        h += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in _error_row(e)) + "</tr>" for e in errors]
-        h.append("</table>")
+        h += _html_table(ERROR_HEADER, [_error_row(e) for e in errors])
     for name, fig in figs.items():
         if fig is not None:
             h.append(f"<figure><img src='figures/{name}.png' alt='{name}'>"
