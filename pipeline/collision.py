@@ -234,29 +234,11 @@ class CollisionWorld:
 
     def _distance(self, pose, fp: Footprint) -> float:
         near = self._distance_near(pose, fp)
-        if near is not None:
-            return near
-        return self._distance_broadphase(pose, fp)
-
-    def _aabbs(self) -> np.ndarray:
-        """(n, 4) xmin, ymin, xmax, ymax of every obstacle object, in the order of ``_objects``."""
-        boxes = self.__dict__.get("_aabb")
-        if boxes is None:
-            boxes = np.empty((len(self._geoms), 4))
-            for i, geom in enumerate(self._geoms):
-                outline = self._outline[id(geom)]
-                if outline[0] == "circle":
-                    (cx, cy), r = outline[1], float(outline[2])
-                    boxes[i] = (cx - r, cy - r, cx + r, cy + r)
-                else:
-                    v = np.asarray(outline[1], dtype=float)
-                    boxes[i] = (v[:, 0].min(), v[:, 1].min(), v[:, 0].max(), v[:, 1].max())
-            self.__dict__["_aabb"] = boxes
-        return boxes
+        return 0.0 if near is None else near
 
     def _distance_near(self, pose, fp: Footprint):
-        """The exact distance from the footprint at ``pose`` to the nearest obstacle when it is positive,
-        else None (touching or overlapping: the callers fall back to the broad-phase queries). The
+        """The exact distance from the footprint at ``pose`` to the nearest obstacle when it is positive
+        (inf in a world without obstacles), else None (touching or overlapping, as FCL decides). The
         objects are visited in increasing order of a lower bound of their distance (between the
         footprint's bounding box, or a disc's centre less its radius, and the object's bounding box)
         until that bound reaches the best distance found. FCL decides whether the footprint overlaps an
@@ -264,9 +246,9 @@ class CollisionWorld:
         (:func:`_exact_distance`: vertex to edge both ways, or point to polygon for discs and circles).
         FCL's own distance is not used for the value: for a car's prism it was off by up to 0.95 m at true
         distances of 0.3-2 m on grid maps (GJK), while its contact verdicts are exact."""
-        boxes = self._aabbs()
+        boxes, polys, circles, kind = self._shape_tables()
         if not len(boxes):
-            return None
+            return math.inf
         if fp.radius is not None:               # the disc's centre to each box, less the radius
             px, py = float(pose[0]), float(pose[1])
             dx = np.maximum(np.maximum(boxes[:, 0] - px, px - boxes[:, 2]), 0.0)
@@ -280,7 +262,6 @@ class CollisionWorld:
             dy = np.maximum(np.maximum(boxes[:, 1] - y1, y0 - boxes[:, 3]), 0.0)
             lower = np.hypot(dx, dy)
         robot = self._robot(fp, pose)
-        polys, circles, kind = self._shape_tables()
         robot_v = None if fp.radius is not None else transform_points(fp.vertices, pose)
         order = np.argsort(lower, kind="stable")
         best, pos, size = math.inf, 0, 8
@@ -309,37 +290,28 @@ class CollisionWorld:
         return best
 
     def _shape_tables(self):
-        """The obstacle outlines as arrays for the batched exact distances: (n, POLY_PAD, 2) vertices of
-        the polygons of at most POLY_PAD corners (repeating the last one: a zero-length edge changes no
-        distance), (n, 3) circles (centre, radius), and the (n,) kind of each object (1 such a polygon,
-        2 a circle, 0 another polygon, measured one at a time)."""
+        """The obstacle objects (in the order of ``_objects``) as arrays for :meth:`_distance_near`:
+        (n, 4) bounding boxes (xmin, ymin, xmax, ymax); (n, POLY_PAD, 2) vertices of the polygons of at
+        most POLY_PAD corners (repeating the last one: a zero-length edge changes no distance); (n, 3)
+        circles (centre, radius); and the (n,) kind of each object (1 such a polygon, 2 a circle, 0 another
+        polygon, measured one at a time)."""
         table = self.__dict__.get("_tables")
         if table is None:
             n = len(self._geoms)
-            polys, circles, kind = np.zeros((n, POLY_PAD, 2)), np.zeros((n, 3)), np.zeros(n, dtype=np.int8)
+            boxes, polys, circles = np.empty((n, 4)), np.zeros((n, POLY_PAD, 2)), np.zeros((n, 3))
+            kind = np.zeros(n, dtype=np.int8)
             for i, geom in enumerate(self._geoms):
                 outline = self._outline[id(geom)]
                 if outline[0] == "circle":
-                    circles[i] = (*outline[1], outline[2])
-                    kind[i] = 2
-                elif len(outline[1]) <= POLY_PAD:
-                    v = np.asarray(outline[1], dtype=float)
-                    polys[i, :len(v)], polys[i, len(v):] = v, v[-1]
-                    kind[i] = 1
-            table = self.__dict__["_tables"] = (polys, circles, kind)
+                    (cx, cy), r = outline[1], float(outline[2])
+                    boxes[i], circles[i], kind[i] = (cx - r, cy - r, cx + r, cy + r), (cx, cy, r), 2
+                    continue
+                v = np.asarray(outline[1], dtype=float)
+                boxes[i] = (*v.min(axis=0), *v.max(axis=0))
+                if len(v) <= POLY_PAD:
+                    polys[i, :len(v)], polys[i, len(v):], kind[i] = v, v[-1], 1
+            table = self.__dict__["_tables"] = (boxes, polys, circles, kind)
         return table
-
-    def _distance_broadphase(self, pose, fp: Footprint) -> float:
-        best = math.inf
-        for o in self._robot(fp, pose):
-            data = fcl.DistanceData()
-            self.manager.distance(o, data, _nearest)
-            d = float(data.result.min_distance)
-            outline = self._outline.get(id(data.result.o1))
-            if d > 0 and outline is not None and (fp.radius is not None or outline[0] == "circle"):
-                d = _exact_distance(fp, pose, outline)
-            best = min(best, max(0.0, d))
-        return best
 
     def clearance(self, pose, fp: Footprint) -> float:
         """Signed clearance: the distance to the nearest obstacle, or minus the deepest penetration."""
@@ -349,11 +321,8 @@ class CollisionWorld:
         near = self._distance_near(pose, fp)
         if near is not None:
             return near
-        return self._clearance_broadphase(pose, fp)
-
-    def _clearance_broadphase(self, pose, fp: Footprint) -> float:
-        if not self._in_collision(pose, fp):
-            return self._distance(pose, fp)
+        if not self._in_collision(pose, fp):          # touching
+            return 0.0
         deepest = 0.0
         for o in self._robot(fp, pose):
             data = fcl.CollisionData(request=fcl.CollisionRequest(num_max_contacts=100_000, enable_contact=True))
@@ -650,14 +619,6 @@ def _first_contact(o1, o2, data) -> bool:
     if fcl.collide(o1, o2, _COLLIDE_REQUEST, data.result):
         data.done = True
     return data.done
-
-
-def _nearest(o1, o2, data):
-    """Broad-phase callback for the distance query (as fcl.defaultDistanceCallback, leaner)."""
-    d = fcl.distance(o1, o2, _DISTANCE_REQUEST, data.result)
-    if d <= 0:
-        return True, d
-    return False, data.result.min_distance
 
 
 def _offset_convex(v: np.ndarray, d: float) -> tuple[np.ndarray, np.ndarray]:
