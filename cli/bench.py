@@ -25,16 +25,20 @@ def _emit(result: dict, out: Path):
 @click.pass_context
 def bench(ctx, out_dir, only):
     """Run every benchmark (no subcommand) or one of them. Writes JSON."""
+    from nhstab.errors import InputError
+
     if ctx.invoked_subcommand is not None:
+        if only is not None:
+            raise InputError("--only", "no subcommand with it (it selects among all the benchmarks)",
+                             f"--only {only} with {ctx.invoked_subcommand}")
         return 0
     from nhstab.bench import BENCHMARKS, summary_markdown
-    from nhstab.errors import InputError
     from nhstab.records import write_json, write_text
 
     results = {}
     names = list(BENCHMARKS)
     if only is not None:
-        names = [n.strip() for n in only.split(",") if n.strip()]
+        names = list(dict.fromkeys(n.strip() for n in only.split(",") if n.strip()))     # each once
         unknown = [n for n in names if n not in BENCHMARKS]
         if unknown or not names:
             raise InputError("--only", f"benchmark names from {', '.join(BENCHMARKS)}", only)

@@ -158,3 +158,9 @@ def test_bench_only_merges_into_the_existing_results(runner, tmp_path, monkeypat
     res = runner.invoke(cli, ["bench", "--out-dir", str(tmp_path), "--only", "gains,nope"])
     _one_line_error(res, "--only", "nope")
     assert json.loads((tmp_path / "bench.json").read_text()) == merged
+    calls.clear()
+    assert runner.invoke(cli, ["bench", "--out-dir", str(tmp_path), "--only", "gains, gains,"]).exit_code == 0
+    assert calls == ["gains"]                          # each benchmark once
+    res = runner.invoke(cli, ["bench", "--only", "gains", "collision", "--out", str(tmp_path / "c.json")])
+    _one_line_error(res, "--only", "collision")
+    assert calls == ["gains"] and not (tmp_path / "c.json").exists()
