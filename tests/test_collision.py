@@ -287,8 +287,9 @@ def test_vectorised_boxes_mark_the_same_field_as_the_loop(monkeypatch, offset):
 def test_a_cars_clearance_on_a_real_grid_map_is_exact_far_from_the_walls_too():
     """The rwd_car on the Nav2 depot (0.05 m cells): the clearance equals shapely's distance to the
     occupied cells (each cell its own box, read from the grid, and the bounds) to 1e-9 m at true
-    distances of up to 3 m. FCL's own distance for the car's prism was off by up to 0.33 m at 1-2 m
-    here (GJK), so the values are measured in the plane; FCL decides contact."""
+    distances of up to 3 m, and ``is_free`` with a margin agrees with it. FCL's own distance for the
+    car's prism was off by up to 0.33 m at 1-2 m here (GJK), so the values are measured in the plane;
+    FCL decides contact."""
     from shapely.strtree import STRtree
 
     from nhstab.maps import load_map
@@ -314,6 +315,9 @@ def test_a_cars_clearance_on_a_real_grid_map_is_exact_far_from_the_walls_too():
         if not 1e-6 < ref <= 3.0:
             continue
         assert world.clearance(pose, fp) == pytest.approx(ref, abs=1e-9), pose
+        for margin in (0.1, 0.3):              # the planner's margin decisions, also against shapely
+            if abs(ref - margin) > 1e-9:
+                assert world.is_free(pose, fp, margin) == (ref > margin), (pose, margin, ref)
         checked += 1
     assert checked > 200
 
