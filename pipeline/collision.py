@@ -308,44 +308,72 @@ class CollisionWorld:
             best = min(best, more)
         return best
 
-    def _near_batch(self, poses: np.ndarray, fp: Footprint, nearest: int = 16) -> np.ndarray:
+    #: _near_batch: poses per chunk, and the objects nearest a chunk's box each pose of it looks at
+    NEAR_CHUNK, NEAR_OBJECTS = 32, 48
+
+    def _near_batch(self, poses: np.ndarray, fp: Footprint, nearest: int = 4, local: bool = True) -> np.ndarray:
         """:meth:`_distance_near` at many poses (N, 3) at once, where it can be decided without FCL: the
         ``nearest`` objects of the smallest bounding-box lower bound are measured exactly in the plane
         (vertex to edge both ways, as :func:`_poly_distances` and :func:`_circle_distances`), and a pose
         is decided when none of their boxes meets the footprint's (so none overlaps it: the contact
         question stays with FCL), none is a polygon of more than ``POLY_PAD`` corners, and the smallest
         distance found is no more than the next object's lower bound (so no other object is nearer).
+        Poses go in chunks of ``NEAR_CHUNK`` (8 times more in a world of few objects); in a world of many
+        objects each chunk first keeps the
+        ``NEAR_OBJECTS`` objects nearest the box of all its footprints, and the objects it drops count
+        with the smallest box distance among them as their bound (poses that bound leaves undecided, as
+        scattered poses do, are tried again against all the objects).
         Returns the distances, NaN where undecided (the caller asks :meth:`_distance_near`)."""
-        boxes, polys, circles, kind = self._shape_tables()
-        n_poses, n = len(poses), len(boxes)
-        if not n:
+        all_boxes, polys, circles, kind = self._shape_tables()
+        n_poses, n_all = len(poses), len(all_boxes)
+        if not n_all:
             return np.full(n_poses, np.inf)
         out = np.full(n_poses, np.nan)
-        k = min(nearest, n)
         disc = fp.radius is not None
         verts = None if disc else np.asarray(fp.vertices, dtype=float)
-        for a in range(0, n_poses, 64):
-            p = poses[a:a + 64]
+        local = local and n_all > 2 * self.NEAR_OBJECTS
+        size = self.NEAR_CHUNK if local else 8 * self.NEAR_CHUNK     # few objects: larger chunks
+        for a in range(0, n_poses, size):
+            p = poses[a:a + size]
             m = len(p)
             if disc:
-                px, py = p[:, 0:1], p[:, 1:2]
-                dx = np.maximum(np.maximum(boxes[:, 0] - px, px - boxes[:, 2]), 0.0)
-                dy = np.maximum(np.maximum(boxes[:, 1] - py, py - boxes[:, 3]), 0.0)
-                lower = np.hypot(dx, dy) - fp.radius
+                lo = p[:, :2] - fp.radius
+                hi = p[:, :2] + fp.radius
             else:                                               # the outline at each pose (m, V, 2)
                 c, s = np.cos(p[:, 2])[:, None], np.sin(p[:, 2])[:, None]
                 rv = np.stack([p[:, 0:1] + c * verts[:, 0] - s * verts[:, 1],
                                p[:, 1:2] + s * verts[:, 0] + c * verts[:, 1]], axis=-1)
                 lo, hi = rv.min(axis=1), rv.max(axis=1)
+            ids, beyond = None, np.inf
+            boxes = all_boxes
+            if local:                                           # the objects near this chunk's footprints
+                (x0, y0), (x1, y1) = lo.min(axis=0), hi.max(axis=0)
+                gap = np.hypot(np.maximum(np.maximum(all_boxes[:, 0] - x1, x0 - all_boxes[:, 2]), 0.0),
+                               np.maximum(np.maximum(all_boxes[:, 1] - y1, y0 - all_boxes[:, 3]), 0.0))
+                part = np.argpartition(gap, self.NEAR_OBJECTS)
+                ids, beyond = part[:self.NEAR_OBJECTS], float(gap[part[self.NEAR_OBJECTS]])
+                boxes = all_boxes[ids]
+            n = len(boxes)
+            k = min(nearest, n)
+            if disc:
+                px, py = p[:, 0:1], p[:, 1:2]
+                dx = np.maximum(np.maximum(boxes[:, 0] - px, px - boxes[:, 2]), 0.0)
+                dy = np.maximum(np.maximum(boxes[:, 1] - py, py - boxes[:, 3]), 0.0)
+                lower = np.hypot(dx, dy) - fp.radius
+                beyond -= fp.radius
+            else:
                 dx = np.maximum(np.maximum(boxes[:, 0] - hi[:, 0:1], lo[:, 0:1] - boxes[:, 2]), 0.0)
                 dy = np.maximum(np.maximum(boxes[:, 1] - hi[:, 1:2], lo[:, 1:2] - boxes[:, 3]), 0.0)
                 lower = np.hypot(dx, dy)
             if k < n:
                 part = np.argpartition(lower, k, axis=1)
-                cand, nxt = part[:, :k], lower[np.arange(m), part[:, k]]
+                cand, nxt = part[:, :k], np.minimum(lower[np.arange(m), part[:, k]], beyond)
             else:
-                cand, nxt = np.broadcast_to(np.arange(n), (m, n)), np.full(m, np.inf)
-            ok = (np.take_along_axis(lower, cand, axis=1) > 0.0).all(axis=1) & (kind[cand] != 0).all(axis=1)
+                cand, nxt = np.broadcast_to(np.arange(n), (m, n)), np.full(m, beyond)
+            ok = (np.take_along_axis(lower, cand, axis=1) > 0.0).all(axis=1)
+            if ids is not None:
+                cand = ids[cand]
+            ok &= (kind[cand] != 0).all(axis=1)
             if not ok.any():
                 continue
             rows = np.flatnonzero(ok)
@@ -372,6 +400,9 @@ class CollisionWorld:
             d = np.where(kind[cand] == 1, d_poly, d_circ).min(axis=1)
             good = (d > 0.0) & (d <= nxt)
             out[a + rows[good]] = d[good]
+            again = rows[(d > nxt) & (nxt >= beyond)] if ids is not None else ()
+            if len(again):                  # the chunk's objects were too few for these poses
+                out[a + again] = self._near_batch(p[again], fp, nearest, local=False)
         return out
 
     def _shape_tables(self):
@@ -618,7 +649,7 @@ class CollisionWorld:
         The bound: the footprint covered by discs, from the distance field; for a polygon footprint whose
         discs are clear (so no obstacle lies inside it), also its outline sampled at the field's cell size,
         which is tighter (computed after the first batch, only for the poses still below the best value);
-        a measured clearance c > 0 also bounds the poses up to ``4 VOUCH_SPAN`` either side by
+        a measured clearance c > 0 also bounds the poses up to ``VOUCH_SPAN`` either side by
         c - ``VOUCH_GAP`` - how far the footprint moved (|translation| + rho |rotation|, rho the farthest
         footprint point, 0 for a disc, which does not move when it turns). Nothing bounds a penetration
         depth, so a pose whose bound is not positive is always measured."""
@@ -639,7 +670,7 @@ class CollisionWorld:
             bound = np.minimum(bound, field.at(poses[:, 0] + cth * u - sth * v, poses[:, 1] + sth * u + cth * v) - rad)
         key = np.where(bound > 0.0, bound - off, -np.inf)
         vouched = np.full(n, -np.inf)
-        span, rho = 4 * self.VOUCH_SPAN, 0.0 if fp.radius is not None else fp.bounding_radius
+        span, rho = self.VOUCH_SPAN, 0.0 if fp.radius is not None else fp.bounding_radius
         best, best_k, best_c, evals = math.inf, -1, math.nan, 0
         order = np.argsort(key, kind="stable")
         pos, size, outlined = 0, 16, fp.radius is not None
@@ -652,15 +683,18 @@ class CollisionWorld:
             c = self._clearances(poses[chunk], fp)
             evals += len(chunk)
             g = c - off[chunk]
-            for j in np.flatnonzero(g <= best):
-                if g[j] < best or (g[j] == best and chunk[j] < best_k):
-                    best, best_k, best_c = float(g[j]), int(chunk[j]), float(c[j])
-            for j in np.flatnonzero(c > 0.0):
-                k = chunk[j]
-                near = slice(max(0, k - span), k + span + 1)
-                d = poses[near] - poses[k]
-                vouched[near] = np.maximum(vouched[near], c[j] - self.VOUCH_GAP - np.hypot(d[:, 0], d[:, 1])
-                                           - rho * np.abs(d[:, 2]))
+            gm = float(g.min())
+            if gm <= best:                  # the first index among the smallest values
+                j = int(np.flatnonzero(g == gm)[np.argmin(chunk[g == gm])])
+                if gm < best or chunk[j] < best_k:
+                    best, best_k, best_c = gm, int(chunk[j]), float(c[j])
+            pos_ = c > 0.0
+            if pos_.any():                  # each measured c > 0 bounds its neighbours (all at once)
+                ks = chunk[pos_]
+                near = np.clip(ks[:, None] + np.arange(-span, span + 1), 0, n - 1)
+                d = poses[near] - poses[ks][:, None]
+                np.maximum.at(vouched, near, c[pos_][:, None] - self.VOUCH_GAP - np.hypot(d[..., 0], d[..., 1])
+                              - rho * np.abs(d[..., 2]))
             if not outlined:                # the outline bound, for the poses still below the best value
                 outlined = True
                 rest = order[pos:]
