@@ -32,7 +32,7 @@ import fcl
 import numpy as np
 
 from .errors import InputError
-from .clearance_field import ClearanceField, disc_cover, footprint_points
+from .clearance_field import FINE_DISCS_PER_WIDTH, ClearanceField, disc_cover, footprint_points
 from .geometry import Footprint, convex_parts, point_polygon_distance, transform_points, wrap_angle
 from .maps.base import Circle, Map, OccupancyGrid, Polygon
 
@@ -515,8 +515,11 @@ class CollisionWorld:
         if field is None:
             return lambda x, y, th: self._is_free((x, y, th), fp, margin)
         # plain Python floats and ints throughout (numpy scalars are several times slower here)
-        centres, radii = disc_cover(fp)
-        discs = [(float(u), float(v), float(rad + margin)) for (u, v), rad in zip(centres, radii)]
+        def discs_of(cover):
+            return [(float(u), float(v), float(rad + margin)) for (u, v), rad in zip(*cover)]
+
+        discs = discs_of(disc_cover(fp))
+        fine = discs_of(disc_cover(fp, FINE_DISCS_PER_WIDTH)) if fp.radius is None else []
         pts = [(float(u), float(v)) for u, v in footprint_points(fp, None)]
         lower, inside = field.lower_bound, field.inside
         rows, cols = lower.shape
@@ -531,6 +534,14 @@ class CollisionWorld:
                     break
             else:
                 return True
+            for u, v, need in fine:                # near something: the finer cover, before FCL
+                j = int((x + c * u - s * v - x0) // r)
+                i = int((y + s * u + c * v - y0) // r)
+                if not (0 <= i < rows and 0 <= j < cols) or lower[i, j] <= need:
+                    break
+            else:
+                if fine:
+                    return True
             for u, v in pts:                       # a footprint point certainly inside an obstacle
                 j = int((x + c * u - s * v - x0) // r)
                 i = int((y + s * u + c * v - y0) // r)
