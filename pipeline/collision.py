@@ -681,9 +681,12 @@ class CollisionWorld:
         c - ``VOUCH_GAP`` - how far the footprint moved (|translation| + rho |rotation|, rho the farthest
         footprint point, 0 for a disc, which does not move when it turns). Nothing bounds a penetration
         depth, so a pose whose bound is not positive is always measured."""
-        poses = np.asarray(poses, dtype=float)
+        poses = _poses(poses)
         n = len(poses)
         off = np.zeros(n) if offset is None else np.asarray(offset, dtype=float)
+        if off.shape != (n,) or not np.all(np.isfinite(off)):
+            raise InputError("offset", f"one finite number per pose ({n})",
+                             offset if off.size <= 6 else f"an array of shape {off.shape}")
         if not n:
             return math.inf, -1, math.nan, 0
         field = self.clearance_field()
