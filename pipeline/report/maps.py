@@ -141,11 +141,21 @@ def _fixed_margins(fig, fig_w: float, fig_h: float, title_lines: int) -> None:
     fig.subplots_adjust(left=left / fig_w, right=1 - right / fig_w, bottom=bottom / fig_h, top=1 - top_in / fig_h)
 
 
+def map_legend(ax, m: Map, fontsize: float = 7, **kw):
+    """The legend of a map axes: the map's obstacle kinds first, then every labelled artist."""
+    handles = [patches.Patch(facecolor=KNOWN, label="known obstacle")]
+    if m.unknown_obstacles:
+        handles.append(patches.Patch(facecolor="none", edgecolor=UNKNOWN, ls="--", label="unknown obstacle"))
+    h_, _ = ax.get_legend_handles_labels()
+    return ax.legend(handles=handles + h_, fontsize=fontsize, loc="upper right", framealpha=0.85, **kw)
+
+
 def map_figure(m: Map, start=None, goal=None, footprint=None, title: str | None = None, problems: int = 0,
-               robot=None):
+               robot=None, legend: bool = True):
     """The map: grids as images, known obstacles solid, unknown dashed, bounds, start/goal with the
     footprint drawn at each (with ``robot`` of several bodies, every body). ``problems``: also mark
-    that many start/goal problems of the map."""
+    that many start/goal problems of the map. ``legend=False``: no legend yet (a figure drawn over the
+    map adds :func:`map_legend` once its own artists are in)."""
     xmin, ymin, xmax, ymax = m.bounds
     w, h = xmax - xmin, ymax - ymin
     scale = 7.5 / max(w, h)
@@ -181,11 +191,8 @@ def map_figure(m: Map, start=None, goal=None, footprint=None, title: str | None 
             draw_rig(ax, robot, pose, color, label)
         else:
             draw_pose(ax, pose, footprint, color, label)
-    handles = [patches.Patch(facecolor=KNOWN, label="known obstacle")]
-    if m.unknown_obstacles:
-        handles.append(patches.Patch(facecolor="none", edgecolor=UNKNOWN, ls="--", label="unknown obstacle"))
-    h_, l_ = ax.get_legend_handles_labels()
-    ax.legend(handles=handles + h_, fontsize=7, loc="upper right", framealpha=0.85)
+    if legend:
+        map_legend(ax, m)
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")

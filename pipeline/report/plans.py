@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib import patches
 
-from .maps import add_shape, map_figure
+from .maps import add_shape, map_figure, map_legend
 
 
 def grown_outline(fp, pose, radius: float, arc_points: int = 8) -> np.ndarray:
@@ -57,7 +57,7 @@ def plan_figure(m, poses, direction, fp, start, goal, title=None, footprints: in
     (optional): the plan's :class:`nhstab.tubes.Tube`. A robot of several bodies (``robot`` with the
     nominal's ``states``) is drawn with every body."""
     rig = robot if robot is not None and len(robot.footprints) > 1 and states is not None else None
-    fig = map_figure(m, start=start, goal=goal, footprint=fp, title=title, robot=rig)
+    fig = map_figure(m, start=start, goal=goal, footprint=fp, title=title, robot=rig, legend=False)
     ax = fig.axes[0]
     if tube is not None:
         draw_tube(ax, tube, fp, footprints=footprints)
@@ -74,5 +74,5 @@ def plan_figure(m, poses, direction, fp, start, goal, title=None, footprints: in
             continue
         add_shape(ax, patches.Polygon(fp.outline_at(poses[k]), closed=True, fill=False, edgecolor="tab:orange",
                                      lw=0.7, alpha=0.7))
-    ax.legend(fontsize=7, loc="upper right", framealpha=0.85)
+    map_legend(ax, m)
     return fig
