@@ -260,7 +260,7 @@ def _output_parts(r, m, rob, start, goal, folder: Path) -> dict:
                       title=f"{m.name}: {rob.model.name}", robot=rob, states=nom.x)
     parts["figure built"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    save_figure(fig, folder / "plan.png")
+    save_figure(fig, folder / "plan.png", fast_palette=True)         # as write_plan stores it
     parts["figure drawn and stored"] = time.perf_counter() - t0
     return parts
 

@@ -338,7 +338,7 @@ def write_plan(result, out_dir, m, map_label: str, robot, start, goal, path_opti
             fig = plan_figure(m, nom.x[:, pose_columns(model)],
                               np.sign(nom.u[:, 0]), footprint, start, goal, title=title, tube=tube,
                               robot=robot, states=nom.x)
-            out.save_figure(fig, "plan.png")
+            out.save_figure(fig, "plan.png", fast_palette=True)      # flat fills, lines and text
         if tube is not None:
             out.write_npz("tube.npz", t=tube.t, poses=tube.poses, mean=tube.mean, cov=tube.cov,
                           std=tube.std, position_radius=tube.position_radius,
