@@ -32,7 +32,7 @@ import fcl
 import numpy as np
 
 from .errors import InputError
-from .clearance_field import ClearanceField, disc_cover, footprint_points
+from .clearance_field import FINE_DISCS_PER_WIDTH, ClearanceField, disc_cover, footprint_points
 from .geometry import Footprint, convex_parts, point_polygon_distance, transform_points, wrap_angle
 from .maps.base import Circle, Map, OccupancyGrid, Polygon
 
@@ -110,6 +110,9 @@ class CollisionWorld:
     VOUCH_GAP = 1e-3
     #: min_clearance lets a measured clearance bound this many poses either side
     VOUCH_SPAN = 16
+    #: free_many and motion_free measure the poses the distance field leaves undecided in one batch of
+    #: exact distances (:meth:`_near_batch`) when there are at least this many (fewer: FCL pose by pose)
+    BATCH_FROM = 8
 
     def __init__(self, shapes=(), grids: tuple[OccupancyGrid, ...] = (), bounds=None, walls: bool = True):
         started = time.perf_counter()
@@ -515,8 +518,11 @@ class CollisionWorld:
         if field is None:
             return lambda x, y, th: self._is_free((x, y, th), fp, margin)
         # plain Python floats and ints throughout (numpy scalars are several times slower here)
-        centres, radii = disc_cover(fp)
-        discs = [(float(u), float(v), float(rad + margin)) for (u, v), rad in zip(centres, radii)]
+        def discs_of(cover):
+            return [(float(u), float(v), float(rad + margin)) for (u, v), rad in zip(*cover)]
+
+        discs = discs_of(disc_cover(fp))
+        fine = discs_of(disc_cover(fp, FINE_DISCS_PER_WIDTH)) if fp.radius is None else []
         pts = [(float(u), float(v)) for u, v in footprint_points(fp, None)]
         lower, inside = field.lower_bound, field.inside
         rows, cols = lower.shape
@@ -531,6 +537,14 @@ class CollisionWorld:
                     break
             else:
                 return True
+            for u, v, need in fine:                # near something: the finer cover, before FCL
+                j = int((x + c * u - s * v - x0) // r)
+                i = int((y + s * u + c * v - y0) // r)
+                if not (0 <= i < rows and 0 <= j < cols) or lower[i, j] <= need:
+                    break
+            else:
+                if fine:
+                    return True
             for u, v in pts:                       # a footprint point certainly inside an obstacle
                 j = int((x + c * u - s * v - x0) // r)
                 i = int((y + s * u + c * v - y0) // r)
@@ -545,7 +559,9 @@ class CollisionWorld:
 
         A conservative distance field (see :class:`~nhstab.clearance_field.ClearanceField`) first accepts, without FCL, the
         poses where every disc of a cover of the footprint is provably farther than ``margin`` from
-        every obstacle; FCL decides the rest. Along a path (the next such pose within
+        every obstacle; of the rest, when there are at least ``BATCH_FROM``, exact plane distances
+        measured in one batch (:meth:`_near_batch`) decide those clear of contact; FCL decides the
+        others. Along a path (the next such pose within
         ``VOUCH_NEAR`` m of footprint displacement) a pose FCL finds free also has its clearance c
         measured: a later pose is free too while no point of the footprint has moved more than
         c - margin - ``VOUCH_GAP`` from it (|translation| + reach |rotation|, reach = the farthest
@@ -564,6 +580,11 @@ class CollisionWorld:
             # a finer look at the rest: the footprint's whole outline, sampled every half cell
             hit = field.surely_colliding(poses[undecided], fp, spacing=field.r / 2)
             undecided = undecided[~hit]
+        if len(undecided) >= self.BATCH_FROM:     # exact distances where they decide, all at once
+            d = self._near_batch(poses[undecided], fp)
+            known = ~np.isnan(d)
+            out[undecided[known]] = d[known] > margin
+            undecided = undecided[~known]
         reach = fp.radius if fp.radius is not None else float(np.hypot(*fp.vertices.T).max())
         held = None                 # (a pose found free, how far the footprint may move from it and stay free)
         for n, k in enumerate(undecided):
@@ -580,7 +601,8 @@ class CollisionWorld:
     def motion_free(self, poses, fp: Footprint, margin: float = 0.0, stats: dict | None = None) -> bool:
         """Are all poses (N, 3) of a motion free (``is_free``)? The same answer as ``free_many(...).all()``,
         sooner: the distance field decides the poses it can, vectorised; a pose it finds certainly
-        colliding ends the check; FCL decides the rest in order (with ``free_many``'s vouching along the
+        colliding ends the check; a batch of exact distances decides most of the rest (as in
+        ``free_many``); FCL decides the others in order (with ``free_many``'s vouching along the
         path) and stops at the first pose that is not free. ``stats`` (if given) accumulates "states",
         "fcl_states" (poses that reached FCL) and "time_s"."""
         started = time.perf_counter()
@@ -598,6 +620,12 @@ class CollisionWorld:
             pts = poses[undecided]
             if field.surely_colliding(pts, fp).any() or field.surely_colliding(pts, fp, spacing=field.r / 2).any():
                 return False
+            if len(undecided) >= self.BATCH_FROM:  # exact distances where they decide, all at once
+                d = self._near_batch(poses[undecided], fp)
+                known = ~np.isnan(d)
+                if np.any(d[known] <= margin):
+                    return False
+                undecided = undecided[~known]
             reach = fp.radius if fp.radius is not None else float(np.hypot(*fp.vertices.T).max())
             held = None
             for n, k in enumerate(undecided):

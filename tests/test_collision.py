@@ -351,3 +351,24 @@ def test_clearances_in_batches_equal_the_pose_by_pose_query_on_a_real_grid_map(r
         assert best == pytest.approx(brute.min(), abs=1e-12)
         assert brute[k] == pytest.approx(brute.min(), abs=1e-12) and c_k == pytest.approx(one_by_one[k], abs=1e-12)
         assert evals <= len(walk)
+
+
+@pytest.mark.parametrize("per_width", [1.0, 3.0])
+@pytest.mark.parametrize("size", [(4.4, 1.8), (0.6, 0.5), (2.0, 2.0), (7.0, 2.2)])
+def test_disc_covers_contain_the_footprint_and_overhang_as_stated(per_width, size):
+    """Every point of a rectangle footprint (a 60 x 60 grid over it, edges included) lies in a disc of
+    the cover, and the cover reaches at most r - w/2 beyond the sides (r the discs' radius): 0.26 m
+    (coarse) and 0.04 m (fine) for a 4.4 m x 1.8 m car, as disc_cover's docstring states."""
+    from nhstab.clearance_field import disc_cover
+
+    length, width = size
+    fp = Footprint.rectangle(length, width)
+    centres, radii = disc_cover(fp, per_width)
+    c, rad = np.asarray(centres), np.asarray(radii)
+    (x0, y0), (x1, y1) = fp.vertices.min(axis=0), fp.vertices.max(axis=0)
+    gx, gy = np.meshgrid(np.linspace(x0, x1, 60), np.linspace(y0, y1, 60))
+    pts = np.column_stack([gx.ravel(), gy.ravel()])
+    inside = (np.hypot(pts[:, None, 0] - c[:, 0], pts[:, None, 1] - c[:, 1]) <= rad + 1e-12).any(axis=1)
+    assert inside.all()
+    if size == (4.4, 1.8):
+        assert rad.max() - width / 2 == pytest.approx(0.26 if per_width == 1.0 else 0.04, abs=0.005)
