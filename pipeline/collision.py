@@ -33,7 +33,7 @@ import numpy as np
 
 from .errors import InputError
 from .clearance_field import FINE_DISCS_PER_WIDTH, ClearanceField, disc_cover, footprint_points
-from .geometry import Footprint, convex_parts, point_polygon_distance, transform_points, wrap_angle
+from .geometry import Footprint, convex_parts, is_convex, point_polygon_distance, transform_points, wrap_angle
 from .maps.base import Circle, Map, OccupancyGrid, Polygon
 
 _Z = 1.0                 # prisms span z in [-_Z, _Z]
@@ -318,8 +318,10 @@ class CollisionWorld:
         """:meth:`_distance_near` at many poses (N, 3) at once, where it can be decided without FCL: the
         ``nearest`` objects of the smallest bounding-box lower bound are measured exactly in the plane
         (vertex to edge both ways, as :func:`_poly_distances` and :func:`_circle_distances`), and a pose
-        is decided when none of their boxes meets the footprint's (so none overlaps it: the contact
-        question stays with FCL), none is a polygon of more than ``POLY_PAD`` corners, and the smallest
+        is decided when each of them is apart from the footprint (its box does not meet the footprint's,
+        or, both being convex, a separating axis shows them apart: :func:`_separated`; a pose in contact
+        stays with FCL, which measures the penetration), none is a polygon of more than ``POLY_PAD``
+        corners, and the smallest
         distance found is no more than the next object's lower bound (so no other object is nearer).
         Poses go in chunks of ``NEAR_CHUNK`` (8 times more in a world of few objects); in a world of many
         objects each chunk first keeps the
@@ -334,6 +336,8 @@ class CollisionWorld:
         out = np.full(n_poses, np.nan)
         disc = fp.radius is not None
         verts = None if disc else np.asarray(fp.vertices, dtype=float)
+        convex = self.__dict__["_convex"]
+        convex_fp = disc or is_convex(verts) or is_convex(verts[::-1])
         local = local and n_all > 2 * self.NEAR_OBJECTS
         size = self.NEAR_CHUNK if local else 8 * self.NEAR_CHUNK     # few objects: larger chunks
         for a in range(0, n_poses, size):
@@ -373,14 +377,16 @@ class CollisionWorld:
                 cand, nxt = part[:, :k], np.minimum(lower[np.arange(m), part[:, k]], beyond)
             else:
                 cand, nxt = np.broadcast_to(np.arange(n), (m, n)), np.full(m, beyond)
-            ok = (np.take_along_axis(lower, cand, axis=1) > 0.0).all(axis=1)
+            meets = np.take_along_axis(lower, cand, axis=1) <= 0.0
             if ids is not None:
                 cand = ids[cand]
-            ok &= (kind[cand] != 0).all(axis=1)
+            # a box that meets the footprint's: decided here only if both shapes are convex (a separating
+            # axis, below), else by FCL pose by pose
+            ok = (kind[cand] != 0).all(axis=1) & ~(meets & ~(convex_fp & convex[cand])).any(axis=1)
             if not ok.any():
                 continue
             rows = np.flatnonzero(ok)
-            cand, nxt = cand[rows], nxt[rows]
+            cand, nxt, meets = cand[rows], nxt[rows], meets[rows]
             quads = polys[cand]                                     # (r, k, corners, 2)
             edges = np.roll(quads, -1, axis=2) - quads
             circ = circles[cand]                                    # (r, k, 3)
@@ -400,6 +406,10 @@ class CollisionWorld:
                 two = _segment_gaps2(quads, vb, eb).min(axis=(2, 3))
                 d_poly = np.sqrt(np.minimum(one, two))
                 d_circ = np.sqrt(_segment_gaps2(circ[..., None, :2], vb, eb).min(axis=(2, 3))) - circ[..., 2]
+            if meets.any():                 # separated, for the pairs whose boxes meet?
+                apart = _separated(p[rows, :2] if disc else v, fp.radius, quads, edges, circ, kind[cand] == 1)
+                d_poly = np.where(meets & ~apart, -np.inf, d_poly)
+                d_circ = np.where(meets & ~apart, -np.inf, d_circ)
             d = np.where(kind[cand] == 1, d_poly, d_circ).min(axis=1)
             good = (d > 0.0) & (d <= nxt)
             out[a + rows[good]] = d[good]
@@ -432,6 +442,12 @@ class CollisionWorld:
             corners = max((len(self._outline[id(g)][1]) for g, k in zip(self._geoms, kind) if k == 1), default=1)
             polys = np.ascontiguousarray(polys[:, :corners])     # as many columns as the largest needs
             table = self.__dict__["_tables"] = (boxes, polys, circles, kind)
+            # which objects are convex (circles, and the polygons of convex outline): _near_batch
+            # tells them apart from a footprint whose box they meet by a separating axis
+            self.__dict__["_convex"] = np.array(
+                [o[0] == "circle" or (len(o[1]) >= 3 and (is_convex(np.asarray(o[1], dtype=float))
+                                                          or is_convex(np.asarray(o[1], dtype=float)[::-1])))
+                 for o in (self._outline[id(g)] for g in self._geoms)], dtype=bool)
         return table
 
     def clearance(self, pose, fp: Footprint) -> float:
@@ -828,6 +844,42 @@ def _segment_gaps2(points: np.ndarray, starts: np.ndarray, edges: np.ndarray) ->
     t = np.clip((rx * ex + ry * ey) / np.maximum(ex * ex + ey * ey, 1e-300), 0.0, 1.0)
     gx, gy = rx - t * ex, ry - t * ey
     return gx * gx + gy * gy
+
+
+def _separated(robot, radius, quads, edges, circles, is_poly) -> np.ndarray:
+    """(r, k): is each convex obstacle (quads (r, k, c, 2) with their edges, or circles (r, k, 3), as
+    ``is_poly`` says) apart from the convex footprint of its row (a polygon ``robot`` (r, V, 2), or a disc
+    of ``radius`` about the points ``robot`` (r, 2))? Polygons: a separating axis among the edge normals
+    of both (padding edges of zero length give no axis). A disc or circle: its centre outside the
+    polygon and farther than the radius from its edges (or the two circles apart)."""
+    if radius is not None:                                    # a disc footprint
+        c = robot[:, None, None, :]                           # (r, 1, 1, 2)
+        rel = c - quads
+        cross = edges[..., 0] * rel[..., 1] - edges[..., 1] * rel[..., 0]          # (r, k, c)
+        inside = np.all(cross >= 0.0, axis=2) | np.all(cross <= 0.0, axis=2)
+        gap = np.sqrt(_segment_gaps2(np.broadcast_to(c, quads.shape[:2] + (1, 2)), quads, edges).min(axis=(2, 3)))
+        poly_apart = ~inside & (gap > radius)
+        circ_apart = np.hypot(circles[..., 0] - robot[:, None, 0], circles[..., 1] - robot[:, None, 1]) \
+            > circles[..., 2] + radius
+        return np.where(is_poly, poly_apart, circ_apart)
+    r, k = quads.shape[:2]
+    V = robot.shape[1]
+    rb = np.broadcast_to(robot[:, None], (r, k, V, 2))
+    r_edges = np.roll(rb, -1, axis=2) - rb
+    axes = np.concatenate([r_edges, edges], axis=2)[..., ::-1] * np.array([1.0, -1.0])   # normals (r, k, A, 2)
+    pr = np.einsum("rkad,rkvd->rkav", axes, rb)
+    pq = np.einsum("rkad,rkcd->rkac", axes, quads)
+    live = np.any(axes != 0.0, axis=-1)
+    poly_apart = np.any(live & ((pr.max(-1) < pq.min(-1)) | (pq.max(-1) < pr.min(-1))), axis=2)
+    # circles: the centre outside the footprint and farther than the radius from its edges
+    cen = circles[..., :2]                                                       # (r, k, 2)
+    re = np.roll(robot, -1, axis=1) - robot                                      # (r, V, 2)
+    rel = cen[:, :, None, :] - robot[:, None]                                    # (r, k, V, 2)
+    cross = re[:, None, :, 0] * rel[..., 1] - re[:, None, :, 1] * rel[..., 0]
+    inside = np.all(cross >= 0.0, axis=2) | np.all(cross <= 0.0, axis=2)
+    gap = np.sqrt(_segment_gaps2(cen[:, :, None, :], rb, r_edges).min(axis=(2, 3)))
+    circ_apart = ~inside & (gap > circles[..., 2])
+    return np.where(is_poly, poly_apart, circ_apart)
 
 
 #: obstacle polygons of at most this many corners are measured in batches (:meth:`CollisionWorld._shape_tables`)
