@@ -32,7 +32,7 @@ import fcl
 import numpy as np
 
 from .errors import InputError
-from .clearance_field import ClearanceField, disc_cover, footprint_points
+from .clearance_field import FINE_DISCS_PER_WIDTH, ClearanceField, disc_cover, footprint_points
 from .geometry import Footprint, convex_parts, point_polygon_distance, transform_points, wrap_angle
 from .maps.base import Circle, Map, OccupancyGrid, Polygon
 
@@ -110,6 +110,9 @@ class CollisionWorld:
     VOUCH_GAP = 1e-3
     #: min_clearance lets a measured clearance bound this many poses either side
     VOUCH_SPAN = 16
+    #: free_many and motion_free measure the poses the distance field leaves undecided in one batch of
+    #: exact distances (:meth:`_near_batch`) when there are at least this many (fewer: FCL pose by pose)
+    BATCH_FROM = 8
 
     def __init__(self, shapes=(), grids: tuple[OccupancyGrid, ...] = (), bounds=None, walls: bool = True):
         started = time.perf_counter()
@@ -246,53 +249,169 @@ class CollisionWorld:
         (:func:`_exact_distance`: vertex to edge both ways, or point to polygon for discs and circles).
         FCL's own distance is not used for the value: for a car's prism it was off by up to 0.95 m at true
         distances of 0.3-2 m on grid maps (GJK), while its contact verdicts are exact."""
+        return self._measure_near(pose, fp, math.inf)
+
+    def _measure_near(self, pose, fp: Footprint, upto: float):
+        """The exact distance from the footprint at ``pose`` to the nearest object (``upto`` infinite), or
+        to the nearest of the objects whose box bound is at most ``upto`` (inf if none: then no object is
+        within ``upto``); None on contact. The bound of each object: the distance between the footprint's
+        bounding box (a disc's centre less its radius) and the object's box. With ``upto`` infinite, first
+        the 8 objects of the smallest bounds (argpartition), then every object whose bound is below the
+        best distance found: linear in the number of objects, no sort."""
         boxes, polys, circles, kind = self._shape_tables()
-        if not len(boxes):
+        n = len(boxes)
+        if not n:
             return math.inf
-        if fp.radius is not None:               # the disc's centre to each box, less the radius
+        robot_v = None if fp.radius is not None else transform_points(fp.vertices, pose)
+        if robot_v is None:                     # the disc's centre to each box, less the radius
             px, py = float(pose[0]), float(pose[1])
             dx = np.maximum(np.maximum(boxes[:, 0] - px, px - boxes[:, 2]), 0.0)
             dy = np.maximum(np.maximum(boxes[:, 1] - py, py - boxes[:, 3]), 0.0)
             lower = np.hypot(dx, dy) - fp.radius
         else:                                   # the footprint's box to each box
-            v = transform_points(fp.vertices, pose)
-            x0, y0 = v.min(axis=0)
-            x1, y1 = v.max(axis=0)
+            x0, y0 = robot_v.min(axis=0)
+            x1, y1 = robot_v.max(axis=0)
             dx = np.maximum(np.maximum(boxes[:, 0] - x1, x0 - boxes[:, 2]), 0.0)
             dy = np.maximum(np.maximum(boxes[:, 1] - y1, y0 - boxes[:, 3]), 0.0)
             lower = np.hypot(dx, dy)
-        robot = self._robot(fp, pose)
-        robot_v = None if fp.radius is not None else transform_points(fp.vertices, pose)
-        order = np.argsort(lower, kind="stable")
-        best, pos, size = math.inf, 0, 8
-        while pos < len(order) and lower[order[pos]] < best:
-            chunk = order[pos:pos + size]           # 8, then 32, 128, ...: most queries end in the first
-            pos, size = pos + len(chunk), 4 * size
-            chunk = chunk[lower[chunk] < best]
+        robot = None
+
+        def measure(chunk) -> float | None:
+            nonlocal robot
+            best = math.inf
             for i in chunk[lower[chunk] <= 0.0]:     # boxes meet: FCL decides overlap (the authority on contact)
+                if robot is None:
+                    robot = self._robot(fp, pose)
                 for o in robot:
-                    res = fcl.DistanceResult()
-                    if float(fcl.distance(o, self._objects[i], _DISTANCE_REQUEST, res)) <= 0.0:
+                    if float(fcl.distance(o, self._objects[i], _DISTANCE_REQUEST, fcl.DistanceResult())) <= 0.0:
                         return None
             kinds = kind[chunk]                      # separated: the plane distance, exactly
-            for sel, measure in ((chunk[kinds == 1], lambda q: _poly_distances(fp, pose, robot_v, polys[q])),
-                                 (chunk[kinds == 2], lambda q: _circle_distances(fp, pose, robot_v, circles[q]))):
-                if len(sel):
-                    d = float(measure(sel).min())
-                    if d <= 0.0:
-                        return None
-                    best = min(best, d)
+            sel = chunk[kinds == 1]
+            if len(sel):
+                best = min(best, float(_poly_distances(fp, pose, robot_v, polys[sel]).min()))
+            sel = chunk[kinds == 2]
+            if len(sel):
+                best = min(best, float(_circle_distances(fp, pose, robot_v, circles[sel]).min()))
             for i in chunk[kinds == 0]:
-                d = _exact_distance(fp, pose, self._outline[id(self._geoms[i])])
-                if d <= 0.0:
-                    return None
-                best = min(best, d)
+                best = min(best, _exact_distance(fp, pose, self._outline[id(self._geoms[i])]))
+            return None if best <= 0.0 else best
+
+        if math.isfinite(upto):
+            return measure(np.flatnonzero(lower <= upto))
+        first = np.argpartition(lower, 7)[:8] if n > 8 else np.arange(n)
+        best = measure(first)
+        if best is None or n <= 8:
+            return best
+        rest = np.flatnonzero(lower < best)
+        rest = rest[~np.isin(rest, first)]
+        if len(rest):
+            more = measure(rest)
+            if more is None:
+                return None
+            best = min(best, more)
         return best
+
+    #: _near_batch: poses per chunk, and the objects nearest a chunk's box each pose of it looks at
+    NEAR_CHUNK, NEAR_OBJECTS = 32, 48
+
+    def _near_batch(self, poses: np.ndarray, fp: Footprint, nearest: int = 4, local: bool = True) -> np.ndarray:
+        """:meth:`_distance_near` at many poses (N, 3) at once, where it can be decided without FCL: the
+        ``nearest`` objects of the smallest bounding-box lower bound are measured exactly in the plane
+        (vertex to edge both ways, as :func:`_poly_distances` and :func:`_circle_distances`), and a pose
+        is decided when none of their boxes meets the footprint's (so none overlaps it: the contact
+        question stays with FCL), none is a polygon of more than ``POLY_PAD`` corners, and the smallest
+        distance found is no more than the next object's lower bound (so no other object is nearer).
+        Poses go in chunks of ``NEAR_CHUNK`` (8 times more in a world of few objects); in a world of many
+        objects each chunk first keeps the
+        ``NEAR_OBJECTS`` objects nearest the box of all its footprints, and the objects it drops count
+        with the smallest box distance among them as their bound (poses that bound leaves undecided, as
+        scattered poses do, are tried again against all the objects).
+        Returns the distances, NaN where undecided (the caller asks :meth:`_distance_near`)."""
+        all_boxes, polys, circles, kind = self._shape_tables()
+        n_poses, n_all = len(poses), len(all_boxes)
+        if not n_all:
+            return np.full(n_poses, np.inf)
+        out = np.full(n_poses, np.nan)
+        disc = fp.radius is not None
+        verts = None if disc else np.asarray(fp.vertices, dtype=float)
+        local = local and n_all > 2 * self.NEAR_OBJECTS
+        size = self.NEAR_CHUNK if local else 8 * self.NEAR_CHUNK     # few objects: larger chunks
+        for a in range(0, n_poses, size):
+            p = poses[a:a + size]
+            m = len(p)
+            if disc:
+                lo = p[:, :2] - fp.radius
+                hi = p[:, :2] + fp.radius
+            else:                                               # the outline at each pose (m, V, 2)
+                c, s = np.cos(p[:, 2])[:, None], np.sin(p[:, 2])[:, None]
+                rv = np.stack([p[:, 0:1] + c * verts[:, 0] - s * verts[:, 1],
+                               p[:, 1:2] + s * verts[:, 0] + c * verts[:, 1]], axis=-1)
+                lo, hi = rv.min(axis=1), rv.max(axis=1)
+            ids, beyond = None, np.inf
+            boxes = all_boxes
+            if local:                                           # the objects near this chunk's footprints
+                (x0, y0), (x1, y1) = lo.min(axis=0), hi.max(axis=0)
+                gap = np.hypot(np.maximum(np.maximum(all_boxes[:, 0] - x1, x0 - all_boxes[:, 2]), 0.0),
+                               np.maximum(np.maximum(all_boxes[:, 1] - y1, y0 - all_boxes[:, 3]), 0.0))
+                part = np.argpartition(gap, self.NEAR_OBJECTS)
+                ids, beyond = part[:self.NEAR_OBJECTS], float(gap[part[self.NEAR_OBJECTS]])
+                boxes = all_boxes[ids]
+            n = len(boxes)
+            k = min(nearest, n)
+            if disc:
+                px, py = p[:, 0:1], p[:, 1:2]
+                dx = np.maximum(np.maximum(boxes[:, 0] - px, px - boxes[:, 2]), 0.0)
+                dy = np.maximum(np.maximum(boxes[:, 1] - py, py - boxes[:, 3]), 0.0)
+                lower = np.hypot(dx, dy) - fp.radius
+                beyond -= fp.radius
+            else:
+                dx = np.maximum(np.maximum(boxes[:, 0] - hi[:, 0:1], lo[:, 0:1] - boxes[:, 2]), 0.0)
+                dy = np.maximum(np.maximum(boxes[:, 1] - hi[:, 1:2], lo[:, 1:2] - boxes[:, 3]), 0.0)
+                lower = np.hypot(dx, dy)
+            if k < n:
+                part = np.argpartition(lower, k, axis=1)
+                cand, nxt = part[:, :k], np.minimum(lower[np.arange(m), part[:, k]], beyond)
+            else:
+                cand, nxt = np.broadcast_to(np.arange(n), (m, n)), np.full(m, beyond)
+            ok = (np.take_along_axis(lower, cand, axis=1) > 0.0).all(axis=1)
+            if ids is not None:
+                cand = ids[cand]
+            ok &= (kind[cand] != 0).all(axis=1)
+            if not ok.any():
+                continue
+            rows = np.flatnonzero(ok)
+            cand, nxt = cand[rows], nxt[rows]
+            quads = polys[cand]                                     # (r, k, corners, 2)
+            edges = np.roll(quads, -1, axis=2) - quads
+            circ = circles[cand]                                    # (r, k, 3)
+            r = len(rows)
+            if disc:
+                centre = p[rows, None, None, :2]
+                d_poly = np.sqrt(_segment_gaps2(np.broadcast_to(centre, (r, k, 1, 2)), quads, edges)
+                                 .min(axis=(2, 3))) - fp.radius
+                d_circ = np.hypot(circ[..., 0] - centre[:, :, 0, 0], circ[..., 1] - centre[:, :, 0, 1]) \
+                    - circ[..., 2] - fp.radius
+            else:
+                v = rv[rows]                                        # (r, V, 2)
+                r_edges = np.roll(v, -1, axis=1) - v
+                vb = np.broadcast_to(v[:, None], (r, k) + v.shape[1:])
+                eb = np.broadcast_to(r_edges[:, None], (r, k) + v.shape[1:])
+                one = _segment_gaps2(vb, quads, edges).min(axis=(2, 3))
+                two = _segment_gaps2(quads, vb, eb).min(axis=(2, 3))
+                d_poly = np.sqrt(np.minimum(one, two))
+                d_circ = np.sqrt(_segment_gaps2(circ[..., None, :2], vb, eb).min(axis=(2, 3))) - circ[..., 2]
+            d = np.where(kind[cand] == 1, d_poly, d_circ).min(axis=1)
+            good = (d > 0.0) & (d <= nxt)
+            out[a + rows[good]] = d[good]
+            again = rows[(d > nxt) & (nxt >= beyond)] if ids is not None else ()
+            if len(again):                  # the chunk's objects were too few for these poses
+                out[a + again] = self._near_batch(p[again], fp, nearest, local=False)
+        return out
 
     def _shape_tables(self):
         """The obstacle objects (in the order of ``_objects``) as arrays for :meth:`_distance_near`:
-        (n, 4) bounding boxes (xmin, ymin, xmax, ymax); (n, POLY_PAD, 2) vertices of the polygons of at
-        most POLY_PAD corners (repeating the last one: a zero-length edge changes no distance); (n, 3)
+        (n, 4) bounding boxes (xmin, ymin, xmax, ymax); (n, c, 2) vertices of the polygons of at most
+        POLY_PAD corners, c the most any has (repeating the last one: a zero-length edge changes no distance); (n, 3)
         circles (centre, radius); and the (n,) kind of each object (1 such a polygon, 2 a circle, 0 another
         polygon, measured one at a time)."""
         table = self.__dict__.get("_tables")
@@ -310,6 +429,8 @@ class CollisionWorld:
                 boxes[i] = (*v.min(axis=0), *v.max(axis=0))
                 if len(v) <= POLY_PAD:
                     polys[i, :len(v)], polys[i, len(v):], kind[i] = v, v[-1], 1
+            corners = max((len(self._outline[id(g)][1]) for g, k in zip(self._geoms, kind) if k == 1), default=1)
+            polys = np.ascontiguousarray(polys[:, :corners])     # as many columns as the largest needs
             table = self.__dict__["_tables"] = (boxes, polys, circles, kind)
         return table
 
@@ -383,30 +504,12 @@ class CollisionWorld:
         return False
 
     def _within(self, pose, fp: Footprint, margin: float) -> bool:
-        """Is some obstacle within ``margin`` of the footprint? A distance query that tells the
-        broad phase the answer is never above ``margin`` (so it skips every farther pair) and stops
-        at the first pair inside it; pairs with a disc or circle near the threshold are measured
-        exactly."""
-        hit = False
-        curved_fp = fp.radius is not None
-
-        def callback(o1, o2, data):
-            nonlocal hit
-            d = fcl.distance(o1, o2, _DISTANCE_REQUEST, fcl.DistanceResult())
-            if abs(d - margin) < 1e-4:
-                outline = self._outline.get(id(o1))
-                if outline is not None and (curved_fp or outline[0] == "circle"):
-                    d = _exact_distance(fp, pose, outline)
-            if d <= margin:
-                hit = True
-                return True, d
-            return False, min(d, margin)
-
-        for o in self._robot(fp, pose):
-            self.manager.distance(o, fcl.DistanceData(), callback)
-            if hit:
-                return True
-        return False
+        """Is some obstacle within ``margin`` of the footprint (which overlaps none)? The exact plane
+        distance to the objects whose boxes are within ``margin`` of the footprint's
+        (:meth:`_measure_near`). FCL's distance is not used: for a car's prism its GJK value was off by
+        up to 0.95 m on grid maps."""
+        d = self._measure_near(pose, fp, margin)
+        return d is None or d <= margin
 
     def state_checker(self, fp: Footprint, margin: float = 0.0):
         """A fast scalar ``check(x, y, theta) -> bool`` equal to ``is_free`` (for planners that call
@@ -415,8 +518,11 @@ class CollisionWorld:
         if field is None:
             return lambda x, y, th: self._is_free((x, y, th), fp, margin)
         # plain Python floats and ints throughout (numpy scalars are several times slower here)
-        centres, radii = disc_cover(fp)
-        discs = [(float(u), float(v), float(rad + margin)) for (u, v), rad in zip(centres, radii)]
+        def discs_of(cover):
+            return [(float(u), float(v), float(rad + margin)) for (u, v), rad in zip(*cover)]
+
+        discs = discs_of(disc_cover(fp))
+        fine = discs_of(disc_cover(fp, FINE_DISCS_PER_WIDTH)) if fp.radius is None else []
         pts = [(float(u), float(v)) for u, v in footprint_points(fp, None)]
         lower, inside = field.lower_bound, field.inside
         rows, cols = lower.shape
@@ -431,6 +537,14 @@ class CollisionWorld:
                     break
             else:
                 return True
+            for u, v, need in fine:                # near something: the finer cover, before FCL
+                j = int((x + c * u - s * v - x0) // r)
+                i = int((y + s * u + c * v - y0) // r)
+                if not (0 <= i < rows and 0 <= j < cols) or lower[i, j] <= need:
+                    break
+            else:
+                if fine:
+                    return True
             for u, v in pts:                       # a footprint point certainly inside an obstacle
                 j = int((x + c * u - s * v - x0) // r)
                 i = int((y + s * u + c * v - y0) // r)
@@ -445,7 +559,9 @@ class CollisionWorld:
 
         A conservative distance field (see :class:`~nhstab.clearance_field.ClearanceField`) first accepts, without FCL, the
         poses where every disc of a cover of the footprint is provably farther than ``margin`` from
-        every obstacle; FCL decides the rest. Along a path (the next such pose within
+        every obstacle; of the rest, when there are at least ``BATCH_FROM``, exact plane distances
+        measured in one batch (:meth:`_near_batch`) decide those clear of contact; FCL decides the
+        others. Along a path (the next such pose within
         ``VOUCH_NEAR`` m of footprint displacement) a pose FCL finds free also has its clearance c
         measured: a later pose is free too while no point of the footprint has moved more than
         c - margin - ``VOUCH_GAP`` from it (|translation| + reach |rotation|, reach = the farthest
@@ -464,6 +580,11 @@ class CollisionWorld:
             # a finer look at the rest: the footprint's whole outline, sampled every half cell
             hit = field.surely_colliding(poses[undecided], fp, spacing=field.r / 2)
             undecided = undecided[~hit]
+        if len(undecided) >= self.BATCH_FROM:     # exact distances where they decide, all at once
+            d = self._near_batch(poses[undecided], fp)
+            known = ~np.isnan(d)
+            out[undecided[known]] = d[known] > margin
+            undecided = undecided[~known]
         reach = fp.radius if fp.radius is not None else float(np.hypot(*fp.vertices.T).max())
         held = None                 # (a pose found free, how far the footprint may move from it and stay free)
         for n, k in enumerate(undecided):
@@ -480,7 +601,8 @@ class CollisionWorld:
     def motion_free(self, poses, fp: Footprint, margin: float = 0.0, stats: dict | None = None) -> bool:
         """Are all poses (N, 3) of a motion free (``is_free``)? The same answer as ``free_many(...).all()``,
         sooner: the distance field decides the poses it can, vectorised; a pose it finds certainly
-        colliding ends the check; FCL decides the rest in order (with ``free_many``'s vouching along the
+        colliding ends the check; a batch of exact distances decides most of the rest (as in
+        ``free_many``); FCL decides the others in order (with ``free_many``'s vouching along the
         path) and stops at the first pose that is not free. ``stats`` (if given) accumulates "states",
         "fcl_states" (poses that reached FCL) and "time_s"."""
         started = time.perf_counter()
@@ -498,6 +620,12 @@ class CollisionWorld:
             pts = poses[undecided]
             if field.surely_colliding(pts, fp).any() or field.surely_colliding(pts, fp, spacing=field.r / 2).any():
                 return False
+            if len(undecided) >= self.BATCH_FROM:  # exact distances where they decide, all at once
+                d = self._near_batch(poses[undecided], fp)
+                known = ~np.isnan(d)
+                if np.any(d[known] <= margin):
+                    return False
+                undecided = undecided[~known]
             reach = fp.radius if fp.radius is not None else float(np.hypot(*fp.vertices.T).max())
             held = None
             for n, k in enumerate(undecided):
@@ -524,56 +652,91 @@ class CollisionWorld:
         return getattr(self, "_field", None)
 
     def clearance_many(self, poses, fp: Footprint) -> np.ndarray:
-        """``clearance`` at each of ``poses`` (N, 3)."""
-        return np.array([self._clearance(p, fp) for p in _poses(poses)])
+        """``clearance`` at each of ``poses`` (N, 3): decided in batches where it can be
+        (:meth:`_near_batch`), pose by pose elsewhere (near contact, or many objects equally near)."""
+        return self._clearances(_poses(poses), fp)
+
+    def _clearances(self, poses: np.ndarray, fp: Footprint) -> np.ndarray:
+        c = self._near_batch(poses, fp)
+        for i in np.flatnonzero(np.isnan(c)):
+            c[i] = self._clearance(poses[i], fp)
+        return c
 
     def min_clearance(self, poses, fp: Footprint) -> tuple[float, int]:
         """The smallest signed clearance over poses (N, 3) and its (first) index, exactly, without
-        measuring every pose: poses are visited in order of a lower bound from the distance field
-        and the search stops once that bound exceeds the best clearance found, and 0 (a positive
-        bound shows the footprint clear of the obstacles; nothing bounds a penetration depth). The
-        bound: the footprint covered by discs; for a polygon footprint whose discs are clear (so no
-        obstacle lies inside it), also its outline sampled at the field's cell size, which is tighter;
-        for the ``VOUCH_SPAN`` poses either side of a measured pose with clearance c > 0, also
-        c - ``VOUCH_GAP`` - how far the footprint moved (as in :meth:`free_many`)."""
-        poses = _poses(poses, at_least=1)
+        measuring every pose (:meth:`min_clearance_less`)."""
+        best, k, _, _ = self.min_clearance_less(_poses(poses, at_least=1), fp)
+        return best, k
+
+    def min_clearance_less(self, poses: np.ndarray, fp: Footprint, offset: np.ndarray | None = None):
+        """min_k [clearance(fp at poses[k]) - offset[k]] (offset 0 by default) exactly, with its first
+        index, the clearance there and the number of poses measured, without measuring every pose.
+
+        Poses are visited in increasing order of a lower bound of clearance - offset, in batches
+        (:meth:`_clearances`: 16 poses, then 64, 256, ...), until that bound exceeds the best value found.
+        The bound: the footprint covered by discs, from the distance field; for a polygon footprint whose
+        discs are clear (so no obstacle lies inside it), also its outline sampled at the field's cell size,
+        which is tighter (computed after the first batch, only for the poses still below the best value);
+        a measured clearance c > 0 also bounds the poses up to ``VOUCH_SPAN`` either side by
+        c - ``VOUCH_GAP`` - how far the footprint moved (|translation| + rho |rotation|, rho the farthest
+        footprint point, 0 for a disc, which does not move when it turns). Nothing bounds a penetration
+        depth, so a pose whose bound is not positive is always measured."""
+        poses = _poses(poses)
+        n = len(poses)
+        off = np.zeros(n) if offset is None else np.asarray(offset, dtype=float)
+        if off.shape != (n,) or not np.all(np.isfinite(off)):
+            raise InputError("offset", f"one finite number per pose ({n})",
+                             offset if off.size <= 6 else f"an array of shape {off.shape}")
+        if not n:
+            return math.inf, -1, math.nan, 0
         field = self.clearance_field()
         if field is None:
-            c = self.clearance_many(poses, fp)
-            k = int(np.argmin(c))
-            return float(c[k]), k
+            c = self._clearances(poses, fp)
+            k = int(np.argmin(c - off))
+            return float(c[k] - off[k]), k, float(c[k]), n
         centres, radii = disc_cover(fp)
-        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-        bound = np.full(len(poses), np.inf)
+        cth, sth = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        bound = np.full(n, np.inf)
         for (u, v), rad in zip(centres, radii):
-            bound = np.minimum(bound, field.at(poses[:, 0] + c * u - s * v, poses[:, 1] + s * u + c * v) - rad)
-        k0 = int(np.argmin(bound))
-        best, best_k = self._clearance(poses[k0], fp), k0
-        todo = np.flatnonzero(bound <= max(best, 0.0))        # the only poses that can beat it
-        if fp.radius is None:
-            clear = bound[todo] > 0.0
-            bound[todo[clear]] = np.maximum(bound[todo[clear]], field.outline_bound(poses[todo[clear]], fp))
-        # a measured clearance c > 0 also bounds the next poses of a path: c - (how far the footprint moved)
-        reach = fp.radius if fp.radius is not None else float(np.hypot(*fp.vertices.T).max())
-        vouched = np.full(len(poses), -np.inf)
-
-        def vouch(k: int, ck: float):
-            if ck > 0.0:
-                near = slice(max(0, k - self.VOUCH_SPAN), k + self.VOUCH_SPAN + 1)
-                d = poses[near] - poses[k]
-                moved = np.hypot(d[:, 0], d[:, 1]) + reach * np.abs(d[:, 2])
-                vouched[near] = np.maximum(vouched[near], ck - self.VOUCH_GAP - moved)
-
-        vouch(k0, best)
-        for k in todo[np.argsort(bound[todo], kind="stable")]:
-            if bound[k] > max(best, 0.0):
-                break
-            if k != k0 and vouched[k] <= max(best, 0.0):
-                ck = self._clearance(poses[k], fp)
-                vouch(k, ck)
-                if ck < best or (ck == best and k < best_k):
-                    best, best_k = ck, int(k)
-        return float(best), best_k
+            bound = np.minimum(bound, field.at(poses[:, 0] + cth * u - sth * v, poses[:, 1] + sth * u + cth * v) - rad)
+        key = np.where(bound > 0.0, bound - off, -np.inf)
+        vouched = np.full(n, -np.inf)
+        span, rho = self.VOUCH_SPAN, 0.0 if fp.radius is not None else fp.bounding_radius
+        best, best_k, best_c, evals = math.inf, -1, math.nan, 0
+        order = np.argsort(key, kind="stable")
+        pos, size, outlined = 0, 16, fp.radius is not None
+        while pos < n and key[order[pos]] <= best:
+            chunk = order[pos:pos + size]
+            pos, size = pos + len(chunk), 4 * size
+            chunk = chunk[(key[chunk] <= best) & ~((vouched[chunk] > 0.0) & (vouched[chunk] - off[chunk] > best))]
+            if not len(chunk):
+                continue
+            c = self._clearances(poses[chunk], fp)
+            evals += len(chunk)
+            g = c - off[chunk]
+            gm = float(g.min())
+            if gm <= best:                  # the first index among the smallest values
+                j = int(np.flatnonzero(g == gm)[np.argmin(chunk[g == gm])])
+                if gm < best or chunk[j] < best_k:
+                    best, best_k, best_c = gm, int(chunk[j]), float(c[j])
+            pos_ = c > 0.0
+            if pos_.any():                  # each measured c > 0 bounds its neighbours (all at once)
+                ks = chunk[pos_]
+                near = np.clip(ks[:, None] + np.arange(-span, span + 1), 0, n - 1)
+                d = poses[near] - poses[ks][:, None]
+                np.maximum.at(vouched, near, c[pos_][:, None] - self.VOUCH_GAP - np.hypot(d[..., 0], d[..., 1])
+                              - rho * np.abs(d[..., 2]))
+            if not outlined:                # the outline bound, for the poses still below the best value
+                outlined = True
+                rest = order[pos:]
+                rest = rest[(key[rest] <= best) & (bound[rest] > 0.0)]
+                if len(rest):
+                    key[rest] = np.maximum(bound[rest], field.outline_bound(poses[rest], fp)) - off[rest]
+                    tail = order[pos:]
+                    order = np.concatenate([order[:pos], tail[np.argsort(key[tail], kind="stable")]])
+        if best_k < 0:                      # no obstacle anywhere: every clearance is infinite
+            best_k, best_c = int(order[0]), math.inf
+        return best, best_k, best_c, evals
 
     def check_path(self, poses, fp: Footprint, margin: float = 0.0, resolution: float = 0.05,
                    angular_resolution: float = 0.05) -> PathCheck:
@@ -659,11 +822,12 @@ def _exact_distance(fp: Footprint, pose, outline) -> float:
 
 def _segment_gaps2(points: np.ndarray, starts: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """Squared distances from points (..., p, 2) to segments start + [0, 1] edge (..., e, 2): (..., p, e)."""
-    rel = points[..., :, None, :] - starts[..., None, :, :]
-    den = np.maximum(np.einsum("...ek,...ek->...e", edges, edges), 1e-300)[..., None, :]
-    t = np.clip(np.einsum("...pek,...ek->...pe", rel, edges) / den, 0.0, 1.0)
-    gap = rel - t[..., None] * edges[..., None, :, :]
-    return np.einsum("...k,...k->...", gap, gap)
+    rx = points[..., :, None, 0] - starts[..., None, :, 0]
+    ry = points[..., :, None, 1] - starts[..., None, :, 1]
+    ex, ey = edges[..., None, :, 0], edges[..., None, :, 1]
+    t = np.clip((rx * ex + ry * ey) / np.maximum(ex * ex + ey * ey, 1e-300), 0.0, 1.0)
+    gx, gy = rx - t * ex, ry - t * ey
+    return gx * gx + gy * gy
 
 
 #: obstacle polygons of at most this many corners are measured in batches (:meth:`CollisionWorld._shape_tables`)

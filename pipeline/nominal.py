@@ -9,6 +9,7 @@ interpolation of u0.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -178,11 +179,11 @@ class Nominal:
         independently of how x0 was made.
 
         Computed by multiple shooting, vectorised over the grid: every interval [t_k, t_k+1] is
-        integrated from x0(t_k) under u0 with steps of the 8th-order Dormand-Prince tableau (scipy's
+        integrated from x0(t_k) under u0 by one step of the 8th-order Dormand-Prince tableau (scipy's
         DOP853 coefficients), all intervals at once, u0 evaluated at every stage time in one call. An
-        interval whose end changes by more than atol + rtol |x| when its step is halved (u0 jumps
-        inside it, e.g. where a path's curvature does) is split into pieces, recursively, as an
-        adaptive integrator would refine its step there. The local defects d_k = x(t_k+1; x0(t_k)) -
+        interval whose embedded error estimate (DOP853's, as scipy's adaptive solver uses it) exceeds
+        atol + rtol |x| (u0 jumps inside it, e.g. where a path's curvature does) is split into pieces,
+        recursively, as an adaptive integrator would refine its step there. The local defects d_k = x(t_k+1; x0(t_k)) -
         x0(t_k+1) then give the deviation of one integration from the start, e_k+1 = Phi_k e_k + d_k,
         with Phi_k the pieces' transition matrices (second order in the piece's length, plenty for a
         correction to e, whose size is the residual itself), composed by a parallel prefix scan."""
@@ -220,25 +221,56 @@ class Nominal:
         x_mid, u_mid = self.at(mid)
         hA = (b - a)[:, None, None] * model.linearize(x_mid, u_mid)[0]
         Phi = np.eye(n) + hA + 0.5 * (hA @ hA)
-        # e after piece k: the composition (Phi, d)_k o ... o (Phi, d)_0 applied to 0 (Hillis-Steele scan)
-        P, D = Phi, defect
-        shift = 1
-        while shift < len(D):
-            D = np.concatenate([D[:shift], np.einsum("kij,kj->ki", P[shift:], D[:-shift]) + D[shift:]])
-            P = np.concatenate([P[:shift], P[shift:] @ P[:-shift]])
-            shift *= 2
+        # e after piece k: the composition (Phi, d)_k o ... o (Phi, d)_0 applied to 0
+        D = affine_scan(Phi, defect)
         at_nodes = D[node >= 0]
         return float(np.max(np.abs(at_nodes))) if len(at_nodes) else 0.0
 
 
-class _Shooting:
-    """Many intervals integrated at once by DOP853 steps."""
+def affine_scan(P: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """e_k = P_k e_k-1 + D_k from e_-1 = 0, for every k: (N, n, n) and (N, n) -> (N, n).
 
-    #: steps per interval, against twice as many for the error estimate
-    SUBSTEPS = 1
+    A two-level scan: the sequence is cut into about sqrt(N) blocks of about sqrt(N) steps; the steps
+    run in order within every block at once (each block from 0, with its running transition product),
+    then the blocks' end values are chained in order, and every block is corrected by its running
+    product applied to the value it starts from. About 2 sqrt(N) vectorised steps and O(N n^3) work
+    (a Hillis-Steele scan takes log2(N) passes over all N matrices: 4x slower at N = 14,000)."""
+    P = np.asarray(P, dtype=float)
+    D = np.asarray(D, dtype=float)
+    N, n = D.shape
+    if N == 0:
+        return D.copy()
+    B = max(1, int(math.ceil(math.sqrt(N))))
+    nb = -(-N // B)
+    pad = nb * B - N
+    if pad:            # identity steps with no defect: they leave e unchanged
+        P = np.concatenate([P, np.broadcast_to(np.eye(n), (pad, n, n))])
+        D = np.concatenate([D, np.zeros((pad, n))])
+    Pb, Db = P.reshape(nb, B, n, n), D.reshape(nb, B, n)
+    E, M = np.empty_like(Db), np.empty_like(Pb)        # within-block values from 0, running products
+    e, Mk = np.zeros((nb, n)), np.broadcast_to(np.eye(n), (nb, n, n))
+    for k in range(B):
+        e = np.einsum("bij,bj->bi", Pb[:, k], e) + Db[:, k]
+        Mk = Pb[:, k] @ Mk
+        E[:, k], M[:, k] = e, Mk
+    start = np.zeros((nb, n))                           # e just before each block
+    for b in range(1, nb):
+        start[b] = M[b - 1, -1] @ start[b - 1] + E[b - 1, -1]
+    return (E + np.einsum("bkij,bj->bki", M, start)).reshape(-1, n)[:N]
+
+
+class _Shooting:
+    """Many intervals integrated at once, one DOP853 step each, checked by DOP853's own embedded
+    error estimate (the 5th- and 3rd-order estimators combined as scipy's ``solve_ivp`` does, per
+    component): 13 right-hand sides and 12 input evaluations per interval."""
+
     #: an interval that does not converge is split into this many pieces, at most MAX_DEPTH times
     SPLIT = 16
     MAX_DEPTH = 12
+    #: the estimate must be within this fraction of atol + rtol |x|: the step-halving check this
+    #: replaces kept the two-half-step result, about 2^8 = 256 times more accurate than the difference
+    #: it tested, and this keeps that accuracy (residuals of exact nominals stay at the 1e-9 level)
+    SAFETY = 1.0 / 256
 
     def __init__(self, model: Model, u_func: ArrayFn, rtol: float, atol: float):
         from scipy.integrate import DOP853
@@ -248,30 +280,36 @@ class _Shooting:
         self.A = np.asarray(DOP853.A, dtype=float)[: self.stages, : self.stages]
         self.B = np.asarray(DOP853.B, dtype=float)
         self.C = np.asarray(DOP853.C, dtype=float)[: self.stages]
+        self.E3 = np.asarray(DOP853.E3, dtype=float)
+        self.E5 = np.asarray(DOP853.E5, dtype=float)
+        assert self.C[-1] == 1.0 and len(self.E5) == self.stages + 1     # the last stage is at t + h
 
-    def steps(self, t0, t1, x0, substeps: int):
-        model, K = self.model, len(t0)
-        h = (t1 - t0) / substeps
-        offsets = (np.arange(substeps)[:, None] + self.C[None, :]).reshape(-1)
-        taus = t0[:, None] + h[:, None] * offsets[None, :]
-        u_all = np.asarray(self.u_func(taus.reshape(-1)), dtype=float).reshape(K, -1, model.m)
-        X = x0.copy()
-        kx = np.empty((self.stages, K, model.n))
+    def step(self, t0, t1, x0):
+        """(X, err): one DOP853 step over every interval, and its error estimate (per component)."""
+        model, K, s = self.model, len(t0), self.stages
+        h = t1 - t0
+        taus = t0[:, None] + h[:, None] * self.C[None, :]
+        u_all = np.asarray(self.u_func(taus.reshape(-1)), dtype=float).reshape(K, s, model.m)
+        kx = np.empty((s + 1, K, model.n))
         hh = h[:, None]
-        for j in range(substeps):
-            for i in range(self.stages):
-                Xi = X + hh * np.tensordot(self.A[i, :i], kx[:i], axes=1) if i else X
-                kx[i] = model.rhs(Xi, u_all[:, j * self.stages + i])
-            X = X + hh * np.tensordot(self.B, kx, axes=1)
-        return X
+        for i in range(s):
+            Xi = x0 + hh * np.tensordot(self.A[i, :i], kx[:i], axes=1) if i else x0
+            kx[i] = model.rhs(Xi, u_all[:, i])
+        X = x0 + hh * np.tensordot(self.B, kx[:s], axes=1)
+        kx[s] = model.rhs(X, u_all[:, s - 1])             # f at (t + h, X): the stage the estimators use
+        err5 = np.abs(np.tensordot(self.E5, kx, axes=1))
+        err3 = np.abs(np.tensordot(self.E3, kx, axes=1))
+        denom = np.hypot(err5, 0.1 * err3)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            err = np.abs(hh) * err5 * np.where(denom > 0, err5 / denom, 1.0)
+        return X, err
 
     def interval(self, t0, t1, x0, last: bool = False):
-        """(X, bad): the state at the end of each interval, and where halving the step changed it by
-        more than the tolerance (never on the ``last`` refinement)."""
-        X1 = self.steps(t0, t1, x0, self.SUBSTEPS)
-        X2 = self.steps(t0, t1, x0, 2 * self.SUBSTEPS)
-        err = np.max(np.abs(X2 - X1) - self.rtol * np.abs(X2), axis=1)
-        return X2, (err > self.atol) & (not last)
+        """(X, bad): the state at the end of each interval, and where the step's error estimate
+        exceeds SAFETY (atol + rtol |X|) in some component (never on the ``last`` refinement)."""
+        X, err = self.step(t0, t1, x0)
+        bad = np.max(err / self.SAFETY - self.rtol * np.abs(X), axis=1) > self.atol
+        return X, bad & (not last)
 
 
 class _LinearInterpolant:

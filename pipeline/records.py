@@ -66,24 +66,61 @@ def write_text(path, text: str) -> Path:
 
 
 def write_npz(path, **arrays) -> Path:
-    return _atomic_write(Path(path), lambda fh: np.savez_compressed(fh, **arrays))
+    """An NPZ file (what ``numpy.savez_compressed`` writes, read by ``numpy.load``) compressed at zlib
+    level 1: float arrays hardly compress further at numpy's level 6 (a 9,000-sample tube.npz: 1.379
+    MB against 1.374 MB), which took twice as long."""
+    import zipfile
+
+    def write(fh):
+        with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as z:
+            for name, value in arrays.items():
+                with z.open(f"{name}.npy", "w", force_zip64=True) as entry:
+                    np.lib.format.write_array(entry, np.asanyarray(value), allow_pickle=False)
+
+    return _atomic_write(Path(path), write)
 
 
-def save_figure(fig, path, dpi: int = 110) -> Path:
+def save_figure(fig, path, dpi: int = 110, fast_palette: bool = False) -> Path:
     """Save a matplotlib figure atomically as PNG (figures from :func:`nhstab.report.subplots` are not
     registered with pyplot, so there is nothing to close). The image is stored with a palette of at
-    most 256 colours (median cut, no dithering): plots of lines, shades and text lose nothing visible,
-    and the files are under half the size of full-colour RGBA PNGs."""
-    import io
-
+    most 256 colours, without dithering: plots of lines, shades and text lose nothing visible, and
+    the files are under half the size of full-colour PNGs. The palette is median cut's (about 0.1 s
+    at 900 x 900 pixels), or with ``fast_palette`` PIL's fast octree (about 10 ms), for figures of
+    flat fills, lines and text such as the plan figure (on it every channel within 16 levels of the
+    drawing, about one level on average; the octree bands smooth colour maps, median cut much less).
+    An Agg figure is drawn once and its pixels go straight to the palette step (no PNG encoded by
+    matplotlib and decoded again)."""
+    image = _figure_pixels(fig, dpi)
     from PIL import Image
 
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
-    buf.seek(0)
-    with Image.open(buf) as im:
-        image = im.convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
+    method = Image.Quantize.FASTOCTREE if fast_palette else Image.Quantize.MEDIANCUT
+    image = image.quantize(colors=256, method=method, dither=Image.Dither.NONE)
     return _atomic_write(Path(path), lambda fh: image.save(fh, format="PNG"))
+
+
+def _figure_pixels(fig, dpi: int):
+    """The figure drawn at ``dpi`` as an RGB PIL image (the alpha channel dropped, as a PNG of it
+    converted to RGB would)."""
+    import io
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from PIL import Image
+
+    canvas = fig.canvas
+    if not isinstance(canvas, FigureCanvasAgg):          # another backend's figure: its own PNG writer
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=dpi)
+        buf.seek(0)
+        with Image.open(buf) as im:
+            return im.convert("RGB")
+    old = fig.dpi
+    try:
+        fig.dpi = dpi                                    # as savefig(dpi=...) does, for the draw only
+        canvas.draw()
+        rgba = np.asarray(canvas.buffer_rgba())
+        return Image.fromarray(np.ascontiguousarray(rgba[..., :3]))
+    finally:
+        fig.dpi = old
 
 
 # ---- output folders ---------------------------------------------------------------------------
@@ -160,8 +197,8 @@ class OutputFolder:
     def write_npz(self, name: str, **arrays) -> Path:
         return write_npz(self.path(name), **arrays)
 
-    def save_figure(self, fig, name: str, dpi: int = 110) -> Path:
-        return save_figure(fig, self.path(name), dpi=dpi)
+    def save_figure(self, fig, name: str, dpi: int = 110, fast_palette: bool = False) -> Path:
+        return save_figure(fig, self.path(name), dpi=dpi, fast_palette=fast_palette)
 
     def final(self, name: str) -> Path:
         return self.dir / name

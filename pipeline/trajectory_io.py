@@ -96,9 +96,21 @@ def write_trajectory(path, nominal: Nominal) -> Path:
     path = Path(path)
     if path.suffix.lower() == ".npz":
         return write_npz(path, t=nominal.t, x=nominal.x, u=nominal.u)
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(column_names(nominal.model))
-    for row in np.column_stack([nominal.t, nominal.x, nominal.u]):
-        w.writerow([repr(float(v)) for v in row])
-    return write_text(path, buf.getvalue())
+    header = ",".join(column_names(nominal.model))
+    return write_text(path, header + "\n" + float_rows(np.column_stack([nominal.t, nominal.x, nominal.u])))
+
+
+def float_rows(a: np.ndarray) -> str:
+    """CSV lines of a 2-D float array, every number as Python's shortest round-trip ``repr`` (the
+    same text as ``",".join(repr(float(v)) for v in row)`` per row, each line ending in a newline),
+    formatted in C: the repr of the nested list, whose only separators are ``", "`` and ``"], ["``,
+    rewritten into commas and newlines (a Python loop per row took 50 ms for a 9,000-row nominal)."""
+    a = np.asarray(a, dtype=float)
+    if a.ndim != 2:
+        raise ValueError(f"float_rows needs a 2-D array, got {a.ndim}-D")
+    if a.shape[0] == 0:
+        return ""
+    if a.shape[1] == 0:
+        return "\n" * a.shape[0]
+    text = repr(a.tolist())[2:-2]
+    return text.replace(", ", ",").replace("],[", "\n") + "\n"

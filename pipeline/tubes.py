@@ -279,65 +279,13 @@ def _spatial(prop: CovariancePropagation, sched: SampleSchedule, sat: dict, mode
 
 def certified_clearance(world, fp: Footprint, poses: np.ndarray, reach: np.ndarray):
     """min_k [clearance(fp at poses[k]) - reach[k]], exactly, with its index, the clearance there and
-    the number of FCL clearance queries made.
-
-    Poses are visited in order of a lower bound of c_k - reach_k (the distance field's disc cover, and
-    for a polygon footprint whose discs are clear its outline, computed only for the poses still below
-    the value measured at the pose of the smallest disc bound, which goes first) until that bound is no
-    better than the best value found; a measured c_j > 0 also bounds its neighbours i by c_j - 1 mm - (how far the
-    footprint moved from j to i: |translation| + rho |rotation|, rho the farthest footprint point, 0 for a
-    disc), as in :meth:`CollisionWorld.min_clearance`."""
-    from .clearance_field import disc_cover
-
+    the number of poses whose clearance was measured (:meth:`CollisionWorld.min_clearance_less`: poses in
+    order of a lower bound from the distance field, measured in batches, until the bound passes the best
+    value found)."""
     poses = np.asarray(poses, dtype=float)
-    reach = np.asarray(reach, dtype=float)
     if not len(poses):
         return math.inf, -1, math.nan, 0
-    field = world.clearance_field()
-    if field is None:
-        c = np.array([world.clearance(p, fp) for p in poses])
-        k = int(np.argmin(c - reach))
-        return float(c[k] - reach[k]), k, float(c[k]), len(poses)
-    centres, radii = disc_cover(fp)
-    cth, sth = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-    bound = np.full(len(poses), np.inf)
-    for (u, v), rad in zip(centres, radii):
-        bound = np.minimum(bound, field.at(poses[:, 0] + cth * u - sth * v, poses[:, 1] + sth * u + cth * v) - rad)
-    key = bound - reach
-    vouched = np.full(len(poses), -np.inf)
-    span, gap = 4 * world.VOUCH_SPAN, world.VOUCH_GAP
-    rho = 0.0 if fp.radius is not None else fp.bounding_radius      # a disc does not move when it turns
-    best, best_k, best_c, evals = math.inf, -1, math.nan, 0
-
-    def measure(k):
-        nonlocal best, best_k, best_c, evals
-        ck = world.clearance(poses[k], fp)
-        evals += 1
-        if ck - reach[k] < best:
-            best, best_k, best_c = ck - reach[k], int(k), ck
-        if ck > 0.0:
-            near = slice(max(0, k - span), k + span + 1)
-            d = poses[near] - poses[k]
-            moved = np.hypot(d[:, 0], d[:, 1]) + rho * np.abs(d[:, 2])
-            vouched[near] = np.maximum(vouched[near], ck - gap - moved)
-
-    # the pose of the smallest bound first: what it measures leaves only the poses whose bound is below
-    # it, and only those need the (costlier) outline bound of a polygon footprint
-    k0 = int(np.argmin(key))
-    measure(k0)
-    cand = np.flatnonzero(key < best)
-    cand = cand[cand != k0]
-    if fp.radius is None:
-        clear = cand[bound[cand] > 0.0]
-        if len(clear):
-            key[clear] = np.maximum(bound[clear], field.outline_bound(poses[clear], fp)) - reach[clear]
-    for k in cand[np.argsort(key[cand], kind="stable")]:
-        if key[k] >= best:
-            break
-        if vouched[k] - reach[k] >= best:
-            continue
-        measure(k)
-    return float(best), best_k, float(best_c), evals
+    return world.min_clearance_less(poses, fp, np.asarray(reach, dtype=float))
 
 
 def failing_samples(world, fp: Footprint, poses: np.ndarray, reach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -287,8 +287,9 @@ def test_vectorised_boxes_mark_the_same_field_as_the_loop(monkeypatch, offset):
 def test_a_cars_clearance_on_a_real_grid_map_is_exact_far_from_the_walls_too():
     """The rwd_car on the Nav2 depot (0.05 m cells): the clearance equals shapely's distance to the
     occupied cells (each cell its own box, read from the grid, and the bounds) to 1e-9 m at true
-    distances of up to 3 m. FCL's own distance for the car's prism was off by up to 0.33 m at 1-2 m
-    here (GJK), so the values are measured in the plane; FCL decides contact."""
+    distances of up to 3 m, and ``is_free`` with a margin agrees with it. FCL's own distance for the
+    car's prism was off by up to 0.33 m at 1-2 m here (GJK), so the values are measured in the plane;
+    FCL decides contact."""
     from shapely.strtree import STRtree
 
     from nhstab.maps import load_map
@@ -314,5 +315,60 @@ def test_a_cars_clearance_on_a_real_grid_map_is_exact_far_from_the_walls_too():
         if not 1e-6 < ref <= 3.0:
             continue
         assert world.clearance(pose, fp) == pytest.approx(ref, abs=1e-9), pose
+        for margin in (0.1, 0.3):              # the planner's margin decisions, also against shapely
+            if abs(ref - margin) > 1e-9:
+                assert world.is_free(pose, fp, margin) == (ref > margin), (pose, margin, ref)
         checked += 1
     assert checked > 200
+
+
+@pytest.mark.parametrize("robot_name", ["unicycle", "rwd_car"])
+def test_clearances_in_batches_equal_the_pose_by_pose_query_on_a_real_grid_map(robot_name):
+    """``clearance_many`` (batched exact distances where they decide, FCL pose by pose near contact)
+    equals ``clearance`` at each pose to 1e-12 m on the Nav2 depot, free and colliding poses alike, and
+    ``min_clearance_less`` (the bounded batched search) equals the brute-force minimum of clearance -
+    offset, index included, for offsets of 0 to 1 m."""
+    from nhstab.maps import load_map
+    from nhstab.robot import default_robot
+
+    m = load_map("example:depot_blocked_aisle")
+    world = CollisionWorld.from_map(m)
+    fp = default_robot(robot_name).footprint
+    xmin, ymin, xmax, ymax = m.bounds
+    rng = np.random.default_rng(11)
+    # a wandering path (consecutive poses close, as along a nominal) and scattered poses
+    steps = rng.normal(0.0, [0.04, 0.04, 0.03], (600, 3))
+    walk = np.array([0.5 * (xmin + xmax), 0.5 * (ymin + ymax), 0.0]) + np.cumsum(steps, axis=0)
+    scattered = np.column_stack([rng.uniform(xmin, xmax, 400), rng.uniform(ymin, ymax, 400),
+                                 rng.uniform(-np.pi, np.pi, 400)])
+    poses = np.vstack([walk, scattered])
+    one_by_one = np.array([world.clearance(p, fp) for p in poses])
+    assert (one_by_one < 0).sum() > 20 and (one_by_one > 0.5).sum() > 20      # both kinds present
+    assert np.allclose(world.clearance_many(poses, fp), one_by_one, rtol=0, atol=1e-12)
+    for offset in (np.zeros(len(walk)), rng.uniform(0.0, 1.0, len(walk))):
+        brute = one_by_one[:len(walk)] - offset
+        best, k, c_k, evals = world.min_clearance_less(walk, fp, offset)
+        assert best == pytest.approx(brute.min(), abs=1e-12)
+        assert brute[k] == pytest.approx(brute.min(), abs=1e-12) and c_k == pytest.approx(one_by_one[k], abs=1e-12)
+        assert evals <= len(walk)
+
+
+@pytest.mark.parametrize("per_width", [1.0, 3.0])
+@pytest.mark.parametrize("size", [(4.4, 1.8), (0.6, 0.5), (2.0, 2.0), (7.0, 2.2)])
+def test_disc_covers_contain_the_footprint_and_overhang_as_stated(per_width, size):
+    """Every point of a rectangle footprint (a 60 x 60 grid over it, edges included) lies in a disc of
+    the cover, and the cover reaches at most r - w/2 beyond the sides (r the discs' radius): 0.26 m
+    (coarse) and 0.04 m (fine) for a 4.4 m x 1.8 m car, as disc_cover's docstring states."""
+    from nhstab.clearance_field import disc_cover
+
+    length, width = size
+    fp = Footprint.rectangle(length, width)
+    centres, radii = disc_cover(fp, per_width)
+    c, rad = np.asarray(centres), np.asarray(radii)
+    (x0, y0), (x1, y1) = fp.vertices.min(axis=0), fp.vertices.max(axis=0)
+    gx, gy = np.meshgrid(np.linspace(x0, x1, 60), np.linspace(y0, y1, 60))
+    pts = np.column_stack([gx.ravel(), gy.ravel()])
+    inside = (np.hypot(pts[:, None, 0] - c[:, 0], pts[:, None, 1] - c[:, 1]) <= rad + 1e-12).any(axis=1)
+    assert inside.all()
+    if size == (4.4, 1.8):
+        assert rad.max() - width / 2 == pytest.approx(0.26 if per_width == 1.0 else 0.04, abs=0.005)

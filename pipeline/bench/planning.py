@@ -191,7 +191,9 @@ def _diagnostics_cost(m, rob, world, ok_rows: list[dict], count: int) -> dict | 
     plan.json, plan.png, trajectory.csv and .npz, written to a temporary folder) against the time to
     the nominal (the plan timed again, same seed). Measured in this process after one warm-up write, so
     neither includes Python's imports (matplotlib's import, about half a second, is paid once per
-    process by any figure)."""
+    process by any figure). Each part is then timed again on its own (``parts_s``: residual,
+    trajectory.csv, trajectory.npz, building the figure, drawing and storing it), to show where the
+    time goes; the share is the whole write's."""
     import shutil
     import tempfile
 
@@ -218,14 +220,49 @@ def _diagnostics_cost(m, rob, world, ok_rows: list[dict], count: int) -> dict | 
             t1 = time.perf_counter()
             write_plan(r, tmp / f"p{i}", m, "bench", rob, start, goal, opts)
             written = time.perf_counter() - t1
-            out.append({"problem": row["problem"], "duration_s": r.nominal.duration, "plan_s": planned,
-                        "diagnostics_s": written, "share": written / (planned + written)})
+            out.append({"problem": row["problem"], "duration_s": r.nominal.duration, "samples": len(r.nominal.t),
+                        "plan_s": planned, "diagnostics_s": written, "share": written / (planned + written),
+                        "parts_s": _output_parts(r, m, rob, start, goal, tmp / f"parts{i}")})
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     if not out:
         return None
     shares = [o["share"] for o in out]
-    return {"problems": out, "median_share": float(np.median(shares)), "target_share_max": DIAGNOSTICS_SHARE_MAX}
+    parts = {k: float(np.median([o["parts_s"][k] for o in out])) for k in out[0]["parts_s"]}
+    return {"problems": out, "median_share": float(np.median(shares)), "target_share_max": DIAGNOSTICS_SHARE_MAX,
+            "median_parts_s": parts,
+            "parts_note": "each part timed again on its own after the whole write (so they need not add up to it): "
+                          "the feasibility residual, trajectory.csv, trajectory.npz, building the plan figure, "
+                          "drawing it and storing it as a palette PNG"}
+
+
+def _output_parts(r, m, rob, start, goal, folder: Path) -> dict:
+    """The parts of :func:`nhstab.execution.outputs.write_plan`, each timed on its own [s]."""
+    from ..planning import pose_columns
+    from ..records import save_figure
+    from ..report.plans import plan_figure
+    from ..trajectory_io import write_trajectory
+
+    nom = r.nominal
+    folder.mkdir(parents=True, exist_ok=True)
+    parts = {}
+    t0 = time.perf_counter()
+    nom.feasibility_residual()
+    parts["residual"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    write_trajectory(folder / "trajectory.csv", nom)
+    parts["trajectory.csv"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    write_trajectory(folder / "trajectory.npz", nom)
+    parts["trajectory.npz"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    fig = plan_figure(m, nom.x[:, pose_columns(rob.model)], np.sign(nom.u[:, 0]), rob.footprint, start, goal,
+                      title=f"{m.name}: {rob.model.name}", robot=rob, states=nom.x)
+    parts["figure built"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    save_figure(fig, folder / "plan.png", fast_palette=True)         # as write_plan stores it
+    parts["figure drawn and stored"] = time.perf_counter() - t0
+    return parts
 
 
 def summary_lines(p: dict) -> list[str]:
@@ -267,6 +304,11 @@ def summary_lines(p: dict) -> list[str]:
                          f"the plan's time, median over the {len(d['problems'])} longest nominals ({durations} s) | "
                          f"{100 * d['median_share']:.0f} % | < {100 * d['target_share_max']:.0f} % | "
                          f"{'yes' if d['median_share'] < d['target_share_max'] else 'NO'} |")
+            if d.get("median_parts_s"):
+                plan_s = float(np.median([o["plan_s"] for o in d["problems"]]))
+                parts = ", ".join(f"{k} {1000 * v:.0f}" for k, v in d["median_parts_s"].items())
+                lines.append(f"| planning | {head}: those outputs by part, median [ms] (plan {1000 * plan_s:.0f} ms) | "
+                             f"{parts} | - | - |")
         if s["validity_us_per_state_median"] is not None:
             lines.append(f"| planning | {head}: validity check per state (median; states reaching FCL: "
                          f"{100 * s['fcl_fraction_median']:.1f} %) | {s['validity_us_per_state_median']:.2f} us | "

@@ -419,9 +419,9 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
             if n_full < N:
                 extended = None
                 if opts.end_strategy == "extend":
-                    extended, end = _extended_windows(nom, E, w, phi, cw, substeps, opts, future=True)
+                    extended, end = _extended_windows(nom, E, w, phi, cw, substeps, opts, future=True, first=n_full)
                 if extended is not None:
-                    H[n_full:] = extended[n_full:]
+                    H[n_full:] = extended
                 else:
                     H[n_full:] = _frozen_end(nom, E, n_full, delta, cw, substeps)
         else:
@@ -501,11 +501,12 @@ def _with_tail(nominal: Nominal, tail: Nominal, opts: StabilizerOptions) -> Gain
 
 # ---- the window families -------------------------------------------------------------------------
 
-def _future_windows(nom: Nominal, E: Segments, w: int, phi: float, count: int, cw: float, substeps: int) -> Segments:
-    """Start-anchored windows [t_i, t_i + delta] for i = 0..count-1."""
-    R = sliding(E, w, -cw)[:count]
+def _future_windows(nom: Nominal, E: Segments, w: int, phi: float, count: int, cw: float, substeps: int,
+                    first: int = 0) -> Segments:
+    """Start-anchored windows [t_i, t_i + delta] for i = first .. first + count - 1."""
+    R = sliding(E[first:] if first else E, w, -cw)[:count]
     if phi > 0.0:
-        frac = interval_segments(nom, nom.t[w:w + count], phi, cw, substeps)
+        frac = interval_segments(nom, nom.t[first + w:first + w + count], phi, cw, substeps)
         R = combine(R, frac, -cw)
     return R
 
@@ -594,9 +595,10 @@ def _continuation(nom: Nominal, length: float, future: bool):
 
 
 def _extended_windows(nom: Nominal, E: Segments, w: int, phi: float, cw: float, substeps: int,
-                      opts: StabilizerOptions, future: bool):
-    """The window gramians at every grid point of ``nom``, the windows that run off its end (or start)
-    continued along :func:`_continuation`; (H (N, n, n), what was done) or (None, why not)."""
+                      opts: StabilizerOptions, future: bool, first: int = 0):
+    """The window gramians at the grid points of ``nom`` (future windows: from index ``first`` on, the
+    ones that run off its end; past windows: every point), the windows that run off its end (or start)
+    continued along :func:`_continuation`; (H (N - first, n, n), what was done) or (None, why not)."""
     N = len(nom.t)
     h = float(nom.t[1] - nom.t[0])
     cont = _continuation(nom, (w + 1) * h, future)
@@ -631,7 +633,7 @@ def _extended_windows(nom: Nominal, E: Segments, w: int, phi: float, cw: float, 
     if future:
         tail = interval_segments(ext, t_all[N - 1:-1], h, cw, substeps)
         E_all = Segments(np.concatenate([E.P, tail.P]), np.concatenate([E.W, tail.W]), np.concatenate([E.d, tail.d]))
-        H = _future_windows(ext, E_all, w, phi, N, cw, substeps).W
+        H = _future_windows(ext, E_all, w, phi, N - first, cw, substeps, first).W
     else:
         head = interval_segments(ext, t_all[:k], h, cw, substeps)
         E_all = Segments(np.concatenate([head.P, E.P]), np.concatenate([head.W, E.W]), np.concatenate([head.d, E.d]))

@@ -108,32 +108,25 @@ def plant_derivatives(model: Model, x: np.ndarray, u: np.ndarray, period: float,
     K, n = x.shape
     m = u.shape[1]
     h = float(period) / int(substeps)
-    X = np.broadcast_to(np.eye(n), (K, n, n)).copy()          # dx/dx_0
-    U = np.zeros((K, n, m))                                   # dx/du
+    # W = [dx/dx_0 | dx/du] (K, n, n + m): one product per stage for both, dW/dt = A W + [0 | B]
+    W = np.zeros((K, n, n + m))
+    W[:, :, :n] = np.eye(n)
+    uc = u[:, :, None]
 
-    def stage(xs):
+    def stage(xs, Ws):
         A, B = model.linearize(xs, u)
-        return model.f(xs) + np.einsum("kij,kj->ki", B, u), A, B
+        dW = A @ Ws
+        dW[:, :, n:] += B
+        return model.f(xs) + (B @ uc)[:, :, 0], dW
 
     for _ in range(int(substeps)):
-        f1, A1, B1 = stage(x)
-        dX1, dU1 = A1 @ X, A1 @ U + B1
-        x2 = x + 0.5 * h * f1
-        f2, A2, B2 = stage(x2)
-        dX2 = A2 @ (X + 0.5 * h * dX1)
-        dU2 = A2 @ (U + 0.5 * h * dU1) + B2
-        x3 = x + 0.5 * h * f2
-        f3, A3, B3 = stage(x3)
-        dX3 = A3 @ (X + 0.5 * h * dX2)
-        dU3 = A3 @ (U + 0.5 * h * dU2) + B3
-        x4 = x + h * f3
-        f4, A4, B4 = stage(x4)
-        dX4 = A4 @ (X + h * dX3)
-        dU4 = A4 @ (U + h * dU3) + B4
+        f1, d1 = stage(x, W)
+        f2, d2 = stage(x + 0.5 * h * f1, W + 0.5 * h * d1)
+        f3, d3 = stage(x + 0.5 * h * f2, W + 0.5 * h * d2)
+        f4, d4 = stage(x + h * f3, W + h * d3)
         x = x + (h / 6.0) * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
-        X = X + (h / 6.0) * (dX1 + 2.0 * dX2 + 2.0 * dX3 + dX4)
-        U = U + (h / 6.0) * (dU1 + 2.0 * dU2 + 2.0 * dU3 + dU4)
-    return x, X, U
+        W = W + (h / 6.0) * (d1 + 2.0 * (d2 + d3) + d4)
+    return x, W[:, :, :n], W[:, :, n:]
 
 
 def _block_scan(A: np.ndarray, M: np.ndarray, b: np.ndarray, S0: np.ndarray, m0: np.ndarray):
@@ -206,7 +199,7 @@ def propagate(model: Model, t: np.ndarray, x0: np.ndarray, u_ff: np.ndarray, K: 
     A = Phi - G
     R = np.asarray(sensor_std, dtype=float) ** 2
     Q = np.asarray(process_std, dtype=float) ** 2
-    M = np.einsum("kij,j,klj->kil", G, R, G) + np.diag(Q)[None]
+    M = (G * R) @ transposed(G) + np.diag(Q)[None]
     S0 = np.asarray(initial_cov, dtype=float)
     m0 = np.zeros(n)
     with np.errstate(over="ignore", invalid="ignore"):

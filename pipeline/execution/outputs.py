@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import io
 from pathlib import Path
 
 import numpy as np
@@ -40,15 +39,19 @@ def csv_columns(result: RunResult) -> list[str]:
 
 
 def trajectory_csv(result: RunResult) -> str:
+    """The run's samples as CSV text (header, then one row per control sample; every float as its
+    shortest round-trip repr), formatted column-wise (:func:`nhstab.trajectory_io.float_rows`)."""
+    from ..trajectory_io import float_rows
+
     lg = result.log
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(csv_columns(result))
-    for k in range(len(lg["t"])):
-        nums = np.concatenate([lg["x"][k], lg["x0"][k], lg["y"][k], lg["u"][k], lg["u0"][k]])
-        w.writerow([repr(float(lg["t"][k])), int(lg["plan_id"][k]), MODES[lg["mode"][k]],
-                    *(repr(float(v)) for v in nums)])
-    return buf.getvalue()
+    header = ",".join(csv_columns(result)) + "\n"
+    if not len(lg["t"]):
+        return header
+    t = float_rows(np.asarray(lg["t"], dtype=float)[:, None]).split("\n")
+    nums = float_rows(np.column_stack([lg["x"], lg["x0"], lg["y"], lg["u"], lg["u0"]])).split("\n")
+    ids = map(str, np.asarray(lg["plan_id"]).astype(int).tolist())
+    modes = (MODES[k] for k in np.asarray(lg["mode"]).tolist())
+    return header + "".join(f"{a},{b},{c},{d}\n" for a, b, c, d in zip(t, ids, modes, nums))
 
 
 def read_run_csv(path) -> dict:
@@ -335,7 +338,7 @@ def write_plan(result, out_dir, m, map_label: str, robot, start, goal, path_opti
             fig = plan_figure(m, nom.x[:, pose_columns(model)],
                               np.sign(nom.u[:, 0]), footprint, start, goal, title=title, tube=tube,
                               robot=robot, states=nom.x)
-            out.save_figure(fig, "plan.png")
+            out.save_figure(fig, "plan.png", fast_palette=True)      # flat fills, lines and text
         if tube is not None:
             out.write_npz("tube.npz", t=tube.t, poses=tube.poses, mean=tube.mean, cov=tube.cov,
                           std=tube.std, position_radius=tube.position_radius,

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib import patches
 
-from .maps import add_shape, map_figure
+from .maps import add_shape, map_figure, map_legend
 
 
 def grown_outline(fp, pose, radius: float, arc_points: int = 8) -> np.ndarray:
@@ -52,18 +52,20 @@ def draw_tube(ax, tube, fp, color="tab:blue", footprints: int = 14, label: str |
 
 def plan_figure(m, poses, direction, fp, start, goal, title=None, footprints: int = 14, tube=None, robot=None,
                 states=None):
-    """``poses`` (N, 3) along the nominal; ``direction`` (N,) sign of the speed (+1 / -1 / 0); ``tube``
+    """``poses`` (N, 3) along the nominal; ``direction`` (N,) sign of the speed (+1 / -1 / 0); the
+    footprint is drawn at ``footprints`` evenly spaced samples, the ends excluded; ``tube``
     (optional): the plan's :class:`nhstab.tubes.Tube`. A robot of several bodies (``robot`` with the
     nominal's ``states``) is drawn with every body."""
     rig = robot if robot is not None and len(robot.footprints) > 1 and states is not None else None
-    fig = map_figure(m, start=start, goal=goal, footprint=fp, title=title, robot=rig)
+    fig = map_figure(m, start=start, goal=goal, footprint=fp, title=title, robot=rig, legend=False)
     ax = fig.axes[0]
     if tube is not None:
         draw_tube(ax, tube, fp, footprints=footprints)
     fwd = np.where(direction >= 0, poses[:, 1], np.nan)
     rev = np.where(direction < 0, poses[:, 1], np.nan)
     ax.plot(poses[:, 0], fwd, color="tab:orange", lw=1.6, label="nominal, forward")
-    ax.plot(poses[:, 0], rev, color="tab:purple", lw=1.6, ls="--", label="nominal, reverse")
+    if np.any(direction < 0):                  # a reverse entry only where the nominal reverses
+        ax.plot(poses[:, 0], rev, color="tab:purple", lw=1.6, ls="--", label="nominal, reverse")
     for k in np.linspace(0, len(poses) - 1, footprints).astype(int)[1:-1]:
         if rig is not None:
             from .maps import draw_rig
@@ -72,5 +74,5 @@ def plan_figure(m, poses, direction, fp, start, goal, title=None, footprints: in
             continue
         add_shape(ax, patches.Polygon(fp.outline_at(poses[k]), closed=True, fill=False, edgecolor="tab:orange",
                                      lw=0.7, alpha=0.7))
-    ax.legend(fontsize=7, loc="upper right", framealpha=0.85)
+    map_legend(ax, m)
     return fig

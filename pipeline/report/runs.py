@@ -8,7 +8,7 @@ from matplotlib import patches
 
 from ..maps.base import Circle
 from . import subplots
-from .maps import map_figure
+from .maps import map_figure, map_legend
 
 MODE_TEXT = ("tracking", "stopped: replanning", "done")
 PLAN_COLORS = ("tab:orange", "tab:purple", "tab:cyan", "tab:olive", "tab:brown", "tab:pink")
@@ -40,7 +40,7 @@ def run_map_figure(result, footprints: int = 12):
              f"{sum(p.trigger != 'initial' for p in result.plans)} replan(s)")
     rig = _rig(result)
     fig = map_figure(result.map, start=result.start, goal=result.goal, footprint=result.footprint, title=title,
-                     robot=rig)
+                     robot=rig, legend=False)
     ax = fig.axes[0]
     for d in result.discovered:
         shape = result.map.unknown_obstacles[d["index"]]
@@ -83,7 +83,7 @@ def run_map_figure(result, footprints: int = 12):
         label = "jackknife" if result.collision.get("kind") == "jackknife" else "collision"
         ax.plot(*where[:2], marker="*", color="red", ms=14, ls="none", label=label)
     _zoom(ax, result)
-    ax.legend(fontsize=6, loc="upper right", framealpha=0.85)
+    map_legend(ax, result.map, fontsize=6)
     return fig
 
 
