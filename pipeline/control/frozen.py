@@ -39,8 +39,9 @@ Leaving a stop. The frozen pair assumes the current speed for a whole window; wh
 up out of a stop or a cusp, P_f falls fast (the same logarithmic derivative below -w alpha) and that
 assumption fails the other way: the frozen lateral gain (~ 1/v) of the low speed turns the robot hard
 to remove, within a window of motion at that low speed, a lateral error that the coming motion
-removes anyway or that a short move cannot remove at all, and the heading error stays. (A depot run
-of results/causal ended so 0.25 rad off in heading at its goal: the law resumed 0.13 s after a cusp at
+removes anyway or that a short move cannot remove at all, and the heading error stays. (A depot trial
+of the first committed results/causal, seed 4115170653 at twice the noise, ended so 0.25 rad off in
+heading at its goal: the law resumed 0.13 s after a cusp at
 0.08 m/s with a lateral gain of 42, saturated the turn rate and turned 0.47 rad on a 0.2 m move; on
 a straight line through a cusp, from 0.1 m of lateral error, the heading error peaks at 0.39 rad
 there, ``tests/test_frozen_time.py``.) So a hold ends only where the law is admissible *and* P_f no
@@ -59,7 +60,7 @@ line H_held n (n the direction it cannot act on, the unicycle's lateral one), wh
 increasing but can leave a small heading error per lateral error at the goal. Where a hold hands
 over (at the stop, and from a hold without a stop, such as a sharp turn, back to P_f), V = e^T P e
 can jump up by the factor lambda_max(P_before^-1 P_after) (``resume_jump_max``), which the certified
-rate shows as a short, strongly negative stretch; at a cusp the jump is tens (no P of one direction
+rate shows as a short, strongly negative stretch; at a cusp the jump can be tens (no P of one direction
 of travel is a good Lyapunov matrix for the other), so the certificate does not carry across cusps
 even where the closed loop converges.
 
