@@ -527,14 +527,17 @@ def summary_markdown(summaries: list[dict], remark2: dict | None = None, frozen:
             "", "## A causal law that works: the frozen-time law on the paper's cases", "",
             "For users who cannot use the future nominal (the motivation of Remark 2), `--window frozen-time` applies "
             "Proposition 1 to the linearisation frozen at the current time, (A(t), B(t)) held constant over the "
-            "window, with a hold (the last admissible gramian carried along the nominal's flow) where that "
-            "frozen pair is not, or barely, controllable: at stops and cusps, where the gain norm would exceed 50 "
-            "or the largest eigenvalue of P grows faster than exp(6 alpha t). It decreases V = e^T P e at the "
-            "certified rate "
+            "window, with a hold where that frozen pair is not, or barely, controllable: at stops and cusps, "
+            "where the gain norm would exceed 50 or the largest eigenvalue of P grows faster than exp(6 alpha t). "
+            "A hold ends once the robot is up to speed again (P no longer falls faster than exp(-6 alpha t)): up "
+            "to the stop the last admissible gramian is carried forward along the nominal's flow, from the stop "
+            "on the first admissible one after the hold is carried back (a look-ahead of the time the nominal "
+            "takes to get up to speed), so that the gains leaving a stop are those of the motion it leads into. "
+            "It decreases V = e^T P e at the certified rate "
             "6 alpha - mu(t) where A and B vary slowly (mu: the relative rate of change of P); `lyapunov_rate` "
             "below is that certified rate of V along the linearised loop (min and mean over the run). Where a "
-            "hold ends P jumps back to the frozen one and V can jump by the factor in the last column: after a "
-            "stop with reversal that factor is in the hundreds, so the certificate does not carry across "
+            "hold hands over, P jumps and V can jump by the factor in the last column: at a stop with reversal "
+            "that factor is large (tens), so the certificate does not carry across "
             "stops (its mean is then negative), even where the loop converges. On the paper's cases, from the "
             "paper's initial errors:",
             "",

@@ -30,18 +30,47 @@ and near it H_f is nearly singular, the gains grow like 1/v (lateral position, u
 H_f is singular), the law *holds*: it carries the last admissible gramian along the nominal's
 linearised flow, H(t) = Phi(t, s) H_f(s) Phi(t, s)^T (the construction of the ``frozen`` end
 strategy), which keeps P continuous and makes V non-increasing there (dV/dt = -2 gamma |B^T P e|^2).
-Holding needs only the nominal up to t, and is decided causally: where H_f is singular, where the
-gain norm exceeds ``max_gain``, or where lambda_max(P_f) grows faster than exp(w alpha t) (its
-logarithmic derivative, by a backward difference, above w alpha: the slow-variation condition in the
-direction that matters at a stop, and blind to the rotations of the frame that leave the law
-unchanged, so a circle at constant speed is never held). The one exception is a nominal that *starts*
-inadmissible (a plan that starts from rest): there the first admissible gramian is carried back to the start, which
-looks ahead by the time the nominal takes to get moving (``lookahead_s`` in the diagnostics). Where a
-hold ends, P jumps back to the frozen P_f: V can jump up there by the factor lambda_max(P_held^-1 P_f)
-(``resume_jump_max``), which the certified rate shows as a short, strongly negative stretch. After a
-cusp that factor is large (hundreds: the held P belongs to the other direction of travel, and no
-frozen P of one direction is a good Lyapunov matrix for the other), so the certificate does not carry
-across cusps even where the closed loop converges.
+A hold begins causally: where H_f is singular, where the gain norm exceeds ``max_gain``, or where
+lambda_max(P_f) grows faster than exp(w alpha t) (its logarithmic derivative, by a backward
+difference, above w alpha: the stop coming; blind to the rotations of the frame that leave the law
+unchanged, so a circle at constant speed is never held).
+
+Leaving a stop. The frozen pair assumes the current speed for a whole window; where the robot speeds
+up out of a stop or a cusp, P_f falls fast (the same logarithmic derivative below -w alpha) and that
+assumption fails the other way: the frozen lateral gain (~ 1/v) of the low speed turns the robot hard
+to remove, within a window of motion at that low speed, a lateral error that the coming motion
+removes anyway or that a short move cannot remove at all, and the heading error stays. (A depot trial
+of the first committed results/causal, seed 4115170653 at twice the noise, ended so 0.25 rad off in
+heading at its goal: the law resumed 0.13 s after a cusp at
+0.08 m/s with a lateral gain of 42, saturated the turn rate and turned 0.47 rad on a 0.2 m move; on
+a straight line through a cusp, from 0.1 m of lateral error, the heading error peaks at 0.39 rad
+there, ``tests/test_frozen_time.py``.) So a hold ends only where the law is admissible *and* P_f no
+longer falls faster than exp(-w alpha t): once the robot is up to speed. Every stop is then treated
+like the start of a plan: up to the stop (the hold's least controllable point) the last admissible
+gramian is carried forward; from the stop on, the first admissible gramian after the hold is carried
+back, H(t) = Phi(t, s) H_f(s) Phi(t, s)^T with s after t. The gains leaving a stop are those of the
+motion it leads into, in its direction (after a cusp the carried-forward gramian belongs to the other
+direction of travel: carried into the new one, it turned a depot run into a collision). The cost is
+a look-ahead at each stop, by the time the nominal takes to get up to speed (about 1.4 s for the
+unicycle's default 0.5 m/s^2 to 0.8 m/s; ``lookahead_s`` in the diagnostics for the start): the law
+is causal except that, at a stop, it needs the motion it is about to start, as any reference
+generator knows it. A hold that runs to the end of the nominal (the final stop, where there is no
+motion after) is carried forward throughout; at rest the held law then drives the error towards the
+line H_held n (n the direction it cannot act on, the unicycle's lateral one), which makes V non-
+increasing but can leave a small heading error per lateral error at the goal. Where a hold hands
+over (at the stop, and from a hold without a stop, such as a sharp turn, back to P_f), V = e^T P e
+can jump up by the factor lambda_max(P_before^-1 P_after) (``resume_jump_max``), which the certified
+rate shows as a short, strongly negative stretch; at a cusp the jump can be tens (no P of one direction
+of travel is a good Lyapunov matrix for the other), so the certificate does not carry across cusps
+even where the closed loop converges.
+
+Tried and set aside for leaving a stop: holding on through the acceleration with the gramian from
+before the stop (across a cusp it turns the robot the wrong way: one collision in 20 depot trials at
+twice the noise); and at the final stop, the frozen pair's pseudo-inverse on the directions it still
+controls (P = sum f(lambda_i) v_i v_i^T with f faded below the gain bound): it reached the goal with
+smaller along-track but larger heading errors (largest 0.068 rad against 0.039, median 0.020 against
+0.012, on the same 20 depot trials at twice the noise), since a run ends when its nominal does and the
+robot is never at rest long enough for it to act.
 
 Tried and set aside: instead of holding, regularizing, P = (H_f + eps I)^-1 with the smallest eps that
 keeps the gain within ``max_gain`` (fully causal, continuous, no look-ahead; at rest B^T ignores the
@@ -107,26 +136,44 @@ def frozen_time_schedule(nominal: Nominal, cw: float, delta: float, gamma: np.nd
             raise SingularGramianError(t[k], lam[k, 0], rank, n, thresholds[k], "frozen-time")
         raise InputError("max_gain", f"at least {float(norms[~singular].min()):.4g}, the smallest gain norm of the "
                          "frozen-time law along this nominal", max_gain)
-    runs = _runs(~admissible)
+    # a hold ends only where the law is admissible and P_f no longer falls fast (up to speed again)
+    N = len(t)
+    held = ~admissible
+    for k in range(1, N):
+        if held[k - 1] and not held[k] and rho[k] < -cw:
+            held[k] = True
+    if held.all():                                    # never up to speed: resume where admissible
+        held = ~admissible
     holds, lookahead, jumps = [], 0.0, []
-    for i, j in runs:                                 # indices i..j (inclusive) are held
-        if i > 0:                                     # carry forward from s = i - 1
-            s = i - 1
-            pieces = interval_segments(nominal, t[s:j], t[s + 1:j + 1] - t[s:j], 0.0, substeps).P
-            F = np.linalg.inv(_cumulative(pieces))            # Phi(t_k, t_s) = Phi(t_s, t_k)^-1, k = s+1 .. j
-        else:                                         # the start: carry back from s = j + 1
-            s = j + 1                                 # exists: some point is admissible
-            pieces = interval_segments(nominal, t[:s], t[1:s + 1] - t[:s], 0.0, substeps).P
-            F = _cumulative(pieces, from_right=True)         # Phi(t_k, t_s), k = 0 .. j
-            lookahead = float(t[s] - t[0])
-        H[i:j + 1] = F @ H[s] @ np.swapaxes(F, -1, -2)
+    for i, j in _runs(held):                          # indices i..j (inclusive) are held
+        # from the stop on (the run's least controllable point), the gramian of the first admissible
+        # point after the run is carried back; before it, the last admissible one is carried forward.
+        # A run at the start is carried back throughout, one at the end forward throughout.
+        if i == 0:
+            m = 0
+        elif j == N - 1:
+            m = N
+        else:
+            m = i + int(np.argmin(np.where(singular[i:j + 1], -np.inf, lam[i:j + 1, 0])))
+        if m > i:                                     # carry forward from s = i - 1, to k = i .. last
+            s, last = i - 1, min(m - 1, j)
+            pieces = interval_segments(nominal, t[s:last], t[s + 1:last + 1] - t[s:last], 0.0, substeps).P
+            F = np.linalg.inv(_cumulative(pieces))            # Phi(t_k, t_s) = Phi(t_s, t_k)^-1
+            H[i:last + 1] = F @ H[s] @ np.swapaxes(F, -1, -2)
+        if m <= j:                                    # carry back from s = j + 1 (admissible), to k = m .. j
+            s = j + 1
+            pieces = interval_segments(nominal, t[m:s], t[m + 1:s + 1] - t[m:s], 0.0, substeps).P
+            F = _cumulative(pieces, from_right=True)         # Phi(t_k, t_s)
+            H[m:j + 1] = F @ H[s] @ np.swapaxes(F, -1, -2)
+            if i == 0:
+                lookahead = float(t[s] - t[0])
+            else:
+                # where the carried-back gramian takes over, V = e^T P e can jump up by lambda_max(H_before P_after)
+                L = np.linalg.cholesky(H[m - 1])
+                jumps.append(float(np.linalg.eigvalsh(L.T @ np.linalg.inv(H[m]) @ L)[-1]))
         holds.append([float(t[i]), float(t[j])])
-        if i > 0 and j + 1 < len(t):
-            # where the hold ends V = e^T P e can jump up by lambda_max(P_held^-1 P_f)
-            L = np.linalg.cholesky(H[j])
-            jumps.append(float(np.linalg.eigvalsh(L.T @ P[j + 1] @ L)[-1]))
     info = {"max_gain": float(max_gain), "hold_intervals_s": holds,
-            "hold_time_s": float((~admissible).sum() * (t[1] - t[0])),
+            "hold_time_s": float(held.sum() * (t[1] - t[0])),
             "lookahead_s": lookahead,
             "resume_jump_max": max(jumps) if jumps else None,
             "frozen_singular_points": int(singular.sum())}
