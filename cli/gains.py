@@ -48,11 +48,11 @@ def gains(trajectory, model_name, params, alpha, delta, gamma, window, end_strat
     opts = StabilizerOptions(alpha=alpha, delta=delta, gamma=gamma, window=window, end_strategy=end_strategy).validated()
     nominal = read_trajectory(trajectory, model)
     schedule = compute_schedule(nominal, opts)
+    d = {**schedule.diagnostics, **schedule.diagnose()}             # with the certified Lyapunov rates
     with OutputFolder(out_dir, "gains", owned=("gains.npz", "gains.json")) as out:
         out.write_npz("gains.npz", t=schedule.t, P=schedule.P, K=schedule.K, H_eigenvalues=schedule.H_eigenvalues,
                       gamma=schedule.gamma, x0=schedule.nominal.x, u0=schedule.nominal.u)
-        out.write_json("gains.json", {"trajectory": str(trajectory), **model.describe(), **schedule.diagnostics})
-    d = schedule.diagnostics
+        out.write_json("gains.json", {"trajectory": str(trajectory), **model.describe(), **d})
     if d["rate_bound"] is not None:
         rates = (f"guaranteed rate 3 alpha = {d['rate_bound']:.4g} 1/s (the paper's printed 2 alpha p_m/p_M = "
                  f"{d['rate_bound_printed']:.4g} 1/s)")

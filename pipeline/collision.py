@@ -444,10 +444,12 @@ class CollisionWorld:
             table = self.__dict__["_tables"] = (boxes, polys, circles, kind)
             # which objects are convex (circles, and the polygons of convex outline): _near_batch
             # tells them apart from a footprint whose box they meet by a separating axis
-            self.__dict__["_convex"] = np.array(
-                [o[0] == "circle" or (len(o[1]) >= 3 and (is_convex(np.asarray(o[1], dtype=float))
-                                                          or is_convex(np.asarray(o[1], dtype=float)[::-1])))
-                 for o in (self._outline[id(g)] for g in self._geoms)], dtype=bool)
+            d1 = np.roll(polys, -1, axis=1) - polys                    # the padded corners' edges
+            d2 = np.roll(d1, -1, axis=1)
+            turn = d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]   # zero at the padding
+            tol = 1e-12 * np.maximum(1.0, np.abs(polys).max(axis=(1, 2))) ** 2
+            self.__dict__["_convex"] = (kind == 2) | ((kind == 1) & (np.all(turn >= -tol[:, None], axis=1)
+                                                                     | np.all(turn <= tol[:, None], axis=1)))
         return table
 
     def clearance(self, pose, fp: Footprint) -> float:

@@ -216,8 +216,11 @@ class GainSchedule:
         """P(tau), linearly interpolated between grid points; shape (..., n, n)."""
         return self.interpolant.linear_many(self.P, tau)
 
-    def diagnose(self, t_from: float | None = None, t_to: float | None = None) -> dict:
-        """Diagnostics over the grid points in [t_from, t_to] (default: the whole schedule).
+    def diagnose(self, t_from: float | None = None, t_to: float | None = None, lyapunov: bool = True) -> dict:
+        """Diagnostics over the grid points in [t_from, t_to] (default: the whole schedule); the
+        Lyapunov rates only with ``lyapunov`` (a plan's schedule leaves them out of its ``diagnostics``:
+        they take about a fifth of the schedule's time on a car's nominal, and nothing in planning or
+        control reads them; ``nhstab gains`` and ``nhstab paper`` ask for them).
 
         p_m, p_M: extreme eigenvalues of P. rate_bound: the guaranteed local rate, 3 alpha (w alpha / 2)
         for the future window (NOTES.md item 8; see :meth:`error_bound` for its time-varying factor),
@@ -240,17 +243,19 @@ class GainSchedule:
         k_gain, max_gain = _largest_norm(self.K[sel])
         alpha, window = float(self.options.alpha), self.options.window
         intervals = sel[:-1] if sel.size > 1 else np.clip(sel, 0, len(self.t) - 2)   # grid intervals in the span
-        rates = self.lyapunov_rates()[intervals]
-        return {
+        rates = self.lyapunov_rates()[intervals] if lyapunov else None
+        out = {
             "p_m": p_m, "p_M": p_M,
             "rate_bound": 0.5 * float(self.options.weight) * alpha if window == "future" else None,
             "rate_bound_printed": 2.0 * alpha * p_m / p_M if window == "future" else None,
             "guarantee": GUARANTEES[window],
-            "lyapunov_rate_min": float(np.min(rates)), "lyapunov_rate_mean": float(np.mean(rates)),
             "h_min_eigenvalue": float(lam[k_min, 0]), "h_min_eigenvalue_time_s": float(self.t[sel][k_min]),
             "h_max_eigenvalue": float(lam[:, -1].max()),
             "max_gain_norm": max_gain, "max_gain_norm_time_s": float(self.t[sel][k_gain]),
         }
+        if lyapunov:
+            out.update(lyapunov_rate_min=float(np.min(rates)), lyapunov_rate_mean=float(np.mean(rates)))
+        return out
 
     def lyapunov_rates(self) -> np.ndarray:
         """The certified decay rate r_k of V = e^T P e on each grid interval (N - 1,), for the
@@ -464,7 +469,7 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
     }
     if frozen_info is not None:
         schedule.diagnostics["frozen_time"] = frozen_info
-    schedule.diagnostics.update(schedule.diagnose())
+    schedule.diagnostics.update(schedule.diagnose(lyapunov=False))
     return schedule
 
 
@@ -495,7 +500,7 @@ def _with_tail(nominal: Nominal, tail: Nominal, opts: StabilizerOptions) -> Gain
     schedule = GainSchedule(t=nom.t.copy(), H=full.H[:N], P=full.P[:N], K=full.K[:N],
                             H_eigenvalues=full.H_eigenvalues[:N], gamma=full.gamma[:N], options=opts, nominal=nom)
     schedule.diagnostics = {**full.diagnostics, "grid_points": N, "duration_s": T,
-                            "tail_s": float(t_ext[-1] - T), **schedule.diagnose()}
+                            "tail_s": float(t_ext[-1] - T), **schedule.diagnose(lyapunov=False)}
     return schedule
 
 
