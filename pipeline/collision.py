@@ -111,7 +111,8 @@ class CollisionWorld:
     #: min_clearance lets a measured clearance bound this many poses either side
     VOUCH_SPAN = 16
     #: free_many and motion_free measure the poses the distance field leaves undecided in one batch of
-    #: exact distances (:meth:`_near_batch`) when there are at least this many (fewer: FCL pose by pose)
+    #: exact distances (:meth:`_near_batch`) when there are at least this many and they lie along a path
+    #: (:func:`_along_a_path`; else, and for fewer, FCL pose by pose)
     BATCH_FROM = 8
 
     def __init__(self, shapes=(), grids: tuple[OccupancyGrid, ...] = (), bounds=None, walls: bool = True):
@@ -598,8 +599,8 @@ class CollisionWorld:
             # a finer look at the rest: the footprint's whole outline, sampled every half cell
             hit = field.surely_colliding(poses[undecided], fp, spacing=field.r / 2)
             undecided = undecided[~hit]
-        if len(undecided) >= self.BATCH_FROM:     # exact distances where they decide, all at once
-            d = self._near_batch(poses[undecided], fp)
+        if len(undecided) >= self.BATCH_FROM and _along_a_path(poses[undecided]):
+            d = self._near_batch(poses[undecided], fp)          # exact distances where they decide, at once
             known = ~np.isnan(d)
             out[undecided[known]] = d[known] > margin
             undecided = undecided[~known]
@@ -638,8 +639,8 @@ class CollisionWorld:
             pts = poses[undecided]
             if field.surely_colliding(pts, fp).any() or field.surely_colliding(pts, fp, spacing=field.r / 2).any():
                 return False
-            if len(undecided) >= self.BATCH_FROM:  # exact distances where they decide, all at once
-                d = self._near_batch(poses[undecided], fp)
+            if len(undecided) >= self.BATCH_FROM and _along_a_path(poses[undecided]):
+                d = self._near_batch(poses[undecided], fp)      # exact distances where they decide, at once
                 known = ~np.isnan(d)
                 if np.any(d[known] <= margin):
                     return False
@@ -786,6 +787,14 @@ def _check_world_size(n: int) -> None:
         raise InputError("map", f"obstacles that make at most {MAX_WORLD_OBJECTS:,} collision objects (convex parts "
                          "and merged rectangles of occupied cells)", f"{n:,}",
                          detail="a grid this fragmented is mostly isolated noise cells: clean or coarsen it")
+
+
+def _along_a_path(poses: np.ndarray, step: float = 0.5) -> bool:
+    """Do consecutive poses lie close together (median step at most ``step`` m), as samples of a path
+    do? The batched distances gather the obstacles near chunks of consecutive poses; for scattered poses
+    (random checks) they cost more than FCL pose by pose."""
+    d = np.diff(poses[:, :2], axis=0)
+    return bool(len(d)) and float(np.median(np.hypot(d[:, 0], d[:, 1]))) <= step
 
 
 def _moved(a, b, reach: float) -> float:
