@@ -265,16 +265,10 @@ class CollisionWorld:
             return math.inf
         robot_v = None if fp.radius is not None else transform_points(fp.vertices, pose)
         if robot_v is None:                     # the disc's centre to each box, less the radius
-            px, py = float(pose[0]), float(pose[1])
-            dx = np.maximum(np.maximum(boxes[:, 0] - px, px - boxes[:, 2]), 0.0)
-            dy = np.maximum(np.maximum(boxes[:, 1] - py, py - boxes[:, 3]), 0.0)
-            lower = np.hypot(dx, dy) - fp.radius
+            centre = np.asarray(pose[:2], dtype=float)
+            lower = _box_gaps(boxes, centre, centre) - fp.radius
         else:                                   # the footprint's box to each box
-            x0, y0 = robot_v.min(axis=0)
-            x1, y1 = robot_v.max(axis=0)
-            dx = np.maximum(np.maximum(boxes[:, 0] - x1, x0 - boxes[:, 2]), 0.0)
-            dy = np.maximum(np.maximum(boxes[:, 1] - y1, y0 - boxes[:, 3]), 0.0)
-            lower = np.hypot(dx, dy)
+            lower = _box_gaps(boxes, robot_v.min(axis=0), robot_v.max(axis=0))
         robot = None
 
         def measure(chunk) -> float | None:
@@ -336,6 +330,7 @@ class CollisionWorld:
             return np.full(n_poses, np.inf)
         out = np.full(n_poses, np.nan)
         disc = fp.radius is not None
+        radius = fp.radius if disc else 0.0
         verts = None if disc else np.asarray(fp.vertices, dtype=float)
         convex = self.__dict__["_convex"]
         convex_fp = disc or is_convex(verts) or is_convex(verts[::-1])
@@ -344,9 +339,8 @@ class CollisionWorld:
         for a in range(0, n_poses, size):
             p = poses[a:a + size]
             m = len(p)
-            if disc:
-                lo = p[:, :2] - fp.radius
-                hi = p[:, :2] + fp.radius
+            if disc:                                            # the centres, the radius off every bound
+                lo = hi = p[:, :2]
             else:                                               # the outline at each pose (m, V, 2)
                 c, s = np.cos(p[:, 2])[:, None], np.sin(p[:, 2])[:, None]
                 rv = np.stack([p[:, 0:1] + c * verts[:, 0] - s * verts[:, 1],
@@ -355,24 +349,13 @@ class CollisionWorld:
             ids, beyond = None, np.inf
             boxes = all_boxes
             if local:                                           # the objects near this chunk's footprints
-                (x0, y0), (x1, y1) = lo.min(axis=0), hi.max(axis=0)
-                gap = np.hypot(np.maximum(np.maximum(all_boxes[:, 0] - x1, x0 - all_boxes[:, 2]), 0.0),
-                               np.maximum(np.maximum(all_boxes[:, 1] - y1, y0 - all_boxes[:, 3]), 0.0))
+                gap = _box_gaps(all_boxes, lo.min(axis=0), hi.max(axis=0)) - radius
                 part = np.argpartition(gap, self.NEAR_OBJECTS)
                 ids, beyond = part[:self.NEAR_OBJECTS], float(gap[part[self.NEAR_OBJECTS]])
                 boxes = all_boxes[ids]
             n = len(boxes)
             k = min(nearest, n)
-            if disc:
-                px, py = p[:, 0:1], p[:, 1:2]
-                dx = np.maximum(np.maximum(boxes[:, 0] - px, px - boxes[:, 2]), 0.0)
-                dy = np.maximum(np.maximum(boxes[:, 1] - py, py - boxes[:, 3]), 0.0)
-                lower = np.hypot(dx, dy) - fp.radius
-                beyond -= fp.radius
-            else:
-                dx = np.maximum(np.maximum(boxes[:, 0] - hi[:, 0:1], lo[:, 0:1] - boxes[:, 2]), 0.0)
-                dy = np.maximum(np.maximum(boxes[:, 1] - hi[:, 1:2], lo[:, 1:2] - boxes[:, 3]), 0.0)
-                lower = np.hypot(dx, dy)
+            lower = _box_gaps(boxes, lo, hi) - radius                  # (m, n)
             if k < n:
                 part = np.argpartition(lower, k, axis=1)
                 cand, nxt = part[:, :k], np.minimum(lower[np.arange(m), part[:, k]], beyond)
@@ -407,8 +390,11 @@ class CollisionWorld:
                 two = _segment_gaps2(quads, vb, eb).min(axis=(2, 3))
                 d_poly = np.sqrt(np.minimum(one, two))
                 d_circ = np.sqrt(_segment_gaps2(circ[..., None, :2], vb, eb).min(axis=(2, 3))) - circ[..., 2]
-            if meets.any():                 # separated, for the pairs whose boxes meet?
-                apart = _separated(p[rows, :2] if disc else v, fp.radius, quads, edges, circ, kind[cand] == 1)
+            sel = np.flatnonzero(meets.any(axis=1))
+            if len(sel):                    # separated, for the pairs whose boxes meet?
+                apart = np.ones(meets.shape, dtype=bool)
+                apart[sel] = _separated((p[rows, :2] if disc else v)[sel], fp.radius, quads[sel], edges[sel],
+                                        circ[sel], kind[cand[sel]] == 1)
                 d_poly = np.where(meets & ~apart, -np.inf, d_poly)
                 d_circ = np.where(meets & ~apart, -np.inf, d_circ)
             d = np.where(kind[cand] == 1, d_poly, d_circ).min(axis=1)
@@ -855,6 +841,15 @@ def _segment_gaps2(points: np.ndarray, starts: np.ndarray, edges: np.ndarray) ->
     t = np.clip((rx * ex + ry * ey) / np.maximum(ex * ex + ey * ey, 1e-300), 0.0, 1.0)
     gx, gy = rx - t * ex, ry - t * ey
     return gx * gx + gy * gy
+
+
+def _box_gaps(boxes: np.ndarray, lo, hi) -> np.ndarray:
+    """Distances between the boxes (n, 4: xmin, ymin, xmax, ymax) and the box [lo, hi] (corners (2,), or
+    (m, 2) for m boxes: then (m, n)); 0 where they meet. With lo = hi, a point's distance to each box."""
+    lo, hi = np.asarray(lo, dtype=float)[..., None, :], np.asarray(hi, dtype=float)[..., None, :]
+    dx = np.maximum(np.maximum(boxes[:, 0] - hi[..., 0], lo[..., 0] - boxes[:, 2]), 0.0)
+    dy = np.maximum(np.maximum(boxes[:, 1] - hi[..., 1], lo[..., 1] - boxes[:, 3]), 0.0)
+    return np.hypot(dx, dy)
 
 
 def _separated(robot, radius, quads, edges, circles, is_poly) -> np.ndarray:

@@ -102,7 +102,8 @@ GUARANTEES = {
               "exp(-3 alpha t)",
     "past": "none: the past-window law is not stabilizing in general (NOTES.md item 7)",
     "frozen-time": "none uniform: V = e^T P e decays at the certified rate w alpha - mu(t) where A, B vary slowly "
-                   "(see lyapunov_rate_min/mean); exactly 3 alpha on time-invariant nominals",
+                   "(GainSchedule.lyapunov_rates; nhstab gains reports their min and mean); exactly 3 alpha on "
+                   "time-invariant nominals",
 }
 
 
