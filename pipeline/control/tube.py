@@ -102,30 +102,37 @@ def plant_derivatives(model: Model, x: np.ndarray, u: np.ndarray, period: float,
     inputs u (K, m), and its exact derivatives: (F (K, n), dF/dx (K, n, n), dF/du (K, n, m)).
 
     RK4 on the variational equations with the stages of RK4 on the state: the derivative of the
-    discrete map itself (no state clipping: the end stops are outside the linear model)."""
+    discrete map itself (no state clipping: the end stops are outside the linear model). The state's
+    stages use the model's ``rhs``, as the plant does; one batched product per stage carries both
+    derivatives."""
     x = np.array(x, dtype=float)
     u = np.asarray(u, dtype=float)
     K, n = x.shape
     m = u.shape[1]
     h = float(period) / int(substeps)
-    # W = [dx/dx_0 | dx/du] (K, n, n + m): one product per stage for both, dW/dt = A W + [0 | B]
+    rhs, linearize = model.rhs, model.linearize
+    # W = [dx/dx_0 | dx/du] (K, n, n + m): dW/dt = A W + [0 | B]
     W = np.zeros((K, n, n + m))
     W[:, :, :n] = np.eye(n)
-    uc = u[:, :, None]
 
     def stage(xs, Ws):
-        A, B = model.linearize(xs, u)
+        A, B = linearize(xs, u)
         dW = A @ Ws
         dW[:, :, n:] += B
-        return model.f(xs) + (B @ uc)[:, :, 0], dW
+        return rhs(xs, u), dW
 
     for _ in range(int(substeps)):
         f1, d1 = stage(x, W)
-        f2, d2 = stage(x + 0.5 * h * f1, W + 0.5 * h * d1)
-        f3, d3 = stage(x + 0.5 * h * f2, W + 0.5 * h * d2)
+        f2, d2 = stage(x + (0.5 * h) * f1, W + (0.5 * h) * d1)
+        f3, d3 = stage(x + (0.5 * h) * f2, W + (0.5 * h) * d2)
         f4, d4 = stage(x + h * f3, W + h * d3)
         x = x + (h / 6.0) * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
-        W = W + (h / 6.0) * (d1 + 2.0 * (d2 + d3) + d4)
+        d2 += d3
+        d2 *= 2.0
+        d2 += d1
+        d2 += d4
+        d2 *= h / 6.0
+        W += d2
     return x, W[:, :, :n], W[:, :, n:]
 
 
