@@ -3,8 +3,8 @@
 :class:`ClearanceField` gives, from a distance transform of a raster, a lower bound on the distance
 from any point to the obstacles, and from it cheap certain answers for footprints at many poses:
 certainly free (:meth:`ClearanceField.surely_free`), certainly colliding
-(:meth:`ClearanceField.surely_colliding`), and a lower bound of the clearance of a polygon outline
-(:meth:`ClearanceField.outline_bound`). :mod:`nhstab.collision` (FCL, the exact authority) uses it as a
+(:meth:`ClearanceField.surely_colliding`), and lower bounds of the clearance from disc covers
+(:func:`disc_cover`). :mod:`nhstab.collision` (FCL, the exact authority) uses it as a
 prefilter, so that only the poses it cannot decide reach FCL.
 """
 
@@ -218,20 +218,6 @@ class ClearanceField:
             ok = (i >= 0) & (i < rows) & (j >= 0) & (j < cols)
             hit[lo:lo + step] = np.any(self.inside[np.where(ok, i, 0), np.where(ok, j, 0)] & ok, axis=1)
         return hit
-
-    def outline_bound(self, poses: np.ndarray, fp: Footprint) -> np.ndarray:
-        """A lower bound of the distance from the outline of a polygon footprint to the obstacles at
-        poses (N, 3): its outline sampled every cell size r, each sample's bound less r / 2 (every
-        outline point lies within r / 2 of a sample). It bounds the clearance of the footprint only
-        where no obstacle lies inside the footprint."""
-        u, v = footprint_points(fp, self.r)[1:].T          # the outline samples (not the reference point)
-        out = np.empty(len(poses))
-        step = max(1, self.BLOCK // len(u))
-        for lo in range(0, len(poses), step):
-            p = poses[lo:lo + step]
-            c, s = np.cos(p[:, 2:3]), np.sin(p[:, 2:3])
-            out[lo:lo + step] = self.at(p[:, 0:1] + c * u - s * v, p[:, 1:2] + s * u + c * v).min(axis=1)
-        return out - self.r / 2
 
     def surely_free(self, poses: np.ndarray, fp: Footprint, margin: float) -> np.ndarray:
         """Poses whose footprint is provably more than ``margin`` from the obstacles: every disc of its

@@ -103,23 +103,19 @@ def plant_derivatives(model: Model, x: np.ndarray, u: np.ndarray, period: float,
 
     RK4 on the variational equations with the stages of RK4 on the state: the derivative of the
     discrete map itself (no state clipping: the end stops are outside the linear model). The state's
-    stages use the model's ``rhs``, as the plant does; one batched product per stage carries both
-    derivatives."""
+    stages use the model's ``rhs``, as the plant does; ``Model.variational`` evaluates both derivatives
+    per stage (written out for the unicycle and the rwd car)."""
     x = np.array(x, dtype=float)
     u = np.asarray(u, dtype=float)
     K, n = x.shape
     m = u.shape[1]
     h = float(period) / int(substeps)
-    rhs, linearize = model.rhs, model.linearize
-    # W = [dx/dx_0 | dx/du] (K, n, n + m): dW/dt = A W + [0 | B]
+    # W = [dx/dx_0 | dx/du] (K, n, n + m): dW/dt = A W + [0 | B] (the model's ``variational``)
     W = np.zeros((K, n, n + m))
     W[:, :, :n] = np.eye(n)
 
     def stage(xs, Ws):
-        A, B = linearize(xs, u)
-        dW = A @ Ws
-        dW[:, :, n:] += B
-        return rhs(xs, u), dW
+        return model.variational(xs, u, Ws)
 
     for _ in range(int(substeps)):
         f1, d1 = stage(x, W)
