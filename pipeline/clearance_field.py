@@ -32,6 +32,8 @@ class ClearanceField:
     """
 
     MAX_CELLS = 4_000_000
+    #: a map without grids (vector shapes only): cells along its larger side
+    CELLS_PER_SIDE = 512
     #: mark axis-aligned boxes (a grid's cells) all at once (False: one by one, as other polygons;
     #: the same cells, tests/test_collision.py compares them)
     VECTORISED_BOXES = True
@@ -45,7 +47,7 @@ class ClearanceField:
         from scipy.ndimage import distance_transform_edt
 
         xmin, ymin, xmax, ymax = bounds
-        r = min(resolutions, default=max(xmax - xmin, ymax - ymin) / 512)
+        r = min(resolutions, default=max(xmax - xmin, ymax - ymin) / self.CELLS_PER_SIDE)
         while ((xmax - xmin) / r + 4) * ((ymax - ymin) / r + 4) > self.MAX_CELLS:
             r *= 1.5
         pad = 2

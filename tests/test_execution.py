@@ -226,9 +226,14 @@ def test_same_seed_same_run_json_except_timing(tmp_path):
         r = _run(m, seed=11)
         write_run(r, tmp_path / str(k), figures=False)
         d = json.loads((tmp_path / str(k) / "run.json").read_text())
-        d.pop("timing")
+        timing = d.pop("timing")
         texts.append(json.dumps(d, sort_keys=True))
         assert r.status == "reached" and len(r.plans) >= 2
+        # the latency ends with the feedback law; the tube's time, after it, is recorded beside it
+        for rec, t in zip(r.plans, timing["plans"]):
+            assert t["attempt_latencies_s"] == [a["latency_s"] for a in rec.attempts]
+            assert t["attempt_tube_s"][-1] > 0 and rec.tube is not None
+        assert "tube_s" not in json.dumps(d["plans"])
     assert texts[0] == texts[1]
     assert (tmp_path / "0" / "trajectory.csv").read_bytes() == (tmp_path / "1" / "trajectory.csv").read_bytes()
     r3 = _run(m, seed=12)

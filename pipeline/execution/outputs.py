@@ -143,8 +143,9 @@ def _observed_in_tube(result: RunResult, rec) -> dict | None:
 def _plan_entry(rec, result: RunResult | None = None) -> tuple[dict, dict]:
     entry = {"id": rec.id, "trigger": rec.trigger, "t_detect_s": rec.t_detect, "t_start_s": rec.t_start,
              "start_pose": rec.start, "margin_m": rec.margin, "seed": rec.seed, "conflict": rec.conflict,
-             "attempts": [{k: v for k, v in a.items() if k != "latency_s"} for a in rec.attempts]}
-    timing = {"id": rec.id, "attempt_latencies_s": [a["latency_s"] for a in rec.attempts]}
+             "attempts": [{k: v for k, v in a.items() if k not in ("latency_s", "tube_s")} for a in rec.attempts]}
+    timing = {"id": rec.id, "attempt_latencies_s": [a["latency_s"] for a in rec.attempts],
+              "attempt_tube_s": [a.get("tube_s") for a in rec.attempts]}
     if rec.result is not None:
         metrics = dict(rec.result.metrics)
         for key in _TIMED:

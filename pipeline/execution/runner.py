@@ -19,7 +19,8 @@ One run, step by step at the controller rate 1/T (zero-order hold):
    against all real obstacles: a collision ends the run.
 5. **Replanning** from the measured state to the goal on the known + discovered obstacles. While it
    runs the robot stops (u = 0) for ``replan.pause_s`` of simulated time (a fixed budget, so that a
-   run is reproducible; the real latency, detection to new gain schedule ready, is recorded). A
+   run is reproducible; the real latency, detection to the new feedback law ready, is recorded, and
+   the time of the new plan's error tube, computed after it, beside). A
    failed attempt is retried with the next seed after another pause (from the third attempt on with
    ``replan.budget_growth`` times the budget); ``replan.max_attempts`` failures in a row end the run
    ("replan_failed"). The first plan is retried the same way (without pauses) before the run ends
@@ -256,7 +257,7 @@ class CompositeRun:
             if 0 < clearance <= margin:
                 margin = 0.5 * clearance
                 attempt.update(margin=margin, margin_reduced_from=attempt["margin"], start_clearance_m=clearance)
-        result, law, tube = None, None, None
+        result, law, tube, law_ready = None, None, None, None
         try:
             if clearance <= 0:
                 raise InputError("start", "a pose clear of the obstacles", start_pose.round(3).tolist(),
@@ -270,8 +271,13 @@ class CompositeRun:
                 if record["margin_m"] is not None:
                     margin = attempt["margin"] = record["margin_m"]
             else:
+                # the latency ends with the feedback law: a fixed-margin run only reports the tube, so
+                # it is computed after and timed beside (with margin auto the tube is in the loop above)
                 result, law = self._plan_at(start_pose, seed, margin, attempt, factor)
+                law_ready = time.perf_counter()
                 tube = self._tube_of(law)
+                if law is not None:
+                    attempt["tube_s"] = time.perf_counter() - law_ready
             if law is not None and tube is None:
                 attempt["tube"] = "none: the linearised closed loop diverges under these gains"
             if law is not None:
@@ -284,7 +290,7 @@ class CompositeRun:
             attempt.update(status="bad_request", message=str(exc))
         except PipelineError as exc:   # singular gramian for another window, Riccati failure
             attempt.update(status="not_stabilizable", message=str(exc))
-        attempt["latency_s"] = time.perf_counter() - started
+        attempt["latency_s"] = (law_ready if law_ready is not None else time.perf_counter()) - started
         return attempt, (result if law is not None else None), law, margin, tube
 
     def _plan_at(self, start_pose, seed: int, margin: float, attempt: dict, budget_factor: float = 1.0):
