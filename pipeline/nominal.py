@@ -84,6 +84,8 @@ class Nominal:
         self._x_func = x_func
         self._u_func = u_func
         self.tail: Nominal | None = None
+        #: times where u0 may jump or kink, if the maker knows them (a hint for the feasibility check)
+        self.u_breaks: np.ndarray | None = None
 
     # ---- constructors --------------------------------------------------------------------------
     @classmethod
@@ -172,7 +174,12 @@ class Nominal:
         t = np.linspace(self.t[0], self.t[-1], int(n_points))
         x, u = self.at(t)
         # keep evaluating the original functions or interpolants, not a re-interpolation of them
-        return Nominal(self.model, t, x, u, x_func=self._x_func, u_func=self._u_func, source=self.source)
+        out = Nominal(self.model, t, x, u, x_func=self._x_func, u_func=self._u_func, source=self.source)
+        out.u_breaks = self.u_breaks
+        return out
+
+    def _split_at_breaks(self, breaks: np.ndarray):
+        return _split_pieces(self.t, self.x, breaks, self._x_func)
 
     def feasibility_residual(self, rtol: float = 1e-10, atol: float = 1e-12) -> float:
         """max |x(t_k) - x0(t_k)| over the grid when the model is integrated from x0(t0) under u0,
@@ -183,7 +190,10 @@ class Nominal:
         DOP853 coefficients), all intervals at once, u0 evaluated at every stage time in one call. An
         interval whose embedded error estimate (DOP853's, as scipy's adaptive solver uses it) exceeds
         atol + rtol |x| (u0 jumps inside it, e.g. where a path's curvature does) is split into pieces,
-        recursively, as an adaptive integrator would refine its step there. The local defects d_k = x(t_k+1; x0(t_k)) -
+        recursively, as an adaptive integrator would refine its step there; where the nominal's maker
+        knows the times u0 jumps or kinks (``u_breaks``, e.g. a unicycle nominal's curvature changes),
+        the intervals are cut there first, so that each piece is smooth (the end stages are taken a
+        hair inside a piece, so each side of a jump uses its own values). The local defects d_k = x(t_k+1; x0(t_k)) -
         x0(t_k+1) then give the deviation of one integration from the start, e_k+1 = Phi_k e_k + d_k,
         with Phi_k the pieces' transition matrices (second order in the piece's length, plenty for a
         correction to e, whose size is the residual itself), composed by a parallel prefix scan."""
@@ -193,6 +203,8 @@ class Nominal:
         shoot = _Shooting(model, self._u_func, rtol, atol)
         t0, t1, x_start, x_end = t[:-1], t[1:], self.x[:-1], self.x[1:]
         node = np.arange(1, len(t))            # the grid node each piece ends at (-1: an inner point)
+        if self.u_breaks is not None and len(self.u_breaks):
+            t0, t1, x_start, x_end, node = self._split_at_breaks(np.asarray(self.u_breaks, dtype=float))
         pieces = []                             # (t0, t1, X - x0(t1), node) of the pieces that converged
         for depth in range(shoot.MAX_DEPTH + 1):
             X, bad = shoot.interval(t0, t1, x_start, last=depth == shoot.MAX_DEPTH)
@@ -225,6 +237,23 @@ class Nominal:
         D = affine_scan(Phi, defect)
         at_nodes = D[node >= 0]
         return float(np.max(np.abs(at_nodes))) if len(at_nodes) else 0.0
+
+
+def _split_pieces(t: np.ndarray, x: np.ndarray, breaks: np.ndarray, x_func: ArrayFn):
+    """The grid's intervals cut at the breaks strictly inside them (those within 1e-6 of an
+    interval's length from a node are left out): (t0, t1, x_start, x_end, node) per piece, x0 at a
+    break from ``x_func``, node = the grid index a piece ends at, -1 at a break."""
+    k = np.clip(np.searchsorted(t, breaks, side="right") - 1, 0, len(t) - 2)
+    room = 1e-6 * (t[k + 1] - t[k])
+    b = np.unique(breaks[(breaks > t[k] + room) & (breaks < t[k + 1] - room)])
+    if not len(b):
+        return t[:-1], t[1:], x[:-1], x[1:], np.arange(1, len(t))
+    pts = np.concatenate([t, b])
+    xs = np.concatenate([x, np.asarray(x_func(b), dtype=float).reshape(len(b), x.shape[1])])
+    idx = np.concatenate([np.arange(len(t)), np.full(len(b), -1)])
+    order = np.argsort(pts, kind="stable")
+    pts, xs, idx = pts[order], xs[order], idx[order]
+    return pts[:-1], pts[1:], xs[:-1], xs[1:], idx[1:]
 
 
 def affine_scan(P: np.ndarray, D: np.ndarray) -> np.ndarray:
@@ -289,6 +318,10 @@ class _Shooting:
         model, K, s = self.model, len(t0), self.stages
         h = t1 - t0
         taus = t0[:, None] + h[:, None] * self.C[None, :]
+        # the end stages a hair inside the interval: where u0 jumps at an end (a grid node or a break
+        # the interval was cut at), each side integrates with its own one-sided values
+        hair = np.minimum(1e-12 * np.maximum(1.0, np.abs(t1)), 0.25 * h)[:, None]
+        taus = np.clip(taus, t0[:, None] + hair, t1[:, None] - hair)
         u_all = np.asarray(self.u_func(taus.reshape(-1)), dtype=float).reshape(K, s, model.m)
         kx = np.empty((s + 1, K, model.n))
         hh = h[:, None]

@@ -52,6 +52,43 @@ def test_feasibility_residual_refines_where_the_input_jumps():
     assert late.feasibility_residual() > 1e-3            # a genuinely infeasible x0 is reported
 
 
+def test_known_breaks_cut_the_intervals_and_wrong_ones_change_nothing(monkeypatch):
+    """The same jump with its time given (``u_breaks``): the interval is cut there and one level of
+    steps suffices (no refinement); breaks at the wrong times (or none) leave the answer to the
+    refinement, and an infeasible x0 is still reported."""
+    import nhstab.nominal as nominal_module
+
+    model = make_model("unicycle")
+    ts = 1.2345
+
+    def u_func(t):
+        t = np.asarray(t, dtype=float)
+        return np.stack([np.ones_like(t), (t >= ts).astype(float)], -1)
+
+    def x_func(t):
+        t = np.asarray(t, dtype=float)
+        tau = np.maximum(t - ts, 0.0)
+        return np.stack([np.minimum(t, ts) + np.sin(tau), 1.0 - np.cos(tau), tau], -1)
+
+    levels = []
+    step = nominal_module._Shooting.interval
+    monkeypatch.setattr(nominal_module._Shooting, "interval",
+                        lambda self, *a, **k: levels.append(len(a[0])) or step(self, *a, **k))
+    grid = np.linspace(0.0, 4.0, 201)
+    for breaks, most in (([ts], 1), ([0.5, 2.0001, ts + 1e-3], None), (None, None)):
+        nom = Nominal.from_functions(model, x_func, u_func, grid)
+        nom.u_breaks = None if breaks is None else np.array(breaks)
+        levels.clear()
+        assert nom.feasibility_residual() < 1e-9
+        if most is not None:
+            assert len(levels) == most and levels[0] == 201          # 200 intervals, one of them cut
+        else:
+            assert len(levels) > 1                                   # the refinement found the jump
+        late = Nominal.from_functions(model, lambda t: x_func(np.asarray(t) - 0.01), u_func, grid)
+        late.u_breaks = nom.u_breaks
+        assert late.feasibility_residual() > 1e-3
+
+
 def test_sampled_nominal_interpolates_between_samples():
     """Cubic Hermite with the model's slopes: 4th order, so a 100 Hz circle is exact to ~1e-9."""
     model = make_model("unicycle")

@@ -112,6 +112,9 @@ def test_residual_of_a_real_nominal_agrees_with_one_tight_adaptive_integration(p
 
     fast, slow = nom.feasibility_residual(), straightforward(nom)
     assert fast < 1e-8 and abs(fast - slow) < 1e-8
+    assert nom.u_breaks is not None and len(nom.u_breaks) > 2          # the path's curvature changes
+    blind = Nominal.from_functions(rob.model, nom._x_func, nom._u_func, nom.t)   # no breaks: refinement
+    assert blind.u_breaks is None and abs(blind.feasibility_residual() - fast) < 1e-9
     T = nom.t[-1]
 
     def bumped(t):

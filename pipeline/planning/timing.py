@@ -60,6 +60,14 @@ class _Run:
         cruise = self.length / self.v_peak - self.t_acc      # time at v_peak
         return 2 * self.t_acc + max(cruise, 0.0)
 
+    def time_at(self, s: np.ndarray) -> np.ndarray:
+        """The run-local times at which the run has advanced s (0 <= s <= length): ``progress`` inverted."""
+        a, vp, ta, T, L = self.accel, self.v_peak, self.t_acc, self.duration, self.length
+        s = np.clip(np.asarray(s, dtype=float), 0.0, L)
+        s_acc = 0.5 * a * ta * ta
+        return np.where(s < s_acc, np.sqrt(2.0 * s / a),
+                        np.where(s < L - s_acc, ta + (s - s_acc) / vp, T - np.sqrt(np.maximum(2.0 * (L - s) / a, 0.0))))
+
     def progress(self, tau: np.ndarray):
         """(sigma advanced, sigma') at run-local times tau in [0, duration]."""
         a, vp, ta, T = self.accel, self.v_peak, self.t_acc, self.duration
@@ -116,6 +124,20 @@ class PathTiming:
         idx = np.clip(np.searchsorted(self.sigma, sigma, side="right") - 1, 0, len(self.kappa) - 1)
         return sigma, speed, direction, self.kappa[idx]
 
+    def breaks(self) -> np.ndarray:
+        """The times at which u0 = (d sigma', kappa sigma') is not smooth: each run's start and end and
+        the ends of its speed ramps (sigma' has a kink), and the times the path's curvature changes
+        (omega jumps). A hint for integrators (:meth:`nhstab.nominal.Nominal.feasibility_residual`)."""
+        kap, sig = self.kappa, self.sigma
+        scale = max(1.0, float(np.max(np.abs(kap)))) if len(kap) else 1.0
+        changes = sig[np.flatnonzero(np.abs(np.diff(kap)) > 1e-9 * scale) + 1]
+        out = []
+        for run in self.runs:
+            out.append([run.t0, run.t0 + run.t_acc, run.t0 + run.duration - run.t_acc, run.t0 + run.duration])
+            inside = changes[(changes > run.sigma0) & (changes < run.sigma0 + run.length)]
+            out.append(run.t0 + run.time_at(inside - run.sigma0))
+        return np.unique(np.concatenate(out)) if out else np.zeros(0)
+
     def pose(self, sigma):
         """Geometric path pose at arc lengths sigma (linear between dense samples)."""
         sig = self.sigma
@@ -167,6 +189,7 @@ def unicycle_nominal(model: Model, path: GeometricPath, opts: TimingOptions) -> 
         return timing.exact_at(timing.evaluate(tt)[0])
 
     nominal = Nominal.from_functions(model, x_func, u_func, t)
+    nominal.u_breaks = timing.breaks()
     sigma, _, _, _ = timing.evaluate(t)
     geo = timing.pose(sigma)
     deviation = float(np.max(np.hypot(nominal.x[:, 0] - geo[:, 0], nominal.x[:, 1] - geo[:, 1])))
