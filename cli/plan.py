@@ -42,9 +42,11 @@ EXIT_NO_PLAN = 3
                    "feedback; the tube's saturation probability is against the full limits).")
 @click.option("--max-speed", type=float, default=None, help="[m/s] (default: the robot's limit).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True)
+@click.option("--figure/--no-figure", default=True, show_default=True,
+              help="Draw plan.png (--no-figure: skip it and matplotlib's drawing stack, for scripted planning).")
 @map_options
 def plan(map_file, robot, robot_config, start, goal, problem, planner, space, turning_radius, time_limit, seed, guide,
-         margin, gains, noise_scale, probability, headroom, max_speed, out_dir, cell_size, unknown):
+         margin, gains, noise_scale, probability, headroom, max_speed, out_dir, figure, cell_size, unknown):
     """Plan on MAP and write trajectory.csv, trajectory.npz, plan.json and plan.png into OUT.
 
     The robot (model, footprint, margin, turning radius, stabilizer) comes from --robot-config,
@@ -98,7 +100,7 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
         return EXIT_NO_PLAN
     if margin == "auto":
         path_opts = replace(path_opts, margin=extra["margin_auto"]["margin_m"])
-    write_plan(result, out_dir, m, str(map_file), rob, s, g, path_opts, tube=tube, extra=extra)
+    write_plan(result, out_dir, m, str(map_file), rob, s, g, path_opts, figures=figure, tube=tube, extra=extra)
     met = result.metrics
     cusps = met["cusps"]
     click.echo(f"plan found for {rob.name}: {met['length_m']:.2f} m, {cusps} cusp{'' if cusps == 1 else 's'}, "
@@ -111,7 +113,7 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     if tube.saturation["run_bound"] > 0.01 and headroom == 1.0:
         click.echo("note: the nominal may use the full input limits, so the feedback saturates; nhstab run plans "
                    "with --headroom 0.8")
-    click.echo(f"wrote {out_dir}/trajectory.csv, trajectory.npz, tube.npz, plan.json, plan.png")
+    click.echo(f"wrote {out_dir}/trajectory.csv, trajectory.npz, tube.npz, plan.json" + (", plan.png" if figure else ""))
     return 0
 
 

@@ -116,10 +116,30 @@ def test_plan_cli_writes_files(tmp_path):
     doc = json.loads((tmp_path / "plan.json").read_text())
     assert doc["status"] == "ok" and doc["metrics"]["cusps"] >= 0
     assert doc["inputs"]["feasibility_residual_m"] < 1e-3
+    assert 0 < doc["timing"]["outputs_s"] < 60                  # what the benchmark reads (issue 13 item 3)
     header = (tmp_path / "trajectory.csv").read_text().splitlines()[0]
     assert header == "t [s],x [m],y [m],theta [rad],v [m/s],omega [rad/s]"
     assert (tmp_path / "plan.png").stat().st_size > 10_000
     assert set(np.load(tmp_path / "trajectory.npz").files) == {"t", "x", "u"}
+
+
+def test_plan_cli_without_the_figure_skips_matplotlib(tmp_path):
+    """--no-figure: every file but plan.png, and matplotlib's drawing stack (matplotlib.figure, the bulk
+    of its import time) is never imported (a new process; the distance field of a vector map uses
+    matplotlib.path for its point-in-polygon test)."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom nhstab.cli.main import main\n"
+            f"sys.argv = ['nhstab', 'plan', {str(MAPS / 'ours/cluttered_room.yaml')!r}, '--seed', '1', '--no-figure', "
+            f"'--out', {str(tmp_path)!r}]\n"
+            "try:\n    main()\nexcept SystemExit as exc:\n    assert not exc.code, exc.code\n"
+            "print('matplotlib.figure' in sys.modules)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "False"
+    assert not (tmp_path / "plan.png").exists()
+    assert {"plan.json", "trajectory.csv", "trajectory.npz", "tube.npz"} <= {p.name for p in tmp_path.iterdir()}
 
 
 def _one_line(res, code, *needles):

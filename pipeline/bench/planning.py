@@ -169,7 +169,8 @@ def scale_series(robot: str, longest_buckets: int = 4, per_bucket: int = 10, spr
            "exponent": bool(exponent is not None and exponent <= EXPONENT_MAX),
            "validity check": bool(per_state and float(np.median(per_state)) <= VALIDITY_US_MAX)}
     if diagnostics is not None:
-        met["diagnostics share"] = bool(diagnostics["median_share"] < DIAGNOSTICS_SHARE_MAX)
+        share = diagnostics["command_median_share"]
+        met["diagnostics share"] = bool(share is not None and share < DIAGNOSTICS_SHARE_MAX)
     if robot == "unicycle":
         met["length ratio"] = bool(ratios and float(np.median(ratios)) <= LENGTH_RATIO_MAX)
     return {"robot": robot, "map": f"movingai/{name}", "cell_size_m": cell, "cell_size_why": why,
@@ -227,13 +228,52 @@ def _diagnostics_cost(m, rob, world, ok_rows: list[dict], count: int) -> dict | 
         shutil.rmtree(tmp, ignore_errors=True)
     if not out:
         return None
+    commands = _command_share(m, rob, [o["problem"] for o in out])
     shares = [o["share"] for o in out]
     parts = {k: float(np.median([o["parts_s"][k] for o in out])) for k in out[0]["parts_s"]}
     return {"problems": out, "median_share": float(np.median(shares)), "target_share_max": DIAGNOSTICS_SHARE_MAX,
+            "commands": commands,
+            "command_median_share": float(np.median([c["share"] for c in commands])) if commands else None,
             "median_parts_s": parts,
             "parts_note": "each part timed again on its own after the whole write (so they need not add up to it): "
                           "the feasibility residual, trajectory.csv, trajectory.npz, building the plan figure, "
                           "drawing it and storing it as a palette PNG"}
+
+
+def _command_share(m, rob, problems: list[int]) -> list[dict]:
+    """The issue's own measure: ``nhstab plan`` on each problem as a user runs it (a new process: imports,
+    map, plan, error tube, outputs), its wall time, and the time it spent writing its outputs (plan.json's
+    ``timing.outputs_s``: the residual, the files, plan.png and tube.npz)."""
+    import json
+    import subprocess
+    import sys
+    import tempfile
+
+    name, cell, budget, _ = SCALE_SERIES[rob.name]
+    path = maps_dir() / "bench-mr" / "moving_ai_scenarios" / name
+    def once(k, folder, *extra):
+        cmd = [sys.executable, "-c", "from nhstab.cli.main import main; main()", "plan", str(path),
+               "--robot", rob.name, "--cell-size", str(cell), "--problem", str(k), "--margin", str(SCALE_MARGIN_M),
+               "--time-limit", str(budget), "--seed", str(k), "--out", str(folder), *extra]
+        t0 = time.perf_counter()
+        done = subprocess.run(cmd, capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+        if done.returncode != 0:
+            return None
+        outputs = json.loads((folder / "plan.json").read_text()).get("timing", {}).get("outputs_s")
+        return None if outputs is None else (wall, outputs)
+
+    out = []
+    with tempfile.TemporaryDirectory(prefix="nhstab-bench-cli-") as tmp:
+        for k in problems:
+            full = once(k, Path(tmp) / str(k))
+            bare = once(k, Path(tmp) / f"{k}-nofig", "--no-figure")
+            if full is None or bare is None:
+                continue
+            out.append({"problem": k, "wall_s": full[0], "outputs_s": full[1], "share": full[1] / full[0],
+                        "no_figure_wall_s": bare[0], "no_figure_outputs_s": bare[1],
+                        "no_figure_share": bare[1] / bare[0]})
+    return out
 
 
 def _output_parts(r, m, rob, start, goal, folder: Path) -> dict:
@@ -300,10 +340,21 @@ def summary_lines(p: dict) -> list[str]:
         d = s.get("diagnostics")
         if d:
             durations = ", ".join(f"{o['duration_s']:.0f}" for o in d["problems"])
-            lines.append(f"| planning | {head}: outputs after the nominal (residual, plan.png, files) as a share of "
-                         f"the plan's time, median over the {len(d['problems'])} longest nominals ({durations} s) | "
-                         f"{100 * d['median_share']:.0f} % | < {100 * d['target_share_max']:.0f} % | "
-                         f"{'yes' if d['median_share'] < d['target_share_max'] else 'NO'} |")
+            cs = d.get("command_median_share")
+            if cs is not None:
+                walls = ", ".join(f"{c['wall_s']:.2f}" for c in d["commands"])
+                outs = ", ".join(f"{1000 * c['outputs_s']:.0f}" for c in d["commands"])
+                lines.append(f"| planning | {head}: outputs (residual, plan.png, files) as a share of `nhstab plan`'s wall "
+                             f"time (a new process, as a user runs it: imports, map, plan, tube, outputs), median over "
+                             f"the {len(d['commands'])} longest nominals ({durations} s; wall {walls} s; outputs {outs} ms) | "
+                             f"{100 * cs:.0f} % | < {100 * d['target_share_max']:.0f} % | "
+                             f"{'yes' if cs < d['target_share_max'] else 'NO'} |")
+                nf = float(np.median([c["no_figure_share"] for c in d["commands"]]))
+                nf_out = ", ".join(f"{1000 * c['no_figure_outputs_s']:.0f}" for c in d["commands"])
+                lines.append(f"| planning | {head}: the same with `nhstab plan --no-figure` (no plan.png, no matplotlib "
+                             f"drawing stack; outputs {nf_out} ms) | {100 * nf:.0f} % | - | - |")
+            lines.append(f"| planning | {head}: stricter, the same outputs against the plan call alone (warm process, no "
+                         f"imports, map or tube) | {100 * d['median_share']:.0f} % | - | - |")
             if d.get("median_parts_s"):
                 plan_s = float(np.median([o["plan_s"] for o in d["problems"]]))
                 parts = ", ".join(f"{k} {1000 * v:.0f}" for k, v in d["median_parts_s"].items())
