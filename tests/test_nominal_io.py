@@ -30,13 +30,13 @@ def test_feasibility_residual_of_a_known_deviation():
     assert nom.feasibility_residual() == pytest.approx(bump.max(), rel=1e-6)
 
 
-def test_feasibility_residual_refines_where_the_input_jumps():
-    """The turn rate jumps from 0 to 1 rad/s at t = 1.2345 s, inside a grid interval; x0 is the exact
-    solution (a straight line, then an arc). One fixed DOP853 step per interval would be off by about
-    1e-3 there; the refinement brings the residual to the integrator's tolerance."""
-    model = make_model("unicycle")
-    ts = 1.2345
+#: the turn rate jumps from 0 to 1 rad/s at this time, inside a grid interval of the tests below
+JUMP_AT = 1.2345
 
+
+def _jump_functions(ts: float = JUMP_AT):
+    """(x_func, u_func): a unicycle at 1 m/s whose turn rate jumps from 0 to 1 rad/s at ts, and its
+    exact solution (a straight line, then an arc)."""
     def u_func(t):
         t = np.asarray(t, dtype=float)
         return np.stack([np.ones_like(t), (t >= ts).astype(float)], -1)
@@ -45,7 +45,15 @@ def test_feasibility_residual_refines_where_the_input_jumps():
         t = np.asarray(t, dtype=float)
         tau = np.maximum(t - ts, 0.0)
         return np.stack([np.minimum(t, ts) + np.sin(tau), 1.0 - np.cos(tau), tau], -1)
+    return x_func, u_func
 
+
+def test_feasibility_residual_refines_where_the_input_jumps():
+    """The turn rate jumps from 0 to 1 rad/s at t = 1.2345 s, inside a grid interval; x0 is the exact
+    solution (a straight line, then an arc). One fixed DOP853 step per interval would be off by about
+    1e-3 there; the refinement brings the residual to the integrator's tolerance."""
+    model = make_model("unicycle")
+    x_func, u_func = _jump_functions()
     nom = Nominal.from_functions(model, x_func, u_func, np.linspace(0.0, 4.0, 201))
     assert nom.feasibility_residual() < 1e-9
     late = Nominal.from_functions(model, lambda t: x_func(np.asarray(t) - 0.01), u_func, np.linspace(0.0, 4.0, 201))
@@ -59,23 +67,15 @@ def test_known_breaks_cut_the_intervals_and_wrong_ones_change_nothing(monkeypatc
     import nhstab.nominal as nominal_module
 
     model = make_model("unicycle")
-    ts = 1.2345
-
-    def u_func(t):
-        t = np.asarray(t, dtype=float)
-        return np.stack([np.ones_like(t), (t >= ts).astype(float)], -1)
-
-    def x_func(t):
-        t = np.asarray(t, dtype=float)
-        tau = np.maximum(t - ts, 0.0)
-        return np.stack([np.minimum(t, ts) + np.sin(tau), 1.0 - np.cos(tau), tau], -1)
-
+    ts = JUMP_AT
+    x_func, u_func = _jump_functions()
     levels = []
     step = nominal_module._Shooting.interval
     monkeypatch.setattr(nominal_module._Shooting, "interval",
                         lambda self, *a, **k: levels.append(len(a[0])) or step(self, *a, **k))
     grid = np.linspace(0.0, 4.0, 201)
     for breaks, most in (([ts], 1), ([0.5, 2.0001, ts + 1e-3], None), (None, None)):
+        # the jump's own time, three wrong ones, none
         nom = Nominal.from_functions(model, x_func, u_func, grid)
         nom.u_breaks = None if breaks is None else np.array(breaks)
         levels.clear()
