@@ -178,9 +178,6 @@ class Nominal:
         out.u_breaks = self.u_breaks
         return out
 
-    def _split_at_breaks(self, breaks: np.ndarray):
-        return _split_pieces(self.t, self.x, breaks, self._x_func)
-
     def feasibility_residual(self, rtol: float = 1e-10, atol: float = 1e-12) -> float:
         """max |x(t_k) - x0(t_k)| over the grid when the model is integrated from x0(t0) under u0,
         independently of how x0 was made.
@@ -193,8 +190,8 @@ class Nominal:
         recursively, as an adaptive integrator would refine its step there; where the nominal's maker
         knows the times u0 jumps or kinks (``u_breaks``, e.g. a unicycle nominal's curvature changes),
         the intervals are cut there first, so that each piece is smooth (the end stages are taken a
-        hair inside a piece, so each side of a jump uses its own values). The local defects d_k = x(t_k+1; x0(t_k)) -
-        x0(t_k+1) then give the deviation of one integration from the start, e_k+1 = Phi_k e_k + d_k,
+        hair inside a piece, so each side of a jump uses its own values). The local defects
+        d_k = x(t_k+1; x0(t_k)) - x0(t_k+1) then give the deviation of one integration from the start, e_k+1 = Phi_k e_k + d_k,
         with Phi_k the pieces' transition matrices (second order in the piece's length, plenty for a
         correction to e, whose size is the residual itself), composed by a parallel prefix scan."""
         model = self.model
@@ -204,7 +201,8 @@ class Nominal:
         t0, t1, x_start, x_end = t[:-1], t[1:], self.x[:-1], self.x[1:]
         node = np.arange(1, len(t))            # the grid node each piece ends at (-1: an inner point)
         if self.u_breaks is not None and len(self.u_breaks):
-            t0, t1, x_start, x_end, node = self._split_at_breaks(np.asarray(self.u_breaks, dtype=float))
+            t0, t1, x_start, x_end, node = _split_pieces(t, self.x, np.asarray(self.u_breaks, dtype=float),
+                                                         self._x_func)
         pieces = []                             # (t0, t1, X - x0(t1), node) of the pieces that converged
         for depth in range(shoot.MAX_DEPTH + 1):
             X, bad = shoot.interval(t0, t1, x_start, last=depth == shoot.MAX_DEPTH)

@@ -127,6 +127,35 @@ def test_residual_of_a_real_nominal_agrees_with_one_tight_adaptive_integration(p
     assert off.feasibility_residual() == pytest.approx(bump.max(), rel=1e-6)
 
 
+def test_a_unicycle_nominal_knows_where_its_input_is_not_smooth(planned, monkeypatch):
+    """PathTiming.breaks: each run's progress inverted at the breaks gives back their arc lengths
+    (1e-9 m), u0 jumps or kinks there, and with them the residual needs at most one refinement
+    level on a real nominal (it needed about ten without)."""
+    import nhstab.nominal as nominal_module
+    from nhstab.planning.timing import PathTiming
+
+    _, rob, r = planned
+    nom = r.nominal
+    timing = PathTiming(r.path, 1.0, 0.5)
+    for run in timing.runs:
+        s = np.linspace(0.0, run.length, 57)
+        np.testing.assert_allclose(run.progress(run.time_at(s))[0], s, atol=1e-9)
+    b = nom.u_breaks[(nom.u_breaks > nom.t[0] + 1e-6) & (nom.u_breaks < nom.t[-1] - 1e-6)]
+    assert len(b) >= 2
+    # at every break u0 jumps or its slope does: compare one-sided differences
+    eps = 1e-6
+    left = (nom._u_func(b - eps) - nom._u_func(b - 2 * eps)) / eps
+    right = (nom._u_func(b + 2 * eps) - nom._u_func(b + eps)) / eps
+    jump = np.abs(nom._u_func(b + eps) - nom._u_func(b - eps)).max(axis=1)
+    assert np.all((jump > 1e-4) | (np.abs(right - left).max(axis=1) > 1e-3))
+    levels = []
+    step = nominal_module._Shooting.interval
+    monkeypatch.setattr(nominal_module._Shooting, "interval",
+                        lambda self, *a, **k: levels.append(len(a[0])) or step(self, *a, **k))
+    nom.feasibility_residual()
+    assert len(levels) <= 2
+
+
 def test_map_raster_is_pixel_identical_to_imshow():
     """GridRaster draws what imshow(interpolation="nearest") draws, pixel for pixel, on a real map."""
     from nhstab.records import _figure_pixels
