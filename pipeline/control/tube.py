@@ -104,7 +104,17 @@ def plant_derivatives(model: Model, x: np.ndarray, u: np.ndarray, period: float,
     RK4 on the variational equations with the stages of RK4 on the state: the derivative of the
     discrete map itself (no state clipping: the end stops are outside the linear model). The state's
     stages use the model's ``rhs``, as the plant does; ``Model.variational`` evaluates both derivatives
-    per stage (written out for the unicycle and the rwd car)."""
+    per stage (written out for the unicycle and the rwd car). For the unicycle itself the map and its
+    derivatives are sums over the stages' headings (:func:`_unicycle_derivatives`)."""
+    from ..models.unicycle import Unicycle
+
+    if type(model) is Unicycle:
+        return _unicycle_derivatives(np.asarray(x, dtype=float), np.asarray(u, dtype=float), period, substeps)
+    return _variational_derivatives(model, x, u, period, substeps)
+
+
+def _variational_derivatives(model: Model, x: np.ndarray, u: np.ndarray, period: float, substeps: int):
+    """:func:`plant_derivatives` for any model: RK4 on the state and the variational equations."""
     x = np.array(x, dtype=float)
     u = np.asarray(u, dtype=float)
     K, n = x.shape
@@ -130,6 +140,56 @@ def plant_derivatives(model: Model, x: np.ndarray, u: np.ndarray, period: float,
         d2 *= h / 6.0
         W += d2
     return x, W[:, :, :n], W[:, :, n:]
+
+
+def _unicycle_derivatives(x: np.ndarray, u: np.ndarray, period: float, substeps: int):
+    """The unicycle's hold-interval map and its exact derivatives in closed form. Its heading rate is
+    omega at every stage, so RK4's stages see the headings theta + omega tau_j, tau_j = j h / 2
+    (j = 0 .. 2 substeps), with weights 1, 4, 2, 4, .., 4, 1 (h / 6 each), and
+
+        F_x = x + (h/6) v sum_j w_j cos(theta_j),   F_y = y + (h/6) v sum_j w_j sin(theta_j),
+        F_theta = theta + T omega,
+
+    whose derivatives are sums of the same terms (d/dtheta rotates F - x, d/domega weighs each term by
+    tau_j). F is computed as the plant computes it (:func:`nhstab.execution.plant._unicycle_step`,
+    the same rotations in the same order); the derivatives equal the variational RK4's to rounding
+    (tested)."""
+    h = float(period) / int(substeps)
+    hh, w6 = 0.5 * h, h / 6.0
+    px, py, th = x[:, 0], x[:, 1], x[:, 2]
+    v, w = u[:, 0], u[:, 1]
+    a = hh * w
+    ca, sa = np.cos(a), np.sin(a)
+    c, s = np.cos(th), np.sin(th)
+    sc = np.zeros_like(px)          # sum_j w_j cos(theta_j), and with tau_j: tc
+    ss = np.zeros_like(px)
+    tc = np.zeros_like(px)
+    ts = np.zeros_like(px)
+    for k in range(int(substeps)):
+        c2, s2 = c * ca - s * sa, s * ca + c * sa
+        c4, s4 = c2 * ca - s2 * sa, s2 * ca + c2 * sa
+        px = px + w6 * v * (c + 4.0 * c2 + c4)
+        py = py + w6 * v * (s + 4.0 * s2 + s4)
+        th = th + w6 * (w + 2.0 * w + 2.0 * w + w)
+        sc += c + 4.0 * c2 + c4
+        ss += s + 4.0 * s2 + s4
+        t0 = k * h
+        tc += t0 * c + 4.0 * (t0 + hh) * c2 + (t0 + h) * c4
+        ts += t0 * s + 4.0 * (t0 + hh) * s2 + (t0 + h) * s4
+        c, s = c4, s4
+    K = len(px)
+    F = np.stack([px, py, th], axis=1)
+    Phi = np.zeros((K, 3, 3))
+    Phi[:, 0, 0] = Phi[:, 1, 1] = Phi[:, 2, 2] = 1.0
+    Phi[:, 0, 2] = -w6 * v * ss
+    Phi[:, 1, 2] = w6 * v * sc
+    Gamma = np.zeros((K, 3, 2))
+    Gamma[:, 0, 0] = w6 * sc
+    Gamma[:, 1, 0] = w6 * ss
+    Gamma[:, 0, 1] = -w6 * v * ts
+    Gamma[:, 1, 1] = w6 * v * tc
+    Gamma[:, 2, 1] = int(substeps) * h
+    return F, Phi, Gamma
 
 
 def _block_scan(A: np.ndarray, M: np.ndarray, b: np.ndarray, S0: np.ndarray, m0: np.ndarray):
@@ -268,6 +328,11 @@ def bivariate_normal_cdf(h, k, rho) -> np.ndarray:
     return out
 
 
+#: below this per-sample probability the saturation bound takes P(beyond at k) for P(beyond at k, not at
+#: k - 1) instead of computing the pair's bivariate probability (adds at most this much per sample)
+SATURATION_PAIR_FLOOR = 1e-12
+
+
 def saturation(prop: CovariancePropagation, K: np.ndarray, limits: np.ndarray) -> dict:
     """Probabilities that the (unclipped) inputs of the linear model reach the limits (m, 2).
 
@@ -288,18 +353,21 @@ def saturation(prop: CovariancePropagation, K: np.ndarray, limits: np.ndarray) -
     # cross-covariance of consecutive inputs: K_k (A_{k-1} S_{k-1} - G_{k-1} R) K_{k-1}^T
     if steps > 1:
         C = prop.A[:-1] @ prop.cov[:-2] - prop.G[:-1] * prop.R[None, None, :]
-        cross = np.einsum("kij,kjl,kml->kim", K[1:], C, K[:-1])
+        cross = K[1:] @ C @ transposed(K[:-1])
         diag = np.einsum("kii->ki", cross)
         with np.errstate(divide="ignore", invalid="ignore"):
             rho = np.where((sd[1:] > 0) & (sd[:-1] > 0), diag / (sd[1:] * sd[:-1]), 0.0)
         rho = np.clip(np.nan_to_num(rho), -1.0, 1.0)
         # P(beyond at k, not at k-1) = P(beyond at k) - P(beyond at both), per side:
-        # P(Z_k > z_k, Z_{k-1} > z_{k-1}) = Phi2(-z_k, -z_{k-1}; rho); only where P(beyond at k) is not negligible
+        # P(Z_k > z_k, Z_{k-1} > z_{k-1}) = Phi2(-z_k, -z_{k-1}; rho); where P(beyond at k) is below
+        # SATURATION_PAIR_FLOOR the difference is bounded by P(beyond at k) itself (still an upper bound,
+        # looser by at most that floor per sample)
         up = np.zeros_like(per_step[1:])
         for p_side, z in ((p_hi, z_hi), (p_lo, z_lo)):
-            live = p_side[1:] > 1e-15
+            live = p_side[1:] > SATURATION_PAIR_FLOOR
             both = bivariate_normal_cdf(-z[1:][live], -z[:-1][live], rho[live])
             up[live] += np.clip(p_side[1:][live] - both, 0.0, None)
+            up[~live] += p_side[1:][~live]
         run = float(np.sum(per_step[0]) + np.sum(up))
     else:
         run = float(np.sum(per_step[0]))
