@@ -72,17 +72,21 @@ def test_plant_derivatives_are_the_exact_zoh_discretisation_on_a_line():
     assert np.allclose(F[0], x[0] + [v * T, 0, 0], atol=1e-14)
 
 
+@pytest.mark.parametrize("robot", ["unicycle", "rwd_car"])
 @pytest.mark.parametrize("substeps", [1, 4, 7])
-def test_the_unicycles_closed_form_is_the_variational_rk4(substeps):
-    """The unicycle's closed-form map and derivatives (sums over the stages' headings) against RK4 on
-    the variational equations, with rest and straight motion among the inputs: the map equals the
-    plant's step exactly (the same rotations), the derivatives agree to 1e-13."""
+def test_the_closed_forms_are_the_variational_rk4(robot, substeps):
+    """The unicycle's and the rwd car's closed-form maps and derivatives against RK4 on the variational
+    equations, with rest and straight motion among the inputs: the map equals the plant's step exactly
+    (the same operations; the car's steering kept inside its end stop), the derivatives agree to 1e-13."""
     from nhstab.control.tube import _variational_derivatives
 
-    model = make_model("unicycle")
+    model = make_model(robot)
     rng = np.random.default_rng(substeps)
-    x = rng.uniform(-20, 20, (300, 3))
+    x = rng.uniform(-20, 20, (300, model.n))
     u = np.column_stack([rng.uniform(-1.5, 1.5, 300), rng.uniform(-3, 3, 300)])
+    if robot == "rwd_car":
+        x[:, 3] = rng.uniform(-0.5, 0.5, 300)
+        u[:, 1] = rng.uniform(-1, 1, 300)
     u[:20] = 0.0
     u[20:40, 1] = 0.0
     F, Phi, Gamma = plant_derivatives(model, x, u, T, substeps)

@@ -106,10 +106,14 @@ def plant_derivatives(model: Model, x: np.ndarray, u: np.ndarray, period: float,
     stages use the model's ``rhs``, as the plant does; ``Model.variational`` evaluates both derivatives
     per stage (written out for the unicycle and the rwd car). For the unicycle itself the map and its
     derivatives are sums over the stages' headings (:func:`_unicycle_derivatives`)."""
+    from ..models.rwd_car import RwdCar
     from ..models.unicycle import Unicycle
 
     if type(model) is Unicycle:
         return _unicycle_derivatives(np.asarray(x, dtype=float), np.asarray(u, dtype=float), period, substeps)
+    if type(model) is RwdCar:
+        return _rwd_car_derivatives(np.asarray(x, dtype=float), np.asarray(u, dtype=float), period, substeps,
+                                    float(model.wheelbase))
     return _variational_derivatives(model, x, u, period, substeps)
 
 
@@ -190,6 +194,67 @@ def _unicycle_derivatives(x: np.ndarray, u: np.ndarray, period: float, substeps:
     Gamma[:, 1, 1] = w6 * v * tc
     Gamma[:, 2, 1] = int(substeps) * h
     return F, Phi, Gamma
+
+
+def _rwd_car_derivatives(x: np.ndarray, u: np.ndarray, period: float, substeps: int, L: float):
+    """The rwd car's hold-interval map and its exact derivatives, substep by substep in closed form.
+
+    With the input (v, omega_s) held, RK4's stages see phi, phi + h omega_s / 2 (twice) and
+    phi + h omega_s, and the headings theta, theta + (h/2) k1_theta, theta + (h/2) k2_theta and
+    theta + h k2_theta (k_theta = tan(phi_stage) v / L), as the plant computes them
+    (:func:`nhstab.execution.plant._rwd_car_step`, without its steering end stop, which is outside the
+    linear model). Each substep's Jacobian follows from these by the chain rule (d tan(phi) / d phi =
+    1 + tan(phi)^2), and the substeps' Jacobians are composed. The derivatives equal the variational
+    RK4's to rounding (tested)."""
+    h = float(period) / int(substeps)
+    hh, w6 = 0.5 * h, h / 6.0
+    K = len(x)
+    px, py, th, phi = x[:, 0], x[:, 1], x[:, 2], x[:, 3]
+    v, ws = u[:, 0], u[:, 1]
+    W = np.zeros((K, 4, 6))
+    W[:, :, :4] = np.eye(4)
+    J = np.zeros((K, 4, 6))
+    J[:, 0, 0] = J[:, 1, 1] = J[:, 2, 2] = J[:, 3, 3] = 1.0
+    J[:, 3, 5] = h
+    for _ in range(int(substeps)):
+        t1 = np.tan(phi) / L
+        phi2 = phi + hh * ws
+        t2 = np.tan(phi2) / L
+        phi4 = phi + h * ws
+        t4 = np.tan(phi4) / L
+        q1, q2, q4 = (1.0 + (L * t1) ** 2) / L, (1.0 + (L * t2) ** 2) / L, (1.0 + (L * t4) ** 2) / L
+        k1t, k2t, k4t = t1 * v, t2 * v, t4 * v
+        th2, th3, th4 = th + hh * k1t, th + hh * k2t, th + h * k2t
+        c1, s1, c2, s2 = np.cos(th), np.sin(th), np.cos(th2), np.sin(th2)
+        c3, s3, c4, s4 = np.cos(th3), np.sin(th3), np.cos(th4), np.sin(th4)
+        # the stages' headings against phi, v and omega_s (theta: 1 each; stage 1: 0 otherwise)
+        dphi = (hh * v * q1, hh * v * q2, h * v * q2)
+        dv = (hh * t1, hh * t2, h * t2)
+        dw = (0.0, hh * hh * v * q2, h * hh * v * q2)
+        cs = (2.0 * c2, 2.0 * c3, c4)                   # w_i cos(theta_i), stages 2 .. 4
+        sn = (2.0 * s2, 2.0 * s3, s4)
+        sum_c = c1 + cs[0] + cs[1] + cs[2]
+        sum_s = s1 + sn[0] + sn[1] + sn[2]
+        wv = w6 * v
+        J[:, 0, 2] = -wv * sum_s
+        J[:, 1, 2] = wv * sum_c
+        J[:, 0, 3] = -wv * (sn[0] * dphi[0] + sn[1] * dphi[1] + sn[2] * dphi[2])
+        J[:, 1, 3] = wv * (cs[0] * dphi[0] + cs[1] * dphi[1] + cs[2] * dphi[2])
+        J[:, 0, 4] = w6 * sum_c - wv * (sn[0] * dv[0] + sn[1] * dv[1] + sn[2] * dv[2])
+        J[:, 1, 4] = w6 * sum_s + wv * (cs[0] * dv[0] + cs[1] * dv[1] + cs[2] * dv[2])
+        J[:, 0, 5] = -wv * (sn[1] * dw[1] + sn[2] * dw[2])
+        J[:, 1, 5] = wv * (cs[1] * dw[1] + cs[2] * dw[2])
+        J[:, 2, 3] = wv * (q1 + 4.0 * q2 + q4)
+        J[:, 2, 4] = w6 * (t1 + 4.0 * t2 + t4)
+        J[:, 2, 5] = wv * (4.0 * hh * q2 + h * q4)
+        W_next = J[:, :, :4] @ W
+        W_next[:, :, 4:] += J[:, :, 4:]
+        W = W_next
+        px = px + w6 * (c1 * v + 2.0 * (c2 * v) + 2.0 * (c3 * v) + c4 * v)
+        py = py + w6 * (s1 * v + 2.0 * (s2 * v) + 2.0 * (s3 * v) + s4 * v)
+        th = th + w6 * (k1t + 2.0 * k2t + 2.0 * k2t + k4t)
+        phi = phi + w6 * (ws + 2.0 * ws + 2.0 * ws + ws)
+    return np.stack([px, py, th, phi], axis=1), W[:, :, :4], W[:, :, 4:]
 
 
 def _block_scan(A: np.ndarray, M: np.ndarray, b: np.ndarray, S0: np.ndarray, m0: np.ndarray):
