@@ -107,7 +107,7 @@ def run_schedule(law, period: float, t_stop: float | None = None, impulses=()) -
     taus = T * np.arange(steps + 1)
     x0 = interp.state_many(taus)
     K = interp.gain_many(taus[:-1])
-    u_ff = (_u_integral(interp, taus[1:]) - _u_integral(interp, taus[:-1])) / T
+    u_ff = np.diff(_u_integral(interp, taus), axis=0) / T
     n = x0.shape[1]
     jumps = np.zeros((steps, n))
     for time_s, jump in impulses:
@@ -261,8 +261,9 @@ def _spatial(prop: CovariancePropagation, sched: SampleSchedule, sat: dict, mode
     q = 1.0 - (1.0 - probability) / 2.0
     chi2_2 = -2.0 * math.log(1.0 - q)
     z = float(ndtri(1.0 - (1.0 - q) / 2.0))
-    Sxy = prop.cov[:, [ix, iy]][:, :, [ix, iy]]
-    lam_max = np.linalg.eigvalsh(Sxy)[:, -1]
+    # the larger eigenvalue of the symmetric 2 x 2 position block, in closed form
+    a, b, c = prop.cov[:, ix, ix], prop.cov[:, ix, iy], prop.cov[:, iy, iy]
+    lam_max = 0.5 * (a + c) + np.hypot(0.5 * (a - c), b)
     r = np.hypot(prop.mean[:, ix], prop.mean[:, iy]) + np.sqrt(chi2_2 * np.maximum(lam_max, 0.0))
     s = np.abs(prop.mean[:, ith]) + z * np.sqrt(np.maximum(prop.cov[:, ith, ith], 0.0))
     rho = fp.bounding_radius

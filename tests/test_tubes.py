@@ -318,6 +318,10 @@ def test_reach_encloses_the_footprint_with_probability_p():
     law = build_law(hilare_sinusoid(315), ControllerOptions(kind="gramian", alpha=0.1, delta=1.0), {})
     fp = Footprint.rectangle(4.2, 1.8, rear_overhang=0.9)
     tube = predict_tube(law, NoiseOptions(scale=2.0), fp, None)
+    # the position radius from the largest eigenvalue of each position block (numpy's, here)
+    lam = np.linalg.eigvalsh(tube.cov[:, :2, :2])[:, -1]
+    r = np.hypot(tube.mean[:, 0], tube.mean[:, 1]) + np.sqrt(tube.info["chi2_2"] * lam)
+    np.testing.assert_allclose(tube.position_radius, r, rtol=1e-12)
     rng = np.random.default_rng(5)
     idx = [0, 1, 2]
     for k in (0, 50, 200, len(tube.t) - 1):
