@@ -58,39 +58,6 @@ def test_jacobians_match_central_differences(name, vals, u, extra):
 
 
 @pytest.mark.parametrize("name", MODEL_NAMES)
-def test_variational_stage_is_A_W_plus_B(name, rng):
-    """Model.variational (written out for the unicycle and the rwd car) against the generic A W + [0 | B]
-    and rhs, on batches with a random W; a subclass that changes the dynamics gets the generic one."""
-    from nhstab.models.base import Model
-
-    m = make_model(name)
-    x = rng.uniform(-1.2, 1.2, (50, m.n))
-    u = rng.uniform(-2, 2, (50, m.m))
-    W = rng.normal(size=(50, m.n, m.n + m.m))
-    xdot, dW = m.variational(x, u, W)
-    A, B = m.linearize(x, u)
-    ref = A @ W
-    ref[:, :, m.n:] += B
-    np.testing.assert_allclose(xdot, m.rhs(x, u), rtol=1e-15, atol=1e-15)
-    np.testing.assert_allclose(dW, ref, rtol=1e-14, atol=1e-14)
-    gx, gW = Model.variational(m, x, u, W)
-    np.testing.assert_allclose(dW, gW, rtol=1e-14, atol=1e-14)
-    if type(m).variational is not Model.variational:
-        import dataclasses
-
-        @dataclasses.dataclass(frozen=True)
-        class Faster(type(m)):
-            def dgu_dx(self, x, u):
-                return 2.0 * super().dgu_dx(x, u)
-
-        f = Faster()
-        A2, B2 = f.linearize(x, u)
-        ref2 = A2 @ W
-        ref2[:, :, m.n:] += B2
-        np.testing.assert_allclose(f.variational(x, u, W)[1], ref2, rtol=1e-14, atol=1e-14)
-
-
-@pytest.mark.parametrize("name", MODEL_NAMES)
 def test_shapes_names_and_vectorisation(name, rng):
     m = make_model(name)
     assert len(m.state_names) == m.n and len(m.input_names) == m.m

@@ -103,9 +103,10 @@ def plant_derivatives(model: Model, x: np.ndarray, u: np.ndarray, period: float,
 
     RK4 on the variational equations with the stages of RK4 on the state: the derivative of the
     discrete map itself (no state clipping: the end stops are outside the linear model). The state's
-    stages use the model's ``rhs``, as the plant does; ``Model.variational`` evaluates both derivatives
-    per stage (written out for the unicycle and the rwd car). For the unicycle itself the map and its
-    derivatives are sums over the stages' headings (:func:`_unicycle_derivatives`)."""
+    stages use the model's ``rhs``, as the plant does; one batched product per stage carries both
+    derivatives. The unicycle's and the rwd car's maps and derivatives are in closed form
+    (:func:`_unicycle_derivatives`, :func:`_rwd_car_derivatives`); subclasses of them take the general
+    way, in case they change the dynamics."""
     from ..models.rwd_car import RwdCar
     from ..models.unicycle import Unicycle
 
@@ -124,12 +125,15 @@ def _variational_derivatives(model: Model, x: np.ndarray, u: np.ndarray, period:
     K, n = x.shape
     m = u.shape[1]
     h = float(period) / int(substeps)
-    # W = [dx/dx_0 | dx/du] (K, n, n + m): dW/dt = A W + [0 | B] (the model's ``variational``)
+    # W = [dx/dx_0 | dx/du] (K, n, n + m): dW/dt = A W + [0 | B], one product per stage for both
     W = np.zeros((K, n, n + m))
     W[:, :, :n] = np.eye(n)
 
     def stage(xs, Ws):
-        return model.variational(xs, u, Ws)
+        A, B = model.linearize(xs, u)
+        dW = A @ Ws
+        dW[:, :, n:] += B
+        return model.rhs(xs, u), dW
 
     for _ in range(int(substeps)):
         f1, d1 = stage(x, W)

@@ -67,16 +67,6 @@ class Model:
         """A = df/dx(x0) + d(g u0)/dx(x0) and B = g(x0) (Proposition 1)."""
         return self.dfdx(x0) + self.dgu_dx(x0, u0), self.g(x0)
 
-    def variational(self, x, u, W):
-        """x' and the variational right-hand side A W + [0 | B] for W (K, n, n + m) (A, B of
-        :meth:`linearize` at (x, u)): what RK4 on the plant's derivatives evaluates at every stage
-        (:func:`nhstab.control.tube.plant_derivatives`). Models may write it out (the same values)."""
-        A, B = self.linearize(x, u)
-        n = A.shape[-1]
-        dW = A @ W
-        dW[..., n:] += B
-        return self.rhs(x, u), dW
-
     # ---- parameters and limits ---------------------------------------------------------------
     def params(self) -> dict:
         """Physical parameters and limits as a plain dict (recorded with every result)."""

@@ -70,30 +70,6 @@ class RwdCar(Model):
         out[..., 2, 3] = v / (self.wheelbase * np.cos(phi) ** 2)
         return out
 
-    def variational(self, x, u, W):
-        """The base class's values written out: A's entries are (0, 2) = -sin(theta) v, (1, 2) =
-        cos(theta) v and (2, 3) = v / (L cos(phi)^2), so A W is three scaled rows of W."""
-        if type(self).dgu_dx is not RwdCar.dgu_dx or type(self).rhs is not RwdCar.rhs:
-            return super().variational(x, u, W)          # a subclass that changes the dynamics
-        th, phi, v = x[..., 2], x[..., 3], u[..., 0]
-        c, s = np.cos(th), np.sin(th)
-        tl = np.tan(phi) / self.wheelbase
-        xdot = np.empty(x.shape)
-        xdot[..., 0] = c * v
-        xdot[..., 1] = s * v
-        xdot[..., 2] = tl * v
-        xdot[..., 3] = u[..., 1]
-        dW = np.zeros(W.shape)
-        w = W[..., 2, :]
-        np.multiply((-s * v)[..., None], w, out=dW[..., 0, :])
-        np.multiply((c * v)[..., None], w, out=dW[..., 1, :])
-        np.multiply((v / (self.wheelbase * np.cos(phi) ** 2))[..., None], W[..., 3, :], out=dW[..., 2, :])
-        dW[..., 0, 4] += c
-        dW[..., 1, 4] += s
-        dW[..., 2, 4] += tl
-        dW[..., 3, 5] = 1.0
-        return xdot, dW
-
     def params(self) -> dict:
         return {"wheelbase": self.wheelbase, "max_speed": self.max_speed,
                 "max_steer": self.max_steer, "max_steer_rate": self.max_steer_rate}

@@ -55,27 +55,6 @@ class Unicycle(Model):
         out[..., 1, 2] = np.cos(th) * v
         return out
 
-    def variational(self, x, u, W):
-        """The base class's values written out: A has only the entries (0, 2) = -sin(theta) v and
-        (1, 2) = cos(theta) v, so A W is two scaled copies of W's heading row (one cosine and one sine
-        for x', A and B)."""
-        if type(self).dgu_dx is not Unicycle.dgu_dx or type(self).rhs is not Unicycle.rhs:
-            return super().variational(x, u, W)          # a subclass that changes the dynamics
-        th, v = x[..., 2], u[..., 0]
-        c, s = np.cos(th), np.sin(th)
-        xdot = np.empty(x.shape)
-        xdot[..., 0] = c * v
-        xdot[..., 1] = s * v
-        xdot[..., 2] = u[..., 1]
-        dW = np.zeros(W.shape)
-        w = W[..., 2, :]
-        np.multiply((-s * v)[..., None], w, out=dW[..., 0, :])
-        np.multiply((c * v)[..., None], w, out=dW[..., 1, :])
-        dW[..., 0, 3] += c
-        dW[..., 1, 3] += s
-        dW[..., 2, 4] = 1.0
-        return xdot, dW
-
     def params(self) -> dict:
         return {"max_speed": self.max_speed, "max_turn_rate": self.max_turn_rate}
 
