@@ -228,19 +228,20 @@ def _diagnostics_cost(m, rob, world, ok_rows: list[dict], count: int) -> dict | 
         shutil.rmtree(tmp, ignore_errors=True)
     if not out:
         return None
-    commands = _command_share(m, rob, [o["problem"] for o in out])
+    commands = _command_share(rob, [o["problem"] for o in out])
+    timed = [c for c in commands if "error" not in c]
     shares = [o["share"] for o in out]
     parts = {k: float(np.median([o["parts_s"][k] for o in out])) for k in out[0]["parts_s"]}
     return {"problems": out, "median_share": float(np.median(shares)), "target_share_max": DIAGNOSTICS_SHARE_MAX,
             "commands": commands,
-            "command_median_share": float(np.median([c["share"] for c in commands])) if commands else None,
+            "command_median_share": float(np.median([c["share"] for c in timed])) if timed else None,
             "median_parts_s": parts,
             "parts_note": "each part timed again on its own after the whole write (so they need not add up to it): "
                           "the feasibility residual, trajectory.csv, trajectory.npz, building the plan figure, "
                           "drawing it and storing it as a palette PNG"}
 
 
-def _command_share(m, rob, problems: list[int]) -> list[dict]:
+def _command_share(rob, problems: list[int]) -> list[dict]:
     """The issue's own measure: ``nhstab plan`` on each problem as a user runs it (a new process: imports,
     map, plan, error tube, outputs), its wall time, and the time it spent writing its outputs (plan.json's
     ``timing.outputs_s``: the residual, the files, plan.png and tube.npz)."""
@@ -259,16 +260,18 @@ def _command_share(m, rob, problems: list[int]) -> list[dict]:
         done = subprocess.run(cmd, capture_output=True, text=True)
         wall = time.perf_counter() - t0
         if done.returncode != 0:
-            return None
-        outputs = json.loads((folder / "plan.json").read_text()).get("timing", {}).get("outputs_s")
-        return None if outputs is None else (wall, outputs)
+            last = (done.stderr.strip().splitlines() or [""])[-1]
+            return f"exit {done.returncode}: {last}"
+        return wall, json.loads((folder / "plan.json").read_text())["timing"]["outputs_s"]
 
     out = []
     with tempfile.TemporaryDirectory(prefix="nhstab-bench-cli-") as tmp:
         for k in problems:
             full = once(k, Path(tmp) / str(k))
             bare = once(k, Path(tmp) / f"{k}-nofig", "--no-figure")
-            if full is None or bare is None:
+            failed = [r for r in (full, bare) if isinstance(r, str)]
+            if failed:                   # counted and shown, not hidden
+                out.append({"problem": k, "error": failed[0]})
                 continue
             out.append({"problem": k, "wall_s": full[0], "outputs_s": full[1], "share": full[1] / full[0],
                         "no_figure_wall_s": bare[0], "no_figure_outputs_s": bare[1],
@@ -341,16 +344,20 @@ def summary_lines(p: dict) -> list[str]:
         if d:
             durations = ", ".join(f"{o['duration_s']:.0f}" for o in d["problems"])
             cs = d.get("command_median_share")
+            timed = [c for c in d.get("commands", []) if "error" not in c]
+            for c in d.get("commands", []):
+                if "error" in c:
+                    lines.append(f"| planning | {head}: `nhstab plan` on problem {c['problem']} failed | {c['error']} | - | NO |")
             if cs is not None:
-                walls = ", ".join(f"{c['wall_s']:.2f}" for c in d["commands"])
-                outs = ", ".join(f"{1000 * c['outputs_s']:.0f}" for c in d["commands"])
+                walls = ", ".join(f"{c['wall_s']:.2f}" for c in timed)
+                outs = ", ".join(f"{1000 * c['outputs_s']:.0f}" for c in timed)
                 lines.append(f"| planning | {head}: outputs (residual, plan.png, files) as a share of `nhstab plan`'s wall "
                              f"time (a new process, as a user runs it: imports, map, plan, tube, outputs), median over "
-                             f"the {len(d['commands'])} longest nominals ({durations} s; wall {walls} s; outputs {outs} ms) | "
+                             f"the {len(timed)} longest nominals ({durations} s; wall {walls} s; outputs {outs} ms) | "
                              f"{100 * cs:.0f} % | < {100 * d['target_share_max']:.0f} % | "
                              f"{'yes' if cs < d['target_share_max'] else 'NO'} |")
-                nf = float(np.median([c["no_figure_share"] for c in d["commands"]]))
-                nf_out = ", ".join(f"{1000 * c['no_figure_outputs_s']:.0f}" for c in d["commands"])
+                nf = float(np.median([c["no_figure_share"] for c in timed]))
+                nf_out = ", ".join(f"{1000 * c['no_figure_outputs_s']:.0f}" for c in timed)
                 lines.append(f"| planning | {head}: the same with `nhstab plan --no-figure` (no plan.png, no matplotlib "
                              f"drawing stack; outputs {nf_out} ms) | {100 * nf:.0f} % | - | - |")
             lines.append(f"| planning | {head}: stricter, the same outputs against the plan call alone (warm process, no "
