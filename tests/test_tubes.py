@@ -310,6 +310,32 @@ def test_saturation_bound_holds_against_monte_carlo_of_the_linear_system(hilare)
     assert sat["run_bound"] < 0.7 * sat["union_bound"]    # excursions counted once: much tighter
 
 
+
+@pytest.mark.parametrize("scale", [0.3, 0.5, 1.0])
+def test_saturation_slack_loosens_the_bound_by_at_most_its_stated_amount(hilare, monkeypatch, scale):
+    """The pairs left out of the bivariate computation (the smallest per-sample probabilities) make the
+    run bound larger than the full computation's by at most max(SATURATION_SLACK_REL x bound,
+    SATURATION_SLACK_ABS), never smaller; the per-sample probabilities and the union bound are the same."""
+    import nhstab.control.tube as ct
+
+    model = make_model("unicycle", max_speed=1.3, max_turn_rate=1.5)
+    noise = NoiseOptions(scale=scale)
+    names = model.state_names
+    sched = run_schedule(hilare, T)
+    prop = propagate(model, sched.t, sched.x0, sched.u_ff, sched.K, T, 4, np.diag(noise.vector("initial", names) ** 2),
+                     noise.vector("sensor", names), noise.vector("process", names) * math.sqrt(T))
+    fast = saturation(prop, sched.K, model.input_limits())
+    rel, floor = ct.SATURATION_SLACK_REL, ct.SATURATION_SLACK_ABS
+    monkeypatch.setattr(ct, "SATURATION_SLACK_REL", 0.0)
+    monkeypatch.setattr(ct, "SATURATION_SLACK_ABS", 0.0)
+    full = saturation(prop, sched.K, model.input_limits())
+    assert 0.0 < full["run_bound"] < 1.0
+    np.testing.assert_array_equal(fast["per_step"], full["per_step"])
+    assert fast["union_bound"] == full["union_bound"]
+    allowed = max(rel * full["run_bound"], floor)
+    assert full["run_bound"] - 1e-15 <= fast["run_bound"] <= full["run_bound"] + allowed + 1e-15
+
+
 # ---- space ------------------------------------------------------------------------------------------
 
 def test_reach_encloses_the_footprint_with_probability_p():
