@@ -215,57 +215,67 @@ def _rwd_car_derivatives(x: np.ndarray, u: np.ndarray, period: float, substeps: 
     theta + h k2_theta (k_theta = tan(phi_stage) v / L), as the plant computes them
     (:func:`nhstab.execution.plant._rwd_car_step`, without its steering end stop, which is outside the
     linear model). Each substep's Jacobian follows from these by the chain rule (d tan(phi) / d phi =
-    1 + tan(phi)^2), and the substeps' Jacobians are composed. The derivatives equal the variational
-    RK4's to rounding (tested)."""
+    1 + tan(phi)^2), and the substeps' Jacobians are composed. The four stages are rows of (4, K) arrays
+    and the derivatives rows of (6, K) arrays (one long array operation per entry, not one per sample).
+    The derivatives equal the variational RK4's to rounding (tested)."""
     h = float(period) / int(substeps)
     hh, w6 = 0.5 * h, h / 6.0
     K = len(x)
     px, py, th, phi = x[:, 0], x[:, 1], x[:, 2], x[:, 3]
     v, ws = u[:, 0], u[:, 1]
-    W = np.zeros((K, 4, 6))
-    W[:, :, :4] = np.eye(4)
-    J = np.zeros((K, 4, 6))
-    J[:, 0, 0] = J[:, 1, 1] = J[:, 2, 2] = J[:, 3, 3] = 1.0
-    J[:, 3, 5] = h
+    wv = w6 * v
+    stage_w = np.array([1.0, 2.0, 2.0, 1.0])[:, None]           # RK4's weights of the stages (times 1/6)
+    dphi_stage = np.array([0.0, hh, hh, h])[:, None] * ws         # the stages' steering: phi + these
+    d_stage = np.array([hh, hh, h])[:, None]                      # d theta_stage / d k_theta (stages 2 .. 4)
+    W = np.zeros((4, 6, K))                                       # W[i, j]: d(state i) / d(x_0, u)_j
+    for i in range(4):
+        W[i, i] = 1.0
+    TH = np.empty((4, K))
     for _ in range(int(substeps)):
-        t1 = np.tan(phi) / L
-        phi2 = phi + hh * ws
-        t2 = np.tan(phi2) / L
-        phi4 = phi + h * ws
-        t4 = np.tan(phi4) / L
-        q1, q2, q4 = (1.0 + (L * t1) ** 2) / L, (1.0 + (L * t2) ** 2) / L, (1.0 + (L * t4) ** 2) / L
-        k1t, k2t, k4t = t1 * v, t2 * v, t4 * v
-        th2, th3, th4 = th + hh * k1t, th + hh * k2t, th + h * k2t
-        c1, s1, c2, s2 = np.cos(th), np.sin(th), np.cos(th2), np.sin(th2)
-        c3, s3, c4, s4 = np.cos(th3), np.sin(th3), np.cos(th4), np.sin(th4)
-        # the stages' headings against phi, v and omega_s (theta: 1 each; stage 1: 0 otherwise)
-        dphi = (hh * v * q1, hh * v * q2, h * v * q2)
-        dv = (hh * t1, hh * t2, h * t2)
-        dw = (0.0, hh * hh * v * q2, h * hh * v * q2)
-        cs = (2.0 * c2, 2.0 * c3, c4)                   # w_i cos(theta_i), stages 2 .. 4
-        sn = (2.0 * s2, 2.0 * s3, s4)
-        sum_c = c1 + cs[0] + cs[1] + cs[2]
-        sum_s = s1 + sn[0] + sn[1] + sn[2]
-        wv = w6 * v
-        J[:, 0, 2] = -wv * sum_s
-        J[:, 1, 2] = wv * sum_c
-        J[:, 0, 3] = -wv * (sn[0] * dphi[0] + sn[1] * dphi[1] + sn[2] * dphi[2])
-        J[:, 1, 3] = wv * (cs[0] * dphi[0] + cs[1] * dphi[1] + cs[2] * dphi[2])
-        J[:, 0, 4] = w6 * sum_c - wv * (sn[0] * dv[0] + sn[1] * dv[1] + sn[2] * dv[2])
-        J[:, 1, 4] = w6 * sum_s + wv * (cs[0] * dv[0] + cs[1] * dv[1] + cs[2] * dv[2])
-        J[:, 0, 5] = -wv * (sn[1] * dw[1] + sn[2] * dw[2])
-        J[:, 1, 5] = wv * (cs[1] * dw[1] + cs[2] * dw[2])
-        J[:, 2, 3] = wv * (q1 + 4.0 * q2 + q4)
-        J[:, 2, 4] = w6 * (t1 + 4.0 * t2 + t4)
-        J[:, 2, 5] = wv * (4.0 * hh * q2 + h * q4)
-        W_next = J[:, :, :4] @ W
-        W_next[:, :, 4:] += J[:, :, 4:]
-        W = W_next
-        px = px + w6 * (c1 * v + 2.0 * (c2 * v) + 2.0 * (c3 * v) + c4 * v)
-        py = py + w6 * (s1 * v + 2.0 * (s2 * v) + 2.0 * (s3 * v) + s4 * v)
-        th = th + w6 * (k1t + 2.0 * k2t + 2.0 * k2t + k4t)
+        t = np.tan(phi + dphi_stage) / L                          # (4, K): stages 2 and 3 equal
+        q = (1.0 + (L * t) ** 2) / L                              # d t / d phi
+        kt = t * v
+        TH[0] = th
+        TH[1] = th + hh * kt[0]
+        TH[2] = th + hh * kt[1]
+        TH[3] = th + h * kt[1]
+        C, Sn = np.cos(TH), np.sin(TH)
+        WC, WS = stage_w * C, stage_w * Sn
+        sum_c, sum_s = WC.sum(axis=0), WS.sum(axis=0)
+        # the stages' headings against phi, v and omega_s (stages 2 .. 4; theta: 1 each)
+        dphi = d_stage * (v * q[[0, 1, 1]])
+        dv = d_stage * t[[0, 1, 1]]
+        dw = np.array([hh * hh, h * hh])[:, None] * (v * q[1])    # stages 3 and 4 (stage 2: 0)
+        J02, J12 = -wv * sum_s, wv * sum_c
+        J03 = -wv * (WS[1:] * dphi).sum(axis=0)
+        J13 = wv * (WC[1:] * dphi).sum(axis=0)
+        J04 = w6 * sum_c - wv * (WS[1:] * dv).sum(axis=0)
+        J14 = w6 * sum_s + wv * (WC[1:] * dv).sum(axis=0)
+        J05 = -wv * (WS[2:] * dw).sum(axis=0)
+        J15 = wv * (WC[2:] * dw).sum(axis=0)
+        J23 = wv * (q[0] + 4.0 * q[1] + q[3])
+        J24 = w6 * (t[0] + 4.0 * t[1] + t[3])
+        J25 = wv * (4.0 * hh * q[1] + h * q[3])
+        # compose: W <- J[:, :4] W + [0 | J[:, 4:]], J = I + the entries above (+ h at d phi / d omega_s)
+        W0 = W[0] + J02 * W[2] + J03 * W[3]
+        W1 = W[1] + J12 * W[2] + J13 * W[3]
+        W2 = W[2] + J23 * W[3]
+        W0[4] += J04
+        W0[5] += J05
+        W1[4] += J14
+        W1[5] += J15
+        W2[4] += J24
+        W2[5] += J25
+        W[0], W[1], W[2] = W0, W1, W2
+        W[3, 5] += h
+        # the state, with the plant's own operations
+        CV, SV = C * v, Sn * v
+        px = px + w6 * (CV[0] + 2.0 * CV[1] + 2.0 * CV[2] + CV[3])
+        py = py + w6 * (SV[0] + 2.0 * SV[1] + 2.0 * SV[2] + SV[3])
+        th = th + w6 * (kt[0] + 2.0 * kt[1] + 2.0 * kt[1] + kt[3])
         phi = phi + w6 * (ws + 2.0 * ws + 2.0 * ws + ws)
-    return np.stack([px, py, th, phi], axis=1), W[:, :, :4], W[:, :, 4:]
+    Wk = W.transpose(2, 0, 1)
+    return np.stack([px, py, th, phi], axis=1), np.ascontiguousarray(Wk[:, :, :4]), np.ascontiguousarray(Wk[:, :, 4:])
 
 
 #: state dimensions up to which the recursions are solved as banded systems (:func:`_banded_scan`; its
