@@ -231,6 +231,18 @@ class ClearanceField:
             ok[retry] = self._discs_clear(poses[retry], disc_cover(fp, FINE_DISCS_PER_WIDTH), margin)
         return ok
 
+    def cover_bound(self, poses: np.ndarray, cover) -> np.ndarray:
+        """Lower bound of the clearance of the footprint a disc ``cover`` ((centres, radii), from
+        :func:`disc_cover`) covers, at each of the poses (N, 3): the smallest over its discs of the field
+        at the disc's centre less its radius (all discs in one lookup)."""
+        centres, radii = cover
+        uv = np.asarray(centres, dtype=float).reshape(-1, 2)
+        u, v = uv[:, 0:1], uv[:, 1:2]
+        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        x = poses[:, 0] + c * u - s * v                     # (discs, N)
+        y = poses[:, 1] + s * u + c * v
+        return (self.at(x, y) - np.asarray(radii, dtype=float)[:, None]).min(axis=0, initial=np.inf)
+
     def _discs_clear(self, poses: np.ndarray, cover, margin: float) -> np.ndarray:
         centres, radii = cover
         ok = np.ones(len(poses), dtype=bool)

@@ -33,7 +33,7 @@ import numpy as np
 
 from .errors import InputError
 from .clearance_field import FINE_DISCS_PER_WIDTH, ClearanceField, disc_cover, footprint_points
-from .geometry import Footprint, convex_parts, is_convex, point_polygon_distance, transform_points, wrap_angle
+from .geometry import Footprint, convex_parts, point_polygon_distance, transform_points, wrap_angle
 from .maps.base import Circle, Map, OccupancyGrid, Polygon
 
 _Z = 1.0                 # prisms span z in [-_Z, _Z]
@@ -110,6 +110,9 @@ class CollisionWorld:
     VOUCH_GAP = 1e-3
     #: min_clearance lets a measured clearance bound this many poses either side
     VOUCH_SPAN = 16
+    #: min_clearance_less measures this many poses first (then 4 times more per batch): a batch of exact
+    #: distances costs a few tenths of a millisecond however small, each pose in it a few microseconds
+    FIRST_BATCH = 16
     #: free_many and motion_free measure the poses the distance field leaves undecided in one batch of
     #: exact distances (:meth:`_near_batch`) when there are at least this many and they lie along a path
     #: (:func:`_along_a_path`; else, and for fewer, FCL pose by pose)
@@ -333,7 +336,7 @@ class CollisionWorld:
         radius = fp.radius if disc else 0.0
         verts = None if disc else np.asarray(fp.vertices, dtype=float)
         convex = self.__dict__["_convex"]
-        convex_fp = disc or is_convex(verts) or is_convex(verts[::-1])
+        convex_fp = fp.convex
         local = local and n_all > 2 * self.NEAR_OBJECTS
         size = self.NEAR_CHUNK if local else 8 * self.NEAR_CHUNK     # few objects: larger chunks
         for a in range(0, n_poses, size):
@@ -372,15 +375,18 @@ class CollisionWorld:
             rows = np.flatnonzero(ok)
             cand, nxt, meets = cand[rows], nxt[rows], meets[rows]
             quads = polys[cand]                                     # (r, k, corners, 2)
-            edges = np.roll(quads, -1, axis=2) - quads
+            edges = self.__dict__["_poly_edges"][cand]
             circ = circles[cand]                                    # (r, k, 3)
+            round_ = bool((kind[cand] == 2).any())                  # any circle among them
             r = len(rows)
+            d_circ = np.inf
             if disc:
                 centre = p[rows, None, None, :2]
                 d_poly = np.sqrt(_segment_gaps2(np.broadcast_to(centre, (r, k, 1, 2)), quads, edges)
                                  .min(axis=(2, 3))) - fp.radius
-                d_circ = np.hypot(circ[..., 0] - centre[:, :, 0, 0], circ[..., 1] - centre[:, :, 0, 1]) \
-                    - circ[..., 2] - fp.radius
+                if round_:
+                    d_circ = np.hypot(circ[..., 0] - centre[:, :, 0, 0], circ[..., 1] - centre[:, :, 0, 1]) \
+                        - circ[..., 2] - fp.radius
             else:
                 v = rv[rows]                                        # (r, V, 2)
                 r_edges = np.roll(v, -1, axis=1) - v
@@ -389,15 +395,17 @@ class CollisionWorld:
                 one = _segment_gaps2(vb, quads, edges).min(axis=(2, 3))
                 two = _segment_gaps2(quads, vb, eb).min(axis=(2, 3))
                 d_poly = np.sqrt(np.minimum(one, two))
-                d_circ = np.sqrt(_segment_gaps2(circ[..., None, :2], vb, eb).min(axis=(2, 3))) - circ[..., 2]
+                if round_:
+                    d_circ = np.sqrt(_segment_gaps2(circ[..., None, :2], vb, eb).min(axis=(2, 3))) - circ[..., 2]
             sel = np.flatnonzero(meets.any(axis=1))
             if len(sel):                    # separated, for the pairs whose boxes meet?
                 apart = np.ones(meets.shape, dtype=bool)
                 apart[sel] = _separated((p[rows, :2] if disc else v)[sel], fp.radius, quads[sel], edges[sel],
                                         circ[sel], kind[cand[sel]] == 1)
                 d_poly = np.where(meets & ~apart, -np.inf, d_poly)
-                d_circ = np.where(meets & ~apart, -np.inf, d_circ)
-            d = np.where(kind[cand] == 1, d_poly, d_circ).min(axis=1)
+                if round_:
+                    d_circ = np.where(meets & ~apart, -np.inf, d_circ)
+            d = (np.where(kind[cand] == 1, d_poly, d_circ) if round_ else d_poly).min(axis=1)
             good = (d > 0.0) & (d <= nxt)
             out[a + rows[good]] = d[good]
             again = rows[(d > nxt) & (nxt >= beyond)] if ids is not None else ()
@@ -429,6 +437,7 @@ class CollisionWorld:
             corners = max((len(self._outline[id(g)][1]) for g, k in zip(self._geoms, kind) if k == 1), default=1)
             polys = np.ascontiguousarray(polys[:, :corners])     # as many columns as the largest needs
             table = self.__dict__["_tables"] = (boxes, polys, circles, kind)
+            self.__dict__["_poly_edges"] = np.roll(polys, -1, axis=1) - polys   # each polygon's edges
             # which objects are convex (circles, and the polygons of convex outline): _near_batch
             # tells them apart from a footprint whose box they meet by a separating axis
             d1 = np.roll(polys, -1, axis=1) - polys                    # the padded corners' edges
@@ -678,7 +687,7 @@ class CollisionWorld:
         index, the clearance there and the number of poses measured, without measuring every pose.
 
         Poses are visited in increasing order of a lower bound of clearance - offset, in batches
-        (:meth:`_clearances`: 16 poses, then 64, 256, ...), until that bound exceeds the best value found.
+        (:meth:`_clearances`: ``FIRST_BATCH`` poses, then 4 times more each batch), until that bound exceeds the best value found.
         The bound: the footprint covered by discs (a polygon's fine cover), from the distance field; a
         measured clearance c > 0 also bounds the poses up to ``VOUCH_SPAN`` either side by c - ``VOUCH_GAP`` - how far the footprint moved (|translation| + rho |rotation|, rho the farthest
         footprint point, 0 for a disc, which does not move when it turns). Nothing bounds a penetration
@@ -698,17 +707,13 @@ class CollisionWorld:
             return float(c[k] - off[k]), k, float(c[k]), n
         # a polygon's fine cover (discs overhanging its sides by a few cm): for a car it leaves about a
         # sixth of the poses the coarse cover leaves below the best value, at twice its cost
-        centres, radii = disc_cover(fp) if fp.radius is not None else disc_cover(fp, FINE_DISCS_PER_WIDTH)
-        cth, sth = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-        bound = np.full(n, np.inf)
-        for (u, v), rad in zip(centres, radii):
-            bound = np.minimum(bound, field.at(poses[:, 0] + cth * u - sth * v, poses[:, 1] + sth * u + cth * v) - rad)
+        bound = field.cover_bound(poses, disc_cover(fp) if fp.radius is not None else disc_cover(fp, FINE_DISCS_PER_WIDTH))
         key = np.where(bound > 0.0, bound - off, -np.inf)
         vouched = np.full(n, -np.inf)
         span, rho = self.VOUCH_SPAN, 0.0 if fp.radius is not None else fp.bounding_radius
         best, best_k, best_c, evals = math.inf, -1, math.nan, 0
         order = np.argsort(key, kind="stable")
-        pos, size = 0, 16
+        pos, size = 0, self.FIRST_BATCH
         while pos < n and key[order[pos]] <= best:
             chunk = order[pos:pos + size]
             pos, size = pos + len(chunk), 4 * size

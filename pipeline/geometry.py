@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -144,6 +145,11 @@ class Footprint:
     @classmethod
     def polygon(cls, vertices) -> "Footprint":
         return cls(vertices=np.asarray(vertices, dtype=float), label="polygon")
+
+    @cached_property
+    def convex(self) -> bool:
+        """A disc, or a polygon with no reflex corner (either orientation)."""
+        return self.radius is not None or is_convex(self.vertices) or is_convex(self.vertices[::-1])
 
     @property
     def bounding_radius(self) -> float:

@@ -297,11 +297,7 @@ def failing_samples(world, fp: Footprint, poses: np.ndarray, reach: np.ndarray) 
     field = world.clearance_field()
     cand = np.arange(len(poses))
     if field is not None:
-        centres, radii = disc_cover(fp)
-        cth, sth = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-        bound = np.full(len(poses), np.inf)
-        for (u, v), rad in zip(centres, radii):
-            bound = np.minimum(bound, field.at(poses[:, 0] + cth * u - sth * v, poses[:, 1] + sth * u + cth * v) - rad)
+        bound = field.cover_bound(poses, disc_cover(fp))
         cand = np.flatnonzero(bound < reach)
     gap = np.array([world.clearance(poses[k], fp) - reach[k] for k in cand])
     bad = gap < 0.0
