@@ -105,9 +105,10 @@ def run_schedule(law, period: float, t_stop: float | None = None, impulses=()) -
     while steps * T < t_stop - 1e-9:
         steps += 1
     taus = T * np.arange(steps + 1)
-    x0 = interp.state_many(taus)
-    K = interp.gain_many(taus[:-1])
-    u_ff = np.diff(_u_integral(interp, taus), axis=0) / T
+    k, a = interp.locate_many(taus)
+    x0 = interp.state_at(k, a)
+    K = interp.linear_at(interp.K, k[:-1], a[:-1])
+    u_ff = np.diff(_u_integral(interp, taus, (k, a)), axis=0) / T
     n = x0.shape[1]
     jumps = np.zeros((steps, n))
     for time_s, jump in impulses:
@@ -121,18 +122,21 @@ def run_schedule(law, period: float, t_stop: float | None = None, impulses=()) -
     return SampleSchedule(taus, x0, u_ff, K, jumps, T)
 
 
-def _u_integral(interp, tau: np.ndarray) -> np.ndarray:
+def _u_integral(interp, tau: np.ndarray, located=None) -> np.ndarray:
     """The integral of the piecewise-linear u0 from the nominal's start to tau (held at its end values
-    outside the span)."""
+    outside the span); ``located``: tau's (k, a) from the interpolant's ``locate_many``, if known."""
     t, u, h = interp.t, interp.u, interp.h
     cum = np.concatenate([np.zeros((1, u.shape[1])), np.cumsum(0.5 * h * (u[1:] + u[:-1]), axis=0)])
     tau = np.asarray(tau, dtype=float)
-    before = np.minimum(tau - t[0], 0.0)[:, None] * u[0]
-    after = np.maximum(tau - t[-1], 0.0)[:, None] * u[-1]
-    k, a = interp.locate_many(tau)
-    a = a[:, None]
-    inside = cum[k] + h * (a * u[k] + 0.5 * a * a * (u[k + 1] - u[k]))
-    return before + inside + after
+    k, a = interp.locate_many(tau) if located is None else located
+    uk = u[k]
+    out = cum[k] + (h * a)[:, None] * (uk + (0.5 * a)[:, None] * (u[k + 1] - uk))
+    lo, hi = tau < t[0], tau > t[-1]
+    if lo.any():
+        out[lo] += (tau[lo] - t[0])[:, None] * u[0]
+    if hi.any():
+        out[hi] += (tau[hi] - t[-1])[:, None] * u[-1]
+    return out
 
 
 # ---- the tube ---------------------------------------------------------------------------------------------

@@ -190,6 +190,8 @@ def test_propagation_equals_the_plain_recursion(hilare):
     a, b = propagate(*args), propagate_loop(*args)
     assert np.allclose(a.cov, b.cov, rtol=1e-12, atol=1e-15)
     assert np.allclose(a.mean, b.mean, rtol=1e-12, atol=1e-15)
+    # the inputs' variances kept: the diagonal of their covariance K (S + R) K^T
+    np.testing.assert_allclose(a.u_var, np.einsum("kii->ki", a.u_cov), rtol=1e-12, atol=1e-18)
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 4, 5])

@@ -75,7 +75,11 @@ class GridInterpolant:
 
     def linear_many(self, values: np.ndarray, tau) -> np.ndarray:
         """Any per-sample array ``values`` (N, ...) linearly interpolated at times ``tau``: (..., ...)."""
-        k, a = self.locate_many(tau)
+        return self.linear_at(values, *self.locate_many(tau))
+
+    @staticmethod
+    def linear_at(values: np.ndarray, k: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """``values`` linearly interpolated at fraction a of grid intervals k (from :meth:`locate_many`)."""
         a = a.reshape(a.shape + (1,) * (values.ndim - 1))
         return (1.0 - a) * values[k] + a * values[k + 1]
 
@@ -83,7 +87,10 @@ class GridInterpolant:
         return self.linear_many(self.K, tau)
 
     def state_many(self, tau) -> np.ndarray:
-        k, a = self.locate_many(tau)
+        return self.state_at(*self.locate_many(tau))
+
+    def state_at(self, k: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """x0 at fraction a of grid intervals k (from :meth:`locate_many`)."""
         a = a[..., None]
         a2 = a * a
         a3 = a2 * a

@@ -61,6 +61,7 @@ and the curvature of the dynamics (errors grow with the noise; results/tubes/ me
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -77,8 +78,8 @@ from .windows import transposed
 class CovariancePropagation:
     """The tracking error's first two moments at the samples t_k (k = 0 .. S - 1), and the inputs'.
 
-    mean (S, n), cov (S, n, n): of e_k = x_k - x0_k. u_mean (S - 1, m), u_cov (S - 1, m, m): of the
-    unclipped input u_k. A (S - 1, n, n), G (S - 1, n, n): A_k and G_k = Gamma_k K_k. drift (S - 1, n):
+    mean (S, n), cov (S, n, n): of e_k = x_k - x0_k. u_mean (S - 1, m), u_var (S - 1, m): of the
+    unclipped input u_k (its covariance: :attr:`u_cov`). A (S - 1, n, n), G (S - 1, n, n): A_k and G_k = Gamma_k K_k. drift (S - 1, n):
     d_k. Phi, Gamma: the plant's hold-interval derivatives.
     """
 
@@ -86,7 +87,7 @@ class CovariancePropagation:
     mean: np.ndarray
     cov: np.ndarray
     u_mean: np.ndarray
-    u_cov: np.ndarray
+    u_var: np.ndarray
     A: np.ndarray
     G: np.ndarray
     Phi: np.ndarray
@@ -94,6 +95,7 @@ class CovariancePropagation:
     drift: np.ndarray
     R: np.ndarray                 # (n,) sensor variances
     Q: np.ndarray                 # (n,) process variances per period
+    K: np.ndarray                 # (S - 1, m, n) the gains
 
     @property
     def std(self) -> np.ndarray:
@@ -102,7 +104,13 @@ class CovariancePropagation:
 
     @property
     def u_std(self) -> np.ndarray:
-        return np.sqrt(np.maximum(np.einsum("kii->ki", self.u_cov), 0.0))
+        return np.sqrt(np.maximum(self.u_var, 0.0))
+
+    @property
+    def u_cov(self) -> np.ndarray:
+        """(S - 1, m, m) covariance of the unclipped inputs: K_k (S_k + R) K_k^T."""
+        K = self.K
+        return K @ (self.cov[:-1] + np.diag(self.R)[None]) @ transposed(K)
 
 
 def plant_derivatives(model: Model, x: np.ndarray, u: np.ndarray, period: float, substeps: int):
@@ -284,14 +292,17 @@ def _rwd_car_derivatives(x: np.ndarray, u: np.ndarray, period: float, substeps: 
 #: faster for n <= 4, slower for n = 5)
 BANDED_MAX_STATES = 4
 #: steps per banded solve (bounds the band's memory: 2 d^2 numbers per step, d = n (n + 1) / 2)
-BANDED_CHUNK = 256
+BANDED_CHUNK = 512
 
 
+@functools.lru_cache(maxsize=16)
 def _packed_pairs(n: int):
     """The d = n (n + 1) / 2 index pairs (i, j), i <= j, of a symmetric matrix's packed vector: the
     diagonal first, then the pairs above it."""
     iu, ju = np.triu_indices(n, 1)
-    return np.concatenate([np.arange(n), iu]), np.concatenate([np.arange(n), ju])
+    I, J = np.concatenate([np.arange(n), iu]), np.concatenate([np.arange(n), ju])
+    I.flags.writeable = J.flags.writeable = False          # shared by every call (cached)
+    return I, J
 
 
 def _band_block_view(band: np.ndarray, d: int, s: int) -> np.ndarray:
@@ -438,15 +449,18 @@ def propagate(model: Model, t: np.ndarray, x0: np.ndarray, u_ff: np.ndarray, K: 
             cov, mean = _banded_scan(A, M, drift, S0, m0)
         else:
             cov, mean = _block_scan(A, M, drift, S0, m0)
-    bad = ~(np.all(np.isfinite(cov), axis=(1, 2)) & np.all(np.isfinite(mean), axis=1))
-    if bad.any() or np.abs(cov).max() > 1e12:
+    if not (np.abs(cov).max() <= 1e12 and np.abs(mean).max() < math.inf):      # also NaN
+        bad = ~(np.all(np.isfinite(cov), axis=(1, 2)) & np.all(np.isfinite(mean), axis=1))
         k = int(np.argmax(bad | (np.abs(cov).max(axis=(1, 2)) > 1e12)))
         raise NumericalError(f"the linearised closed loop diverges: the error covariance is unbounded from "
                              f"t = {float(np.asarray(t)[k]):.3g} s (the gains destabilise the sampled loop)")
     u_mean = u_ff - np.einsum("kij,kj->ki", K, mean[:-1])
-    u_cov = K @ (cov[:-1] + np.diag(R)[None]) @ transposed(K)
-    return CovariancePropagation(np.asarray(t, dtype=float), mean, cov, u_mean, u_cov, A, G, Phi, Gamma, drift,
-                                 R, Q)
+    # the inputs' variances, diag(K (S + R) K^T) = sum_b (K (S + R))_jb K_jb
+    KS = K @ cov[:-1]
+    KS += K * R
+    u_var = np.sum(KS * K, axis=-1)
+    return CovariancePropagation(np.asarray(t, dtype=float), mean, cov, u_mean, u_var, A, G, Phi, Gamma, drift,
+                                 R, Q, K)
 
 
 def _loop(A, M, b, S0, m0):
@@ -534,7 +548,7 @@ def saturation(prop: CovariancePropagation, K: np.ndarray, limits: np.ndarray) -
         live = later >= flat[cut] if cut < flat.size else np.zeros(later.shape, dtype=bool)
         run += float(later[~live].sum())
         if live.any():
-            ks = np.flatnonzero(live.any(axis=(0, 2)))  # the steps k - 1 (0-based over 1 ..) with a live pair
+            ks = np.flatnonzero((live[0] | live[1]).any(axis=1))  # the steps k - 1 (0-based over 1 ..) with a live pair
             # cross-covariance of consecutive inputs, its diagonal: K_k (A_{k-1} S_{k-1} - G_{k-1} R) K_{k-1}^T
             C = prop.A[ks] @ prop.cov[ks] - prop.G[ks] * prop.R[None, None, :]
             diag = np.sum((K[ks + 1] @ C) * K[ks], axis=-1)
@@ -550,4 +564,4 @@ def saturation(prop: CovariancePropagation, K: np.ndarray, limits: np.ndarray) -
                 run += float(np.sum(np.clip(pk - both, 0.0, None)))
     return {"per_step": per_step, "run_bound": min(1.0, run), "union_bound": min(1.0, float(per_step.sum())),
             "max_step": float(per_step.max(initial=0.0)),
-            "expected_fraction_bound": float(np.mean(np.minimum(per_step.sum(axis=1), 1.0))) if steps else 0.0}
+            "expected_fraction_bound": float(np.minimum(per_step.sum(axis=1), 1.0).mean()) if steps else 0.0}
