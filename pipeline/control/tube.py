@@ -224,67 +224,73 @@ def _rwd_car_derivatives(x: np.ndarray, u: np.ndarray, period: float, substeps: 
     theta + h k2_theta (k_theta = tan(phi_stage) v / L), as the plant computes them
     (:func:`nhstab.execution.plant._rwd_car_step`, without its steering end stop, which is outside the
     linear model). Each substep's Jacobian follows from these by the chain rule (d tan(phi) / d phi =
-    1 + tan(phi)^2), and the substeps' Jacobians are composed. The four stages are rows of (4, K) arrays
-    and the derivatives rows of (6, K) arrays (one long array operation per entry, not one per sample).
+    1 + tan(phi)^2), and the substeps' Jacobians are composed. The substeps' stages are kept as
+    (substeps, 4, K) arrays, every substep's Jacobian entries computed at once, and the composition runs
+    over the derivatives' entries that are not constant (one long array operation per entry, not one per
+    sample).
     The derivatives equal the variational RK4's to rounding (tested)."""
     h = float(period) / int(substeps)
     hh, w6 = 0.5 * h, h / 6.0
-    K = len(x)
+    S, K = int(substeps), len(x)
     px, py, th, phi = x[:, 0], x[:, 1], x[:, 2], x[:, 3]
     v, ws = u[:, 0], u[:, 1]
     wv = w6 * v
     stage_w = np.array([1.0, 2.0, 2.0, 1.0])[:, None]           # RK4's weights of the stages (times 1/6)
     dphi_stage = np.array([0.0, hh, hh, h])[:, None] * ws         # the stages' steering: phi + these
-    d_stage = np.array([hh, hh, h])[:, None]                      # d theta_stage / d k_theta (stages 2 .. 4)
-    W = np.zeros((4, 6, K))                                       # W[i, j]: d(state i) / d(x_0, u)_j
-    for i in range(4):
-        W[i, i] = 1.0
+    # the substeps, as the plant takes them; their stages' tangents, cosines and sines kept (S, 4, K)
+    tan_, cos_, sin_ = np.empty((S, 4, K)), np.empty((S, 4, K)), np.empty((S, 4, K))
     TH = np.empty((4, K))
-    for _ in range(int(substeps)):
-        t = np.tan(phi + dphi_stage) / L                          # (4, K): stages 2 and 3 equal
-        q = (1.0 + (L * t) ** 2) / L                              # d t / d phi
+    for s in range(S):
+        t = np.divide(np.tan(phi + dphi_stage), L, out=tan_[s])   # stages 2 and 3 equal
         kt = t * v
         TH[0] = th
         TH[1] = th + hh * kt[0]
         TH[2] = th + hh * kt[1]
         TH[3] = th + h * kt[1]
-        C, Sn = np.cos(TH), np.sin(TH)
-        WC, WS = stage_w * C, stage_w * Sn
-        sum_c, sum_s = WC.sum(axis=0), WS.sum(axis=0)
-        # the stages' headings against phi, v and omega_s (stages 2 .. 4; theta: 1 each)
-        dphi = d_stage * (v * q[[0, 1, 1]])
-        dv = d_stage * t[[0, 1, 1]]
-        dw = np.array([hh * hh, h * hh])[:, None] * (v * q[1])    # stages 3 and 4 (stage 2: 0)
-        J02, J12 = -wv * sum_s, wv * sum_c
-        J03 = -wv * (WS[1:] * dphi).sum(axis=0)
-        J13 = wv * (WC[1:] * dphi).sum(axis=0)
-        J04 = w6 * sum_c - wv * (WS[1:] * dv).sum(axis=0)
-        J14 = w6 * sum_s + wv * (WC[1:] * dv).sum(axis=0)
-        J05 = -wv * (WS[2:] * dw).sum(axis=0)
-        J15 = wv * (WC[2:] * dw).sum(axis=0)
-        J23 = wv * (q[0] + 4.0 * q[1] + q[3])
-        J24 = w6 * (t[0] + 4.0 * t[1] + t[3])
-        J25 = wv * (4.0 * hh * q[1] + h * q[3])
-        # compose: W <- J[:, :4] W + [0 | J[:, 4:]], J = I + the entries above (+ h at d phi / d omega_s)
-        W0 = W[0] + J02 * W[2] + J03 * W[3]
-        W1 = W[1] + J12 * W[2] + J13 * W[3]
-        W2 = W[2] + J23 * W[3]
-        W0[4] += J04
-        W0[5] += J05
-        W1[4] += J14
-        W1[5] += J15
-        W2[4] += J24
-        W2[5] += J25
-        W[0], W[1], W[2] = W0, W1, W2
-        W[3, 5] += h
-        # the state, with the plant's own operations
+        C, Sn = np.cos(TH, out=cos_[s]), np.sin(TH, out=sin_[s])
         CV, SV = C * v, Sn * v
         px = px + w6 * (CV[0] + 2.0 * CV[1] + 2.0 * CV[2] + CV[3])
         py = py + w6 * (SV[0] + 2.0 * SV[1] + 2.0 * SV[2] + SV[3])
         th = th + w6 * (kt[0] + 2.0 * kt[1] + 2.0 * kt[1] + kt[3])
         phi = phi + w6 * (ws + 2.0 * ws + 2.0 * ws + ws)
-    Wk = W.transpose(2, 0, 1)
-    return np.stack([px, py, th, phi], axis=1), np.ascontiguousarray(Wk[:, :, :4]), np.ascontiguousarray(Wk[:, :, 4:])
+    # every substep's Jacobian entries at once (arrays (S, K)); J = I + these (+ h at d phi / d omega_s)
+    q = (1.0 + (L * tan_) ** 2) / L                               # d tan(phi) / L / d phi
+    WC, WS = stage_w * cos_, stage_w * sin_
+    sum_c, sum_s = WC.sum(axis=1), WS.sum(axis=1)
+    d_stage = np.array([hh, hh, h])[:, None]                      # d theta_stage / d k_theta (stages 2 .. 4)
+    dphi = d_stage * (v * q[:, [0, 1, 1]])                        # the stages' headings against phi, v, omega_s
+    dv = d_stage * tan_[:, [0, 1, 1]]
+    dw = np.array([hh * hh, h * hh])[:, None] * (v * q[:, 1])[:, None]   # stages 3 and 4 (stage 2: 0)
+    J02, J12 = -wv * sum_s, wv * sum_c
+    J03 = -wv * (WS[:, 1:] * dphi).sum(axis=1)
+    J13 = wv * (WC[:, 1:] * dphi).sum(axis=1)
+    J04 = w6 * sum_c - wv * (WS[:, 1:] * dv).sum(axis=1)
+    J14 = w6 * sum_s + wv * (WC[:, 1:] * dv).sum(axis=1)
+    J05 = -wv * (WS[:, 2:] * dw).sum(axis=1)
+    J15 = wv * (WC[:, 2:] * dw).sum(axis=1)
+    J23 = wv * (q[:, 0] + 4.0 * q[:, 1] + q[:, 3])
+    J24 = w6 * (tan_[:, 0] + 4.0 * tan_[:, 1] + tan_[:, 3])
+    J25 = wv * (4.0 * hh * q[:, 1] + h * q[:, 3])
+    # compose the substeps, W <- J[:, :4] W + [0 | J[:, 4:]], W = d(x, y, theta, phi) / d(x_0, u) with its
+    # known zeros: rows x and y are [1 0 a2 a3 a4 a5] and [0 1 b2 b3 b4 b5], theta [0 0 1 c3 c4 c5],
+    # phi [0 0 0 1 0 e5] (e5 = the time so far)
+    zero = np.zeros(K)
+    a2 = a3 = a4 = a5 = b2 = b3 = b4 = b5 = c3 = c4 = c5 = zero
+    e5 = 0.0
+    for s in range(S):
+        a2, a3, a4, a5 = (a2 + J02[s], (a3 + J02[s] * c3) + J03[s], (a4 + J02[s] * c4) + J04[s],
+                          ((a5 + J02[s] * c5) + J03[s] * e5) + J05[s])
+        b2, b3, b4, b5 = (b2 + J12[s], (b3 + J12[s] * c3) + J13[s], (b4 + J12[s] * c4) + J14[s],
+                          ((b5 + J12[s] * c5) + J13[s] * e5) + J15[s])
+        c3, c4, c5 = c3 + J23[s], c4 + J24[s], (c5 + J23[s] * e5) + J25[s]
+        e5 = e5 + h
+    Phi = np.zeros((K, 4, 4))
+    Gamma = np.zeros((K, 4, 2))
+    Phi[:, 0, 0] = Phi[:, 1, 1] = Phi[:, 2, 2] = Phi[:, 3, 3] = 1.0
+    Phi[:, 0, 2], Phi[:, 0, 3], Phi[:, 1, 2], Phi[:, 1, 3], Phi[:, 2, 3] = a2, a3, b2, b3, c3
+    Gamma[:, 0, 0], Gamma[:, 0, 1], Gamma[:, 1, 0], Gamma[:, 1, 1] = a4, a5, b4, b5
+    Gamma[:, 2, 0], Gamma[:, 2, 1], Gamma[:, 3, 1] = c4, c5, e5
+    return np.stack([px, py, th, phi], axis=1), Phi, Gamma
 
 
 #: state dimensions up to which the recursions are solved as banded systems (:func:`_banded_scan`; its
