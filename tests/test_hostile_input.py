@@ -263,6 +263,25 @@ def test_a_batch_problem_outside_the_map_is_refused_before_any_trial(tmp_path):
     assert not out.exists()
 
 
+
+def test_a_batch_with_margin_auto_checks_its_problems_at_the_first_plans_margin(tmp_path):
+    """``planning: {margin: auto}`` in a batch config: its start/goal check uses the margin the first plan
+    asks for (0.02 m; it crashed comparing a clearance with "auto"). A goal 0.042 m clear is accepted
+    (refused at the fixed 0.1 m), one 0.002 m clear is refused naming it."""
+    from nhstab.batch.config import load_batch_config
+
+    b = tmp_path / "batch.yaml"
+    text = "root_seed: 1\ntrials: 2\nmaps: [{{path: {m}, problems: [{{start: [1.8, 1.8, 0], goal: [{x}, 4.5, 0]}}]}}]\n{run}"
+    b.write_text(text.format(m=M, x=5.67, run="run: {planning: {margin: auto}}\n"))
+    assert len(load_batch_config(b).cells()) == 1
+    b.write_text(text.format(m=M, x=5.67, run=""))
+    with pytest.raises(InputError, match="planning margin 0.1 m"):
+        load_batch_config(b)
+    b.write_text(text.format(m=M, x=5.63, run="run: {planning: {margin: auto}}\n"))
+    out = tmp_path / "o"
+    one_line(invoke("batch", b, "--out", out), 2, "maps[0].problems[0].goal", "planning margin 0.02 m")
+    assert not out.exists()
+
 # ---- library calls -----------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")

@@ -303,12 +303,17 @@ def load_batch_config(path) -> BatchConfig:
 
 def _check_problems(key: str, m, problems, robot, opts) -> None:
     """Every start and goal inside the map's bounds and clear of its known obstacles by more than
-    the planning margin, for the robot's footprint: what the first plan of every trial would
-    refuse, refused once here instead of stored as an error in every trial."""
+    the planning margin (with ``margin: auto``, the margin its first plan asks for), for the robot's
+    footprint: what the first plan of every trial would refuse, refused once here instead of stored as
+    an error in every trial."""
     from ..collision import CollisionWorld
+
+    from ..tubes import AUTO_MARGIN_START
 
     fp = robot.footprint
     margin = opts.planning.margin if opts.planning.margin is not None else robot.margin
+    if margin == "auto":                  # the first plan's margin; the search grows it from there
+        margin = AUTO_MARGIN_START
     world = None
     for j, (start, goal) in enumerate(problems):
         for which, pose in (("start", start), ("goal", goal)):
