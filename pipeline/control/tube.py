@@ -438,7 +438,9 @@ def propagate(model: Model, t: np.ndarray, x0: np.ndarray, u_ff: np.ndarray, K: 
     drift = F - x0[1:]
     if model.angle_states:
         idx = list(model.angle_states)
-        drift[:, idx] = (drift[:, idx] + math.pi) % (2.0 * math.pi) - math.pi
+        turn = drift[:, idx]
+        if not np.abs(turn).max() < math.pi:           # wrap (only where needed: the miss is ~1e-7)
+            drift[:, idx] = (turn + math.pi) % (2.0 * math.pi) - math.pi
     if jumps is not None:
         drift = drift + np.asarray(jumps, dtype=float)
     G = Gamma @ K
