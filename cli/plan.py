@@ -12,6 +12,8 @@ from .options import cli_robot, robot_options
 
 #: exit code when the request is valid but no plan was found within the budget
 EXIT_NO_PLAN = 3
+#: exit code when the plan is written but its tube could not be predicted
+EXIT_FAILURE = 1
 
 
 @click.command()
@@ -55,7 +57,9 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     plan.json (``tube``) and stored in tube.npz.
 
     Exit code 2 for a bad request (start or goal out of bounds or in collision, unknown planner, zero
-    budget, ...), 3 when no plan was found within the budget (nothing is written then).
+    budget, ...), 3 when no plan was found within the budget (nothing is written then), 1 when the plan is
+    found but its tube cannot be predicted (the linearised loop diverges under the law: the plan is
+    written, plan.json's ``tube_error`` says why).
     """
     from nhstab.execution import write_plan
     from nhstab.maps import resolve_poses
@@ -106,6 +110,10 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     click.echo(f"plan found for {rob.name}: {met['length_m']:.2f} m, {cusps} cusp{'' if cusps == 1 else 's'}, "
                f"{met['duration_s']:.1f} s, min clearance {met['min_clearance_m']:.3f} m (margin {path_opts.margin:g} m), "
                f"max gain {met['max_gain_norm']:.3g}")
+    if tube is None:                # the plan is written; its tube could not be predicted (plan.json says why)
+        click.echo(f"wrote {out_dir}/trajectory.csv, trajectory.npz, plan.json" + (", plan.png" if figure else ""))
+        click.echo(f"nhstab: no tube: {extra.get('tube_error', 'not predicted')}", err=True)
+        return EXIT_FAILURE
     click.echo(f"tube (p = {tube.probability:g}, noise x{noise_scale:g}): position radius up to "
                f"{tube.position_radius.max():.3f} m, heading spread up to {tube.heading_spread.max():.3f} rad, "
                f"{certified_text(tube)}, saturation probability <= "

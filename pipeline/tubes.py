@@ -46,7 +46,7 @@ import numpy as np
 from scipy.special import ndtri
 
 from .control.tube import CovariancePropagation, propagate, saturation
-from .errors import InputError
+from .errors import InputError, NumericalError
 from .geometry import Footprint
 
 #: the default probability of the tube
@@ -348,6 +348,13 @@ def plan_with_auto_margin(plan_at, tube_of, world, fp: Footprint, *, cap: float,
         tube = tube_of(law)
         if tube is None:
             entry["stopped"] = "no tube: the linearised closed loop diverges"
+            if not cands:               # the plan stands, its margin not chosen by a tube
+                record = {"mode": "auto", "rounds": history, "start_margin_m": min(start, cap), "cap_m": cap,
+                          "max_rounds": rounds, "slack_m": slack, "margin_m": margin, "certified": False,
+                          "certified_clearance_m": None,
+                          "message": f"margin auto: NOT certified: no tube at margin {margin:.3g} m (the "
+                                     "linearised closed loop diverges under the law); kept that plan"}
+                return result, law, None, record
             break
         idx, gap = failing_samples(world, fp, tube.poses, tube.reach) if tube.certified_clearance < 0 else \
             (np.zeros(0, dtype=int), np.zeros(0))
@@ -482,8 +489,9 @@ def plan_and_tube(m, robot, start, goal, path_options, timing_options, *, margin
     robot (a :class:`~nhstab.robot.Robot`: its limits, footprint, stabilizer defaults), ``plan_robot``
     the one the nominal is planned for (derated for headroom; default ``robot``).
 
-    Returns (result, law, tube, extra) with extra = {"tube_model": ..., "margin_auto": ..., "gains_auto": ...}
-    (the records that apply); law and tube are None when no plan was found."""
+    Returns (result, law, tube, extra) with extra = {"tube_model": ..., "margin_auto": ..., "gains_auto": ...,
+    "tube_error": ...} (the records that apply); law and tube are None when no plan was found, the tube alone
+    (with "tube_error" saying why) when the linearised loop diverges under the law."""
     from dataclasses import replace
 
     from .collision import CollisionWorld
@@ -509,9 +517,14 @@ def plan_and_tube(m, robot, start, goal, path_options, timing_options, *, margin
     path_options = path_options.for_robot(plan_robot)
 
     def tube_of(law, certify=True):
-        return predict_tube(law, noise, fp, world if certify and not several else None, rate_hz=rate_hz,
-                            substeps=substeps,
-                            model=robot.model, probability=probability)
+        try:
+            return predict_tube(law, noise, fp, world if certify and not several else None, rate_hz=rate_hz,
+                                substeps=substeps, model=robot.model, probability=probability)
+        except NumericalError as exc:
+            if not certify:
+                raise                       # choose_gains skips the setting
+            extra["tube_error"] = str(exc)  # the plan stands; its tube could not be predicted
+            return None
 
     def plan_at(mg):
         result = plan(m, plan_robot, start, goal, replace(path_options, margin=mg), timing_options, world=world)

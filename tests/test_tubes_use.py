@@ -70,6 +70,38 @@ def test_plan_cli_writes_the_tube(tmp_path, room):
     assert (tmp_path / "plan.png").stat().st_size > 10_000
 
 
+@pytest.mark.parametrize("margin", ["0.1", "auto"])
+def test_plan_cli_writes_the_plan_when_its_tube_diverges(tmp_path, margin):
+    """A robot whose gains destabilise the sampled loop (the unicycle with alpha 20: gains of 2e6): the
+    plan is still written (trajectory, plan.json with tube_error; no tube.npz), one line on stderr says
+    why, exit code 1; with --margin auto the plan is kept at the first margin, not certified."""
+    robot = tmp_path / "robot.yaml"
+    robot.write_text("model: unicycle\nstabilizer: {alpha: 20, delta: 2.0, gamma: 1.0}\n")
+    out = tmp_path / "o"
+    res = CliRunner().invoke(cli, ["plan", "example:cluttered_room", "--robot-config", str(robot), "--seed", "1",
+                                   "--margin", margin, "--no-figure", "--out", str(out)])
+    _one_line(res, 1, "no tube", "diverges")
+    doc = json.loads((out / "plan.json").read_text())
+    assert "tube" not in doc and "diverges" in doc["tube_error"]
+    assert (out / "trajectory.csv").exists() and not (out / "tube.npz").exists()
+    if margin == "auto":
+        rec = doc["margin_auto"]
+        assert not rec["certified"] and rec["margin_m"] == 0.02 and "no tube" in rec["message"]
+        assert doc["inputs"]["path_options"]["margin"] == 0.02
+
+
+def test_a_large_noise_is_a_large_tube_not_a_divergent_one(room):
+    """The covariance grows as the square of the noise: at x1e9 the tube is 1e9 times wider (1e-9), where
+    an absolute bound on the covariance used to call the loop divergent."""
+    robot = default_robot("unicycle")
+    args = (room, robot, room.start.as_array(), room.goal.as_array(), PathOptions(turning_radius=0.5, seed=1),
+            TimingOptions())
+    one = plan_and_tube(*args, margin=0.1, noise=NoiseOptions(scale=1.0, impulses=()))[2]
+    big = plan_and_tube(*args, margin=0.1, noise=NoiseOptions(scale=1e9, impulses=()))[2]
+    np.testing.assert_allclose(big.cov, 1e18 * one.cov, rtol=1e-9, atol=0)
+    assert big.certified_clearance < -1e7
+
+
 @pytest.mark.parametrize("args,needles", [
     (["--margin", "wide"], ["'--margin'", "auto", "wide"]),
     (["--margin", "-1"], ["'--margin'"]),

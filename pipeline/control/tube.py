@@ -419,6 +419,11 @@ def _block_scan(A: np.ndarray, M: np.ndarray, b: np.ndarray, S0: np.ndarray, m0:
     return 0.5 * (S + np.swapaxes(S, -1, -2)), mvec
 
 
+#: the error covariance counts as unbounded (the sampled loop diverges) beyond this many times the
+#: largest variance the noise injects (or 1, whichever is larger)
+DIVERGENCE_RATIO = 1e12
+
+
 def propagate(model: Model, t: np.ndarray, x0: np.ndarray, u_ff: np.ndarray, K: np.ndarray, period: float,
               substeps: int, initial_cov: np.ndarray, sensor_std: np.ndarray, process_std: np.ndarray,
               jumps: np.ndarray | None = None, loop: bool = False) -> CovariancePropagation:
@@ -457,9 +462,16 @@ def propagate(model: Model, t: np.ndarray, x0: np.ndarray, u_ff: np.ndarray, K: 
             cov, mean = _banded_scan(A, M, drift, S0, m0)
         else:
             cov, mean = _block_scan(A, M, drift, S0, m0)
-    if not (np.abs(cov).max() <= 1e12 and np.abs(mean).max() < math.inf):      # also NaN
+    # unbounded: not finite, or DIVERGENCE_RATIO times the largest variance the noise injects (at least 1):
+    # a large noise makes a large covariance, not a divergent one
+    level = max(1.0, float(np.abs(S0).max(initial=0.0)), float(R.max(initial=0.0)), float(Q.max(initial=0.0)))
+    if not math.isfinite(level):
+        raise NumericalError("the noise's variances overflow: its levels (standard deviations) must stay below "
+                             "about 1e150")
+    limit = DIVERGENCE_RATIO * level
+    if not (np.abs(cov).max() <= limit and np.abs(mean).max() < math.inf):      # also NaN
         bad = ~(np.all(np.isfinite(cov), axis=(1, 2)) & np.all(np.isfinite(mean), axis=1))
-        k = int(np.argmax(bad | (np.abs(cov).max(axis=(1, 2)) > 1e12)))
+        k = int(np.argmax(bad | (np.abs(cov).max(axis=(1, 2)) > limit)))
         raise NumericalError(f"the linearised closed loop diverges: the error covariance is unbounded from "
                              f"t = {float(np.asarray(t)[k]):.3g} s (the gains destabilise the sampled loop)")
     u_mean = u_ff - np.einsum("kij,kj->ki", K, mean[:-1])
