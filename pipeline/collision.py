@@ -437,10 +437,10 @@ class CollisionWorld:
             corners = max((len(self._outline[id(g)][1]) for g, k in zip(self._geoms, kind) if k == 1), default=1)
             polys = np.ascontiguousarray(polys[:, :corners])     # as many columns as the largest needs
             table = self.__dict__["_tables"] = (boxes, polys, circles, kind)
-            self.__dict__["_poly_edges"] = np.roll(polys, -1, axis=1) - polys   # each polygon's edges
+            # each polygon's edges (the padded corners' edges have zero length)
+            d1 = self.__dict__["_poly_edges"] = np.roll(polys, -1, axis=1) - polys
             # which objects are convex (circles, and the polygons of convex outline): _near_batch
             # tells them apart from a footprint whose box they meet by a separating axis
-            d1 = np.roll(polys, -1, axis=1) - polys                    # the padded corners' edges
             d2 = np.roll(d1, -1, axis=1)
             turn = d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]   # zero at the padding
             tol = 1e-12 * np.maximum(1.0, np.abs(polys).max(axis=(1, 2))) ** 2

@@ -547,7 +547,7 @@ def saturation(prop: CovariancePropagation, K: np.ndarray, limits: np.ndarray) -
     compare run.json's control_effort.saturated_fraction)."""
     lim = np.asarray(limits, dtype=float)
     mu, sd = prop.u_mean, prop.u_std
-    steps, m = mu.shape
+    steps = mu.shape[0]
     with np.errstate(divide="ignore", invalid="ignore"):
         z_hi = np.where(sd > 0, (lim[:, 1] - mu) / sd, np.where(mu >= lim[:, 1], -np.inf, np.inf))
         z_lo = np.where(sd > 0, (mu - lim[:, 0]) / sd, np.where(mu <= lim[:, 0], -np.inf, np.inf))
