@@ -212,6 +212,10 @@ def test_bench_tube_agrees_with_its_baseline():
 
     b = bench_tube(scenarios=("cluttered_room",), repeats=1)
     assert b["met"]["baseline_agrees"] and b["rows"][0]["samples"] > 100
+    # every part of the tube timed on its own (no timing asserted: the machine is shared)
+    parts = b["rows"][0]["parts_best_s"]
+    assert set(parts) == {"schedule", "plant_derivatives", "covariance", "saturation", "spatial",
+                          "certified_clearance"} and all(v >= 0.0 for v in parts.values())
 
 
 def test_monitor_with_margin_auto_asks_a_new_obstacle_to_clear_the_tube(room):
