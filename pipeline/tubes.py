@@ -328,6 +328,8 @@ def plan_with_auto_margin(plan_at, tube_of, world, fp: Footprint, *, cap: float,
     whose fixable samples come closest to clear. Returns (result, law, tube, record) (the failed first
     result and law None if no round found a plan); ``record`` says what happened."""
     history, cands, last = [], [], None
+    record = {"mode": "auto", "rounds": history, "start_margin_m": min(start, cap), "cap_m": cap,
+              "max_rounds": rounds, "slack_m": slack}
     margin = min(start, cap)
     ok_margin, fail_margin = None, None
     for i in range(rounds):
@@ -349,11 +351,9 @@ def plan_with_auto_margin(plan_at, tube_of, world, fp: Footprint, *, cap: float,
         if tube is None:
             entry["stopped"] = "no tube: the linearised closed loop diverges"
             if not cands:               # the plan stands, its margin not chosen by a tube
-                record = {"mode": "auto", "rounds": history, "start_margin_m": min(start, cap), "cap_m": cap,
-                          "max_rounds": rounds, "slack_m": slack, "margin_m": margin, "certified": False,
-                          "certified_clearance_m": None,
-                          "message": f"margin auto: NOT certified: no tube at margin {margin:.3g} m (the "
-                                     "linearised closed loop diverges under the law); kept that plan"}
+                record.update(margin_m=margin, certified=False, certified_clearance_m=None,
+                              message=f"margin auto: NOT certified: no tube at margin {margin:.3g} m (the "
+                                      "linearised closed loop diverges under the law); kept that plan")
                 return result, law, None, record
             break
         idx, gap = failing_samples(world, fp, tube.poses, tube.reach) if tube.certified_clearance < 0 else \
@@ -381,8 +381,6 @@ def plan_with_auto_margin(plan_at, tube_of, world, fp: Footprint, *, cap: float,
             entry["stopped"] = f"the margin cannot grow past {cap:.3g} m (the start's or goal's clearance)"
             break
         margin = nxt
-    record = {"mode": "auto", "rounds": history, "start_margin_m": min(start, cap), "cap_m": cap,
-              "max_rounds": rounds, "slack_m": slack}
     if not cands:
         record.update(margin_m=None, certified=False,
                       message="margin auto: " + (history[-1].get("stopped")
