@@ -326,7 +326,8 @@ def plan_with_auto_margin(plan_at, tube_of, world, fp: Footprint, *, cap: float,
     margin that found one. The loop stops when no fixable sample fails, when the margin cannot grow, or
     after ``rounds`` plans. The plan kept: the smallest margin with no fixable failure, else the one
     whose fixable samples come closest to clear. Returns (result, law, tube, record) (the failed first
-    result and law None if no round found a plan); ``record`` says what happened."""
+    result and law None if no round found a plan; the first plan with tube None, not certified, if its
+    linearised loop diverges); ``record`` says what happened."""
     history, cands, last = [], [], None
     record = {"mode": "auto", "rounds": history, "start_margin_m": min(start, cap), "cap_m": cap,
               "max_rounds": rounds, "slack_m": slack}
