@@ -70,6 +70,7 @@ from scipy.linalg.lapack import dtbtrs
 from scipy.special import ndtr, owens_t
 
 from ..errors import InputError, NumericalError
+from ..geometry import cos_sin
 from ..models import Model
 from .windows import transposed
 
@@ -224,53 +225,63 @@ def _rwd_car_derivatives(x: np.ndarray, u: np.ndarray, period: float, substeps: 
     theta + h k2_theta (k_theta = tan(phi_stage) v / L), as the plant computes them
     (:func:`nhstab.execution.plant._rwd_car_step`, without its steering end stop, which is outside the
     linear model). Each substep's Jacobian follows from these by the chain rule (d tan(phi) / d phi =
-    1 + tan(phi)^2), and the substeps' Jacobians are composed. The substeps' stages are kept as
-    (substeps, 4, K) arrays, every substep's Jacobian entries computed at once, and the composition runs
+    1 + tan(phi)^2), and the substeps' Jacobians are composed. All substeps' stages are arrays
+    (substeps, stage, K): three tangents per substep (stages 2 and 3 share theirs), the headings'
+    cosines and sines at once by :func:`nhstab.geometry.cos_sin`, the stage sums that the entries share
+    formed once (the stages 3 and 4 enter each heading derivative together), and the composition runs
     over the derivatives' entries that are not constant (one long array operation per entry, not one per
-    sample).
-    The derivatives equal the variational RK4's to rounding (tested)."""
+    sample). The map equals the plant's step to rounding (1e-15 m: the cosines and the order of the sums
+    differ) and the derivatives the variational RK4's (tested)."""
     h = float(period) / int(substeps)
     hh, w6 = 0.5 * h, h / 6.0
     S, K = int(substeps), len(x)
     px, py, th, phi = x[:, 0], x[:, 1], x[:, 2], x[:, 3]
     v, ws = u[:, 0], u[:, 1]
-    wv = w6 * v
-    stage_w = np.array([1.0, 2.0, 2.0, 1.0])[:, None]           # RK4's weights of the stages (times 1/6)
-    dphi_stage = np.array([0.0, hh, hh, h])[:, None] * ws         # the stages' steering: phi + these
-    # the substeps, as the plant takes them; their stages' tangents, cosines and sines kept (S, 4, K)
-    tan_, cos_, sin_ = np.empty((S, 4, K)), np.empty((S, 4, K)), np.empty((S, 4, K))
-    TH = np.empty((4, K))
+    # the steering at each substep as the plant advances it, and its stages' tangents (stages 1, 2 = 3, 4)
+    tn = np.empty((S, 3, K))
+    step_phi = w6 * (ws + 2.0 * ws + 2.0 * ws + ws)
+    half_w, full_w = hh * ws, h * ws
     for s in range(S):
-        t = np.divide(np.tan(phi + dphi_stage), L, out=tan_[s])   # stages 2 and 3 equal
-        kt = t * v
-        TH[0] = th
-        TH[1] = th + hh * kt[0]
-        TH[2] = th + hh * kt[1]
-        TH[3] = th + h * kt[1]
-        C, Sn = np.cos(TH, out=cos_[s]), np.sin(TH, out=sin_[s])
-        CV, SV = C * v, Sn * v
-        px = px + w6 * (CV[0] + 2.0 * CV[1] + 2.0 * CV[2] + CV[3])
-        py = py + w6 * (SV[0] + 2.0 * SV[1] + 2.0 * SV[2] + SV[3])
-        th = th + w6 * (kt[0] + 2.0 * kt[1] + 2.0 * kt[1] + kt[3])
-        phi = phi + w6 * (ws + 2.0 * ws + 2.0 * ws + ws)
-    # every substep's Jacobian entries at once (arrays (S, K)); J = I + these (+ h at d phi / d omega_s)
-    q = (1.0 + (L * tan_) ** 2) / L                               # d tan(phi) / L / d phi
-    WC, WS = stage_w * cos_, stage_w * sin_
-    sum_c, sum_s = WC.sum(axis=1), WS.sum(axis=1)
-    d_stage = np.array([hh, hh, h])[:, None]                      # d theta_stage / d k_theta (stages 2 .. 4)
-    dphi = d_stage * (v * q[:, [0, 1, 1]])                        # the stages' headings against phi, v, omega_s
-    dv = d_stage * tan_[:, [0, 1, 1]]
-    dw = np.array([hh * hh, h * hh])[:, None] * (v * q[:, 1])[:, None]   # stages 3 and 4 (stage 2: 0)
+        tn[s, 0] = phi
+        np.add(phi, half_w, out=tn[s, 1])
+        np.add(phi, full_w, out=tn[s, 2])
+        phi = phi + step_phi
+    np.tan(tn, out=tn)
+    tn /= L                                                   # tan(phi_stage) / L
+    kt = tn * v                                               # the heading rates
+    TH = np.empty((S, 4, K))                                  # the stages' headings
+    for s in range(S):
+        k1, k2, k4 = kt[s]
+        TH[s, 0] = th
+        TH[s, 1] = th + hh * k1
+        TH[s, 2] = th + hh * k2
+        TH[s, 3] = th + h * k2
+        th = th + w6 * (k1 + 2.0 * k2 + 2.0 * k2 + k4)
+    C, Sn = cos_sin(TH)
+    C34, S34 = C[:, 2] + C[:, 3], Sn[:, 2] + Sn[:, 3]
+    sum_c = C[:, 0] + 2.0 * C[:, 1] + C[:, 2] + C34           # sum over the stages with RK4's weights
+    sum_s = Sn[:, 0] + 2.0 * Sn[:, 1] + Sn[:, 2] + S34
+    wv = w6 * v
+    px = px + wv * sum_c.sum(axis=0)
+    py = py + wv * sum_s.sum(axis=0)
+    # every substep's Jacobian entries at once (arrays (S, K)); J = I + these (+ h at d phi / d omega_s).
+    # The stages' headings move with phi by (h/2) v q1, (h/2) v q2, h v q2 (stages 2, 3, 4; q the
+    # derivative of tan(phi) / L at the stage), with v by (h/2) t1, (h/2) t2, h t2, and with omega_s by
+    # 0, (h/2)^2 v q2, h (h/2) v q2: weighted by RK4's 2, 2, 1, stages 3 and 4 enter as one sum.
+    q = 1.0 / L + L * (tn * tn)
+    q1, q2, q4 = q[:, 0], q[:, 1], q[:, 2]
+    t1, t2, t4 = tn[:, 0], tn[:, 1], tn[:, 2]
+    whv, wh = wv * h * v, wv * h
     J02, J12 = -wv * sum_s, wv * sum_c
-    J03 = -wv * (WS[:, 1:] * dphi).sum(axis=1)
-    J13 = wv * (WC[:, 1:] * dphi).sum(axis=1)
-    J04 = w6 * sum_c - wv * (WS[:, 1:] * dv).sum(axis=1)
-    J14 = w6 * sum_s + wv * (WC[:, 1:] * dv).sum(axis=1)
-    J05 = -wv * (WS[:, 2:] * dw).sum(axis=1)
-    J15 = wv * (WC[:, 2:] * dw).sum(axis=1)
-    J23 = wv * (q[:, 0] + 4.0 * q[:, 1] + q[:, 3])
-    J24 = w6 * (tan_[:, 0] + 4.0 * tan_[:, 1] + tan_[:, 3])
-    J25 = wv * (4.0 * hh * q[:, 1] + h * q[:, 3])
+    J03 = -whv * (Sn[:, 1] * q1 + S34 * q2)
+    J13 = whv * (C[:, 1] * q1 + C34 * q2)
+    J04 = w6 * sum_c - wh * (Sn[:, 1] * t1 + S34 * t2)
+    J14 = w6 * sum_s + wh * (C[:, 1] * t1 + C34 * t2)
+    g = (whv * hh) * q2
+    J05, J15 = -g * S34, g * C34
+    J23 = wv * (q1 + 4.0 * q2 + q4)
+    J24 = w6 * (t1 + 4.0 * t2 + t4)
+    J25 = wv * (4.0 * hh * q2 + h * q4)
     # compose the substeps, W <- J[:, :4] W + [0 | J[:, 4:]], W = d(x, y, theta, phi) / d(x_0, u) with its
     # known zeros: rows x and y are [1 0 a2 a3 a4 a5] and [0 1 b2 b3 b4 b5], theta [0 0 1 c3 c4 c5],
     # phi [0 0 0 1 0 e5] (e5 = the time so far)
