@@ -110,9 +110,10 @@ class CollisionWorld:
     VOUCH_GAP = 1e-3
     #: min_clearance lets a measured clearance bound this many poses either side
     VOUCH_SPAN = 16
-    #: min_clearance_less measures this many poses first (then 4 times more per batch): a batch of exact
-    #: distances costs a few tenths of a millisecond however small, each pose in it a few microseconds
-    FIRST_BATCH = 16
+    #: min_clearance_less bounds this many poses by their boxes first, and measures the lowest of them:
+    #: a batch of exact distances costs a few tenths of a millisecond however small, a box bound a
+    #: fraction of a microsecond per object; more poses first make it likelier that the best is among them
+    FIRST_BATCH = 64
     #: free_many and motion_free measure the poses the distance field leaves undecided in one batch of
     #: exact distances (:meth:`_near_batch`) when there are at least this many and they lie along a path
     #: (:func:`_along_a_path`; else, and for fewer, FCL pose by pose)
@@ -413,6 +414,68 @@ class CollisionWorld:
                 out[a + again] = self._near_batch(p[again], fp, nearest, local=False)
         return out
 
+    def _box_bounds(self, poses: np.ndarray, fp: Footprint) -> np.ndarray:
+        """Lower bounds of the clearance at poses (N, 3), 0 where they say nothing: for each object the
+        gap between its bounding box and the footprint's, the larger of two (each shape lies inside its
+        box, so neither gap exceeds their distance): in the world's axes (the box of the footprint at the
+        pose; a disc's centre, less its radius) and, for a polygon, in the robot's (its box in its own
+        frame against the object's box turned into that frame); then the smallest over the objects. For a
+        disc among axis-aligned boxes (a grid's cells) the bound is the clearance, and for a polygon
+        parallel or square to its nearest boxes nearly so. In a world of many objects, poses go in chunks
+        of ``NEAR_CHUNK``, each against the ``NEAR_OBJECTS`` objects nearest the world box of all its
+        footprints, the others bounded together by the nearest of them to that box (and a pose that bound
+        holds down, as a chunk of scattered poses does, against all the objects)."""
+        boxes = self._shape_tables()[0]
+        n_poses, n_all = len(poses), len(boxes)
+        if not n_all:
+            return np.full(n_poses, np.inf)
+        disc = fp.radius is not None
+        if disc:
+            lo = hi = poses[:, :2]
+        else:
+            verts = np.asarray(fp.vertices, dtype=float)
+            own_lo, own_hi = verts.min(axis=0), verts.max(axis=0)
+            c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
+            x = poses[:, 0:1] + c * verts[:, 0] - s * verts[:, 1]
+            y = poses[:, 1:2] + s * verts[:, 0] + c * verts[:, 1]
+            lo = np.column_stack([x.min(axis=1), y.min(axis=1)])
+            hi = np.column_stack([x.max(axis=1), y.max(axis=1)])
+
+        def gaps2(ids, rows):                     # (rows, objects) squared gaps, the larger of the two
+            bx = boxes if ids is None else boxes[ids]
+            g = _box_gaps2(bx, lo[rows], hi[rows])
+            if not disc:
+                centre, half = 0.5 * (bx[:, :2] + bx[:, 2:]), 0.5 * (bx[:, 2:] - bx[:, :2])
+                cc, ss = c[rows], s[rows]
+                rx, ry = centre[:, 0] - poses[rows, 0:1], centre[:, 1] - poses[rows, 1:2]
+                ac, as_ = np.abs(cc), np.abs(ss)
+                ex, ey = ac * half[:, 0] + as_ * half[:, 1], as_ * half[:, 0] + ac * half[:, 1]
+                qx, qy = cc * rx + ss * ry, cc * ry - ss * rx            # the box's centre in the robot's frame
+                dx = np.maximum(np.maximum(qx - ex - own_hi[0], own_lo[0] - ex - qx), 0.0)
+                dy = np.maximum(np.maximum(qy - ey - own_hi[1], own_lo[1] - ey - qy), 0.0)
+                dx *= dx
+                dy *= dy
+                dx += dy
+                np.maximum(g, dx, out=g)
+            return g
+
+        if n_all <= 2 * self.NEAR_OBJECTS:
+            out = gaps2(None, slice(None)).min(axis=1)
+        else:
+            out = np.empty(n_poses)
+            for a in range(0, n_poses, self.NEAR_CHUNK):
+                rows = np.arange(a, min(a + self.NEAR_CHUNK, n_poses))
+                gap = _box_gaps2(boxes, lo[rows].min(axis=0), hi[rows].max(axis=0))
+                part = np.argpartition(gap, self.NEAR_OBJECTS)
+                near, beyond = gaps2(part[:self.NEAR_OBJECTS], rows).min(axis=1), gap[part[self.NEAR_OBJECTS]]
+                again = rows[near > beyond]     # the chunk's objects were too few for these (scattered) poses
+                out[rows] = np.minimum(near, beyond)
+                if len(again):
+                    out[again] = gaps2(None, again).min(axis=1)
+        np.sqrt(out, out=out)
+        out -= 0.0 if fp.radius is None else fp.radius
+        return np.maximum(out, 0.0, out=out)
+
     def _shape_tables(self):
         """The obstacle objects (in the order of ``_objects``) as arrays for :meth:`_distance_near`:
         (n, 4) bounding boxes (xmin, ymin, xmax, ymax); (n, c, 2) vertices of the polygons of at most
@@ -686,12 +749,16 @@ class CollisionWorld:
         """min_k [clearance(fp at poses[k]) - offset[k]] (offset 0 by default) exactly, with its first
         index, the clearance there and the number of poses measured, without measuring every pose.
 
-        Poses are visited in increasing order of a lower bound of clearance - offset, in batches
-        (:meth:`_clearances`: ``FIRST_BATCH`` poses, then 4 times more each batch), until that bound exceeds the best value found.
-        The bound: the footprint covered by discs (a polygon's fine cover), from the distance field; a
-        measured clearance c > 0 also bounds the poses up to ``VOUCH_SPAN`` either side by c - ``VOUCH_GAP`` - how far the footprint moved (|translation| + rho |rotation|, rho the farthest
-        footprint point, 0 for a disc, which does not move when it turns). Nothing bounds a penetration
-        depth, so a pose whose bound is not positive is always measured."""
+        A branch and bound on lower bounds of clearance - offset. The first bound, of every pose: the
+        footprint covered by discs (a polygon's fine cover), from the distance field. In increasing order
+        of it, in two rounds (the ``FIRST_BATCH`` lowest, then all others it leaves at or below the best
+        value found), the poses get the tighter bound of the objects' boxes (:meth:`_box_bounds`), and are
+        measured (:meth:`_clearances`) in increasing order of that where it does not exceed the best value:
+        in the first round the lowest alone, then the rest in one batch. A measured clearance c > 0 also
+        bounds the poses up to ``VOUCH_SPAN`` either side by c - ``VOUCH_GAP`` - how far the footprint
+        moved (|translation| + rho |rotation|, rho the farthest footprint point, 0 for a disc, which does
+        not move when it turns). Nothing bounds a penetration depth, so a pose whose bounds are not
+        positive is always measured."""
         poses = _poses(poses)
         n = len(poses)
         off = np.zeros(n) if offset is None else np.asarray(offset, dtype=float)
@@ -714,27 +781,43 @@ class CollisionWorld:
         best, best_k, best_c, evals = math.inf, -1, math.nan, 0
         order = np.argsort(key, kind="stable")
         pos, size = 0, self.FIRST_BATCH
+
+        def live(ks, kb):                   # the poses whose bounds may still beat the best (ties included)
+            return ks[(kb <= best) & ~((vouched[ks] > 0.0) & (vouched[ks] - off[ks] > best))]
+
         while pos < n and key[order[pos]] <= best:
             chunk = order[pos:pos + size]
-            pos, size = pos + len(chunk), 4 * size
-            chunk = chunk[(key[chunk] <= best) & ~((vouched[chunk] > 0.0) & (vouched[chunk] - off[chunk] > best))]
+            pos, size = pos + len(chunk), n
+            chunk = np.sort(live(chunk, key[chunk]))     # in path order: neighbours share their nearest objects
             if not len(chunk):
                 continue
-            c = self._clearances(poses[chunk], fp)
-            evals += len(chunk)
-            g = c - off[chunk]
-            gm = float(g.min())
-            if gm <= best:                  # the first index among the smallest values
-                j = int(np.flatnonzero(g == gm)[np.argmin(chunk[g == gm])])
-                if gm < best or chunk[j] < best_k:
-                    best, best_k, best_c = gm, int(chunk[j]), float(c[j])
-            pos_ = c > 0.0
-            if pos_.any():                  # each measured c > 0 bounds its neighbours (all at once)
-                ks = chunk[pos_]
-                near = np.clip(ks[:, None] + np.arange(-span, span + 1), 0, n - 1)
-                d = poses[near] - poses[ks][:, None]
-                np.maximum.at(vouched, near, c[pos_][:, None] - self.VOUCH_GAP - np.hypot(d[..., 0], d[..., 1])
-                              - rho * np.abs(d[..., 2]))
+            # the objects' bounding boxes bound these poses more tightly than the field (a disc's clearance
+            # among boxes exactly): measured in increasing order of the tighter bound, the lowest first when
+            # nothing is measured yet, so that it sets the value the others must beat
+            gap = self._box_bounds(poses[chunk], fp)
+            kb = np.where(gap > 0.0, np.maximum(key[chunk], gap - off[chunk]), key[chunk])
+            sub = np.argsort(kb, kind="stable")
+            chunk, kb = chunk[sub], kb[sub]
+            first = 1 if best_k < 0 else 0
+            for part, part_kb in ((chunk[:first], kb[:first]), (chunk[first:], kb[first:])):
+                part = live(part, part_kb)
+                if not len(part):
+                    continue
+                c = self._clearances(poses[part], fp)
+                evals += len(part)
+                g = c - off[part]
+                gm = float(g.min())
+                if gm <= best:              # the first index among the smallest values
+                    j = int(np.flatnonzero(g == gm)[np.argmin(part[g == gm])])
+                    if gm < best or part[j] < best_k:
+                        best, best_k, best_c = gm, int(part[j]), float(c[j])
+                pos_ = c > 0.0
+                if pos_.any():              # each measured c > 0 bounds its neighbours (all at once)
+                    ks = part[pos_]
+                    near = np.clip(ks[:, None] + np.arange(-span, span + 1), 0, n - 1)
+                    d = poses[near] - poses[ks][:, None]
+                    np.maximum.at(vouched, near, c[pos_][:, None] - self.VOUCH_GAP - np.hypot(d[..., 0], d[..., 1])
+                                  - rho * np.abs(d[..., 2]))
         if best_k < 0:                      # no obstacle anywhere: every clearance is infinite
             best_k, best_c = int(order[0]), math.inf
         return best, best_k, best_c, evals
@@ -846,6 +929,17 @@ def _box_gaps(boxes: np.ndarray, lo, hi) -> np.ndarray:
     dx = np.maximum(np.maximum(boxes[:, 0] - hi[..., 0], lo[..., 0] - boxes[:, 2]), 0.0)
     dy = np.maximum(np.maximum(boxes[:, 1] - hi[..., 1], lo[..., 1] - boxes[:, 3]), 0.0)
     return np.hypot(dx, dy)
+
+
+def _box_gaps2(boxes: np.ndarray, lo, hi) -> np.ndarray:
+    """:func:`_box_gaps` squared (the square root left to the caller, after its minimum)."""
+    lo, hi = np.asarray(lo, dtype=float)[..., None, :], np.asarray(hi, dtype=float)[..., None, :]
+    dx = np.maximum(np.maximum(boxes[:, 0] - hi[..., 0], lo[..., 0] - boxes[:, 2]), 0.0)
+    dy = np.maximum(np.maximum(boxes[:, 1] - hi[..., 1], lo[..., 1] - boxes[:, 3]), 0.0)
+    dx *= dx
+    dy *= dy
+    dx += dy
+    return dx
 
 
 def _separated(robot, radius, quads, edges, circles, is_poly) -> np.ndarray:
