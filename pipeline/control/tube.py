@@ -124,6 +124,14 @@ def plant_derivatives(model: Model, x: np.ndarray, u: np.ndarray, period: float,
     derivatives. The unicycle's and the rwd car's maps and derivatives are in closed form
     (:func:`_unicycle_derivatives`, :func:`_rwd_car_derivatives`); subclasses of them take the general
     way, in case they change the dynamics."""
+    F, Phi, Gamma = _derivatives(model, x, u, period, substeps)
+    return F, Phi.transpose(2, 0, 1), Gamma.transpose(2, 0, 1)
+
+
+def _derivatives(model: Model, x: np.ndarray, u: np.ndarray, period: float, substeps: int):
+    """:func:`plant_derivatives` with the derivatives laid out steps last, (n, n, K) and (n, m, K), as
+    :func:`propagate` uses them: each entry's values over the steps contiguous, so that every operation
+    on them is one long array operation."""
     from ..models.rwd_car import RwdCar
     from ..models.unicycle import Unicycle
 
@@ -132,7 +140,8 @@ def plant_derivatives(model: Model, x: np.ndarray, u: np.ndarray, period: float,
     if type(model) is RwdCar:
         return _rwd_car_derivatives(np.asarray(x, dtype=float), np.asarray(u, dtype=float), period, substeps,
                                     float(model.wheelbase))
-    return _variational_derivatives(model, x, u, period, substeps)
+    F, Phi, Gamma = _variational_derivatives(model, x, u, period, substeps)
+    return F, np.ascontiguousarray(Phi.transpose(1, 2, 0)), np.ascontiguousarray(Gamma.transpose(1, 2, 0))
 
 
 def _variational_derivatives(model: Model, x: np.ndarray, u: np.ndarray, period: float, substeps: int):
@@ -204,16 +213,16 @@ def _unicycle_derivatives(x: np.ndarray, u: np.ndarray, period: float, substeps:
         c, s = c4, s4
     K = len(px)
     F = np.stack([px, py, th], axis=1)
-    Phi = np.zeros((K, 3, 3))
-    Phi[:, 0, 0] = Phi[:, 1, 1] = Phi[:, 2, 2] = 1.0
-    Phi[:, 0, 2] = -w6 * v * ss
-    Phi[:, 1, 2] = w6 * v * sc
-    Gamma = np.zeros((K, 3, 2))
-    Gamma[:, 0, 0] = w6 * sc
-    Gamma[:, 1, 0] = w6 * ss
-    Gamma[:, 0, 1] = -w6 * v * ts
-    Gamma[:, 1, 1] = w6 * v * tc
-    Gamma[:, 2, 1] = int(substeps) * h
+    Phi = np.zeros((3, 3, K))                   # steps last (see _derivatives)
+    Phi[0, 0] = Phi[1, 1] = Phi[2, 2] = 1.0
+    Phi[0, 2] = -w6 * v * ss
+    Phi[1, 2] = w6 * v * sc
+    Gamma = np.zeros((3, 2, K))
+    Gamma[0, 0] = w6 * sc
+    Gamma[1, 0] = w6 * ss
+    Gamma[0, 1] = -w6 * v * ts
+    Gamma[1, 1] = w6 * v * tc
+    Gamma[2, 1] = int(substeps) * h
     return F, Phi, Gamma
 
 
@@ -295,12 +304,12 @@ def _rwd_car_derivatives(x: np.ndarray, u: np.ndarray, period: float, substeps: 
                           ((b5 + J12[s] * c5) + J13[s] * e5) + J15[s])
         c3, c4, c5 = c3 + J23[s], c4 + J24[s], (c5 + J23[s] * e5) + J25[s]
         e5 = e5 + h
-    Phi = np.zeros((K, 4, 4))
-    Gamma = np.zeros((K, 4, 2))
-    Phi[:, 0, 0] = Phi[:, 1, 1] = Phi[:, 2, 2] = Phi[:, 3, 3] = 1.0
-    Phi[:, 0, 2], Phi[:, 0, 3], Phi[:, 1, 2], Phi[:, 1, 3], Phi[:, 2, 3] = a2, a3, b2, b3, c3
-    Gamma[:, 0, 0], Gamma[:, 0, 1], Gamma[:, 1, 0], Gamma[:, 1, 1] = a4, a5, b4, b5
-    Gamma[:, 2, 0], Gamma[:, 2, 1], Gamma[:, 3, 1] = c4, c5, e5
+    Phi = np.zeros((4, 4, K))                   # steps last (see _derivatives)
+    Gamma = np.zeros((4, 2, K))
+    Phi[0, 0] = Phi[1, 1] = Phi[2, 2] = Phi[3, 3] = 1.0
+    Phi[0, 2], Phi[0, 3], Phi[1, 2], Phi[1, 3], Phi[2, 3] = a2, a3, b2, b3, c3
+    Gamma[0, 0], Gamma[0, 1], Gamma[1, 0], Gamma[1, 1] = a4, a5, b4, b5
+    Gamma[2, 0], Gamma[2, 1], Gamma[3, 1] = c4, c5, e5
     return np.stack([px, py, th, phi], axis=1), Phi, Gamma
 
 
@@ -343,6 +352,13 @@ def _forward_substitution(band: np.ndarray, x: np.ndarray) -> None:
 
 
 def _banded_scan(A: np.ndarray, M: np.ndarray, b: np.ndarray, S0: np.ndarray, m0: np.ndarray):
+    """:func:`_banded_scan_packed` with the covariances unpacked: (N + 1, n, n) and the means (N + 1, n)."""
+    xs, xm = _banded_scan_packed(A, M, b, S0, m0)
+    n = A.shape[1]
+    return xs[:, _unpacking(n)].reshape(len(xs), n, n), xm
+
+
+def _banded_scan_packed(A: np.ndarray, M: np.ndarray, b: np.ndarray, S0: np.ndarray, m0: np.ndarray):
     """:func:`_block_scan`'s recursions as two unit lower block-bidiagonal linear systems, solved by forward
     substitution in compiled code (LAPACK's banded triangular solve, ``dtbtrs``): the same arithmetic as
     the plain recursion, step by step, up to the order of the sums.
@@ -351,13 +367,15 @@ def _banded_scan(A: np.ndarray, M: np.ndarray, b: np.ndarray, S0: np.ndarray, m0
     T_k[(i, j), (p, q)] = A_ip A_jq + A_iq A_jp (p < q) or A_ip A_jp (p = q) (the packed A_k (x) A_k); the
     mean: m_{k+1} = A_k m_k + b_k. Unknowns in time order make each system's matrix I minus the T_k one
     block below the diagonal, a band of width 2 d - 1; it is solved ``BANDED_CHUNK`` steps at a time,
-    each chunk from the last value of the one before."""
+    each chunk from the last value of the one before. M may come packed ((N, d), as s_k), and A as a
+    view of an (n, n, N) array, the layout the band is filled from (then not copied). Returns the packed
+    covariances (N + 1, d) and the means (N + 1, n)."""
     N, n = A.shape[0], A.shape[1]
     I, J = _packed_pairs(n)
     d = len(I)
     xs = np.empty((N + 1, d))
     xs[0] = S0[I, J]
-    xs[1:] = M[:, I, J]
+    xs[1:] = M if M.ndim == 2 else M[:, I, J]
     xm = np.empty((N + 1, n))
     xm[0] = m0
     xm[1:] = b
@@ -380,10 +398,18 @@ def _banded_scan(A: np.ndarray, M: np.ndarray, b: np.ndarray, S0: np.ndarray, m0
         bm = band_m[:(s + 1) * n]
         np.copyto(_band_block_view(bm, n, s), nac)
         _forward_substitution(bm, xm[a:a + s + 1])
-    S = np.empty((N + 1, n, n))
-    S[:, I, J] = xs
-    S[:, J, I] = xs
-    return S, xm
+    return xs, xm
+
+
+@functools.lru_cache(maxsize=16)
+def _unpacking(n: int) -> np.ndarray:
+    """For each entry (i, j) of an n x n symmetric matrix, row by row, its place in the packed vector."""
+    I, J = _packed_pairs(n)
+    where = np.empty((n, n), dtype=np.intp)
+    where[I, J] = where[J, I] = np.arange(len(I))
+    where = where.ravel()
+    where.flags.writeable = False
+    return where
 
 
 def _block_scan(A: np.ndarray, M: np.ndarray, b: np.ndarray, S0: np.ndarray, m0: np.ndarray):
@@ -450,7 +476,9 @@ def propagate(model: Model, t: np.ndarray, x0: np.ndarray, u_ff: np.ndarray, K: 
         raise InputError("x0", "at least two samples (one control step)", S)
     u_ff = np.asarray(u_ff, dtype=float)
     K = np.asarray(K, dtype=float)
-    F, Phi, Gamma = plant_derivatives(model, x0[:-1], u_ff, period, substeps)
+    # the derivatives, gains and closed-loop matrices laid out steps last ((rows, columns, steps)): every
+    # operation on them below is a few long array operations, not a batch of small matrix products
+    F, Phi, Gamma = _derivatives(model, x0[:-1], u_ff, period, substeps)
     drift = F - x0[1:]
     if model.angle_states:
         idx = list(model.angle_states)
@@ -459,20 +487,30 @@ def propagate(model: Model, t: np.ndarray, x0: np.ndarray, u_ff: np.ndarray, K: 
             drift[:, idx] = (turn + math.pi) % (2.0 * math.pi) - math.pi
     if jumps is not None:
         drift = drift + np.asarray(jumps, dtype=float)
-    G = Gamma @ K
+    Kt = np.ascontiguousarray(K.transpose(1, 2, 0))                  # (m, n, N)
+    m = Kt.shape[0]
+    G = Gamma[:, 0, None, :] * Kt[0]                                 # G_k = Gamma_k K_k, (n, n, N)
+    for b in range(1, m):
+        G += Gamma[:, b, None, :] * Kt[b]
     A = Phi - G
     R = np.asarray(sensor_std, dtype=float) ** 2
     Q = np.asarray(process_std, dtype=float) ** 2
-    M = (G * R) @ transposed(G) + np.diag(Q)[None]
     S0 = np.asarray(initial_cov, dtype=float)
     m0 = np.zeros(n)
+    I, J = _packed_pairs(n)
+    At, Gt = A.transpose(2, 0, 1), G.transpose(2, 0, 1)              # (N, n, n) views
     with np.errstate(over="ignore", invalid="ignore"):
-        if loop:
-            cov, mean = _loop(A, M, drift, S0, m0)
-        elif n <= BANDED_MAX_STATES:
-            cov, mean = _banded_scan(A, M, drift, S0, m0)
+        if not loop and n <= BANDED_MAX_STATES:
+            # M_k = G_k R G_k^T + Q packed: M[(i, j)] = sum_b R_b G_ib G_jb, the diagonal first
+            GG = G[I] * G[J]
+            GG *= R[:, None]
+            M = GG.sum(axis=1)
+            M[:n] += Q[:, None]
+            xs, mean = _banded_scan_packed(At, M.T, drift, S0, m0)
         else:
-            cov, mean = _block_scan(A, M, drift, S0, m0)
+            M = (Gt * R) @ transposed(Gt) + np.diag(Q)[None]
+            cov, mean = (_loop if loop else _block_scan)(At, M, drift, S0, m0)
+            xs = cov[:, I, J]
     # unbounded: not finite, or DIVERGENCE_RATIO times the largest variance the noise injects (at least 1):
     # a large noise makes a large covariance, not a divergent one
     level = max(1.0, float(np.abs(S0).max(initial=0.0)), float(R.max(initial=0.0)), float(Q.max(initial=0.0)))
@@ -480,18 +518,25 @@ def propagate(model: Model, t: np.ndarray, x0: np.ndarray, u_ff: np.ndarray, K: 
         raise NumericalError("the noise's variances overflow: its levels (standard deviations) must stay below "
                              "about 1e150")
     limit = DIVERGENCE_RATIO * level
-    if not (np.abs(cov).max() <= limit and np.abs(mean).max() < math.inf):      # also NaN
-        bad = ~(np.all(np.isfinite(cov), axis=(1, 2)) & np.all(np.isfinite(mean), axis=1))
-        k = int(np.argmax(bad | (np.abs(cov).max(axis=(1, 2)) > limit)))
+    if not (np.abs(xs).max() <= limit and np.abs(mean).max() < math.inf):      # also NaN
+        bad = ~(np.all(np.isfinite(xs), axis=1) & np.all(np.isfinite(mean), axis=1))
+        k = int(np.argmax(bad | (np.abs(xs).max(axis=1) > limit)))
         raise NumericalError(f"the linearised closed loop diverges: the error covariance is unbounded from "
                              f"t = {float(np.asarray(t)[k]):.3g} s (the gains destabilise the sampled loop)")
-    u_mean = u_ff - np.einsum("kij,kj->ki", K, mean[:-1])
-    # the inputs' variances, diag(K (S + R) K^T) = sum_b (K (S + R))_jb K_jb
-    KS = K @ cov[:-1]
-    KS += K * R
-    u_var = np.sum(KS * K, axis=-1)
-    return CovariancePropagation(np.asarray(t, dtype=float), mean, cov, u_mean, u_var, A, G, Phi, Gamma, drift,
-                                 R, Q, K)
+    if not loop and n <= BANDED_MAX_STATES:
+        cov = xs[:, _unpacking(n)].reshape(S, n, n)
+    # the inputs' means u_ff - K m and variances diag(K (S + R) K^T) = sum over the packed pairs (i, j) of
+    # K_i K_j S_ij (twice off the diagonal) + sum_b K_b^2 R_b, steps last
+    u_mean = u_ff - (Kt * mean[:-1].T).sum(axis=1).T
+    xw = xs[:-1].T * np.where(I == J, 1.0, 2.0)[:, None]              # (d, N)
+    KK = Kt[:, I] * Kt[:, J]
+    KK *= xw
+    u_var = KK.sum(axis=1)
+    KR = Kt * Kt
+    KR *= R[:, None]
+    u_var += KR.sum(axis=1)
+    return CovariancePropagation(np.asarray(t, dtype=float), mean, cov, u_mean, np.ascontiguousarray(u_var.T),
+                                 At, Gt, Phi.transpose(2, 0, 1), Gamma.transpose(2, 0, 1), drift, R, Q, K)
 
 
 def _loop(A, M, b, S0, m0):
