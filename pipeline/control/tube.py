@@ -609,11 +609,16 @@ def saturation(prop: CovariancePropagation, K: np.ndarray, limits: np.ndarray) -
     lim = np.asarray(limits, dtype=float)
     mu, sd = prop.u_mean, prop.u_std
     steps = mu.shape[0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z_hi = np.where(sd > 0, (lim[:, 1] - mu) / sd, np.where(mu >= lim[:, 1], -np.inf, np.inf))
-        z_lo = np.where(sd > 0, (mu - lim[:, 0]) / sd, np.where(mu <= lim[:, 0], -np.inf, np.inf))
-    p_hi, p_lo = ndtr(-z_hi), ndtr(-z_lo)         # P(u > hi), P(u < lo)
-    per_step = p_hi + p_lo
+    Z = np.empty((2,) + mu.shape)                 # the standardised distances to the upper and lower limits
+    np.subtract(lim[:, 1], mu, out=Z[0])
+    np.subtract(mu, lim[:, 0], out=Z[1])
+    if np.all(sd > 0):
+        Z /= sd
+    else:                                         # a deterministic input: beyond its limit or not
+        with np.errstate(divide="ignore", invalid="ignore"):
+            Z = np.where(sd > 0, Z / sd, np.where(Z <= 0, -np.inf, np.inf))
+    P = ndtr(-Z)                                  # P(u > hi), P(u < lo)
+    per_step = P[0] + P[1]
     # P(beyond at k, not at k-1) = P(beyond at k) - P(beyond at both), per input and side, with the
     # pair's bivariate probability; for the smallest P(beyond at k) the pair is not computed and
     # P(beyond at k) itself bounds the term: those terms add at most `slack` in all, where slack is
@@ -621,14 +626,19 @@ def saturation(prop: CovariancePropagation, K: np.ndarray, limits: np.ndarray) -
     # bound is at or above the true probability) or SATURATION_SLACK_ABS, whichever is larger
     run = float(np.sum(per_step[0]))
     if steps > 1:
-        later = np.stack([p_hi[1:], p_lo[1:]])          # (2, steps - 1, m)
-        flat = np.sort(later, axis=None)
-        slack = max(SATURATION_SLACK_REL * max(float(flat[-1]), float(per_step[0].max())), SATURATION_SLACK_ABS)
-        cut = int(np.searchsorted(np.cumsum(flat), slack, side="right"))
-        # ties with the first live value stay live: the terms left out add at most flat[:cut].sum() <= slack
-        live = later >= flat[cut] if cut < flat.size else np.zeros(later.shape, dtype=bool)
-        run += float(later[~live].sum())
-        if live.any():
+        later = P[:, 1:]                          # (2, steps - 1, m)
+        slack = max(SATURATION_SLACK_REL * max(float(later.max()), float(per_step[0].max())), SATURATION_SLACK_ABS)
+        total = float(later.sum())
+        if total <= slack:                        # every term left out: no pair is computed
+            live = None
+            run += total
+        else:                                     # the smallest terms that add up to at most slack are left
+            small = np.sort(later[later <= slack])     # out (a term above slack never is)
+            cut = int(np.searchsorted(np.cumsum(small), slack, side="right"))
+            # ties with the first live value stay live: the terms left out add at most small[:cut].sum() <= slack
+            live = later >= small[cut] if cut < small.size else later > slack
+            run += float(later[~live].sum())
+        if live is not None and live.any():
             ks = np.flatnonzero((live[0] | live[1]).any(axis=1))  # the steps k - 1 (0-based over 1 ..) with a live pair
             # cross-covariance of consecutive inputs, its diagonal: K_k (A_{k-1} S_{k-1} - G_{k-1} R) K_{k-1}^T
             C = prop.A[ks] @ prop.cov[ks] - prop.G[ks] * prop.R[None, None, :]
@@ -637,7 +647,8 @@ def saturation(prop: CovariancePropagation, K: np.ndarray, limits: np.ndarray) -
             with np.errstate(divide="ignore", invalid="ignore"):
                 rho = np.where((s1 > 0) & (s0 > 0), diag / (s1 * s0), 0.0)
             rho = np.clip(np.nan_to_num(rho), -1.0, 1.0)
-            for side, z in enumerate((z_hi, z_lo)):
+            for side in range(2):
+                z = Z[side]
                 lv = live[side][ks]                     # (len(ks), m)
                 zk, zp = z[ks + 1][lv], z[ks][lv]
                 both = bivariate_normal_cdf(-zk, -zp, rho[lv])
