@@ -779,16 +779,21 @@ class CollisionWorld:
         vouched = np.full(n, -np.inf)
         span, rho = self.VOUCH_SPAN, 0.0 if fp.radius is not None else fp.bounding_radius
         best, best_k, best_c, evals = math.inf, -1, math.nan, 0
-        order = np.argsort(key, kind="stable")
-        pos, size = 0, self.FIRST_BATCH
+        # round 1: the FIRST_BATCH lowest keys; round 2: all other keys at or below the best found
+        first = np.sort(np.argpartition(key, self.FIRST_BATCH)[:self.FIRST_BATCH]) if n > self.FIRST_BATCH \
+            else np.arange(n)
 
         def live(ks, kb):                   # the poses whose bounds may still beat the best (ties included)
             return ks[(kb <= best) & ~((vouched[ks] > 0.0) & (vouched[ks] - off[ks] > best))]
 
-        while pos < n and key[order[pos]] <= best:
-            chunk = order[pos:pos + size]
-            pos, size = pos + len(chunk), n
-            chunk = np.sort(live(chunk, key[chunk]))     # in path order: neighbours share their nearest objects
+        for round_ in (1, 2):
+            if round_ == 1:
+                chunk = first
+            else:
+                rest = key <= best
+                rest[first] = False
+                chunk = np.flatnonzero(rest)
+            chunk = live(chunk, key[chunk])             # in path order: neighbours share their nearest objects
             if not len(chunk):
                 continue
             # the objects' bounding boxes bound these poses more tightly than the field (a disc's clearance
@@ -798,8 +803,8 @@ class CollisionWorld:
             kb = np.where(gap > 0.0, np.maximum(key[chunk], gap - off[chunk]), key[chunk])
             sub = np.argsort(kb, kind="stable")
             chunk, kb = chunk[sub], kb[sub]
-            first = 1 if best_k < 0 else 0
-            for part, part_kb in ((chunk[:first], kb[:first]), (chunk[first:], kb[first:])):
+            alone = 1 if best_k < 0 else 0
+            for part, part_kb in ((chunk[:alone], kb[:alone]), (chunk[alone:], kb[alone:])):
                 part = live(part, part_kb)
                 if not len(part):
                     continue
@@ -819,7 +824,7 @@ class CollisionWorld:
                     np.maximum.at(vouched, near, c[pos_][:, None] - self.VOUCH_GAP - np.hypot(d[..., 0], d[..., 1])
                                   - rho * np.abs(d[..., 2]))
         if best_k < 0:                      # no obstacle anywhere: every clearance is infinite
-            best_k, best_c = int(order[0]), math.inf
+            best_k, best_c = int(np.argmin(key)), math.inf
         return best, best_k, best_c, evals
 
     def check_path(self, poses, fp: Footprint, margin: float = 0.0, resolution: float = 0.05,
