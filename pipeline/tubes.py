@@ -106,10 +106,38 @@ def run_schedule(law, period: float, t_stop: float | None = None, impulses=()) -
         steps += 1
     taus = T * np.arange(steps + 1)
     k, a = interp.locate_many(taus)
-    x0 = interp.state_at(k, a)
-    K = interp.linear_at(interp.K, k[:-1], a[:-1])
-    u_ff = np.diff(_u_integral(interp, taus, (k, a)), axis=0) / T
-    n = x0.shape[1]
+    # the grid's samples stacked steps last (rows x, h x', u, the integral of u from the start, K), so that
+    # each sample time gathers its interval's two ends in one operation each, and every operation after
+    # runs along the samples; the schedule's arrays are views of these in the (samples, ...) layout
+    x, u, h = interp.x, interp.u, interp.h
+    G, n = x.shape
+    m = u.shape[1]
+    table = np.empty((2 * n + 2 * m + m * n, G))
+    table[:n], table[n:2 * n], table[2 * n:2 * n + m] = x.T, interp.xd.T, u.T
+    ut = table[2 * n:2 * n + m]
+    cum = table[2 * n + m:2 * (n + m)]
+    cum[:, 0] = 0.0
+    np.cumsum(0.5 * h * (ut[:, 1:] + ut[:, :-1]), axis=1, out=cum[:, 1:])
+    table[2 * (n + m):] = interp.K.reshape(G, -1).T
+    lo, hi = np.take(table, k, axis=1), np.take(table, k + 1, axis=1)
+    a2 = a * a
+    a3 = a2 * a
+    # x0: the cubic Hermite interpolant (GridInterpolant.state_at)
+    x0 = (2 * a3 - 3 * a2 + 1) * lo[:n] + (a3 - 2 * a2 + a) * lo[n:2 * n] \
+        + (3 * a2 - 2 * a3) * hi[:n] + (a3 - a2) * hi[n:2 * n]
+    # the feedforward: the mean of the piecewise-linear u0 over each hold interval, from its integral
+    ul, uh = lo[2 * n:2 * n + m], hi[2 * n:2 * n + m]
+    U = lo[2 * n + m:2 * (n + m)] + (h * a) * (ul + (0.5 * a) * (uh - ul))
+    before, after = taus < interp.t[0], taus > interp.t[-1]       # held at the end values outside the span
+    if before.any():
+        U[:, before] += u[0][:, None] * (taus[before] - interp.t[0])
+    if after.any():
+        U[:, after] += u[-1][:, None] * (taus[after] - interp.t[-1])
+    u_ff = np.diff(U, axis=1)
+    u_ff /= T
+    ak = a[:-1]
+    K = (1.0 - ak) * lo[2 * (n + m):, :-1] + ak * hi[2 * (n + m):, :-1]
+    x0, u_ff, K = x0.T, u_ff.T, K.reshape(interp.K.shape[1:] + (steps,)).transpose(2, 0, 1)
     jumps = np.zeros((steps, n))
     for time_s, jump in impulses:
         k = max(0, int(math.floor((float(time_s) + 1e-12) / T)))
@@ -120,23 +148,6 @@ def run_schedule(law, period: float, t_stop: float | None = None, impulses=()) -
         if k < steps:
             jumps[k] += np.asarray(jump, dtype=float)
     return SampleSchedule(taus, x0, u_ff, K, jumps, T)
-
-
-def _u_integral(interp, tau: np.ndarray, located=None) -> np.ndarray:
-    """The integral of the piecewise-linear u0 from the nominal's start to tau (held at its end values
-    outside the span); ``located``: tau's (k, a) from the interpolant's ``locate_many``, if known."""
-    t, u, h = interp.t, interp.u, interp.h
-    cum = np.concatenate([np.zeros((1, u.shape[1])), np.cumsum(0.5 * h * (u[1:] + u[:-1]), axis=0)])
-    tau = np.asarray(tau, dtype=float)
-    k, a = interp.locate_many(tau) if located is None else located
-    uk = u[k]
-    out = cum[k] + (h * a)[:, None] * (uk + (0.5 * a)[:, None] * (u[k + 1] - uk))
-    lo, hi = tau < t[0], tau > t[-1]
-    if lo.any():
-        out[lo] += (tau[lo] - t[0])[:, None] * u[0]
-    if hi.any():
-        out[hi] += (tau[hi] - t[-1])[:, None] * u[-1]
-    return out
 
 
 # ---- the tube ---------------------------------------------------------------------------------------------
