@@ -532,7 +532,7 @@ def propagate(model: Model, t: np.ndarray, x0: np.ndarray, u_ff: np.ndarray, K: 
         cov = xs[:, _unpacking(n)].reshape(S, n, n)
     # the inputs' means u_ff - K m and variances diag(K (S + R) K^T) = sum over the packed pairs (i, j) of
     # K_i K_j S_ij (twice off the diagonal) + sum_b K_b^2 R_b, steps last
-    u_mean = u_ff - (Kt * mean[:-1].T).sum(axis=1).T
+    u_mean = u_ff.T - (Kt * mean[:-1].T).sum(axis=1)                  # (m, N)
     xw = xs[:-1].T * np.where(I == J, 1.0, 2.0)[:, None]              # (d, N)
     KK = Kt[:, I] * Kt[:, J]
     KK *= xw
@@ -540,8 +540,8 @@ def propagate(model: Model, t: np.ndarray, x0: np.ndarray, u_ff: np.ndarray, K: 
     KR = Kt * Kt
     KR *= R[:, None]
     u_var += KR.sum(axis=1)
-    return CovariancePropagation(np.asarray(t, dtype=float), mean, cov, u_mean, np.ascontiguousarray(u_var.T),
-                                 At, Gt, Phi.transpose(2, 0, 1), Gamma.transpose(2, 0, 1), drift, R, Q, K)
+    return CovariancePropagation(np.asarray(t, dtype=float), mean, cov, u_mean.T, u_var.T, At, Gt,
+                                 Phi.transpose(2, 0, 1), Gamma.transpose(2, 0, 1), drift, R, Q, K)
 
 
 def _loop(A, M, b, S0, m0):
@@ -607,27 +607,29 @@ def saturation(prop: CovariancePropagation, K: np.ndarray, limits: np.ndarray) -
     of sum_j P(u_kj beyond), an upper bound of the expected fraction of samples with an input at a limit:
     compare run.json's control_effort.saturated_fraction)."""
     lim = np.asarray(limits, dtype=float)
-    mu, sd = prop.u_mean, prop.u_std
-    steps = mu.shape[0]
+    # steps last: (input, sample) arrays, whose operations run along the samples
+    mu, sd = prop.u_mean.T, prop.u_std.T
+    steps = mu.shape[1]
     Z = np.empty((2,) + mu.shape)                 # the standardised distances to the upper and lower limits
-    np.subtract(lim[:, 1], mu, out=Z[0])
-    np.subtract(mu, lim[:, 0], out=Z[1])
+    np.subtract(lim[:, 1:2], mu, out=Z[0])
+    np.subtract(mu, lim[:, 0:1], out=Z[1])
     if np.all(sd > 0):
         Z /= sd
     else:                                         # a deterministic input: beyond its limit or not
         with np.errstate(divide="ignore", invalid="ignore"):
             Z = np.where(sd > 0, Z / sd, np.where(Z <= 0, -np.inf, np.inf))
     P = ndtr(-Z)                                  # P(u > hi), P(u < lo)
-    per_step = P[0] + P[1]
+    per_step = P[0] + P[1]                        # (m, steps)
     # P(beyond at k, not at k-1) = P(beyond at k) - P(beyond at both), per input and side, with the
     # pair's bivariate probability; for the smallest P(beyond at k) the pair is not computed and
     # P(beyond at k) itself bounds the term: those terms add at most `slack` in all, where slack is
     # SATURATION_SLACK_REL times a lower bound of the true probability (the largest per-sample one; the
     # bound is at or above the true probability) or SATURATION_SLACK_ABS, whichever is larger
-    run = float(np.sum(per_step[0]))
+    run = float(np.sum(per_step[:, 0])) if steps else 0.0
     if steps > 1:
-        later = P[:, 1:]                          # (2, steps - 1, m)
-        slack = max(SATURATION_SLACK_REL * max(float(later.max()), float(per_step[0].max())), SATURATION_SLACK_ABS)
+        later = P[:, :, 1:]                       # (2, m, steps - 1)
+        slack = max(SATURATION_SLACK_REL * max(float(later.max()), float(per_step[:, 0].max())),
+                    SATURATION_SLACK_ABS)
         total = float(later.sum())
         if total <= slack:                        # every term left out: no pair is computed
             live = None
@@ -639,18 +641,18 @@ def saturation(prop: CovariancePropagation, K: np.ndarray, limits: np.ndarray) -
             live = later >= small[cut] if cut < small.size else later > slack
             run += float(later[~live].sum())
         if live is not None and live.any():
-            ks = np.flatnonzero((live[0] | live[1]).any(axis=1))  # the steps k - 1 (0-based over 1 ..) with a live pair
+            ks = np.flatnonzero((live[0] | live[1]).any(axis=0))  # the steps k - 1 (0-based over 1 ..) with a live pair
             # cross-covariance of consecutive inputs, its diagonal: K_k (A_{k-1} S_{k-1} - G_{k-1} R) K_{k-1}^T
             C = prop.A[ks] @ prop.cov[ks] - prop.G[ks] * prop.R[None, None, :]
-            diag = np.sum((K[ks + 1] @ C) * K[ks], axis=-1)
-            s1, s0 = sd[ks + 1], sd[ks]
+            diag = np.sum((K[ks + 1] @ C) * K[ks], axis=-1).T            # (m, len(ks))
+            s1, s0 = sd[:, ks + 1], sd[:, ks]
             with np.errstate(divide="ignore", invalid="ignore"):
                 rho = np.where((s1 > 0) & (s0 > 0), diag / (s1 * s0), 0.0)
             rho = np.clip(np.nan_to_num(rho), -1.0, 1.0)
-            lv = live[:, ks]                            # (2, len(ks), m): both sides in one evaluation
-            zk, zp = Z[:, ks + 1][lv], Z[:, ks][lv]
+            lv = live[:, :, ks]                         # (2, m, len(ks)): both sides in one evaluation
+            zk, zp = Z[:, :, ks + 1][lv], Z[:, :, ks][lv]
             both = bivariate_normal_cdf(-zk, -zp, np.broadcast_to(rho, lv.shape)[lv])
-            run += float(np.sum(np.clip(later[:, ks][lv] - both, 0.0, None)))
-    return {"per_step": per_step, "run_bound": min(1.0, run), "union_bound": min(1.0, float(per_step.sum())),
+            run += float(np.sum(np.clip(later[:, :, ks][lv] - both, 0.0, None)))
+    return {"per_step": per_step.T, "run_bound": min(1.0, run), "union_bound": min(1.0, float(per_step.sum())),
             "max_step": float(per_step.max(initial=0.0)),
-            "expected_fraction_bound": float(np.minimum(per_step.sum(axis=1), 1.0).mean()) if steps else 0.0}
+            "expected_fraction_bound": float(np.minimum(per_step.sum(axis=0), 1.0).mean()) if steps else 0.0}
