@@ -114,6 +114,9 @@ class CollisionWorld:
     #: a batch of exact distances costs a few tenths of a millisecond however small, a box bound a
     #: fraction of a microsecond per object; more poses first make it likelier that the best is among them
     FIRST_BATCH = 64
+    #: the objects' box bounds are lowered by this much [m], far above their rounding, so that no pose
+    #: whose measured clearance is the smallest is passed over because its bound rounded above it
+    BOX_GUARD = 1e-9
     #: free_many and motion_free measure the poses the distance field leaves undecided in one batch of
     #: exact distances (:meth:`_near_batch`) when there are at least this many and they lie along a path
     #: (:func:`_along_a_path`; else, and for fewer, FCL pose by pose)
@@ -424,7 +427,7 @@ class CollisionWorld:
         parallel or square to its nearest boxes nearly so. In a world of many objects, poses go in chunks
         of ``NEAR_CHUNK``, each against the ``NEAR_OBJECTS`` objects nearest the world box of all its
         footprints, the others bounded together by the nearest of them to that box (and a pose that bound
-        holds down, as a chunk of scattered poses does, against all the objects)."""
+        holds down, as a chunk of scattered poses does, against all the objects). Lowered by ``BOX_GUARD``."""
         boxes = self._shape_tables()[0]
         n_poses, n_all = len(poses), len(boxes)
         if not n_all:
@@ -473,7 +476,7 @@ class CollisionWorld:
                 if len(again):
                     out[again] = gaps2(None, again).min(axis=1)
         np.sqrt(out, out=out)
-        out -= 0.0 if fp.radius is None else fp.radius
+        out -= (0.0 if fp.radius is None else fp.radius) + self.BOX_GUARD
         return np.maximum(out, 0.0, out=out)
 
     def _shape_tables(self):

@@ -228,7 +228,7 @@ def test_box_bounds_are_lower_bounds_and_a_discs_clearance_among_cells(path, opt
     never exceeds the clearance (to 1e-12 m), for a car, a disc and a non-convex polygon, at poses along
     a walk and scattered (the chunked branch's retry), on grid maps of many cells and polygon worlds. For
     a disc on a grid map (cells: axis-aligned boxes) it is the clearance wherever that is positive (to
-    1e-9 m); in a polygon world it is positive at 90 % of the poses where the disc is 0.2 m clear."""
+    2e-9 m: its guard of 1e-9 m and rounding); in a polygon world it is positive at 90 % of the poses where the disc is 0.2 m clear."""
     from pathlib import Path
 
     from nhstab.maps import load_map
@@ -249,7 +249,7 @@ def test_box_bounds_are_lower_bounds_and_a_discs_clearance_among_cells(path, opt
         assert np.all(bound >= 0.0) and np.all(bound <= np.maximum(exact, 0.0) + 1e-12)
         if fp.radius is not None and world.grids:
             pos = exact > 0
-            assert pos.sum() > 100 and np.allclose(bound[pos], exact[pos], rtol=0, atol=1e-9)
+            assert pos.sum() > 100 and np.allclose(bound[pos], exact[pos], rtol=0, atol=2e-9)
         elif fp.radius is not None:                         # it says something where the disc is clear
             assert np.mean(bound[exact > 0.2] > 0) > 0.9
 
