@@ -648,7 +648,8 @@ def saturation(prop: CovariancePropagation, K: np.ndarray, limits: np.ndarray) -
             s1, s0 = sd[:, ks + 1], sd[:, ks]
             with np.errstate(divide="ignore", invalid="ignore"):
                 rho = np.where((s1 > 0) & (s0 > 0), diag / (s1 * s0), 0.0)
-            rho = np.clip(np.nan_to_num(rho), -1.0, 1.0)
+            np.clip(rho, -1.0, 1.0, out=rho)
+            rho[np.isnan(rho)] = 0.0
             lv = live[:, :, ks]                         # (2, m, len(ks)): both sides in one evaluation
             zk, zp = Z[:, :, ks + 1][lv], Z[:, :, ks][lv]
             both = bivariate_normal_cdf(-zk, -zp, np.broadcast_to(rho, lv.shape)[lv])
