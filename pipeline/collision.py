@@ -433,26 +433,35 @@ class CollisionWorld:
         if not n_all:
             return np.full(n_poses, np.inf)
         disc = fp.radius is not None
+        # (objects, poses) arrays: the operations run along the poses
+        px, py = poses[:, 0], poses[:, 1]
         if disc:
-            lo = hi = poses[:, :2]
+            lox = hix = px
+            loy = hiy = py
         else:
             verts = np.asarray(fp.vertices, dtype=float)
             own_lo, own_hi = verts.min(axis=0), verts.max(axis=0)
-            c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
-            x = poses[:, 0:1] + c * verts[:, 0] - s * verts[:, 1]
-            y = poses[:, 1:2] + s * verts[:, 0] + c * verts[:, 1]
-            lo = np.column_stack([x.min(axis=1), y.min(axis=1)])
-            hi = np.column_stack([x.max(axis=1), y.max(axis=1)])
+            c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+            vx, vy = verts[:, 0:1], verts[:, 1:2]
+            x = px + c * vx - s * vy                                   # (corners, poses)
+            y = py + s * vx + c * vy
+            lox, hix, loy, hiy = x.min(axis=0), x.max(axis=0), y.min(axis=0), y.max(axis=0)
+        centre, half = 0.5 * (boxes[:, :2] + boxes[:, 2:]), 0.5 * (boxes[:, 2:] - boxes[:, :2])
 
-        def gaps2(ids, rows):                     # (rows, objects) squared gaps, the larger of the two
+        def gaps2(ids, rows):                     # (objects, rows) squared gaps, the larger of the two
             bx = boxes if ids is None else boxes[ids]
-            g = _box_gaps2(bx, lo[rows], hi[rows])
+            dx = np.maximum(np.maximum(bx[:, 0:1] - hix[rows], lox[rows] - bx[:, 2:3]), 0.0)
+            dy = np.maximum(np.maximum(bx[:, 1:2] - hiy[rows], loy[rows] - bx[:, 3:4]), 0.0)
+            dx *= dx
+            dy *= dy
+            g = np.add(dx, dy, out=dx)
             if not disc:
-                centre, half = 0.5 * (bx[:, :2] + bx[:, 2:]), 0.5 * (bx[:, 2:] - bx[:, :2])
+                ce, ha = (centre, half) if ids is None else (centre[ids], half[ids])
                 cc, ss = c[rows], s[rows]
-                rx, ry = centre[:, 0] - poses[rows, 0:1], centre[:, 1] - poses[rows, 1:2]
+                rx, ry = ce[:, 0:1] - px[rows], ce[:, 1:2] - py[rows]
                 ac, as_ = np.abs(cc), np.abs(ss)
-                ex, ey = ac * half[:, 0] + as_ * half[:, 1], as_ * half[:, 0] + ac * half[:, 1]
+                hx, hy = ha[:, 0:1], ha[:, 1:2]
+                ex, ey = ac * hx + as_ * hy, as_ * hx + ac * hy
                 qx, qy = cc * rx + ss * ry, cc * ry - ss * rx            # the box's centre in the robot's frame
                 dx = np.maximum(np.maximum(qx - ex - own_hi[0], own_lo[0] - ex - qx), 0.0)
                 dy = np.maximum(np.maximum(qy - ey - own_hi[1], own_lo[1] - ey - qy), 0.0)
@@ -463,18 +472,18 @@ class CollisionWorld:
             return g
 
         if n_all <= 2 * self.NEAR_OBJECTS:
-            out = gaps2(None, slice(None)).min(axis=1)
+            out = gaps2(None, slice(None)).min(axis=0)
         else:
             out = np.empty(n_poses)
             for a in range(0, n_poses, self.NEAR_CHUNK):
                 rows = np.arange(a, min(a + self.NEAR_CHUNK, n_poses))
-                gap = _box_gaps2(boxes, lo[rows].min(axis=0), hi[rows].max(axis=0))
+                gap = _box_gaps2(boxes, [lox[rows].min(), loy[rows].min()], [hix[rows].max(), hiy[rows].max()])
                 part = np.argpartition(gap, self.NEAR_OBJECTS)
-                near, beyond = gaps2(part[:self.NEAR_OBJECTS], rows).min(axis=1), gap[part[self.NEAR_OBJECTS]]
+                near, beyond = gaps2(part[:self.NEAR_OBJECTS], rows).min(axis=0), gap[part[self.NEAR_OBJECTS]]
                 again = rows[near > beyond]     # the chunk's objects were too few for these (scattered) poses
                 out[rows] = np.minimum(near, beyond)
                 if len(again):
-                    out[again] = gaps2(None, again).min(axis=1)
+                    out[again] = gaps2(None, again).min(axis=0)
         np.sqrt(out, out=out)
         out -= (0.0 if fp.radius is None else fp.radius) + self.BOX_GUARD
         return np.maximum(out, 0.0, out=out)
