@@ -210,8 +210,13 @@ def test_tube_study_machinery_on_one_case(tmp_path):
 def test_bench_tube_agrees_with_its_baseline():
     from nhstab.bench.tube import bench_tube
 
-    b = bench_tube(scenarios=("cluttered_room",), repeats=1)
-    assert b["met"]["baseline_agrees"] and b["rows"][0]["samples"] > 100
+    b = bench_tube(scenarios=("cluttered_room",), repeats=3)
+    row = b["rows"][0]
+    assert b["met"]["baseline_agrees"] and row["samples"] > 100
+    # the target's ratio: the median over the pairs (a plan, then its tube) of their ratio, from the times kept
+    assert row["tube_over_plan"] == pytest.approx(
+        float(np.median(np.array(row["tube_times_s"]) / np.array(row["plan_times_s"]))), rel=1e-12)
+    assert row["tube_over_plan_best"] == pytest.approx(min(row["tube_times_s"]) / min(row["plan_times_s"]))
     # every part of the tube timed on its own (no timing asserted: the machine is shared)
     parts = b["rows"][0]["parts_best_s"]
     assert set(parts) == {"schedule", "plant_derivatives", "covariance", "saturation", "spatial",
