@@ -295,9 +295,9 @@ def _spatial(prop: CovariancePropagation, sched: SampleSchedule, sat: dict, mode
 
 def certified_clearance(world, fp: Footprint, poses: np.ndarray, reach: np.ndarray):
     """min_k [clearance(fp at poses[k]) - reach[k]], exactly, with its index, the clearance there and
-    the number of poses whose clearance was measured (:meth:`CollisionWorld.min_clearance_less`: poses in
-    order of a lower bound from the distance field, measured in batches, until the bound passes the best
-    value found)."""
+    the number of poses whose clearance was measured (:meth:`CollisionWorld.min_clearance_less`: a branch
+    and bound on lower bounds from the distance field and the objects' boxes, measuring only the poses
+    whose bound does not pass the best value found)."""
     poses = np.asarray(poses, dtype=float)
     if not len(poses):
         return math.inf, -1, math.nan, 0
