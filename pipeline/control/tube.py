@@ -187,7 +187,7 @@ def _unicycle_derivatives(x: np.ndarray, u: np.ndarray, period: float, substeps:
     whose derivatives are sums of the same terms (d/dtheta rotates F - x, d/domega weighs each term by
     tau_j). F is computed as the plant computes it (:func:`nhstab.execution.plant._unicycle_step`,
     the same rotations in the same order) but from cosines and sines of theta and omega h / 2 by
-    :func:`nhstab.geometry.cos_sin`: it equals the plant's step to rounding (1e-15 m), the derivatives
+    :func:`nhstab.geometry.cos_sin`: it equals the plant's step to rounding (1e-14 m at tens of metres), the derivatives
     the variational RK4's (tested)."""
     h = float(period) / int(substeps)
     hh, w6 = 0.5 * h, h / 6.0
@@ -244,7 +244,7 @@ def _rwd_car_derivatives(x: np.ndarray, u: np.ndarray, period: float, substeps: 
     cosines and sines at once by :func:`nhstab.geometry.cos_sin`, the stage sums that the entries share
     formed once (the stages 3 and 4 enter each heading derivative together), and the composition runs
     over the derivatives' entries that are not constant (one long array operation per entry, not one per
-    sample). The map equals the plant's step to rounding (1e-15 m: the cosines and the order of the sums
+    sample). The map equals the plant's step to rounding (1e-14 m at tens of metres: the cosines and the order of the sums
     differ) and the derivatives the variational RK4's (tested)."""
     h = float(period) / int(substeps)
     hh, w6 = 0.5 * h, h / 6.0
