@@ -477,9 +477,9 @@ class CollisionWorld:
             out = np.empty(n_poses)
             for a in range(0, n_poses, self.NEAR_CHUNK):
                 rows = np.arange(a, min(a + self.NEAR_CHUNK, n_poses))
-                gap = _box_gaps2(boxes, [lox[rows].min(), loy[rows].min()], [hix[rows].max(), hiy[rows].max()])
+                gap = _box_gaps(boxes, [lox[rows].min(), loy[rows].min()], [hix[rows].max(), hiy[rows].max()])
                 part = np.argpartition(gap, self.NEAR_OBJECTS)
-                near, beyond = gaps2(part[:self.NEAR_OBJECTS], rows).min(axis=0), gap[part[self.NEAR_OBJECTS]]
+                near, beyond = gaps2(part[:self.NEAR_OBJECTS], rows).min(axis=0), gap[part[self.NEAR_OBJECTS]] ** 2
                 again = rows[near > beyond]     # the chunk's objects were too few for these (scattered) poses
                 out[rows] = np.minimum(near, beyond)
                 if len(again):
@@ -946,17 +946,6 @@ def _box_gaps(boxes: np.ndarray, lo, hi) -> np.ndarray:
     dx = np.maximum(np.maximum(boxes[:, 0] - hi[..., 0], lo[..., 0] - boxes[:, 2]), 0.0)
     dy = np.maximum(np.maximum(boxes[:, 1] - hi[..., 1], lo[..., 1] - boxes[:, 3]), 0.0)
     return np.hypot(dx, dy)
-
-
-def _box_gaps2(boxes: np.ndarray, lo, hi) -> np.ndarray:
-    """:func:`_box_gaps` squared (the square root left to the caller, after its minimum)."""
-    lo, hi = np.asarray(lo, dtype=float)[..., None, :], np.asarray(hi, dtype=float)[..., None, :]
-    dx = np.maximum(np.maximum(boxes[:, 0] - hi[..., 0], lo[..., 0] - boxes[:, 2]), 0.0)
-    dy = np.maximum(np.maximum(boxes[:, 1] - hi[..., 1], lo[..., 1] - boxes[:, 3]), 0.0)
-    dx *= dx
-    dy *= dy
-    dx += dy
-    return dx
 
 
 def _separated(robot, radius, quads, edges, circles, is_poly) -> np.ndarray:

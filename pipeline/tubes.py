@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtri
 
+from .control.interpolant import hermite_weights
 from .control.tube import CovariancePropagation, propagate, saturation
 from .errors import InputError, NumericalError
 from .geometry import Footprint
@@ -120,11 +121,8 @@ def run_schedule(law, period: float, t_stop: float | None = None, impulses=()) -
     np.cumsum(0.5 * h * (ut[:, 1:] + ut[:, :-1]), axis=1, out=cum[:, 1:])
     table[2 * (n + m):] = interp.K.reshape(G, -1).T
     lo, hi = np.take(table, k, axis=1), np.take(table, k + 1, axis=1)
-    a2 = a * a
-    a3 = a2 * a
-    # x0: the cubic Hermite interpolant (GridInterpolant.state_at)
-    x0 = (2 * a3 - 3 * a2 + 1) * lo[:n] + (a3 - 2 * a2 + a) * lo[n:2 * n] \
-        + (3 * a2 - 2 * a3) * hi[:n] + (a3 - a2) * hi[n:2 * n]
+    h00, h10, h01, h11 = hermite_weights(a)      # x0: the grid interpolant's cubic Hermite
+    x0 = h00 * lo[:n] + h10 * lo[n:2 * n] + h01 * hi[:n] + h11 * hi[n:2 * n]
     # the feedforward: the mean of the piecewise-linear u0 over each hold interval, from its integral
     ul, uh = lo[2 * n:2 * n + m], hi[2 * n:2 * n + m]
     U = lo[2 * n + m:2 * (n + m)] + (h * a) * (ul + (0.5 * a) * (uh - ul))

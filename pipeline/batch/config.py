@@ -307,7 +307,6 @@ def _check_problems(key: str, m, problems, robot, opts) -> None:
     footprint: what the first plan of every trial would refuse, refused once here instead of stored as
     an error in every trial."""
     from ..collision import CollisionWorld
-
     from ..tubes import AUTO_MARGIN_START
 
     fp = robot.footprint

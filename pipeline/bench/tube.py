@@ -23,7 +23,7 @@ def bench_tube(scenarios=SCENARIOS, repeats: int = 9) -> dict:
     pairs of a plan and then its tube. The ratio is the median over the pairs of tube / plan: on a
     shared machine whose speed drifts by tens of percent over seconds, a tube timed right after its plan
     runs at nearly the same speed, where the best of each (also reported) may come from different
-    moments, and the longer plan is the likelier to be slowed (which flatters the ratio).
+    moments.
     Target: the tube under 10 % of the plan's time. Baseline (what a competent engineer writes first): the per-step covariance recursion
     in a Python loop and the FCL clearance measured at every sample; its results are checked equal."""
     from ..control.tube import propagate_loop, saturation

@@ -75,11 +75,7 @@ class GridInterpolant:
 
     def linear_many(self, values: np.ndarray, tau) -> np.ndarray:
         """Any per-sample array ``values`` (N, ...) linearly interpolated at times ``tau``: (..., ...)."""
-        return self.linear_at(values, *self.locate_many(tau))
-
-    @staticmethod
-    def linear_at(values: np.ndarray, k: np.ndarray, a: np.ndarray) -> np.ndarray:
-        """``values`` linearly interpolated at fraction a of grid intervals k (from :meth:`locate_many`)."""
+        k, a = self.locate_many(tau)
         a = a.reshape(a.shape + (1,) * (values.ndim - 1))
         return (1.0 - a) * values[k] + a * values[k + 1]
 
@@ -87,12 +83,14 @@ class GridInterpolant:
         return self.linear_many(self.K, tau)
 
     def state_many(self, tau) -> np.ndarray:
-        return self.state_at(*self.locate_many(tau))
+        k, a = self.locate_many(tau)
+        h00, h10, h01, h11 = hermite_weights(a[..., None])
+        return h00 * self.x[k] + h10 * self.xd[k] + h01 * self.x[k + 1] + h11 * self.xd[k + 1]
 
-    def state_at(self, k: np.ndarray, a: np.ndarray) -> np.ndarray:
-        """x0 at fraction a of grid intervals k (from :meth:`locate_many`)."""
-        a = a[..., None]
-        a2 = a * a
-        a3 = a2 * a
-        return ((2 * a3 - 3 * a2 + 1) * self.x[k] + (a3 - 2 * a2 + a) * self.xd[k]
-                + (3 * a2 - 2 * a3) * self.x[k + 1] + (a3 - a2) * self.xd[k + 1])
+
+def hermite_weights(a):
+    """The cubic Hermite basis (h00, h10, h01, h11) at fractions ``a`` of an interval (the module
+    docstring's), for arrays: :meth:`GridInterpolant.state_many` and the tube's sample schedule."""
+    a2 = a * a
+    a3 = a2 * a
+    return 2 * a3 - 3 * a2 + 1, a3 - 2 * a2 + a, 3 * a2 - 2 * a3, a3 - a2

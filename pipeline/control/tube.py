@@ -357,13 +357,6 @@ def _forward_substitution(band: np.ndarray, x: np.ndarray) -> None:
 
 
 def _banded_scan(A: np.ndarray, M: np.ndarray, b: np.ndarray, S0: np.ndarray, m0: np.ndarray):
-    """:func:`_banded_scan_packed` with the covariances unpacked: (N + 1, n, n) and the means (N + 1, n)."""
-    xs, xm = _banded_scan_packed(A, M, b, S0, m0)
-    n = A.shape[1]
-    return xs[:, _unpacking(n)].reshape(len(xs), n, n), xm
-
-
-def _banded_scan_packed(A: np.ndarray, M: np.ndarray, b: np.ndarray, S0: np.ndarray, m0: np.ndarray):
     """:func:`_block_scan`'s recursions as two unit lower block-bidiagonal linear systems, solved by forward
     substitution in compiled code (LAPACK's banded triangular solve, ``dtbtrs``): the same arithmetic as
     the plain recursion, step by step, up to the order of the sums.
@@ -374,7 +367,7 @@ def _banded_scan_packed(A: np.ndarray, M: np.ndarray, b: np.ndarray, S0: np.ndar
     block below the diagonal, a band of width 2 d - 1; it is solved ``BANDED_CHUNK`` steps at a time,
     each chunk from the last value of the one before. M may come packed ((N, d), as s_k), and A as a
     view of an (n, n, N) array, the layout the band is filled from (then not copied). Returns the packed
-    covariances (N + 1, d) and the means (N + 1, n)."""
+    covariances (N + 1, d) (:func:`_unpack` makes them matrices) and the means (N + 1, n)."""
     N, n = A.shape[0], A.shape[1]
     I, J = _packed_pairs(n)
     d = len(I)
@@ -404,6 +397,11 @@ def _banded_scan_packed(A: np.ndarray, M: np.ndarray, b: np.ndarray, S0: np.ndar
         np.copyto(_band_block_view(bm, n, s), nac)
         _forward_substitution(bm, xm[a:a + s + 1])
     return xs, xm
+
+
+def _unpack(xs: np.ndarray, n: int) -> np.ndarray:
+    """Packed symmetric matrices (K, d) (:func:`_packed_pairs`' order) as (K, n, n)."""
+    return xs[:, _unpacking(n)].reshape(len(xs), n, n)
 
 
 @functools.lru_cache(maxsize=16)
@@ -511,7 +509,7 @@ def propagate(model: Model, t: np.ndarray, x0: np.ndarray, u_ff: np.ndarray, K: 
             GG *= R[:, None]
             M = GG.sum(axis=1)
             M[:n] += Q[:, None]
-            xs, mean = _banded_scan_packed(At, M.T, drift, S0, m0)
+            xs, mean = _banded_scan(At, M.T, drift, S0, m0)
         else:
             M = (Gt * R) @ transposed(Gt) + np.diag(Q)[None]
             cov, mean = (_loop if loop else _block_scan)(At, M, drift, S0, m0)
@@ -529,7 +527,7 @@ def propagate(model: Model, t: np.ndarray, x0: np.ndarray, u_ff: np.ndarray, K: 
         raise NumericalError(f"the linearised closed loop diverges: the error covariance is unbounded from "
                              f"t = {float(np.asarray(t)[k]):.3g} s (the gains destabilise the sampled loop)")
     if not loop and n <= BANDED_MAX_STATES:
-        cov = xs[:, _unpacking(n)].reshape(S, n, n)
+        cov = _unpack(xs, n)
     # the inputs' means u_ff - K m and variances diag(K (S + R) K^T) = sum over the packed pairs (i, j) of
     # K_i K_j S_ij (twice off the diagonal) + sum_b K_b^2 R_b, steps last
     u_mean = u_ff.T - (Kt * mean[:-1].T).sum(axis=1)                  # (m, N)
