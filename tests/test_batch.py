@@ -245,6 +245,40 @@ def test_ctrl_c_stops_the_batch_stores_no_interrupted_trial_and_resume_completes
     assert _records(db) == uninterrupted
 
 
+HALF_SENT = """
+import multiprocessing as mp, struct, sys, time
+from concurrent.futures import ProcessPoolExecutor
+from nhstab.batch.runner import _end_workers
+
+def half_sent():
+    # what a worker ended in the middle of sending a large record leaves in the result pipe: a
+    # message's header and the first bytes of its body
+    POOL._result_queue._writer._send(struct.pack("!i", 1 << 20) + b"x" * 1000)
+    STARTED.set()
+    time.sleep(120)
+
+ctx = mp.get_context("fork")
+STARTED = ctx.Event()             # inherited by the forked workers (no other process may hold the pipe)
+POOL = ProcessPoolExecutor(2, mp_context=ctx)
+POOL.submit(half_sent)
+assert STARTED.wait(60)
+time.sleep(0.2)                   # the manager thread is now reading the rest of the message
+_end_workers(POOL)
+print("ended", flush=True)
+"""
+
+
+def test_ending_the_workers_while_one_sends_a_record_does_not_hang_the_exit(tmp_path):
+    """The executor's manager thread, left reading the rest of a half-sent record, is joined by the
+    interpreter at exit: before the fix the batch hung after printing that it was interrupted (seen in
+    CI, 1 Ctrl-C run in a few hundred). Deterministic here: the worker writes half a message, then
+    _end_workers; the process must exit, and promptly."""
+    script = tmp_path / "half_sent.py"
+    script.write_text(HALF_SENT)
+    res = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0 and res.stdout.strip() == "ended", res.stderr
+
+
 def test_replay_reproduces_a_stored_trial(tmp_path, monkeypatch):
     """Also with the map given relative to the config and the batch run from another folder."""
     from click.testing import CliRunner

@@ -356,8 +356,11 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
 
 
 def _end_workers(pool: ProcessPoolExecutor) -> None:
-    # the executor has no public way to end its workers before Python 3.14: its process table
+    # the executor has no public way to end its workers before Python 3.14: its process table, and
+    # the manager thread with its result queue (shutdown(wait=False) drops the references)
     procs = list((getattr(pool, "_processes", None) or {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)
+    results = getattr(pool, "_result_queue", None)
     pool.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         if p.is_alive():
@@ -368,6 +371,22 @@ def _end_workers(pool: ProcessPoolExecutor) -> None:
         if p.is_alive():
             p.kill()
             p.join(5.0)
+    _release_manager(manager, results)
+
+
+def _release_manager(manager, results) -> None:
+    """A worker ended while it wrote a record larger than a pipe's buffer leaves the executor's manager
+    thread reading the rest of it for ever (this process holds the pipe's write end too), and the
+    interpreter joins that thread at exit: the batch hung after its "interrupted" line. With the
+    workers gone, closing this process's write end turns the read into end-of-file; the manager then
+    finds the pool broken and ends."""
+    if manager is None or not manager.is_alive():
+        return
+    writer = getattr(results, "_writer", None)
+    if writer is not None:
+        with contextlib.suppress(OSError):
+            writer.close()
+    manager.join(10.0)
 
 
 def _dask_trial(spec: dict, bundle: bytes, version: str) -> dict:
