@@ -215,3 +215,11 @@ def test_the_readme_python_example_runs(tmp_path):
     lines = res.stdout.strip().splitlines()
     assert lines[0].startswith("ok ") and lines[-1].startswith("reached")
     assert (tmp_path / "run1" / "run.json").is_file()
+
+
+def test_ci_runs_the_quick_start_test_command():
+    """.ci/run runs the README's Quick start test command (the second of its two), word for word."""
+    block = re.search(r"## Quick start.*?```bash\n(.*?)```", (ROOT / "README.md").read_text(), re.S).group(1)
+    commands = block.strip().splitlines()
+    assert len(commands) == 2 and "pytest" in commands[1]
+    assert commands[1] in (ROOT / ".ci" / "run").read_text().splitlines()
