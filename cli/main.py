@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
+import signal
 import sys
+import threading
 import warnings
 
 import click
@@ -33,6 +36,31 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 _default_showwarning = warnings.showwarning
 
 
+def _on_sigint(signum, frame):
+    """Ctrl-C: KeyboardInterrupt, as Python's own handler, except inside an FCL callback, where the
+    exception would be printed and lost: there the collision query raises it when FCL returns."""
+    from nhstab.collision import defer_interrupt
+
+    if not defer_interrupt(frame):
+        raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def _sigint_handler():
+    """:func:`_on_sigint` while a command runs, where Ctrl-C would raise KeyboardInterrupt (not where
+    SIGINT is ignored, as in a process a non-interactive shell starts in the background, nor outside
+    the main thread)."""
+    main = threading.current_thread() is threading.main_thread()
+    if not main or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield
+        return
+    signal.signal(signal.SIGINT, _on_sigint)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 class NhstabGroup(click.Group):
     """A click group whose errors are one line on stderr with a non-zero exit code, no traceback;
     nhstab's warnings are one line each."""
@@ -40,7 +68,7 @@ class NhstabGroup(click.Group):
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
         from nhstab.errors import NhstabWarning
 
-        with warnings.catch_warnings():            # restored on exit (CliRunner runs in-process)
+        with warnings.catch_warnings(), _sigint_handler():    # restored on exit (CliRunner runs in-process)
             warnings.showwarning = _show_warning
             warnings.simplefilter("once", NhstabWarning)
             self._main(args, prog_name, complete_var, **extra)

@@ -235,6 +235,8 @@ class CollisionWorld:
         for o in self._robot(fp, pose):
             data = fcl.CollisionData()
             self.manager.collide(o, data, _first_contact)
+            if _PENDING_INTERRUPT[0]:
+                _raise_pending_interrupt()
             if data.result.is_collision:
                 return True
         return False
@@ -588,6 +590,8 @@ class CollisionWorld:
             o.setTransform(tf)
             data = fcl.CollisionData()
             self.manager.collide(o, data, _first_contact)
+            if _PENDING_INTERRUPT[0]:
+                _raise_pending_interrupt()
             if data.result.is_collision:
                 return True
         return False
@@ -888,9 +892,34 @@ def _moved(a, b, reach: float) -> float:
 def _first_contact(o1, o2, data) -> bool:
     """Broad-phase callback: narrow-phase test of one candidate pair, stop at the first contact
     (fcl.defaultCollisionCallback does the same with more bookkeeping per pair)."""
-    if fcl.collide(o1, o2, _COLLIDE_REQUEST, data.result):
+    if fcl.collide(o1, o2, _COLLIDE_REQUEST, data.result) or _PENDING_INTERRUPT[0]:
         data.done = True
     return data.done
+
+
+#: a Ctrl-C kept for later by :func:`defer_interrupt`, raised when FCL returns
+_PENDING_INTERRUPT = [False]
+
+
+def defer_interrupt(frame) -> bool:
+    """For a SIGINT handler, with the frame the signal interrupts: True when that frame is the
+    broad-phase callback FCL calls from Cython, which would print a KeyboardInterrupt raised there
+    ("Exception ignored in: 'fcl.fcl.CollisionCallBack'") and drop it, so that the query went on as if
+    nothing had been pressed (also when the signal lands in Python code FCL calls from the callback, as
+    the contacts it builds). The interrupt is then kept: the callback stops the broad phase, and the
+    query raises KeyboardInterrupt once FCL returns. ``nhstab``'s commands install such a handler."""
+    code = _first_contact.__code__
+    while frame is not None:
+        if frame.f_code is code:
+            _PENDING_INTERRUPT[0] = True
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _raise_pending_interrupt() -> None:
+    _PENDING_INTERRUPT[0] = False
+    raise KeyboardInterrupt
 
 
 def _offset_convex(v: np.ndarray, d: float) -> tuple[np.ndarray, np.ndarray]:

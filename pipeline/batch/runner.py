@@ -291,8 +291,11 @@ def _interrupt_flag():
         return
 
     def handler(signum, frame):
+        from ..collision import defer_interrupt
+
         flag.set()
-        raise KeyboardInterrupt
+        if not defer_interrupt(frame):       # inside an FCL callback: raised when FCL returns
+            raise KeyboardInterrupt
 
     previous = signal.signal(signal.SIGINT, handler)
     try:
