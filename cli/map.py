@@ -23,6 +23,9 @@ def parse_pose(name: str, text: str | None):
     if not 3 <= len(values) <= 12 or not all(abs(v) < float("inf") for v in values):
         raise InputError(name, "x,y,theta (metres, metres, radians), finite; a car with trailers may add "
                          "their headings theta1,...", text)
+    from nhstab.limits import check_headings
+
+    check_headings(name, values)
     return tuple(values)
 
 

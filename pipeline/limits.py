@@ -45,6 +45,11 @@ MAX_GRID_CELLS = 4096 * 4096
 #: is mostly isolated noise cells: clean or coarsen it
 MAX_WORLD_OBJECTS = 100_000
 
+#: largest heading magnitude in a pose given as input (start, goal, a trailer's heading) [rad]: headings
+#: are taken modulo 2 pi, and beyond this a float's spacing (1e-10 rad at 1e6) starts to blur them; a
+#: heading of 1e308 has no angle at all (its neighbouring floats are 1e292 rad apart)
+MAX_HEADING_RAD = 1e6
+
 # ---- runs ---------------------------------------------------------------------------------------
 #: controller rate [Hz]. Every control period runs the law, the plant's RK4 substeps and the
 #: monitors in Python (tens of microseconds); at 1 kHz a 60 s run is already 60,000 periods and the
@@ -76,10 +81,33 @@ MAX_BUNDLE_BYTES = 2 * MAX_FILE_BYTES
 MAX_BUNDLE_FILES = 64
 
 # ---- planning ---------------------------------------------------------------------------------
+#: most samples of a nominal's grid (its duration / dt): the run follows it at its control rate, so a
+#: longer one could not be run (MAX_CONTROL_PERIODS), and the grid, its gain schedule and its error
+#: tube keep a few hundred bytes per sample. Reached by a speed far too low for the map (a tiny
+#: --max-speed, or a unicycle's tiny turning radius, which caps its speed at the turn-rate limit
+#: times the radius), before anything of that size is allocated
+MAX_NOMINAL_SAMPLES = 2_000_000
 #: the assumed cost of one validity check that reaches FCL [s] (the slow case: measured at about 64 us,
 #: see `nhstab bench planning`). A planning budget must afford one crossing of the map at the
 #: checking resolution at this cost, or the map is refused before anything is built
 FCL_CHECK_S = 64e-6
+
+
+def nominal_grid(duration: float, dt: float, key: str, value, speed: float, why: str = "") -> int:
+    """The number of samples of a nominal lasting ``duration`` on a grid of step ``dt``, or an
+    InputError naming ``key`` (what set the ``speed`` [m/s] that made it this long; ``why`` says how)."""
+    n = duration / dt + 1.0 if duration >= 0 else math.nan
+    if not (math.isfinite(n) and n <= MAX_NOMINAL_SAMPLES):
+        raise InputError(key, f"large enough that the nominal fits {MAX_NOMINAL_SAMPLES:,} samples of {dt:g} s",
+                         value, detail=f"at {speed:.3g} m/s{why} the nominal would last {duration:.3g} s")
+    return max(2, int(math.ceil(duration / dt)) + 1)
+
+
+def check_headings(key: str, values) -> None:
+    """The headings of a pose given as input (every value after x, y) within +-MAX_HEADING_RAD."""
+    for i, v in enumerate(values[2:], start=2):
+        if not abs(float(v)) <= MAX_HEADING_RAD:
+            raise InputError(f"{key}[{i}]", f"a heading within +-{MAX_HEADING_RAD:g} rad", v)
 
 
 def check_int(key: str, value, lo: int, hi: int, what: str = "an integer") -> int:
@@ -123,7 +151,11 @@ def number_hint(value) -> str:
 
     if isinstance(value, str) and re.fullmatch(r"\s*[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+\s*", value):
         mant, _, exp = value.strip().lower().partition("e")
-        fixed = (mant if "." in mant else mant + ".0") + "e" + exp
+        # YAML 1.1's float needs a dot in the mantissa, a digit before it when signed, and a sign in the
+        # exponent
+        sign, digits = (mant[0], mant[1:]) if mant[0] in "+-" else ("", mant)
+        digits = ("0" + digits if digits.startswith(".") else digits) if "." in digits else digits + ".0"
+        fixed = sign + digits + "e" + (exp if exp[0] in "+-" else "+" + exp)
         return f"YAML 1.1 reads {value.strip()} as text: write {fixed}"
     return ""
 

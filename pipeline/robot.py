@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import InputError
+from .limits import number_hint
 from .geometry import Footprint
 from .models import MODELS, Model, make_model
 
@@ -484,8 +485,7 @@ def _number(key: str, v, lo: float = -math.inf, lo_open: bool = False) -> float:
         ok = v > lo if lo_open else v >= lo
     if not ok:
         bound = "" if lo == -math.inf else f" {'>' if lo_open else '>='} {lo:g}"
-        hint = " (YAML reads 1e9 as a string: write 1.0e9)" if isinstance(v, str) and _looks_numeric(v) else ""
-        raise InputError(key, f"a finite number{bound}{hint}", v)
+        raise InputError(key, f"a finite number{bound}", v, detail=number_hint(v))
     return float(v)
 
 
@@ -497,14 +497,6 @@ def _numbers(key: str, v) -> list[float]:
     if not isinstance(v, list) or not v or len(v) > 64:
         raise InputError(key, "a non-empty list of positive numbers, e.g. [3.0]", _kind(v))
     return [_number(f"{key}[{i}]", a, 0.0, lo_open=True) for i, a in enumerate(v)]
-
-
-def _looks_numeric(s: str) -> bool:
-    try:
-        float(s)
-        return True
-    except ValueError:
-        return False
 
 
 def _kind(value) -> str:

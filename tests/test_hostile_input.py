@@ -177,7 +177,7 @@ def test_rates_substeps_and_run_length_are_bounded_before_anything_runs(tmp_path
     r = tmp_path / "run.yaml"
     r.write_text("rate_hz: 1e7\n")
     line = one_line(invoke("run", D, "--config", r, "--out", out), 2, "rate_hz", "YAML 1.1 reads 1e7 as text")
-    assert "write 1.0e7" in line
+    assert "write 1.0e+7" in line
     r.write_text("substeps: 1000000000\n")
     one_line(invoke("run", D, "--config", r, "--out", out), 2, "substeps", "[1, 100]")
     r.write_text("max_time_s: 100000\nrate_hz: 1000\n")
@@ -596,5 +596,50 @@ def test_the_readme_limits_are_the_code_limits():
     assert limits.MAX_SEED == 2**128 - 1 and limits.MAX_PLANNER_SEED == 2**31 - 2
     assert "0 to 2**128 - 1" in section and "0 to 2**31 - 2" in section
     assert limits.MAX_BATCH_TRIALS == 1_000_000 and "1,000,000 trials" in section
+    assert limits.MAX_NOMINAL_SAMPLES == 2_000_000 and "2,000,000 samples of its time step (0.02 s: 11 hours)" in section
+    assert round(limits.MAX_NOMINAL_SAMPLES * 0.02 / 3600) == 11
+    assert limits.MAX_HEADING_RAD == 1e6 and "+-1,000,000 rad" in section
     assert ClearanceField.MAX_CELLS == 4_000_000 and "4,000,000 cells" in section
     assert guide.MAX_CELLS == 400_000 and "400,000 guide cells" in section
+
+
+@pytest.mark.parametrize("args,key", [
+    ((M, "--turning-radius", "1e-12"), "'turning_radius'"),   # the unicycle's speed: turn-rate limit x radius
+    ((M, "--max-speed", "1e-12"), "'max_speed'"),
+    ((M, "--max-speed", "1e-4"), "'max_speed'"),              # 1.3e5 s: 6.7 million samples of 0.02 s
+    (("example:parking_lot", "--max-speed", "1e-9"), "'max_speed'"),     # a car
+])
+def test_a_nominal_too_long_to_sample_is_refused_before_it_is_allocated(tmp_path, args, key):
+    """A speed far too low for the map made a nominal of 1e13 s, and numpy was asked for petabytes
+    (a MemoryError traceback); now one line names what set the speed."""
+    out = tmp_path / "p"
+    line = one_line(invoke("plan", *args, "--out", out), 2, key, "2,000,000 samples", "the nominal would last")
+    assert "m/s" in line and not out.exists()
+
+
+def test_a_car_with_a_trailer_at_a_crawl_is_refused_before_it_is_tracked(tmp_path):
+    """The trailer's nominal is the rig driven step by step along its path: at 1e-6 m/s that loop ran
+    for hours; the path's length at the tracker's speed is checked first."""
+    out = tmp_path / "p"
+    one_line(invoke("plan", "example:loading_dock", "--max-speed", "1e-6", "--out", out), 2, "'max_speed'",
+             "2,000,000 samples")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("where", ["--start", "--goal"])
+def test_headings_beyond_a_million_radians_are_refused(tmp_path, where):
+    """A heading of 1e308 has no angle left in it (the nominal came out with an infinite heading and
+    numpy's overflow warning); 1e6 rad is still planned."""
+    out = tmp_path / "p"
+    one_line(invoke("plan", M, where, "1,1,1e308", "--out", out), 2, f"'{where}[2]'", "heading within +-1e+06 rad")
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text(f"map: {M}\n{where[2:]}: [1.0, 1.0, -1.0e+300]\n")
+    one_line(invoke("run", "--config", cfg, "--out", out), 2, f"'{where[2:]}[2]'", "heading within")
+    assert not out.exists()
+    from nhstab.maps import load_map
+    from nhstab.planning import plan
+    from nhstab.robot import default_robot
+
+    m = load_map(M)
+    with pytest.raises(InputError, match=r"'start\[2\]' must be a heading"):
+        plan(m, default_robot("unicycle"), [1.0, 1.0, 1e7], m.goal.as_array())

@@ -120,8 +120,21 @@ def test_bad_descriptions_name_the_key(patch, key):
 
 
 def test_the_1e9_string_gets_a_hint():
-    with pytest.raises(InputError, match="write 1.0e9"):
+    with pytest.raises(InputError, match=r"write 1\.0e\+9"):
         robot_from_spec({**USER_CAR, "max_speed": "1e9"})
+
+
+@pytest.mark.parametrize("text", ["1e9", "5E-3", "1.0e300", "-2e+4", "+.5e7", "3.e2"])
+def test_the_hints_advice_is_a_number_to_yaml(text):
+    """The text YAML 1.1 leaves a string, and the spelling the hint advises, which it reads as the
+    same number (it needs a dot in the mantissa and a sign in the exponent)."""
+    import yaml
+
+    from nhstab.limits import number_hint
+
+    assert isinstance(yaml.safe_load(f"x: {text}")["x"], str)
+    fixed = number_hint(text).rpartition("write ")[2]
+    assert yaml.safe_load(f"x: {fixed}")["x"] == float(text)
 
 
 @settings(max_examples=150, deadline=None)

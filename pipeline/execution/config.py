@@ -48,6 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..limits import check_headings
 from ..sensing import SensorOptions
 from .controllers import ControllerOptions
 
@@ -288,7 +289,9 @@ def check_pose(key: str, v):
     """[x, y, theta], or for a car with trailers [x, y, theta, theta1, ...] (the robot checks the length)."""
     if not (isinstance(v, (list, tuple)) and 3 <= len(v) <= 12):
         raise InputError(key, "[x, y, theta] (three numbers; a car with trailers may add their headings)", v)
-    return tuple(check_number(f"{key}[{i}]", c) for i, c in enumerate(v))
+    pose = tuple(check_number(f"{key}[{i}]", c) for i, c in enumerate(v))
+    check_headings(key, pose)
+    return pose
 
 
 def _noise(data: dict) -> NoiseOptions:

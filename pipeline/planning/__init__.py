@@ -19,6 +19,7 @@ import numpy as np
 from ..collision import CollisionWorld, check_poses
 from ..control import GainSchedule, StabilizerOptions, compute_schedule
 from ..errors import InputError, SingularGramianError
+from ..limits import check_headings
 from ..maps.base import Map
 from ..models import Model
 from ..nominal import Nominal
@@ -406,6 +407,7 @@ def _pose(value, name: str, model: Model) -> np.ndarray:
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
         raise InputError(name, "a pose of three finite numbers (x, y, theta)",
                          value if arr.size < 10 else f"shape {arr.shape}")
+    check_headings(name, arr)
     return arr
 
 

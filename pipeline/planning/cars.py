@@ -44,6 +44,7 @@ import numpy as np
 from ..collision import CollisionWorld
 from ..errors import InputError, PipelineError
 from ..geometry import Footprint, wrap_angle
+from ..limits import nominal_grid
 from ..models import Model
 from ..nominal import Nominal
 from .geometric import GeometricPath
@@ -499,7 +500,7 @@ def car_nominal(model: Model, path: GeometricPath, timing: TimingOptions, world:
     # one continuous-time trajectory from the pieces
     joined = _Joined(model, pieces)
     duration = joined.duration
-    npts = max(2, int(math.ceil(duration / timing.dt)) + 1)
+    npts = nominal_grid(duration, timing.dt, "max_speed", max_speed, max_speed)
     t = np.linspace(0.0, duration, npts)
     nominal = Nominal.from_functions(model, joined.states, joined.inputs, t)
     return nominal, {"duration_s": duration, "pieces": len(pieces), "subdivisions": subdivisions,
@@ -554,7 +555,7 @@ def exact_nominal(model: Model, path: GeometricPath, timing: TimingOptions,
         raise InputError("path", "a path that moves", "length 0")
     joined = _Joined(model, pieces)
     duration = joined.duration
-    npts = max(2, int(math.ceil(duration / timing.dt)) + 1)
+    npts = nominal_grid(duration, timing.dt, "max_speed", speed, speed)
     t = np.linspace(0.0, duration, npts)
     nominal = Nominal.from_functions(model, joined.states, joined.inputs, t)
     deviation = float(np.hypot(*(pose[:2] - path.samples[-1, :2])))

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..limits import nominal_grid
 from ..models import Model
 from ..nominal import Nominal
 from .geometric import GeometricPath
@@ -181,7 +182,10 @@ def unicycle_nominal(model: Model, path: GeometricPath, opts: TimingOptions) -> 
         _, speed, direction, kappa = timing.evaluate(t)
         return np.stack([direction * speed, kappa * speed], axis=-1)
 
-    n = max(2, int(math.ceil(timing.duration / opts.dt)) + 1)
+    turn_bound = turn_limit / max(kmax, 1e-9) < (opts.max_speed or float(model.input_limits()[0, 1]))
+    key, value, why = (("turning_radius", path.options.turning_radius, " (the turn-rate limit times the turning "
+                        "radius)") if turn_bound else ("max_speed", v_lim, ""))
+    n = nominal_grid(timing.duration, opts.dt, key, value, v_lim, why)
     t = np.linspace(0.0, timing.duration, n)
     timing.exact_poses(path.samples[0])
 

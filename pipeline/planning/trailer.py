@@ -77,6 +77,7 @@ import numpy as np
 
 from .. import bodies
 from ..collision import CollisionWorld
+from ..limits import nominal_grid
 from ..control import StabilizerOptions, compute_schedule
 from ..errors import InputError, PipelineError, SingularGramianError
 from ..geometry import wrap_angle
@@ -428,6 +429,9 @@ def trailer_nominal(robot, path: GeometricPath, timing: TimingOptions, world: Co
     kappa = np.where(np.diff(sigma) > 1e-12, np.diff(samples[:, 2]) / np.maximum(np.diff(sigma), 1e-300), 0.0)
     max_speed = timing.max_speed or float(model.input_limits()[0, 1])
     tracker = _Tracker(robot, timing, speed_fraction * max_speed)
+    # the tracked motion takes one step of dt per speed x dt of the path: refused before it is stepped
+    # through when the nominal could not be that long
+    nominal_grid(float(sigma[-1] - sigma[0]) / tracker.speed, timing.dt, "max_speed", max_speed, tracker.speed)
     ends = [0, *_cusps(direction, sigma, min_run), n - 1]
     x = np.array(start_state, dtype=float)
     u = np.zeros(2)
@@ -492,7 +496,7 @@ def trailer_nominal(robot, path: GeometricPath, timing: TimingOptions, world: Co
         raise TrailerPlanningError(f"the tracked motion leaves the limits (max |hitch| {np.abs(hitches).max():.3f} rad, "
                                    f"max |phi| {np.abs(x_track[:, 3]).max():.3f} rad)")
     joined = _TrackedThenPiece(model, t_track, x_track, u_track, piece)
-    npts = max(2, int(math.ceil(joined.duration / timing.dt)) + 1)
+    npts = nominal_grid(joined.duration, timing.dt, "max_speed", max_speed, tracker.speed)
     t = np.linspace(0.0, joined.duration, npts)
     nominal = Nominal.from_functions(model, joined.states, joined.inputs, t)
     # the motion continued past the goal, for the gramian law's future windows only (Nominal.tail): the
