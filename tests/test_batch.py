@@ -399,3 +399,23 @@ def test_a_large_batch_draws_a_bounded_set_of_cells_in_its_time_series_figures()
     assert f"{FIGURE_CELLS_MAX} of the {len(many)} cells" in note
     no_default = [{"cell": f"c{i}", "noise": 2.0} for i in range(FIGURE_CELLS_MAX + 1)]
     assert figure_rows(no_default)[0] == no_default[:FIGURE_CELLS_MAX]
+
+
+def test_a_second_batch_on_the_same_folder_is_refused_while_one_runs(tmp_path):
+    """Two `nhstab batch --resume` on one folder ran the same missing trials side by side (the store kept
+    one copy of each, and each process reported trials the other had stored). While a batch runs, its
+    folder is locked (flock, released by the system when the process ends however it ends): a second
+    batch is refused with one line naming --out, and leaves the store as it was."""
+    from nhstab.batch.runner import _only_batch_in
+
+    cfg = load_batch_config(_config(tmp_path, trials=1))
+    out = tmp_path / "b"
+    run_batch(cfg, out, progress=False)
+    with Store(out / "trials.sqlite") as s:
+        before = s.trials()
+    with _only_batch_in(out):            # as another process running this batch holds it
+        with pytest.raises(InputError, match="'--out' must be a batch folder no other nhstab batch is running in"):
+            run_batch(cfg, out, resume=True, retry_errors=True, progress=False)
+    with Store(out / "trials.sqlite") as s:
+        assert s.trials() == before
+    assert run_batch(cfg, out, resume=True, progress=False)["already_stored"] == len(before)

@@ -105,12 +105,17 @@ def test_yard_scenario_replans_reaches_the_door_and_no_body_collides(tmp_path):
 @pytest.mark.slow
 def test_gramian_docks_where_open_loop_jackknifes():
     """The same seeds, the same noise, the same plan: the gramian law keeps the hitch angle within
-    the jackknife limit and docks within the tolerance; open loop (u = u0) jackknifes or collides."""
+    the jackknife limit and docks within the tolerance; open loop (u = u0) jackknifes or collides.
+    The planning budget is 20 s, not the default 2 s: these plans take 1.4-2.1 s here, and a search
+    cut short by its budget (on a loaded machine; seen in a test run in parallel) gives another plan."""
+    from nhstab.execution.config import PlanningOptions
+
     m = load_map(ROOT / DOCK)
     robot = default_robot("car_trailer")
     limit = robot.model.jackknife_limit
     for seed in (2, 3):
-        runs = {kind: execute(m, robot, None, None, RunOptions(seed=seed, controller=ControllerOptions(kind=kind)))
+        runs = {kind: execute(m, robot, None, None, RunOptions(seed=seed, controller=ControllerOptions(kind=kind),
+                                                               planning=PlanningOptions(time_limit_s=20.0)))
                 for kind in ("gramian", "open-loop")}
         g, o = runs["gramian"], runs["open-loop"]
         assert np.array_equal(g.plans[0].law.nominal.x, o.plans[0].law.nominal.x)     # the same plan

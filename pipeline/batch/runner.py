@@ -184,7 +184,7 @@ def run_batch(config: BatchConfig, out_dir, workers: int = 1, scheduler: str | N
         if client is not None:
             check_workers(client, scheduler)
         specs = config.trial_specs()
-        with open_store(config, out_dir, resume) as store:
+        with open_store(config, out_dir, resume) as store, _only_batch_in(out_dir):
             if retry_errors:
                 store.remove_errors()
             done = store.done_ids()
@@ -212,6 +212,26 @@ def run_batch(config: BatchConfig, out_dir, workers: int = 1, scheduler: str | N
     finally:
         if client is not None:
             client.close()
+
+
+@contextlib.contextmanager
+def _only_batch_in(out_dir: Path):
+    """While a batch runs, an exclusive lock on its folder (flock: the system releases it when the
+    process ends, however it ends), so that a second ``nhstab batch --resume`` on the same folder is
+    refused instead of running the same missing trials again beside the first (the store kept one
+    copy of each, but the work was done twice and each reported trials the other had stored)."""
+    import fcntl
+
+    fd = os.open(out_dir, os.O_RDONLY)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise InputError("--out", "a batch folder no other nhstab batch is running in", str(out_dir),
+                             detail="another process is running this batch; --resume once it has ended") from None
+        yield
+    finally:
+        os.close(fd)
 
 
 class _Tally:
