@@ -500,7 +500,8 @@ def car_nominal(model: Model, path: GeometricPath, timing: TimingOptions, world:
     # one continuous-time trajectory from the pieces
     joined = _Joined(model, pieces)
     duration = joined.duration
-    npts = nominal_grid(duration, timing.dt, "max_speed", max_speed, max_speed)
+    npts = nominal_grid(duration, timing.dt, "arc_speed" if arc_speed else "max_speed", arc_speed or max_speed,
+                        min(arc_speed or max_speed, max_speed))
     t = np.linspace(0.0, duration, npts)
     nominal = Nominal.from_functions(model, joined.states, joined.inputs, t)
     return nominal, {"duration_s": duration, "pieces": len(pieces), "subdivisions": subdivisions,
