@@ -15,19 +15,17 @@ def tubes():
 @tubes.command()
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results/tubes"),
               show_default=True)
-@click.option("--trials", type=int, default=200, show_default=True, help="Trials per cell (>= 2).")
+@click.option("--trials", type=int, default=200, show_default=True, help="Trials per cell (2 to 5,000).")
 @click.option("--seed", "root_seed", type=int, default=2026, show_default=True, help="Root seed of the trials.")
 @click.option("--gains/--no-gains", default=True, show_default=True, help="Also the --gains auto grid and its check.")
 def study(out_dir, trials, root_seed, gains):
     """The tube study: unicycle and rwd_car on two bundled maps each, gramian and TVLQR, noise x0.5, x1,
     x2; writes study.json, study.md and figures into OUT (see nhstab.batch.tube_study)."""
     from nhstab.batch.tube_study import write_study
-    from nhstab.errors import InputError
+    from nhstab.limits import MAX_SEED, MAX_STUDY_TRIALS, check_int
 
-    if trials < 2:
-        raise InputError("--trials", "an integer >= 2", trials)
-    if root_seed < 0:
-        raise InputError("--seed", "an integer >= 0", root_seed)
+    check_int("--trials", trials, 2, MAX_STUDY_TRIALS, "a number of trials per cell")
+    check_int("--seed", root_seed, 0, MAX_SEED, "a seed")
     files = write_study(out_dir, trials, root_seed, gains=gains, progress=lambda s: click.echo(s, err=True))
     click.echo(f"wrote {len(files)} files into {out_dir} (study.md, study.json, figures)")
     return 0

@@ -79,6 +79,10 @@ MAX_BATCH_TRIALS = 1_000_000
 #: unpacked
 MAX_BUNDLE_BYTES = 2 * MAX_FILE_BYTES
 MAX_BUNDLE_FILES = 64
+#: most trials per cell of the tube study (``nhstab tubes study --trials``): a cell simulates all its
+#: trials at once and keeps their series (states, measurements, inputs, errors), measured at 0.17 MB
+#: per trial for the study's longest plan (1852 control periods), so about 0.9 GB at this count
+MAX_STUDY_TRIALS = 5_000
 
 # ---- planning ---------------------------------------------------------------------------------
 #: most samples of a nominal's grid (its duration / dt): the run follows it at its control rate, so a

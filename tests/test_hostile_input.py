@@ -599,6 +599,7 @@ def test_the_readme_limits_are_the_code_limits():
     assert limits.MAX_NOMINAL_SAMPLES == 2_000_000 and "2,000,000 samples of its time step (0.02 s: 11 hours)" in section
     assert round(limits.MAX_NOMINAL_SAMPLES * 0.02 / 3600) == 11
     assert limits.MAX_HEADING_RAD == 1e6 and "+-1,000,000 rad" in section
+    assert limits.MAX_STUDY_TRIALS == 5_000 and "5,000 trials per cell" in section
     assert ClearanceField.MAX_CELLS == 4_000_000 and "4,000,000 cells" in section
     assert guide.MAX_CELLS == 400_000 and "400,000 guide cells" in section
 
@@ -643,3 +644,13 @@ def test_headings_beyond_a_million_radians_are_refused(tmp_path, where):
     m = load_map(M)
     with pytest.raises(InputError, match=r"'start\[2\]' must be a heading"):
         plan(m, default_robot("unicycle"), [1.0, 1.0, 1e7], m.goal.as_array())
+
+
+@pytest.mark.parametrize("args,key", [(("--trials", "1000000000000"), "'--trials'"), (("--trials", "1"), "'--trials'"),
+                                      (("--seed", str(2**128)), "'--seed'"), (("--seed", "-1"), "'--seed'")])
+def test_the_tube_study_bounds_its_trials_and_seed_before_it_starts(tmp_path, args, key):
+    """--trials 1e12 ran (seeds for every trial, then every trial's series in memory) until killed;
+    --seed beyond 2**128 - 1 was taken, where runs and batches refuse it."""
+    out = tmp_path / "study"
+    one_line(invoke("tubes", "study", *args, "--out", out), 2, key)
+    assert not out.exists()

@@ -174,6 +174,9 @@ def diagnose(cell: dict) -> str:
 def run_study(trials: int = TRIALS, root_seed: int = ROOT_SEED, cases=CASES, controllers=CONTROLLERS,
               noise_levels=NOISE_LEVELS, probability: float = PROBABILITY, progress=None) -> tuple[dict, dict]:
     """The study; returns (JSON-ready result, curves for the figures)."""
+    from ..limits import MAX_STUDY_TRIALS, check_int
+
+    trials = check_int("trials", trials, 2, MAX_STUDY_TRIALS, "a number of trials per cell")
     from ..execution.config import NoiseOptions
     from ..execution.outputs import nominal_cusps
     from ..tubes import predict_tube
