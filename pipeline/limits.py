@@ -84,6 +84,14 @@ MAX_BUNDLE_FILES = 64
 #: per trial for the study's longest plan (1852 control periods), so about 0.9 GB at this count
 MAX_STUDY_TRIALS = 5_000
 
+# ---- gain schedules ---------------------------------------------------------------------------
+#: most integration substeps per nominal time step for the gramian's windows: a window of length delta
+#: is integrated in steps of at most delta / 16 (StabilizerOptions.max_substep_fraction), so this
+#: refuses windows shorter than 1/64 of the nominal's time step (0.3 ms at 0.02 s), where the gramian is
+#: numerically singular anyway (a 1e-4 s window already is, on a unicycle's plan), instead of
+#: allocating stage arrays of the nominal's length times 12 stages times 1e10 substeps (--delta 1e-12)
+MAX_WINDOW_SUBSTEPS = 1024
+
 # ---- planning ---------------------------------------------------------------------------------
 #: most samples of a nominal's grid (its duration / dt): the run follows it at its control rate, so a
 #: longer one could not be run (MAX_CONTROL_PERIODS), and the grid, its gain schedule and its error

@@ -104,6 +104,10 @@ def test_gains_bad_inputs(runner, tmp_path, traj):
     _one_line_error(runner.invoke(cli, [*base, "--model", "unicycle", "--gamma", "0.1"]), "'gamma'")
     _one_line_error(runner.invoke(cli, [*base, "--model", "fwd_car"]), "header", "fwd_car")
     _one_line_error(runner.invoke(cli, [*base, "--model", "unicycle", "--delta", "50"]), "'delta'", "duration")
+    # a window far shorter than the time step (0.01 s here): 1e10 substeps per step were allocated (a
+    # MemoryError traceback); the shortest is 0.01 / (1/16 x 1024) s
+    _one_line_error(runner.invoke(cli, [*base, "--model", "unicycle", "--delta", "1e-12"]), "'delta'",
+                    "at least 0.000156 s")
     _one_line_error(runner.invoke(cli, [*base, "--model", "unicycle", "--param", "wheelbase=2"]), "wheelbase")
     lines = traj.read_text().splitlines()
     lines[5] = lines[5].replace(lines[5].split(",")[2], "nan", 1)

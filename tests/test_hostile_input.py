@@ -576,7 +576,7 @@ def test_every_yaml_read_goes_through_the_safe_loader():
 def test_the_readme_limits_are_the_code_limits():
     from nhstab import limits
     from nhstab.clearance_field import ClearanceField
-
+    from nhstab.control import StabilizerOptions
     from nhstab.planning import guide
 
     readme = (ROOT / "README.md").read_text()
@@ -600,6 +600,8 @@ def test_the_readme_limits_are_the_code_limits():
     assert round(limits.MAX_NOMINAL_SAMPLES * 0.02 / 3600) == 11
     assert limits.MAX_HEADING_RAD == 1e6 and "+-1,000,000 rad" in section
     assert limits.MAX_STUDY_TRIALS == 5_000 and "5,000 trials per cell" in section
+    assert limits.MAX_WINDOW_SUBSTEPS == 1024 and StabilizerOptions().max_substep_fraction == 1 / 16
+    assert "1/64 of the nominal's time step (0.3 ms at 0.02 s)" in section and "1,024 per time step" in section
     assert ClearanceField.MAX_CELLS == 4_000_000 and "4,000,000 cells" in section
     assert guide.MAX_CELLS == 400_000 and "400,000 guide cells" in section
 

@@ -408,6 +408,13 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
         phi = 0.0
     n_full = min(N, int(math.floor((T - delta) / h + 1e-9)) + 1)   # points with t + delta <= T
     i_min = N - n_full                                              # first point with t - delta >= t0
+    from ..limits import MAX_WINDOW_SUBSTEPS
+
+    if h / (opts.max_substep_fraction * delta) > MAX_WINDOW_SUBSTEPS:
+        shortest = h / (opts.max_substep_fraction * MAX_WINDOW_SUBSTEPS)
+        raise InputError("delta", f"at least {shortest:.3g} s for this nominal's time step {h:.3g} s", delta,
+                         detail=f"a window of delta is integrated in steps of at most delta x "
+                                f"{opts.max_substep_fraction:g}, and at most {MAX_WINDOW_SUBSTEPS} per time step")
     substeps = max(1, int(math.ceil(h / (opts.max_substep_fraction * delta) - 1e-9)))
 
     gamma = opts.gamma_on(t)
