@@ -601,6 +601,7 @@ def test_the_readme_limits_are_the_code_limits():
     assert limits.MAX_HEADING_RAD == 1e6 and "+-1,000,000 rad" in section
     assert limits.MAX_STUDY_TRIALS == 5_000 and "5,000 trials per cell" in section
     assert limits.MAX_WINDOW_SUBSTEPS == 1024 and StabilizerOptions().max_substep_fraction == 1 / 16
+    assert limits.MAX_GAMMA == 1e4 and "| 1/2 to 10,000 |" in section
     assert "1/64 of the nominal's time step (0.3 ms at 0.02 s)" in section and "1,024 per time step" in section
     assert ClearanceField.MAX_CELLS == 4_000_000 and "4,000,000 cells" in section
     assert guide.MAX_CELLS == 400_000 and "400,000 guide cells" in section
@@ -656,3 +657,18 @@ def test_the_tube_study_bounds_its_trials_and_seed_before_it_starts(tmp_path, ar
     out = tmp_path / "study"
     one_line(invoke("tubes", "study", *args, "--out", out), 2, key)
     assert not out.exists()
+
+
+def test_gamma_beyond_its_bound_is_one_line_everywhere(tmp_path):
+    """gamma 1e300 made infinite gains and a ValueError traceback from the paper's integrator; in a batch
+    grid every trial failed by error. Now the command line, run configs and batch grids refuse it up front."""
+    one_line(invoke("paper", "--out", tmp_path / "p", "--case", "hilare-circle", "--gamma", "1e300"), 2, "'gamma'",
+             "10000")
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text(f"map: {M}\ncontroller:\n  gamma: 1.0e+5\n")
+    one_line(invoke("run", "--config", cfg, "--out", tmp_path / "r"), 2, "'gamma'", "10000")
+    b = tmp_path / "batch.yaml"
+    b.write_text(f"name: g\nroot_seed: 1\ntrials: 1\nmaps:\n  - path: {M}\ncontrollers: [gramian]\n"
+                 "grid:\n  gamma: [1.0, 1.0e+300]\n")
+    one_line(invoke("batch", b, "--out", tmp_path / "b"), 2, "'grid.gamma[1]'", "10000")
+    assert not any((tmp_path / d).exists() for d in ("p", "r", "b"))

@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..limits import MAX_GAMMA
 from ..execution.config import RunOptions, check_number, check_pose, options_from_mapping, read_yaml_mapping
 from ..control import WINDOWS
 from ..execution.controllers import CONTROLLERS
@@ -273,6 +274,10 @@ def load_batch_config(path) -> BatchConfig:
             continue
         lo, lo_open = {"noise": (0.0, False), "alpha": (0.0, True), "delta": (0.0, True), "gamma": (0.5, False)}[key]
         grid[key] = [check_number(f"grid.{key}[{j}]", v, lo, lo_open=lo_open) for j, v in enumerate(values)]
+        if key == "gamma":                 # the law's own bound, at load (not once per trial, as an error)
+            for j, v in enumerate(grid[key]):
+                if v > MAX_GAMMA:
+                    raise InputError(f"grid.gamma[{j}]", f"a number in [1/2, {MAX_GAMMA:g}]", v)
     run = data.get("run", {}) or {}
     allowed = {"rate_hz", "substeps", "saturate", "headroom", "max_time_s", "controller", "noise", "sensor",
                "monitor", "planning", "replan", "tolerance"}

@@ -80,6 +80,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError, NotStabilizingWarning, NumericalError, SingularGramianError, require_positive
+from ..limits import MAX_GAMMA
 from ..nominal import Nominal
 from .elements import interval_segments, to_end_anchored
 from .frozen import MAX_GAIN, frozen_time_schedule
@@ -151,8 +152,8 @@ class StabilizerOptions:
                 g = float(self.gamma)
             except (TypeError, ValueError):
                 raise InputError("gamma", "a number >= 1/2 or a function of time", self.gamma) from None
-            if not math.isfinite(g) or g < 0.5:
-                raise InputError("gamma", "a finite number >= 1/2 (Proposition 1)", self.gamma)
+            if not math.isfinite(g) or not 0.5 <= g <= MAX_GAMMA:
+                raise InputError("gamma", f"a number in [1/2 (Proposition 1), {MAX_GAMMA:g}]", self.gamma)
         return self
 
     def gamma_on(self, t: np.ndarray) -> np.ndarray:
@@ -163,6 +164,9 @@ class StabilizerOptions:
                 raise InputError("gamma", "a function returning one number per time", str(exc)) from None
             if not np.all(np.isfinite(g)):
                 raise InputError("gamma", "finite and bounded at every time", "NaN or inf")
+            if g.max() > MAX_GAMMA:
+                k = int(np.argmax(g))
+                raise InputError("gamma", f"a function <= {MAX_GAMMA:g} at every time", f"{g[k]:.6g} at t = {t[k]:.6g} s")
             if g.min() < 0.5:
                 k = int(np.argmin(g))
                 raise InputError("gamma", "a function >= 1/2 at every time (Proposition 1)",
