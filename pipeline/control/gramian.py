@@ -80,7 +80,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError, NotStabilizingWarning, NumericalError, SingularGramianError, require_positive
-from ..limits import MAX_GAMMA
+from ..limits import MAX_GAMMA, MAX_WINDOW_SUBSTEPS
 from ..nominal import Nominal
 from .elements import interval_segments, to_end_anchored
 from .frozen import MAX_GAIN, frozen_time_schedule
@@ -412,8 +412,6 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
         phi = 0.0
     n_full = min(N, int(math.floor((T - delta) / h + 1e-9)) + 1)   # points with t + delta <= T
     i_min = N - n_full                                              # first point with t - delta >= t0
-    from ..limits import MAX_WINDOW_SUBSTEPS
-
     if h / (opts.max_substep_fraction * delta) > MAX_WINDOW_SUBSTEPS:
         shortest = h / (opts.max_substep_fraction * MAX_WINDOW_SUBSTEPS)
         raise InputError("delta", f"at least {shortest:.3g} s for this nominal's time step {h:.3g} s", delta,
