@@ -270,8 +270,8 @@ print("ended", flush=True)
 
 def test_ending_the_workers_while_one_sends_a_record_does_not_hang_the_exit(tmp_path):
     """The executor's manager thread, left reading the rest of a half-sent record, is joined by the
-    interpreter at exit: before the fix the batch hung after printing that it was interrupted (seen in
-    CI, 1 Ctrl-C run in a few hundred). Deterministic here: the worker writes half a message, then
+    interpreter at exit: before the fix the batch hung after printing that it was interrupted (seen once
+    in CI, in the two-worker Ctrl-C test). Deterministic here: the worker writes half a message, then
     _end_workers; the process must exit, and promptly."""
     script = tmp_path / "half_sent.py"
     script.write_text(HALF_SENT)
