@@ -892,7 +892,7 @@ def _moved(a, b, reach: float) -> float:
 def _first_contact(o1, o2, data) -> bool:
     """Broad-phase callback: narrow-phase test of one candidate pair, stop at the first contact
     (fcl.defaultCollisionCallback does the same with more bookkeeping per pair)."""
-    if fcl.collide(o1, o2, _COLLIDE_REQUEST, data.result) or _PENDING_INTERRUPT[0]:
+    if fcl.collide(o1, o2, _COLLIDE_REQUEST, data.result):
         data.done = True
     return data.done
 
@@ -906,8 +906,8 @@ def defer_interrupt(frame) -> bool:
     broad-phase callback FCL calls from Cython, which would print a KeyboardInterrupt raised there
     ("Exception ignored in: 'fcl.fcl.CollisionCallBack'") and drop it, so that the query went on as if
     nothing had been pressed (also when the signal lands in Python code FCL calls from the callback, as
-    the contacts it builds). The interrupt is then kept: the callback stops the broad phase, and the
-    query raises KeyboardInterrupt once FCL returns. ``nhstab``'s commands install such a handler."""
+    the contacts it builds). The interrupt is then kept, and the query raises KeyboardInterrupt once FCL
+    returns (a few microseconds later: the broad phase of one pose). ``nhstab``'s commands install such a handler."""
     code = _first_contact.__code__
     while frame is not None:
         if frame.f_code is code:

@@ -175,16 +175,16 @@ def unicycle_nominal(model: Model, path: GeometricPath, opts: TimingOptions) -> 
         raise InputError("model", "unicycle for this time-parameterisation", model.name)
     turn_limit = float(model.input_limits()[1, 1])
     kmax = 1.0 / path.options.turning_radius
-    v_lim = min(opts.max_speed or float(model.input_limits()[0, 1]), turn_limit / max(kmax, 1e-9))
+    v_cap, v_turn = opts.max_speed or float(model.input_limits()[0, 1]), turn_limit / max(kmax, 1e-9)
+    v_lim = min(v_cap, v_turn)
     timing = PathTiming(path, v_lim, opts.max_accel)
 
     def u_func(t):
         _, speed, direction, kappa = timing.evaluate(t)
         return np.stack([direction * speed, kappa * speed], axis=-1)
 
-    turn_bound = turn_limit / max(kmax, 1e-9) < (opts.max_speed or float(model.input_limits()[0, 1]))
     key, value, why = (("turning_radius", path.options.turning_radius, " (the turn-rate limit times the turning "
-                        "radius)") if turn_bound else ("max_speed", v_lim, ""))
+                        "radius)") if v_turn < v_cap else ("max_speed", v_lim, ""))
     n = nominal_grid(timing.duration, opts.dt, key, value, v_lim, why)
     t = np.linspace(0.0, timing.duration, n)
     timing.exact_poses(path.samples[0])
