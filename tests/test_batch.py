@@ -401,6 +401,11 @@ def test_a_large_batch_draws_a_bounded_set_of_cells_in_its_time_series_figures()
     assert figure_rows(no_default)[0] == no_default[:FIGURE_CELLS_MAX]
 
 
+def _started_then_sleep(started) -> None:
+    started.set()
+    time.sleep(30)
+
+
 def test_a_second_batch_on_the_same_folder_is_refused_while_one_runs(tmp_path):
     """Two `nhstab batch --resume` on one folder ran the same missing trials side by side (the store kept
     one copy of each, and each process reported trials the other had stored). While a batch runs, its
@@ -419,3 +424,18 @@ def test_a_second_batch_on_the_same_folder_is_refused_while_one_runs(tmp_path):
     with Store(out / "trials.sqlite") as s:
         assert s.trials() == before
     assert run_batch(cfg, out, resume=True, progress=False)["already_stored"] == len(before)
+    # a process forked while the lock is held (a local worker) does not keep it once the batch lets go
+    import multiprocessing as mp
+
+    ctx = mp.get_context("fork")
+    started = ctx.Event()
+    with _only_batch_in(out):
+        child = ctx.Process(target=_started_then_sleep, args=(started,))
+        child.start()
+        assert started.wait(30)               # the child runs (after the fork's hooks)
+    try:
+        with _only_batch_in(out):
+            pass
+    finally:
+        child.kill()
+        child.join()

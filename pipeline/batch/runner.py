@@ -229,9 +229,27 @@ def _only_batch_in(out_dir: Path):
         except BlockingIOError:
             raise InputError("--out", "a batch folder no other nhstab batch is running in", str(out_dir),
                              detail="another process is running this batch; --resume once it has ended") from None
+        _LOCK_FDS.add(fd)
         yield
     finally:
+        _LOCK_FDS.discard(fd)
         os.close(fd)
+
+
+#: the folder locks this process holds (:func:`_only_batch_in`)
+_LOCK_FDS: set[int] = set()
+
+
+def _drop_locks_in_child() -> None:
+    """A forked process (a local worker) closes its copies of the folder locks: the lock is the
+    batch's, and a worker outliving its batch (its parent killed alone) must not keep --resume out."""
+    for fd in _LOCK_FDS:
+        with contextlib.suppress(OSError):
+            os.close(fd)
+    _LOCK_FDS.clear()
+
+
+os.register_at_fork(after_in_child=_drop_locks_in_child)
 
 
 class _Tally:
