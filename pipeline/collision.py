@@ -2,7 +2,8 @@
 
 The 2-D world is modelled as prisms of equal height in 3-D, so that FCL's 3-D distances between
 them are the 2-D distances of their cross-sections: polygons become convex prisms (non-convex ones
-are triangulated first), circles cylinders, occupied grid cells boxes (runs of cells merged into few
+are triangulated first; the segments of thin polygons, lines and polylines, flat prisms of zero
+thickness: :func:`polygon_pieces`), circles cylinders, occupied grid cells boxes (runs of cells merged into few
 rectangles), and by default the map's bounds four walls just outside them. A DynamicAABBTree
 broad-phase manager holds them.
 
@@ -38,6 +39,20 @@ from .maps.base import Circle, Map, OccupancyGrid, Polygon
 
 _Z = 1.0                 # prisms span z in [-_Z, _Z]
 _WALL = 1.0              # thickness of the boundary walls [m]
+
+
+def polygon_pieces(shape: Polygon) -> list[np.ndarray]:
+    """The convex pieces of a polygon obstacle for FCL and the distance field: its convex parts (the
+    polygon itself if convex, else its triangles), and for a thin polygon (a line, a polyline, a ring
+    of zero area, spikes drawn out and back: :attr:`~nhstab.maps.base.Polygon.parts`) each segment as
+    a piece of two vertices, a flat prism of zero thickness. FCL decides contact with a flat prism as
+    with any convex one (tested against shapely); the plane distances measure a segment exactly
+    (vertex to edge both ways); the distance field marks the cells along it."""
+    area, segments = shape.parts
+    if not len(segments):
+        return convex_parts(shape.vertices)
+    pieces = [] if area is None else convex_parts(area)
+    return pieces + [np.array(seg, dtype=float) for seg in segments]
 
 
 def _prism(v2: np.ndarray) -> fcl.Convex:
@@ -133,7 +148,7 @@ class CollisionWorld:
         objects: list[fcl.CollisionObject] = []
         for shape in self.shapes:
             if isinstance(shape, Polygon):
-                for part in convex_parts(shape.vertices):
+                for part in polygon_pieces(shape):
                     objects.append(self._add(_prism(part), ("poly", part)))
             elif isinstance(shape, Circle):
                 objects.append(self._add(fcl.Cylinder(shape.radius, 2 * _Z), ("circle", shape.center, shape.radius),
@@ -199,7 +214,7 @@ class CollisionWorld:
             added = []
             for shape in shapes:
                 if isinstance(shape, Polygon):
-                    added.extend(("poly", part) for part in convex_parts(shape.vertices))
+                    added.extend(("poly", part) for part in polygon_pieces(shape))
                 else:
                     added.append(("circle", shape.center, shape.radius))
             world._field = field.with_outlines(added)
@@ -540,7 +555,13 @@ class CollisionWorld:
             data = fcl.CollisionData(request=fcl.CollisionRequest(num_max_contacts=100_000, enable_contact=True))
             self.manager.collide(o, data, fcl.defaultCollisionCallback)
             for contact in data.result.contacts:
-                deepest = max(deepest, float(contact.penetration_depth))
+                outline = self._outline.get(id(contact.o1)) or self._outline.get(id(contact.o2))
+                if outline is not None and outline[0] == "poly" and len(outline[1]) == 2:
+                    # a segment of zero thickness: EPA's depth for a flat prism is unreliable (it was off
+                    # by metres), the plane's is exact
+                    deepest = max(deepest, segment_depth(fp, pose, outline[1]))
+                else:
+                    deepest = max(deepest, float(contact.penetration_depth))
         return -deepest
 
     def is_free(self, pose, fp: Footprint, margin: float = 0.0) -> bool:
@@ -956,6 +977,31 @@ def _exact_distance(fp: Footprint, pose, outline) -> float:
     if outline[0] == "circle":                  # polygon footprint, circle obstacle
         return point_polygon_distance(outline[1], robot) - outline[2]
     return polygon_distance(robot, np.asarray(outline[1], dtype=float))
+
+
+def segment_depth(fp: Footprint, pose, seg) -> float:
+    """The penetration depth of a segment (2, 2) into the footprint at ``pose``, exactly in the plane:
+    the shortest translation that separates them (0 when they are apart). A disc: its radius less the
+    distance from its centre to the segment. A polygon: per convex part, the smallest overlap of the two
+    along the separating-axis candidates (the part's edge normals and the segment's normal), the
+    largest over the parts."""
+    seg = np.asarray(seg, dtype=float)
+    if fp.radius is not None:
+        c = np.asarray(pose[:2], dtype=float)
+        d = math.sqrt(float(_segment_gaps2(c[None], seg[:1], (seg[1] - seg[0])[None]).min()))
+        return max(0.0, fp.radius - d)
+    deepest = 0.0
+    e = seg[1] - seg[0]
+    for part in convex_parts(fp.vertices):
+        w = transform_points(part, pose)
+        edges = np.roll(w, -1, axis=0) - w
+        axes = np.vstack([np.column_stack([edges[:, 1], -edges[:, 0]]), [[e[1], -e[0]]]])
+        axes = axes[np.hypot(axes[:, 0], axes[:, 1]) > 0]
+        axes /= np.hypot(axes[:, 0], axes[:, 1])[:, None]
+        pw, ps = w @ axes.T, seg @ axes.T
+        overlap = np.minimum(pw.max(axis=0) - ps.min(axis=0), ps.max(axis=0) - pw.min(axis=0))
+        deepest = max(deepest, float(max(0.0, overlap.min())))
+    return deepest
 
 
 def _segment_gaps2(points: np.ndarray, starts: np.ndarray, edges: np.ndarray) -> np.ndarray:

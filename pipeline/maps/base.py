@@ -2,7 +2,9 @@
 
 Conventions: metres and radians; world frame x right, y up; a pose is (x, y, theta).
 Polygons are simple (convex or not), vertices in order (either orientation accepted and stored
-counter-clockwise). Occupancy grids store ``occupied[i, j]`` for the cell whose lower-left corner is
+counter-clockwise). A polygon may also be *thin*, wholly or in part: the pieces of its ring that are
+traversed back and forth (a ring of zero area, collinear points, a spike drawn out and back, a line
+or polyline drawn as :func:`polyline`) are segments of zero thickness (:attr:`Polygon.parts`). Occupancy grids store ``occupied[i, j]`` for the cell whose lower-left corner is
 at origin + R(yaw) (j * resolution, i * resolution): row 0 is the *lowest* row in y (the loaders flip
 image rows, whose row 0 is the top).
 """
@@ -11,6 +13,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 
@@ -55,12 +59,16 @@ class Pose:
 
 @dataclass(frozen=True)
 class Polygon:
-    vertices: np.ndarray          # (k, 2), k >= 3, counter-clockwise
+    """A polygon obstacle: its ring ``vertices`` (k, 2), counter-clockwise where it has area. Its point
+    set is :attr:`parts`: the area of the ring's simple part and the segments its ring traverses back
+    and forth (thin: zero thickness). A ring of two vertices is one segment."""
+
+    vertices: np.ndarray          # (k, 2), k >= 2, counter-clockwise
 
     def __post_init__(self):
         v = np.asarray(self.vertices, dtype=float)
-        if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3:
-            raise InputError("polygon", "at least 3 (x, y) vertices", f"shape {v.shape}")
+        if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 2:
+            raise InputError("polygon", "at least 2 (x, y) vertices", f"shape {v.shape}")
         if not np.all(np.isfinite(v)):
             raise InputError("polygon", "finite vertex coordinates", "NaN or inf")
         check_extent("polygon", v)
@@ -71,6 +79,26 @@ class Polygon:
     @property
     def area(self) -> float:
         return abs(signed_area(self.vertices))
+
+    @cached_property
+    def parts(self) -> "RingParts":
+        """The ring split into its area (a simple counter-clockwise ring, or None) and its thin
+        segments (m, 2, 2) (:func:`ring_parts`). A ring that does not split so (it crosses or touches
+        itself) is all area, as it was drawn."""
+        from .yaml_format import is_simple_polygon
+
+        v = self.vertices
+        if abs(signed_area(v)) > 1e-12 * max(1.0, float(np.abs(v).max())) ** 2 and is_simple_polygon(v):
+            return RingParts(v if signed_area(v) > 0 else v[::-1], np.zeros((0, 2, 2)))   # all area (fast)
+        try:
+            return ring_parts(v)
+        except ValueError:
+            return RingParts(self.vertices, np.zeros((0, 2, 2)))
+
+    @property
+    def thin(self) -> bool:
+        """No area at all: a line, a polyline, a ring of zero area (segments of zero thickness)."""
+        return self.parts.area is None
 
     def bounds(self) -> tuple[float, float, float, float]:
         v = self.vertices
@@ -207,3 +235,121 @@ class Map:
 def signed_area(v: np.ndarray) -> float:
     x, y = v[:, 0], v[:, 1]
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+class RingParts(NamedTuple):
+    """A polygon's ring split by :func:`ring_parts`: ``area`` a simple counter-clockwise ring (k, 2) or
+    None; ``segments`` (m, 2, 2) the pieces traversed back and forth (zero thickness)."""
+
+    area: np.ndarray | None
+    segments: np.ndarray
+
+
+def ring_parts(v) -> RingParts:
+    """Split the closed ring ``v`` (k, 2) into the area it encloses and its thin segments.
+
+    Every edge is cut at the ring's vertices that lie on it (exactly, to 1e-12 of the coordinates'
+    scale), so that overlapping edges share their pieces. A piece traversed as often one way as the
+    other (out and back: a spike, a fold, a whole ring of zero area) encloses nothing: it is a thin
+    segment. The pieces traversed once more one way than the other bound the area; they must chain
+    into one simple ring (each vertex met once), else ValueError (a ring that crosses or touches
+    itself). Consecutive vertices equal to each other are ignored."""
+    v = np.asarray(v, dtype=float)
+    keep = np.ones(len(v), dtype=bool)
+    keep[1:] = np.any(v[1:] != v[:-1], axis=1)
+    v = v[keep]
+    while len(v) > 1 and np.array_equal(v[0], v[-1]):
+        v = v[:-1]
+    if len(v) < 2:
+        raise ValueError("a ring of fewer than 2 distinct points")
+    scale = max(1.0, float(np.abs(v).max()))
+    tol = 1e-12 * scale
+    pts = [tuple(p) for p in v.tolist()]
+    uniq = list(dict.fromkeys(pts))
+    U = np.array(uniq)
+    index = {p: i for i, p in enumerate(uniq)}
+    count: dict[tuple[int, int], int] = {}           # directed piece (i, j) -> times traversed
+    # the ring's vertices lying on each edge: candidates from GEOS's tree of the points within tol of the
+    # edge (O(k log k)), then their exact position along it
+    import shapely
+
+    ends = list(zip(pts, pts[1:] + pts[:1]))
+    lines = shapely.linestrings(np.array([[a, b] for a, b in ends]))
+    edge_of, point_of = shapely.STRtree(shapely.points(U)).query(lines, predicate="dwithin", distance=tol)
+    near: dict[int, list[int]] = {}
+    for e, q in zip(edge_of.tolist(), point_of.tolist()):
+        near.setdefault(e, []).append(q)
+    for e, (a, b) in enumerate(ends):
+        A, B = np.array(a), np.array(b)
+        d = B - A
+        dd = float(d @ d)
+        cand = np.array(near.get(e, []), dtype=int)
+        rel = U[cand] - A
+        t = rel @ d / dd
+        off = np.abs(rel[:, 0] * d[1] - rel[:, 1] * d[0]) / math.sqrt(dd)
+        ok = (off <= tol) & (t > 0.0) & (t < 1.0)
+        on, t_on = cand[ok], t[ok]
+        chain = [index[a]] + [int(k) for k in on[np.argsort(t_on)]] + [index[b]]
+        for i, j in zip(chain[:-1], chain[1:]):
+            if i != j:
+                count[(i, j)] = count.get((i, j), 0) + 1
+    thin, area = [], []
+    for (i, j), n in count.items():
+        back = count.get((j, i), 0)
+        if (j, i) in count and j < i:
+            continue                                   # the pair is handled from (i < j)
+        net = n - back
+        if net == 0:
+            thin.append((U[i], U[j]))
+        elif abs(net) == 1:
+            area.append((i, j) if net > 0 else (j, i))
+        else:
+            raise ValueError("a piece of the ring traversed twice the same way")
+    segments = np.array(thin, dtype=float).reshape(-1, 2, 2)
+    if not area:
+        return RingParts(None, segments)
+    nxt: dict[int, int] = {}
+    for i, j in area:
+        if i in nxt:
+            raise ValueError("the ring touches itself")
+        nxt[i] = j
+    start = area[0][0]
+    ring, k = [start], nxt[start]
+    while k != start:
+        if k not in nxt or len(ring) > len(area):
+            raise ValueError("the ring's area is not one loop")
+        ring.append(k)
+        k = nxt[k]
+    if len(ring) != len(area):
+        raise ValueError("the ring's area is not one loop")
+    R = U[ring]
+    # drop vertices where the ring runs straight on (the cuts made above)
+    prev, nextv = np.roll(R, 1, axis=0), np.roll(R, -1, axis=0)
+    cross = (R[:, 0] - prev[:, 0]) * (nextv[:, 1] - R[:, 1]) - (R[:, 1] - prev[:, 1]) * (nextv[:, 0] - R[:, 0])
+    dot = np.einsum("ij,ij->i", R - prev, nextv - R)
+    straight = (np.abs(cross) <= tol * scale) & (dot > 0)
+    R = R[~straight] if (~straight).sum() >= 3 else R
+    if len(R) < 3 or abs(signed_area(R)) <= 1e-12 * scale * scale:
+        raise ValueError("the ring's area part has no area")
+    from .yaml_format import is_simple_polygon
+
+    if not is_simple_polygon(R):
+        raise ValueError("the ring's area part crosses itself")
+    return RingParts(R if signed_area(R) > 0 else R[::-1], segments)
+
+
+def polyline(points) -> Polygon:
+    """A line or polyline of zero thickness (a curb, a thin wall) as a thin :class:`Polygon`: its ring
+    runs along the points and back (p0 ... pk ... p1), so every piece is traversed both ways. The
+    segments may cross each other. At least 2 distinct points; repeated consecutive points are
+    dropped; a polyline that ends on its first point is a closed outline (still thin)."""
+    p = np.asarray(points, dtype=float)
+    if p.ndim != 2 or p.shape[1] != 2:
+        raise InputError("line", "a list of [x, y] points", f"shape {p.shape}")
+    keep = np.ones(len(p), dtype=bool)
+    keep[1:] = np.any(p[1:] != p[:-1], axis=1)
+    p = p[keep]
+    if len(p) < 2:
+        raise InputError("line", "at least 2 distinct [x, y] points", f"{len(p)} distinct")
+    ring = np.vstack([p, p[-2:0:-1]]) if len(p) > 2 else p
+    return Polygon(ring)

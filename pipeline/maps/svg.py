@@ -15,6 +15,10 @@ Convention (Bench-MR's loader of the era of the stored files, see ``maps/bench-m
   ``REPEAT_TOLERANCE`` = 1e-9 world units) are dropped; the repeated ones are noted in
   ``meta["notes"]`` (``nhstab map info`` shows them). Real drawings have them (a node placed twice);
   they carry no shape, so they are cleaned, not refused;
+* a path of zero area (two points, collinear points, a path drawn out and back) is a *thin* obstacle,
+  its segments of zero thickness, and the edges of a path drawn out and back (a spike) are thin parts
+  of it (:attr:`nhstab.maps.base.Polygon.parts`; noted in ``meta["notes"]``); a path whose area part
+  crosses or touches itself raises :class:`MapError`;
 * Bench-MR replaced non-convex polygons by their convex hull. :func:`load_benchmr_svg` keeps the true
   shapes by default and offers the hull as ``convex_hull=True``;
 * the map bounds are the axis-aligned bounding box of all polygons (Bench-MR's world has no other
@@ -64,7 +68,7 @@ def load_benchmr_svg(path: str | Path, convex_hull: bool = False) -> Map:
     raw = _read_svg_polygons(path)
     if not raw:
         raise MapError(str(path), "an SVG with at least one <path> obstacle", "no <path> element")
-    polygons, repeats = [], {}
+    polygons, repeats, thin = [], {}, []
     for k, v in enumerate(raw):
         scaled = v * np.array([BENCHMR_SCALE, -BENCHMR_SCALE])
         v = _clean_ring(scaled)
@@ -72,14 +76,26 @@ def load_benchmr_svg(path: str | Path, convex_hull: bool = False) -> Map:
             repeats[k] = _repeats(scaled)
         if convex_hull:
             v = convex_hull_2d(v)
-        polygons.append(_polygon(v, path, f"path #{k}"))
+        poly = _polygon(v, path, f"path #{k}")
+        if len(poly.parts.segments):
+            thin.append(k)
+        polygons.append(poly)
     notes = []
     if repeats:
         which = ", ".join(f"#{k}" for k in list(repeats)[:8]) + (", ..." if len(repeats) > 8 else "")
         notes.append(f"{path.name}: dropped {sum(repeats.values())} repeated consecutive vertex(es) (zero-length "
                      f"edges) in {len(repeats)} of {len(raw)} paths ({which})")
+    if thin:
+        which = ", ".join(f"#{k}" for k in thin[:8]) + (", ..." if len(thin) > 8 else "")
+        notes.append(f"{path.name}: {len(thin)} path(s) thin in whole or in part (zero area, or edges drawn out and "
+                     f"back: segments of zero thickness) ({which})")
     allv = np.concatenate([p.vertices for p in polygons])
     lo, hi = allv.min(axis=0), allv.max(axis=0)
+    if not np.all(hi > lo):
+        # the bounds are the polygons' bounding box: thin paths along one line alone span no area
+        which = ", ".join(f"path #{k}" for k in (thin or range(len(polygons)))[:8])
+        raise MapError(f"{path.name}: {which}", "obstacles that span an area (a Bench-MR world's bounds are their "
+                       "bounding box)", "thin paths along one line only", detail="add the world's border as a polygon")
     return Map(
         name=path.stem,
         bounds=(float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])),
@@ -187,14 +203,24 @@ def convex_hull_2d(points: np.ndarray) -> np.ndarray:
 
 def _polygon(v: np.ndarray, path: Path, what: str) -> Polygon:
     from ..limits import MAX_COORD_M
+    from .base import ring_parts
+    from .yaml_format import is_simple_polygon
 
     v = _clean_ring(v)
     if len(v) and not float(np.max(np.abs(v))) <= MAX_COORD_M:
         raise MapError(f"{path.name}: {what}", f"coordinates within +-{MAX_COORD_M:g} m",
                        f"{float(np.max(np.abs(v))):.6g} m")
-    if len(v) < 3 or abs(signed_area(v)) <= 1e-12:
-        raise MapError(f"{path.name}: {what}", "a polygon with at least 3 distinct vertices and non-zero area",
-                       f"{len(v)} vertices")
+    if len(np.unique(v, axis=0)) < 2:
+        raise MapError(f"{path.name}: {what}", "a path of at least 2 distinct vertices", f"{len(v)} vertices")
+    if len(v) >= 3 and abs(signed_area(v)) > 1e-12 and is_simple_polygon(v):
+        return Polygon(v)
+    try:
+        ring_parts(v)               # thin (zero area), or an area part with thin spikes
+    except ValueError as exc:
+        if len(v) >= 3 and abs(signed_area(v)) > 1e-12:
+            return Polygon(v)       # as before: kept as drawn (triangulated by the collision world)
+        raise MapError(f"{path.name}: {what}", "a polygon, or a path of zero area (a thin obstacle)",
+                       f"{len(v)} vertices", detail=str(exc)) from None
     return Polygon(v)
 
 

@@ -263,7 +263,7 @@ def _path_metrics(path: GeometricPath) -> dict:
     if "stages" in path.info:
         out["search"] = {k: path.info[k] for k in ("stages", "lock_radius_m", "search_margin_m", "open_margin_m",
                                                    "how", "start_maneuver_segments", "goal_maneuver_segments",
-                                                   "failure") if k in path.info}
+                                                   "failure", "lock") if k in path.info}
     return out
 
 
@@ -295,7 +295,9 @@ def _from_path(path: GeometricPath, robot: Robot, world: CollisionWorld, path_op
     if "phi" in model.state_names:
         j = list(model.state_names).index("phi")
         steer = {"max_abs_steering_rad": float(np.max(np.abs(nominal.x[:, j]))),
-                 "steering_limit_rad": float(model.max_steer)}
+                 "steering_limit_rad": float(model.max_steer),
+                 "steering_reserve": steering_reserve(nominal, j, float(model.max_steer),
+                                                      car_opts.steering_reserve_rad, path.info.get("lock"))}
     metrics.update({
         "length_m": path.length, "cusps": path.cusps, "max_curvature_per_m": path_curvature(path),
         "waypoints": len(path.waypoints), **tinfo, **steer,
@@ -331,6 +333,28 @@ def _from_path(path: GeometricPath, robot: Robot, world: CollisionWorld, path_op
     metrics["tracking"] = tracking_metrics(model, path, nominal, d["max_gain_norm"], timing_opts.max_speed)
     return PlanResult("ok", "exact path, feasible nominal, clear by the margin, gain schedule computed",
                       path, nominal, schedule, metrics)
+
+
+def steering_reserve(nominal: Nominal, j: int, max_steer: float, reserve: float, lock: dict | None) -> dict:
+    """Where the car's nominal leaves the feedback no steering reserve: the times its steering angle
+    (state column ``j``) is beyond max_steer - ``reserve``, as intervals [t0, t1] of the nominal's grid
+    and their total, with the lock the path's maneuvers use (``lock``: the car planner's record, see
+    :mod:`nhstab.planning.parking`: angle and radius, and whether the full range was used)."""
+    phi = np.abs(nominal.x[:, j])
+    t = np.asarray(nominal.t, dtype=float)
+    beyond = phi > max_steer - reserve + 1e-9
+    intervals = []
+    if beyond.any():
+        edges = np.diff(np.r_[0, beyond.astype(np.int8), 0])
+        for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1):
+            intervals.append([float(t[a]), float(t[b])])
+    out = {"reserve_rad": float(reserve), "reserved_lock_rad": float(max_steer - reserve),
+           "full_range_used": bool(beyond.any()), "no_reserve_intervals_s": intervals,
+           "no_reserve_time_s": float(sum(b - a for a, b in intervals))}
+    if lock:
+        out["lock"] = {k: lock[k] for k in ("angle_rad", "radius_m", "full_range", "full_range_angle_rad",
+                                            "full_range_radius_m", "widened") if k in lock}
+    return out
 
 
 def path_curvature(path: GeometricPath) -> float:

@@ -306,19 +306,42 @@ class _Search:
             ss.addStartState(_state(space, p))
         ss.setPlanner(_planner(og, self.opts.planner, si))
         ss.setup()
-        t0 = time.perf_counter()
-        status = ss.solve(max(1e-3, float(budget)))
-        self.counts["ompl_solve_s"] += time.perf_counter() - t0
-        self.ompl_status = status.asString() if hasattr(status, "asString") else str(status)
-        if not ss.haveExactSolutionPath():
-            return None
-        self.counts["ompl_exact"] += 1
-        if self.opts.simplify:
+        # OMPL checks its motions every OMPL_CHECK_SPACING x resolution, nhstab every resolution: an edge
+        # OMPL took for free may come closer than the margin between OMPL's samples (its shortcuts
+        # graze the obstacles most, and a start close to a wall makes that likely: a start 0.15 m from
+        # a wall at margin 0.12 m). Such a solution is not the end of the search: its unsimplified
+        # path is tried, then OMPL searches again (fresh trees, its generator running on) while the
+        # budget lasts. ``ompl_rejected`` counts the solutions nhstab's check refused.
+        end = time.perf_counter() + max(1e-3, float(budget))
+        while True:
             t0 = time.perf_counter()
-            ss.simplifySolution(max(0.05, min(self.left(), float(budget))))
-            self.counts["ompl_simplify_s"] += time.perf_counter() - t0
-        path = ss.getSolutionPath()
-        states = [space.cloneState(path.getState(i)) for i in range(path.getStateCount())]
+            status = ss.solve(max(1e-3, end - t0))
+            self.counts["ompl_solve_s"] += time.perf_counter() - t0
+            self.ompl_status = status.asString() if hasattr(status, "asString") else str(status)
+            if not ss.haveExactSolutionPath():
+                return None
+            self.counts["ompl_exact"] += 1
+            raw = ss.getSolutionPath()
+            tries = [[space.cloneState(raw.getState(i)) for i in range(raw.getStateCount())]]
+            if self.opts.simplify:
+                t0 = time.perf_counter()
+                ss.simplifySolution(max(0.05, min(self.left(), end - t0)))
+                self.counts["ompl_simplify_s"] += time.perf_counter() - t0
+                path = ss.getSolutionPath()
+                tries.insert(0, [space.cloneState(path.getState(i)) for i in range(path.getStateCount())])
+            for states in tries:
+                out = self._adopt_path(space, states, starts, goals)
+                if out is not None:
+                    return out
+            self.counts["ompl_rejected"] = self.counts.get("ompl_rejected", 0) + 1
+            if end - time.perf_counter() <= 1e-3 or self.left() <= 0:
+                self.ompl_status += " (refused by the check every resolution; budget spent)"
+                return None
+            ss.clear()
+
+    def _adopt_path(self, space, states, starts, goals):
+        """The waypoints of an OMPL solution (its states), each edge checked as nhstab's local path
+        (:meth:`_adopt`), or None; sets ``start_index`` / ``goal_index``."""
         # which of the start / goal poses the path joins (OMPL stores the yaw wrapped)
         self.start_index = self.goal_index = 0
         for key, ends, st in (("start_index", starts, states[0]), ("goal_index", goals, states[-1])):

@@ -42,6 +42,16 @@ steering angle at max_steer, so a nominal at the end stop would leave the feedba
 tighter when the car drifts outwards. The searched connections keep the robot's planning radius
 (1.25 R_min) where they can, and go down to the lock radius only where the planning radius finds
 no path.
+
+**The full steering range, where the reserved lock finds nothing.** A slot or passage may need more
+than the reserved lock gives. Where the maneuvers at the reserved lock get nowhere (neither the
+unparking tree nor the shuffle search gets out), that side's tree and shuffle search run again at the
+end stop (phi = max_steer, R_min); where no connection is found at the reserved lock, the search runs
+once more with the full range: the maneuvers at the end stop and the connections at R_min, with
+``full_range_share`` of the budget that was left for the last search at the lock radius. The path's
+``info["lock"]`` records the lock angle and radius its maneuvers use and whether the full range was
+used; the nominal then has no steering reserve on those segments (``metrics["steering_reserve"]``
+of :func:`nhstab.planning.plan` lists the times).
 """
 from __future__ import annotations
 
@@ -101,6 +111,8 @@ class CarOptions:
     attempts: int = 4
     nominal: str = "exact"
     probe_share: float = 0.1
+    full_range: bool = True
+    full_range_share: float = 0.4
 
     def validated(self) -> "CarOptions":
         def num(key, lo, hi=math.inf, lo_open=False):
@@ -123,6 +135,9 @@ class CarOptions:
         num("direct_share", 0.0, 1.0)
         num("probe_share", 0.0, 1.0)
         num("default_radius_share", 0.0, 1.0)
+        num("full_range_share", 0.0, 1.0)
+        if not isinstance(self.full_range, bool):
+            raise InputError("car.full_range", "true or false", self.full_range)
         if self.straight_reach_m is not None:
             num("straight_reach_m", 0.0)
         if self.arc_speed_mps is not None:
@@ -627,8 +642,16 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
     r_lock = min(lock_radius(model, parking), r_default)
     radii = [r_default] if r_lock >= r_default - 1e-9 else [r_default, r_lock]
     open_margin = float(opts.margin) + pad
+    phi_lock = float(model.max_steer) - parking.steering_reserve_rad
+    # the full steering range (module docstring): only where the reserved lock finds nothing
+    full = replace(parking, steering_reserve_rad=0.0)
+    r_full = min(lock_radius(model, full), r_default)
+    can_widen = parking.full_range and parking.steering_reserve_rad > 0 and r_full < r_lock - 1e-9
     info.update({"stages": [], "lock_radius_m": r_lock, "search_margin_m": search_margin,
-                 "open_margin_m": open_margin, "validity_calls": 0, "validity_time_s": 0.0})
+                 "open_margin_m": open_margin, "validity_calls": 0, "validity_time_s": 0.0,
+                 "lock": {"reserve_rad": float(parking.steering_reserve_rad), "angle_rad": phi_lock,
+                          "radius_m": r_lock, "full_range": False, "full_range_angle_rad": float(model.max_steer),
+                          "full_range_radius_m": r_full, "widened": []}})
     seeds = iter(range(opts.seed, opts.seed + 1_000_000))
 
     def left() -> float:
@@ -681,29 +704,39 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
 
     grown = set()
 
-    def grow(key, options=None, shuffle=True):
+    def grow(key, options=None, shuffle=True, widened=False):
         pose = start if key == "start" else goal
         grown.add(key)
         t = unparking_tree(world, fp, model, np.asarray(pose, dtype=float), opts.margin, open_margin,
                            options or parking, speed)
-        info["stages"].append({"stage": f"unparking {key}", "branches": getattr(t, "branches", 0), "arcs": t.arcs,
+        info["stages"].append({"stage": f"unparking {key}" + (" (full steering range)" if widened else ""),
+                               "branches": getattr(t, "branches", 0), "arcs": t.arcs,
                                "poses_checked": t.poses_checked, "open_candidates": len(t.candidates),
                                "escaped": sum(c.escaped for c in t.candidates), "time_s": t.time_s})
-        if not any(c.escaped for c in t.candidates) and options is None and shuffle:
-            t.candidates = shuffled(key) + t.candidates
+        if not any(c.escaped for c in t.candidates) and (options is None or widened) and shuffle:
+            t.candidates = shuffled(key, options if widened else None) + t.candidates
         root = np.asarray(pose, dtype=float)
         # a side without open poses searches from its end itself, at the margin the end allows
         return t.candidates[: parking.candidates] or [Candidate(root, Maneuver(root, (), L), 0.0, True)]
 
-    def shuffled(key):
+    def shuffled(key, options=None):
         """The shuffle search's candidates from the side's end; it gets at most half of what is left
         (the connection needs the rest)."""
         pose = np.asarray(start if key == "start" else goal, dtype=float)
-        sh = shuffle_search(world, fp, model, pose, opts.margin, open_margin, parking, speed,
+        sh = shuffle_search(world, fp, model, pose, opts.margin, open_margin, options or parking, speed,
                             deadline=time.perf_counter() + 0.5 * max(left(), 0.0))
-        info["stages"].append({"stage": f"shuffle {key}", "expanded": sh.arcs, "poses_checked": sh.poses_checked,
+        info["stages"].append({"stage": f"shuffle {key}" + (" (full steering range)" if options is not None else ""),
+                               "expanded": sh.arcs, "poses_checked": sh.poses_checked,
                                "escaped": len(sh.candidates), "lattices": sh.lattices, "time_s": sh.time_s})
         return sh.candidates
+
+    def widen(key):
+        """The side's maneuvers at the full steering range (its tree, and its shuffle search if the
+        tree gets nowhere), their candidates first, then the reserved lock's."""
+        more = grow(key, full, widened=True)
+        sides[key] = ([c for c in more if c.escaped] + sides[key] + [c for c in more if not c.escaped])[
+            : 2 * parking.candidates]
+        info["lock"]["widened"].append(key)
 
     def search_margin_now():
         return open_margin if all(world.free_many(np.array([c.pose for c in sides[k]]), fp, open_margin).all()
@@ -758,6 +791,9 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
     if stuck and worked is None:
         for key in sorted(stuck):
             sides[key] = (shuffled(key) + sides[key])[: parking.candidates]
+            if can_widen and not any(c.escaped for c in sides[key]) and left() > 0:
+                # the reserved lock found no way out of this end: the full steering range there
+                widen(key)
         margin = search_margin_now()
     S, G = sides["start"], sides["goal"]
     # 3. direct local paths between the cheapest pairs (maneuvers plus the local path's estimated
@@ -801,8 +837,9 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
             worked = r_default
             yield found
     if worked is None:
-        for k, radius in enumerate(radii):
-            budget = left() * (parking.default_radius_share if k < len(radii) - 1 else 1.0)
+        for k, radius in enumerate(list(radii)):
+            last = 1.0 - (parking.full_range_share if can_widen and r_full not in radii else 0.0)
+            budget = left() * (parking.default_radius_share if k < len(radii) - 1 else last)
             if budget <= 0:
                 return
             found = search(radius, budget)
@@ -810,6 +847,16 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
                 worked = radius
                 yield found
                 break
+    if worked is None and can_widen and r_full not in radii and left() > 0:
+        # nothing at the reserved lock: the full steering range, maneuvers and connections
+        for key in sorted(k for k in sides if k in grown and k not in info["lock"]["widened"]):
+            widen(key)
+        radii.append(r_full)
+        margin = search_margin_now()
+        found = search(r_full, left())
+        if found is not None:
+            worked = r_full
+            yield found
     if worked is None:
         info["failure"] = ("no connection between the open poses of the unparking maneuvers (turning radii "
                            f"{', '.join(f'{r:.4g}' for r in radii)} m)")
@@ -993,7 +1040,12 @@ def _finish(p: GeometricPath, waypoints, start_man, goal_man, info: dict, starte
     direction, cusps = path_directions(samples)
     starts = [0] + list(np.cumsum([len(leg.samples) - 1 for leg in legs]))
     waypoints_out = samples[starts]
-    info = {**p.info, **info, "stages": [dict(st) for st in info.get("stages", [])],
+    lock = dict(info["lock"]) if "lock" in info else None
+    if lock is not None:            # this path's own: does it steer beyond the reserved lock anywhere?
+        lock["widened"] = list(lock.get("widened", []))
+        lock["full_range"] = bool(any(abs(seg.phi) > lock["angle_rad"] + 1e-9 for seg in segments))
+    info = {**p.info, **info, **({"lock": lock} if lock is not None else {}),
+            "stages": [dict(st) for st in info.get("stages", [])],
             "start_maneuver_segments": len(start_man.segments) if start_man is not None else 0,
             "goal_maneuver_segments": len(goal_man.segments) if goal_man is not None else 0,
             "shortcut": cut, "exact_runs": runs, "how": how,
