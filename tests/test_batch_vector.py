@@ -129,6 +129,112 @@ def test_the_stacked_gain_product_and_plant_step_are_the_per_trial_ones(rng):
         assert np.array_equal(plant.step(X, U), np.array([plant.step(x, u) for x, u in zip(X, U)])), name
 
 
+@pytest.mark.parametrize("name", ["unicycle", "rwd_car", "fwd_car", "car_trailer", "heisenberg"])
+@pytest.mark.parametrize("substeps", [4, 1, 3])
+def test_the_stack_stepper_is_the_step_on_every_column(name, substeps, rng):
+    """Plant.stack_stepper (state-major, the engine's) gives Plant.step's result bit for bit (the
+    sign of a zero included), column by column and for single states, at the steering limits and
+    with non-finite states and inputs, called again on the same work arrays."""
+    model = make_model(name)
+    plant = Plant(model, 0.02 * substeps / 4, substeps)
+    K = 1001
+    x = rng.uniform(-3.0, 3.0, (K, model.n)) * 10.0 ** rng.integers(-6, 2, (K, 1))
+    u = rng.uniform(-2.0, 2.0, (K, model.m)) * 10.0 ** rng.integers(-6, 2, (K, 1))
+    lim = model.state_limits()
+    x[:100] = np.clip(x[:100] * 100.0, lim[:, 0], lim[:, 1])
+    x[100:110], u[110:120], x[120:130], u[130:140], x[140:150], u[150:160] = np.nan, np.inf, 1e300, 0.0, -0.0, -0.0
+    step = plant.stack_stepper(K)
+    with np.errstate(all="ignore"):
+        ref = plant.step(x, u)
+        single = np.array([plant.step(a, b) for a, b in zip(x[::50], u[::50])])
+        for _ in range(2):
+            got = step(np.ascontiguousarray(x.T), np.ascontiguousarray(u.T), np.empty((model.n, K))).T
+            assert np.array_equal(got.view(np.uint64), ref.view(np.uint64))
+    assert np.array_equal(got[::50], single, equal_nan=True)
+
+
+def test_elementwise_functions_do_not_depend_on_the_layout(rng):
+    """What the state-major engine relies on (this numpy, this machine): float64 sin, cos, tan,
+    remainder and clip give an element the same value in a large contiguous array, a strided column,
+    a short array and a 0-d one (the single run's). And the wrap's shortcut: for a = e + pi in
+    [0, 2 pi) (-0.0 included), a % (2 pi) - pi is a - pi."""
+    a = np.concatenate([rng.uniform(-4.0, 4.0, 40000), rng.standard_normal(10000) * 10.0 ** rng.integers(-9, 3, 10000),
+                        [0.0, -0.0, 0.6, -0.6, math.pi, 1e300, np.inf, np.nan, 5e-324]])
+    cols = np.repeat(a[:, None], 4, axis=1)
+    with np.errstate(all="ignore"):
+        for f in (np.sin, np.cos, np.tan, lambda v: v % (2.0 * math.pi), lambda v: np.clip(v, -0.6, 0.6)):
+            ref = f(a)
+            assert np.array_equal(f(cols[:, 2]), ref, equal_nan=True)
+            assert np.array_equal(f(a[:48000].reshape(16, -1)).ravel(), ref[:48000], equal_nan=True)
+            assert np.array_equal(np.concatenate([f(a[i:i + 7]) for i in range(0, len(a), 7)]), ref, equal_nan=True)
+            assert np.array_equal(np.array([f(a[i:i + 1].reshape(())) for i in range(0, len(a), 37)]), ref[::37],
+                                  equal_nan=True)
+    two_pi = 2.0 * math.pi
+    w = np.concatenate([rng.uniform(0.0, two_pi, 100000), [0.0, -0.0, np.nextafter(two_pi, 0.0), 5e-324]])
+    assert np.all((w >= 0.0) & (w < two_pi))
+    assert np.array_equal((w % two_pi - math.pi).view(np.uint64), (w - math.pi).view(np.uint64))
+
+
+@pytest.mark.parametrize("seed", [0, 12345])
+def test_drawing_into_rows_in_blocks_is_the_block_draw(seed):
+    """The engine fills a trial's rows of a preallocated array block after block (out=): the same
+    values as one block draw, which is the loop's successive draws (above)."""
+    block = np.random.default_rng(seed_for(seed, "sensor")).standard_normal((316, 3))
+    rng = np.random.default_rng(seed_for(seed, "sensor"))
+    buf = np.empty((2, 100, 3))
+    parts = []
+    for size in (100, 100, 100, 16):
+        rng.standard_normal(out=buf[1, :size])
+        parts.append(buf[1, :size].copy())
+    assert np.array_equal(np.concatenate(parts), block)
+    rng0 = np.random.default_rng(seed_for(seed, "initial"))
+    rng0.standard_normal(out=buf[0, 7])
+    assert np.array_equal(buf[0, 7], np.random.default_rng(seed_for(seed, "initial")).standard_normal(3))
+
+
+def test_the_generators_are_the_runs_own(monkeypatch):
+    """The engine seeds its generators with SeedSequence words computed for all seeds at once: the
+    words of seed_for's SeedSequence (seeds below and above 2**32, every stream), so the same draws
+    as the run's default_rng(seed_for(...)); if they were not, it would notice and seed the slow way."""
+    from nhstab.batch import vector
+    from nhstab.execution.runner import _SEED_STREAMS
+
+    rng = np.random.default_rng(8)
+    seeds = np.array([0, 1, 7, 2**32 - 1, 2**32, 2**40 + 3, 2**63 - 1, *rng.integers(0, 2**63 - 1, 200),
+                      *rng.integers(0, 2**32, 200)], dtype=np.int64)
+    for stream, index in _SEED_STREAMS.items():
+        words = vector._seed_words(seeds, index)
+        assert np.array_equal(words, [seed_for(int(s), stream).generate_state(4, np.uint64) for s in seeds]), stream
+
+    def same_draws(stream, some):
+        for gen, seed in zip(vector._generators(some, stream), some):
+            run = np.random.default_rng(seed_for(int(seed), stream))
+            assert np.array_equal(gen.standard_normal(7), run.standard_normal(7))
+
+    same_draws("sensor", seeds[::20])
+    monkeypatch.setattr(vector, "_seed_words", lambda s, stream: np.zeros((len(s), 4), dtype=np.uint64))
+    same_draws("process", seeds[:5])
+
+
+@pytest.mark.parametrize("rate_hz", [50.0, 30.0, 17.0, 8.0])
+def test_the_schedule_is_the_laws_own_reference_gain_and_mean_input(hilare, rate_hz):
+    """_shared evaluates x0, K and the held mean input of all samples at once with the law's own
+    arithmetic: bit-identical to reference, gain and mean_input called one time at a time (also
+    where a hold interval spans several grid points, and at the end sample past the nominal)."""
+    from nhstab.batch.vector import _shared
+
+    T = 1.0 / rate_hz
+    for t_stop in (hilare.t_end, 1.37):
+        sh = _shared(hilare, T, t_stop, [])
+        taus = [k * T for k in range(len(sh.t))]
+        assert np.array_equal(sh.t, taus)
+        x0 = np.array([hilare.reference(tau)[0] for tau in taus])
+        u_ff = np.array([hilare.mean_input(tau, tau + T) for tau in taus[:-1]] + [np.zeros(2)])
+        K = np.array([hilare.gain(tau) for tau in taus[:-1]])
+        for mine, ref in ((sh.x0, x0), (sh.u_ff, u_ff), (sh.K, K)):
+            assert np.array_equal(mine.view(np.uint64), ref.view(np.uint64))
+
+
 # ---- equivalence with the loop ----------------------------------------------------------------------
 
 @pytest.mark.parametrize("noise", [
@@ -204,6 +310,62 @@ def test_summaries_and_final_state_without_records_and_in_any_chunk(hilare):
     assert np.allclose(full.final_error_norm, norms[:, -1], rtol=1e-13)
     assert np.allclose(full.final_position_error, np.linalg.norm(full.e[:, -1, :2], axis=1), rtol=1e-13)
     assert np.array_equal(full.x_final, full.x[:, -1])
+
+
+def test_results_do_not_depend_on_the_noise_block(hilare, monkeypatch):
+    """The noise is drawn in blocks of samples (at least 64): blocks that end anywhere, including a
+    last partial one and one at the end sample, give the same trials."""
+    from nhstab.batch import vector
+
+    noise = NoiseOptions(scale=2.0, impulses=((1.5, {"y": 0.3}),))
+    ref = simulate_shared(hilare, [3, 4, 5], noise)
+    for floats in (1, 9 * 112, 9 * 315, 9 * 1000):     # 3 trials x 3 states: blocks of 64, 112, 315, 316 samples
+        monkeypatch.setattr(vector, "NOISE_BLOCK_FLOATS", floats)
+        res = simulate_shared(hilare, [3, 4, 5], noise)
+        for key in ("x", "y", "u", "e", "rms_error_norm", "x_final"):
+            assert np.array_equal(getattr(res, key), getattr(ref, key)), (floats, key)
+
+
+def test_on_states_sees_every_sample_of_every_chunk(hilare):
+    """The hook sees sample k = 0 .. S - 1 of each chunk in order: the true states the records hold
+    (x at t_k) and the inputs applied from t_k (None at the end sample), read-only; with a failing
+    trial, what its stack holds (the records show NaN from its lost sample on)."""
+    noise = NoiseOptions(initial={"x": 1e308})
+    draws = {s: np.random.default_rng(seed_for(s, "initial")).standard_normal(3)[0] for s in range(40)}
+    bad = next(s for s, d in draws.items() if abs(d) > 1.9)
+    good = [s for s, d in draws.items() if abs(d) < 1.0][:6]
+    seeds = good[:2] + [bad] + good[2:]
+    S = len(simulate_shared(hilare, [0], noise, record=False).t)
+    xs, us, calls = np.full((7, S, 3), -1.0), np.full((7, S, 2), -1.0), []
+
+    def on_states(rows, k, x, u):
+        calls.append((rows.start, rows.stop, k))
+        assert x.shape == (rows.stop - rows.start, 3) and not x.flags.writeable
+        xs[rows, k] = x
+        if k < S - 1:
+            assert u.shape == (rows.stop - rows.start, 2) and not u.flags.writeable
+            us[rows, k] = u
+        else:
+            assert u is None
+
+    with np.errstate(over="ignore", invalid="ignore"):
+        res = simulate_shared(hilare, seeds, noise, chunk=3, on_states=on_states)
+        lean = simulate_shared(hilare, seeds, noise, chunk=3, record=False, on_states=lambda *a: None)
+    assert calls == [(lo, min(lo + 3, 7), k) for lo in (0, 3, 6) for k in range(S)]
+    assert list(res.status) == ["completed"] * 2 + ["numerical_failure"] + ["completed"] * 4
+    ok = np.array([0, 1, 3, 4, 5, 6])
+    assert np.array_equal(xs[ok], res.x[ok]) and np.array_equal(us[ok, :-1], res.u[ok, :-1])
+    lost = int(np.flatnonzero(res.t == res.t_fail[2])[0])
+    assert np.array_equal(xs[2, :lost], res.x[2, :lost]) and np.isnan(res.x[2, lost:]).all()
+    assert not (xs[2] == -1.0).any()            # seen at every sample, lost or not
+    for key in ("rms_error_norm", "max_error_norm", "final_error_norm", "x_final", "status"):
+        assert np.array_equal(getattr(lean, key), getattr(res, key), equal_nan=key != "status"), key
+
+
+def test_on_states_must_be_callable(hilare):
+    with pytest.raises(InputError) as err:
+        simulate_shared(hilare, [0], NoiseOptions(), on_states="x")
+    assert err.value.argument == "on_states"
 
 
 def test_t_end_stops_early_on_the_same_samples(hilare):
