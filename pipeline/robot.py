@@ -15,7 +15,7 @@ the ``robot:`` block of map, run and batch files::
       footprint:                # one of: {radius: R} | {rectangle: {length, width, rear_overhang}} |
         polygon: [[-0.9, -0.95], [3.6, -0.95], [3.6, 0.95], [-0.9, 0.95]]   # {polygon: [...]}
       margin: 0.1               # planning margin [m]
-      stabilizer: {alpha: 0.1, delta: 6.0, gamma: 1.0, end_strategy: extend}   # the gramian law's defaults
+      stabilizer: {alpha: 0.1, delta: 6.0, gamma: 1.0, end_strategy: extend, cusps: split}   # the gramian law's defaults
       turning_radius: 5.0       # planning turning radius [m] (default: the rule below)
 
 A ``car_trailer`` also takes ``hitch_lengths: [d1, ...]`` (one per trailer, the model's list-valued
@@ -65,10 +65,10 @@ MODEL_DEFAULTS: dict[str, dict] = {
     # a car's body reaches 3.3 m ahead of its rear axle, where a heading error of 0.05 rad already
     # moves it by 0.17 m, so cars keep more room than the unicycle
     "rwd_car": {"footprint": {"rectangle": {"length": 4.2, "width": 1.8, "rear_overhang": 0.9}}, "margin": 0.3,
-                "stabilizer": {"alpha": 0.1, "delta": 6.0, "gamma": 1.0, "end_strategy": "extend"},
+                "stabilizer": {"alpha": 0.1, "delta": 6.0, "gamma": 1.0, "end_strategy": "extend", "cusps": "split"},
                 "turning_radius": ("factor", 1.25)},
     "fwd_car": {"footprint": {"rectangle": {"length": 1.6, "width": 0.8, "rear_overhang": 0.3}}, "margin": 0.2,
-                "stabilizer": {"alpha": 0.2, "delta": 3.0, "gamma": 1.0, "end_strategy": "extend"},
+                "stabilizer": {"alpha": 0.2, "delta": 3.0, "gamma": 1.0, "end_strategy": "extend", "cusps": "split"},
                 "turning_radius": ("factor", 1.25)},
     "heisenberg": {"footprint": {"radius": 0.1}, "margin": 0.1,
                    "stabilizer": {"alpha": 1.0, "delta": 1.0, "gamma": 1.0, "end_strategy": "frozen"},
@@ -85,8 +85,9 @@ MODEL_DEFAULTS: dict[str, dict] = {
 }
 #: the robot keys other than the model's parameters
 ROBOT_KEYS = ("model", "footprint", "margin", "stabilizer", "turning_radius", "name", "trailer_footprint")
-STABILIZER_KEYS = ("alpha", "delta", "gamma", "end_strategy")
-#: the stabilizer keys that are numbers (end_strategy is one of the gain schedule's END_STRATEGIES)
+STABILIZER_KEYS = ("alpha", "delta", "gamma", "end_strategy", "cusps")
+#: the stabilizer keys that are numbers (end_strategy is one of the gain schedule's END_STRATEGIES, cusps
+#: one of its CUSP_HANDLING)
 STABILIZER_NUMBERS = ("alpha", "delta", "gamma")
 #: how close consecutive polygon vertices may be and still count as distinct [m]
 _SAME_POINT = 1e-9
@@ -99,7 +100,7 @@ class Robot:
     model: Model
     footprint: Footprint
     margin: float
-    stabilizer: dict = field(default_factory=dict)      # alpha, delta, gamma, end_strategy
+    stabilizer: dict = field(default_factory=dict)      # alpha, delta, gamma, end_strategy, cusps
     turning_radius: float = 0.5                          # planning radius [m]
     name: str = ""                                       # a label (default: the model's name)
     #: where the description came from ("default", a file, "map", "run config", ...)
@@ -198,7 +199,7 @@ class Robot:
         return {"model": self.model.name, **{k: _plain(v) for k, v in self.model.params().items()},
                 "footprint": _footprint_spec(fp), **trailers, "margin": float(self.margin),
                 "stabilizer": {k: (float(self.stabilizer[k]) if k in STABILIZER_NUMBERS else str(self.stabilizer[k]))
-                               for k in STABILIZER_KEYS},
+                               for k in STABILIZER_KEYS if k in self.stabilizer},
                 "turning_radius": float(self.turning_radius), "name": self.name or self.model.name}
 
     def describe(self) -> dict:
@@ -310,11 +311,12 @@ def robot_from_spec(spec, where: str = "robot", source: str = "default") -> Robo
         for k, v in given.items():
             if k not in STABILIZER_KEYS:
                 raise InputError(f"{where}.stabilizer.{k}", "one of " + ", ".join(STABILIZER_KEYS), k)
-            if k == "end_strategy":
-                from .control.gramian import END_STRATEGIES
+            if k in ("end_strategy", "cusps"):
+                from .control.gramian import CUSP_HANDLING, END_STRATEGIES
 
-                if v not in END_STRATEGIES:
-                    raise InputError(f"{where}.stabilizer.end_strategy", "one of " + ", ".join(END_STRATEGIES), v)
+                allowed = END_STRATEGIES if k == "end_strategy" else CUSP_HANDLING
+                if v not in allowed:
+                    raise InputError(f"{where}.stabilizer.{k}", "one of " + ", ".join(allowed), v)
                 stab[k] = v
                 continue
             lo, lo_open = (0.5, False) if k == "gamma" else (0.0, True)

@@ -89,6 +89,9 @@ from .windows import Segments, combine, exclusive_prefix, scan, sliding, transpo
 
 WINDOWS = ("future", "past", "frozen-time")
 END_STRATEGIES = ("frozen", "extend")
+#: how a future-window schedule meets a cusp: "across" (one schedule, windows run across cusps) or
+#: "split" (one schedule per cusp-free segment, :func:`_split_schedule`)
+CUSP_HANDLING = ("across", "split")
 
 #: the one-line warning for the past window (the command line prints it as is)
 PAST_WINDOW_WARNING = (
@@ -116,7 +119,9 @@ class StabilizerOptions:
     a function of time (array in, array out), >= 1/2 everywhere; weight: the weighting constant w of
     exp(w alpha (t - tau)) (6 in the paper's Proposition 1); window: "future" (P_c), "past" (P_r, not
     stabilizing in general: for study) or "frozen-time" (the causal law of :mod:`nhstab.control.frozen`);
-    end_strategy: "frozen" or "extend" (see the module docstring); max_gain: the frozen-time law holds its last
+    end_strategy: "frozen" or "extend" (see the module docstring); cusps: "across" (one schedule whose
+    windows run across the nominal's cusps) or "split" (future window: one schedule per cusp-free
+    segment, :func:`_split_schedule`; the cars' default); max_gain: the frozen-time law holds its last
     admissible gramian where its gain norm would exceed this; singular_rtol / singular_atol:
     H(t) counts as singular where its smallest eigenvalue is <= max(atol, rtol * lambda_max(H(t))),
     i.e. where it cannot be told from singular in double precision.
@@ -128,6 +133,7 @@ class StabilizerOptions:
     weight: float = 6.0
     window: str = "future"
     end_strategy: str = "frozen"
+    cusps: str = "across"
     singular_rtol: float = 1e-11
     singular_atol: float = 1e-300
     max_substep_fraction: float = 1.0 / 16.0
@@ -147,6 +153,8 @@ class StabilizerOptions:
                              "not stabilizing in general; see the README)", self.end_strategy)
         if self.end_strategy not in END_STRATEGIES:
             raise InputError("end_strategy", "one of " + ", ".join(END_STRATEGIES), self.end_strategy)
+        if self.cusps not in CUSP_HANDLING:
+            raise InputError("cusps", "one of " + ", ".join(CUSP_HANDLING), self.cusps)
         if not callable(self.gamma):
             try:
                 g = float(self.gamma)
@@ -179,6 +187,8 @@ class StabilizerOptions:
              "gamma": "function" if callable(self.gamma) else float(self.gamma),
              "weight": float(self.weight), "window": self.window, "end_strategy": self.end_strategy,
              "weighting": f"exp({self.weight:g} alpha (t - tau))"}
+        if self.cusps != "across":
+            d["cusps"] = self.cusps
         if self.window == "frozen-time":
             d["max_gain"] = float(self.max_gain)
         return d
@@ -304,6 +314,10 @@ class GainSchedule:
         window. The past window has no guarantee: refused.
         """
         t = np.asarray(t, dtype=float)
+        until = self.diagnostics.get("guarantee_until_s")
+        if until is not None and np.any(t > until + 1e-9 * self.h):
+            raise InputError("t", f"times up to {until:.6g} s, the end of the first cusp (a schedule split at "
+                             "cusps has no guarantee across one)", float(np.max(t)))
         exponent = self.guaranteed_decay(t, t_start)
         t_start = float(self.t[0]) if t_start is None else float(t_start)
         e0 = np.asarray(e0, dtype=float)
@@ -388,6 +402,11 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
     opts = options.validated()
     if opts.window == "past":
         warnings.warn(PAST_WINDOW_WARNING, NotStabilizingWarning, stacklevel=2)
+    if opts.cusps == "split" and opts.window == "future":
+        nom = nominal if nominal.is_uniform() else nominal.resampled(len(nominal.t))
+        stops = cusp_stop_indices(nom)
+        if stops:
+            return _split_schedule(nominal, nom, stops, opts)
     tail = getattr(nominal, "tail", None)
     if tail is not None and opts.window == "future":
         return _with_tail(nominal, tail, opts)
@@ -479,6 +498,102 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
     }
     if frozen_info is not None:
         schedule.diagnostics["frozen_time"] = frozen_info
+    schedule.diagnostics.update(schedule.diagnose(lyapunov=False))
+    return schedule
+
+
+def cusp_stop_indices(nominal: Nominal, rel_eps: float = 1e-9) -> list[tuple[int, int]]:
+    """The nominal's cusp stops as grid index ranges (first, last point at rest): the points between two
+    moving points whose directions of travel (the velocity along the heading) have opposite signs. For
+    models with a planar pose (x, y, theta); none for others."""
+    names = list(nominal.model.state_names)
+    if not all(k in names for k in ("x", "y", "theta")):
+        return []
+    ix, iy, ith = names.index("x"), names.index("y"), names.index("theta")
+    xd = nominal.model.rhs(nominal.x, nominal.u)
+    along = xd[:, ix] * np.cos(nominal.x[:, ith]) + xd[:, iy] * np.sin(nominal.x[:, ith])
+    scale = float(np.abs(along).max()) if len(along) else 0.0
+    moving = np.flatnonzero(np.abs(along) > rel_eps * max(scale, 1e-300))
+    if scale <= 0.0 or moving.size < 2:
+        return []
+    flips = np.flatnonzero(np.diff(np.sign(along[moving])) != 0)
+    return [(int(moving[f]) + 1, int(moving[f + 1]) - 1) for f in flips]
+
+
+def _split_schedule(nominal: Nominal, nom: Nominal, stops: list, opts: StabilizerOptions) -> GainSchedule:
+    """Proposition 1 on each cusp-free segment of the nominal (``cusps="split"``).
+
+    With one schedule for the whole plan, the future window looks across a cusp: it holds motion in both
+    directions at several steering angles, so a small back-and-forth of the speed is the cheapest way
+    the gramian finds to remove a lateral or heading error, and the law puts large speed gains on those
+    errors (17 on the lateral error at a parallel slot's cusp, where its gain on the error along the path
+    is about 1): under process noise the car surges along its path while it stops at the cusp, next to
+    the parked cars. Here the nominal is cut at its cusps: each segment ends with its cusp stop and gets
+    the paper's own schedule, P = H_c(t, t + delta)^-1, K = gamma B^T P, with whole windows that never
+    cross a cusp: past its end a segment continues by the motion it is in (the ``extend`` end's
+    continuation, driving on under the last real input with the steering rate zeroed, as the segment's
+    tail, so that segments shorter than delta work too). The stop (the robot at rest, steering in place)
+    belongs to the segment that ends in it, with P held at its value where the robot stopped: along the
+    stop A(t) = 0, so this is the frozen end (H carried along the flow, Phi = I) and V = e^T P e does
+    not increase there. The last segment ends with ``end_strategy``. The 3 alpha guarantee holds
+    within each segment; none is claimed across a cusp (V can jump where the next segment's P takes
+    over): ``diagnostics["guarantee_until_s"]`` is the first cusp."""
+    import dataclasses as _dc
+
+    h = float(nom.t[1] - nom.t[0])
+    N, n, m = len(nom.t), nom.model.n, nom.model.m
+    bounds = [0] + [b for _, b in stops] + [N - 1]
+    H, P = np.empty((N, n, n)), np.empty((N, n, n))
+    K, lam, gamma = np.empty((N, m, n)), np.empty((N, n)), np.empty(N)
+    segments = []
+    single = _dc.replace(opts, cusps="across")
+    for k in range(len(bounds) - 1):
+        i0, i1 = bounds[k], bounds[k + 1]
+        last = k == len(bounds) - 2
+        seg = Nominal.from_functions(nom.model, nom._x_func, nom._u_func, nom.t[i0:i1 + 1])
+        seg_opts = _dc.replace(single, end_strategy="frozen")
+        own_tail = getattr(nominal, "tail", None) if last else None
+        if own_tail is not None:                       # the plan's own continuation past its end
+            seg.tail, end = own_tail, "the plan's tail"
+        elif last and opts.end_strategy == "frozen":
+            seg_opts = _dc.replace(seg_opts, delta=min(float(opts.delta), float(seg.t[-1] - seg.t[0])))
+            end = f"frozen (delta {seg_opts.delta:.4g} s)"
+        else:                                          # into the cusp, or the plan's end with extend
+            cont = _continuation(seg, float(opts.delta) + 2.0 * h, True)
+            if isinstance(cont, str):          # no continuation: the segment's own windows, shortened to fit
+                seg_opts = _dc.replace(seg_opts, delta=min(float(opts.delta), float(seg.t[-1] - seg.t[0])))
+                end = f"no continuation ({cont}); delta {seg_opts.delta:.4g} s"
+            else:
+                t_rel, dense, u_held, what = cont
+                T = float(seg.t[-1])
+                seg.tail = Nominal.from_functions(
+                    seg.model, lambda tau, dense=dense, T=T: np.asarray(dense(np.asarray(tau, float) - T)).T,
+                    lambda tau, u_held=u_held: np.broadcast_to(u_held, np.shape(tau) + (len(u_held),)).copy(),
+                    T + np.concatenate([[0.0], t_rel]))
+                end = f"extend ({what})"
+        sch = compute_schedule(seg, seg_opts)
+        Hs, Ps, Ks, ls = sch.H.copy(), sch.P.copy(), sch.K.copy(), sch.H_eigenvalues.copy()
+        if not last:                                   # the cusp stop: P held from where the robot stopped
+            a = stops[k][0] - i0
+            Hs[a:], Ps[a:], ls[a:] = Hs[a - 1], Ps[a - 1], ls[a - 1]
+            B = nom.model.g(nom.x[i0 + a:i1 + 1])
+            Ks[a:] = sch.gamma[a:, None, None] * (np.swapaxes(B, -1, -2) @ Ps[a - 1])
+        lo = i0 if k == 0 else i0 + 1                  # the shared point belongs to the earlier segment
+        sl = slice(lo - i0, None)
+        H[lo:i1 + 1], P[lo:i1 + 1], K[lo:i1 + 1] = Hs[sl], Ps[sl], Ks[sl]
+        lam[lo:i1 + 1], gamma[lo:i1 + 1] = ls[sl], sch.gamma[sl]
+        segments.append({"t0_s": float(nom.t[i0]), "t1_s": float(nom.t[i1]),
+                         "stop_s": None if last else [float(nom.t[stops[k][0]]), float(nom.t[stops[k][1]])],
+                         "end": end,
+                         "max_gain_norm": float(sch.diagnostics["max_gain_norm"])})
+    schedule = GainSchedule(t=nom.t.copy(), H=H, P=P, K=K, H_eigenvalues=lam, gamma=gamma, options=opts, nominal=nom)
+    first_cusp = float(nom.t[stops[0][0]])
+    schedule.diagnostics = {
+        **opts.describe(), "model": nom.model.name, "grid_points": N, "grid_step_s": h,
+        "duration_s": float(nom.t[-1] - nom.t[0]), "sliding_window_until_s": first_cusp,
+        "sliding_window_from_s": None, "end": segments[-1]["end"],
+        "segments": segments, "guarantee_until_s": float(nom.t[stops[0][1]]),
+        "cusps_note": "one schedule per cusp-free segment: the 3 alpha guarantee within each, none across a cusp"}
     schedule.diagnostics.update(schedule.diagnose(lyapunov=False))
     return schedule
 
