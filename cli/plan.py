@@ -36,9 +36,18 @@ EXIT_FAILURE = 1
 @click.option("--gains", default="default", show_default=True,
               help="default (the robot's alpha, delta, gamma) or auto (per plan, the narrowest tube with a saturation "
                    "probability under 1 %).")
+@click.option("--fit", is_flag=True,
+              help="When the plan's error tube is not certified clear, try the margin it needs (where the room "
+                   "allows) and other maneuvers, and keep the best (plan.json's fit lists every try).")
 @click.option("--noise", "noise_scale", type=float, default=1.0, show_default=True,
               help="Noise level the tube is predicted for (a multiple of nhstab run's default noise).")
 @click.option("--probability", type=float, default=0.997, show_default=True, help="Probability of the error tube.")
+@click.option("--tube", "tube_kind", type=click.Choice(["auto", "linear", "sampled"]), default="auto", show_default=True,
+              help="The error tube: linear (the closed loop linearised along the nominal, per sample), sampled "
+                   "(rollouts of the run loop, a certificate for the whole run), or auto: linear where inputs do "
+                   "not saturate and the plan has no stop, sampled elsewhere.")
+@click.option("--confidence", type=float, default=0.95, show_default=True,
+              help="Confidence of the sampled tube's certificate: N >= ln(1 - confidence) / ln(p) rollouts.")
 @click.option("--headroom", type=float, default=1.0, show_default=True,
               help="Plan within this fraction of the input limits (nhstab run uses 0.8, leaving the rest to the "
                    "feedback; the tube's saturation probability is against the full limits).")
@@ -48,7 +57,8 @@ EXIT_FAILURE = 1
               help="Draw plan.png (--no-figure: skip it and matplotlib's drawing stack, for scripted planning).")
 @map_options
 def plan(map_file, robot, robot_config, start, goal, problem, planner, space, turning_radius, time_limit, seed, guide,
-         margin, gains, noise_scale, probability, headroom, max_speed, out_dir, figure, cell_size, unknown):
+         margin, gains, fit, noise_scale, probability, tube_kind, confidence, headroom, max_speed, out_dir, figure,
+         cell_size, unknown):
     """Plan on MAP and write trajectory.csv, trajectory.npz, plan.json and plan.png into OUT.
 
     The robot (model, footprint, margin, turning radius, stabilizer) comes from --robot-config,
@@ -67,11 +77,19 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     from nhstab.execution.config import NoiseOptions
     from nhstab.execution.runner import derated
     from nhstab.planning import PathOptions, TimingOptions
-    from nhstab.tubes import certified_text, plan_and_tube
+    from nhstab.tubes import plan_and_tube, tube_line
 
     margin = None if margin is None else parse_margin("--margin", margin)
     if not (0.0 < probability < 1.0):
         raise InputError("--probability", "a number in (0, 1)", probability)
+    if not (0.0 < confidence < 1.0):
+        raise InputError("--confidence", "a number in (0, 1)", confidence)
+    from nhstab.sampled_tube import rollouts_needed
+
+    try:
+        rollouts_needed(probability, confidence)
+    except InputError as exc:
+        raise InputError("--confidence", exc.expected, confidence, detail=exc.detail) from None
     if not (0.0 < headroom <= 1.0):
         raise InputError("--headroom", "a number in (0, 1]", headroom)
 
@@ -95,8 +113,9 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     path_opts = path_opts.for_robot(plan_robot)
     result, law, tube, extra = plan_and_tube(m, rob, s, g, path_opts, TimingOptions(max_speed=max_speed),
                                              margin=margin, gains=gains, noise=NoiseOptions(scale=noise_scale),
-                                             probability=probability, plan_robot=plan_robot)
-    for key in ("margin_auto", "gains_auto"):
+                                             probability=probability, plan_robot=plan_robot, tube_kind=tube_kind,
+                                             confidence=confidence, fit=fit)
+    for key in ("margin_auto", "gains_auto", "fit"):
         if key in extra:
             click.echo(extra[key]["message"])
     if law is None:
@@ -104,21 +123,23 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
         return EXIT_NO_PLAN
     if margin == "auto":
         path_opts = replace(path_opts, margin=extra["margin_auto"]["margin_m"])
+    elif "fit_margin_m" in extra:
+        path_opts = replace(path_opts, margin=extra["fit_margin_m"])
+    if "fit" in extra:
+        row = extra["fit"]["tries"][extra["fit"]["chosen"]]
+        path_opts = replace(path_opts, seed=(path_opts.seed + row["seed_offset"]) % (2**31 - 1))
     write_plan(result, out_dir, m, str(map_file), rob, s, g, path_opts, figures=figure, tube=tube, extra=extra)
     met = result.metrics
     cusps = met["cusps"]
     click.echo(f"plan found for {rob.name}: {met['length_m']:.2f} m, {cusps} cusp{'' if cusps == 1 else 's'}, "
-               f"{met['duration_s']:.1f} s, min clearance {met['min_clearance_m']:.3f} m (margin {path_opts.margin:g} m), "
+               f"{met['duration_s']:.1f} s, min clearance {met['min_clearance_m']:.3f} m (margin {path_opts.margin:.3g} m), "
                f"max gain {met['max_gain_norm']:.3g}")
     if tube is None:                # the plan is written; its tube could not be predicted (plan.json says why)
         click.echo(f"wrote {out_dir}/trajectory.csv, trajectory.npz, plan.json" + (", plan.png" if figure else ""))
         click.echo(f"nhstab: no tube: {extra.get('tube_error', 'not predicted')}", err=True)
         return EXIT_FAILURE
-    click.echo(f"tube (p = {tube.probability:g}, noise x{noise_scale:g}): position radius up to "
-               f"{tube.position_radius.max():.3f} m, heading spread up to {tube.heading_spread.max():.3f} rad, "
-               f"{certified_text(tube)}, saturation probability <= "
-               f"{tube.saturation['run_bound']:.3g}")
-    if tube.saturation["run_bound"] > 0.01 and headroom == 1.0:
+    click.echo(tube_line(tube, noise_scale))
+    if headroom == 1.0 and (tube.saturation["run_bound"] > 0.01):
         click.echo("note: the nominal may use the full input limits, so the feedback saturates; nhstab run plans "
                    "with --headroom 0.8")
     click.echo(f"wrote {out_dir}/trajectory.csv, trajectory.npz, tube.npz, plan.json" + (", plan.png" if figure else ""))

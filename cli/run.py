@@ -9,9 +9,11 @@ import click
 from .map import load, map_options, parse_pose
 from .options import cli_robot, robot_options
 
-#: exit codes: the run ended but did not reach the goal (collision, replan failed, ...); no first plan
+#: exit codes: the run ended but did not reach the goal (collision, replan failed, ...); no first plan; a
+#: plan refused because its error tube is not certified clear (--require-certified)
 EXIT_NOT_REACHED = 4
 EXIT_NO_PLAN = 3
+EXIT_NOT_CERTIFIED = 5
 EXIT_INTERRUPTED = 130
 
 
@@ -66,6 +68,21 @@ def parse_levels(name: str, text: str | None) -> dict | None:
 @click.option("--gains", default=None,
               help="default, or auto: the gramian law's alpha, delta, gamma chosen per plan (narrowest error tube "
                    "with a saturation probability under 1 %).")
+@click.option("--fit", is_flag=True, default=None,
+              help="When a plan's error tube is not certified clear, try the margin it needs and other maneuvers, "
+                   "and follow the best (planning.fit).")
+@click.option("--tube", "tube_kind", type=click.Choice(["auto", "linear", "sampled"]), default=None,
+              help="Error tube of every plan: auto (default: linear where inputs do not saturate and the plan has "
+                   "no stop, else sampled rollouts of the run loop), linear or sampled.")
+@click.option("--probability", type=float, default=None, help="Probability p of the error tube (default 0.997).")
+@click.option("--confidence", type=float, default=None,
+              help="Confidence of the sampled tube's certificate (default 0.95: N >= ln(0.05) / ln(p) rollouts).")
+@click.option("--require-certified", is_flag=True, default=None,
+              help="Refuse a plan whose error tube is not certified clear: the robot does not follow it, the run "
+                   "ends not_certified (exit code 5).")
+@click.option("--cusp-replan/--no-cusp-replan", default=None,
+              help="At each cusp, replan the rest of the maneuver from the measured state when its tube is not "
+                   "certified clear (default on).")
 @click.option("--max-time", type=float, default=None, help="Simulated time limit [s].")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results/run"),
               show_default=True)
@@ -73,14 +90,17 @@ def parse_levels(name: str, text: str | None) -> dict | None:
 @map_options
 def run(map_file, config_file, robot, robot_config, start, goal, problem, controller, window, alpha, delta, gamma,
         rate_hz, noise_scale, initial_error, sensor_std, process_std, seed, planner, time_limit, guide, margin, gains,
-        max_time,
+        fit, tube_kind, probability, confidence, require_certified, cusp_replan, max_time,
         out_dir, animate, cell_size, unknown):
     """Run the composite controller on MAP: plan, stabilize under noise, sense, monitor with FCL, replan.
 
     Writes run.json, trajectory.csv, run_map.png and run_tracking.png (and run.gif with --animate)
-    into OUT. Exit code 0 when the goal is reached, 4 when the run ended otherwise (collision, replan
-    failed, timed out, missed goal, numerical failure), 3 when there was no first plan, 2 for bad
-    input, 130 when interrupted (the files then describe the interrupted run).
+    into OUT. Before the robot follows a plan, one line says whether its error tube is certified
+    clear, at which probability, where it is tightest and what would certify it. Exit code 0 when the
+    goal is reached, 4 when the run ended otherwise (collision, replan failed, timed out, missed goal,
+    numerical failure), 5 when --require-certified refused a plan (run.json records the plan and its
+    tube; the robot did not follow it), 3 when there was no first plan, 2 for bad input, 130 when
+    interrupted (the files then describe the interrupted run).
     """
     from nhstab.errors import InputError
     from nhstab.execution.config import RunOptions, load_run_config, merge
@@ -94,6 +114,18 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     if rate_hz is not None:
         check_range("--rate", rate_hz, MIN_RATE_HZ, MAX_RATE_HZ, "Hz")
     margin = parse_margin("--margin", margin)
+    for flag, v in (("--probability", probability), ("--confidence", confidence)):
+        if v is not None and not (0.0 < v < 1.0):
+            raise InputError(flag, "a number in (0, 1)", v)
+    if probability is not None or confidence is not None:
+        from nhstab.sampled_tube import DEFAULT_CONFIDENCE, rollouts_needed
+
+        try:
+            rollouts_needed(probability if probability is not None else 0.997,
+                            confidence if confidence is not None else DEFAULT_CONFIDENCE)
+        except InputError as exc:
+            raise InputError("--confidence" if confidence is not None else "--probability", exc.expected,
+                             confidence if confidence is not None else probability, detail=exc.detail) from None
 
     base, cfg_map = RunOptions(), None
     if config_file is not None:
@@ -114,7 +146,9 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     opts = merge(base, seed=seed, rate_hz=rate_hz, max_time_s=max_time, noise=noise,
                  controller__kind=controller, controller__window=window, controller__alpha=alpha,
                  controller__delta=delta, controller__gamma=gamma, controller__gains=gains, planning__planner=planner,
-                 planning__time_limit_s=time_limit, planning__margin=margin, planning__guide=guide)
+                 planning__time_limit_s=time_limit, planning__margin=margin, planning__guide=guide,
+                 tube__kind=tube_kind, tube__probability=probability, tube__confidence=confidence,
+                 tube__require_certified=require_certified, replan__at_cusps=cusp_replan, planning__fit=fit)
     from nhstab.maps import resolve_poses
 
     m = load(map_path, cell_size, unknown)
@@ -130,8 +164,8 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
                       robot_key: str = "robot", extra_files: dict | None = None) -> int:
     from nhstab.errors import InputError
     from nhstab.execution import execute, write_run
-    from nhstab.tubes import certified_text
     from nhstab.planning import PLANNABLE
+    from nhstab.tubes import certified_text
 
     if robot.model.name not in PLANNABLE:
         raise InputError(robot_key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)",
@@ -141,20 +175,26 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
 
     check_map_budget(m, opts.planning.time_limit_s)
     click.echo(f"running {opts.controller.kind} control of {robot.name} on {m.name} (seed {opts.seed}) ...", err=True)
-    result = execute(m, robot, start, goal, opts)
+    result = execute(m, robot, start, goal, opts, notify=lambda line: click.echo(line, err=True))
     files = write_run(result, out_dir, map_path, animate=animate, extra_files=extra_files)
     replans = sum(1 for p in result.plans if p.trigger != "initial")
     click.echo(f"{result.status}: {result.message}")
     for rec in result.plans:
         for attempt in rec.attempts:
-            for key in ("margin_auto", "gains_auto"):
+            for key in ("margin_auto", "gains_auto", "fit"):
                 if key in attempt:
                     click.echo(f"plan {rec.id}: {attempt[key]['message']}")
         if rec.tube is not None:
             tb = rec.tube
-            click.echo(f"plan {rec.id} tube (p = {tb.probability:g}): position radius up to "
-                       f"{tb.position_radius.max():.3f} m, {certified_text(tb)}, "
-                       f"saturation probability <= {tb.saturation['run_bound']:.3g}")
+            click.echo(f"plan {rec.id} ({rec.trigger}): {certified_text(tb)} at p = {tb.probability:g} ({tb.kind} tube)")
+        elif rec.law is not None:
+            click.echo(f"plan {rec.id} ({rec.trigger}): no error tube (the closed loop diverges under the law)")
+        checks = rec.cusp_checks
+        if checks:
+            clear = sum(1 for c in checks if c.get("certified"))
+            adopted = sum(1 for c in checks if c.get("adopted"))
+            click.echo(f"plan {rec.id}: {len(checks)} cusp check(s): the rest certified clear at {clear}, replanned at "
+                       f"{sum(1 for c in checks if c.get('replanned'))} ({adopted} new plan(s) followed)")
     click.echo(f"{replans} replan(s), {len(result.discovered)} obstacle(s) discovered, "
                f"{result.log['t'][-1] if len(result.log['t']) else 0:.1f} s simulated in {result.wall_time_s:.1f} s")
     click.echo("wrote " + ", ".join(str(f) for f in files))
@@ -164,4 +204,6 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
         return EXIT_NO_PLAN
     if result.status == "interrupted":
         return EXIT_INTERRUPTED
+    if result.status == "not_certified":
+        return EXIT_NOT_CERTIFIED
     return EXIT_NOT_REACHED

@@ -40,7 +40,7 @@ Also here: the ``--margin auto`` loop (:func:`plan_with_auto_margin`) and the ``
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.special import ndtri
@@ -60,6 +60,8 @@ AUTO_MARGIN_SLACK = 0.01
 AUTO_GAINS_ALPHA = (0.5, 1.0, 2.0)
 AUTO_GAINS_DELTA = (0.5, 1.0, 2.0)
 AUTO_GAINS_GAMMA = (0.5, 1.0, 2.0)
+#: a linear tube's line mentions saturation above this bound
+LINEAR_SATURATION_NOTE = 0.01
 #: ``--gains auto`` admits settings whose run saturation bound is below this
 AUTO_GAINS_MAX_SATURATION = 0.01
 CONSTRUCTION = ("per control sample, probability >= p under the linear-Gaussian model: position in the 2-dof "
@@ -68,6 +70,12 @@ CONSTRUCTION = ("per control sample, probability >= p under the linear-Gaussian 
                 "Bonferroni: both with probability >= p; footprint grown by reach = r + 2 rho sin(s/2), rho = "
                 "the farthest footprint point from the reference point; certified clearance = min over samples "
                 "of FCL clearance at the nominal pose minus reach")
+SAMPLED_CONSTRUCTION = ("N rollouts of the run loop (saturating law, plant, zero-order hold, noise model); per control "
+                        "sample, reach = the largest displacement of any footprint point over the rollouts (at a vertex "
+                        "of the footprint's convex hull: |(R(theta) - R(theta0)) b + p - p0|); certified clearance = "
+                        "min over samples of FCL clearance at the nominal pose minus reach; scenario bound: with "
+                        "N >= ln(beta) / ln(p), a run keeps it at every sample with probability >= p, with confidence "
+                        "1 - beta")
 
 
 def pose_indices(model) -> list[int]:
@@ -173,6 +181,10 @@ class Tube:
     state_names: tuple
     footprint_reach: float             # rho
     info: dict = field(default_factory=dict)
+    #: "linear" (the linear-Gaussian model) or "sampled" (rollouts of the run loop, nhstab.sampled_tube)
+    kind: str = "linear"
+    #: what the certified clearance means: kind, probability, for a sampled tube N and the confidence
+    certificate: dict = field(default_factory=dict)
 
     @property
     def std(self) -> np.ndarray:
@@ -186,7 +198,9 @@ class Tube:
 
     def inside(self, e: np.ndarray, pose_idx=None) -> tuple[np.ndarray, np.ndarray]:
         """For errors e (..., S, n) at the samples: (inside the full-state p-ellipsoid, inside the
-        pose region the spatial tube is built from: position ellipse at q and heading band at q)."""
+        pose region the spatial tube is built from). The linear tube's pose region: the position
+        ellipse at q and the heading band at q. The sampled tube's: the footprint displaced by at most
+        the reach (its ellipsoid uses the rollouts' sample covariance: a diagnostic, not its region)."""
         e = np.asarray(e, dtype=float)
         d = e - self.mean
         cov = self.cov + 1e-300 * np.eye(self.cov.shape[-1])
@@ -195,6 +209,11 @@ class Tube:
         d2 = np.einsum("...i,...i->...", d, sol)
         state = d2 <= self.state_quantile()
         ix, iy, ith = pose_idx if pose_idx is not None else self.info["pose_indices"]
+        if self.kind == "sampled":
+            from .sampled_tube import displacement
+
+            moved = self.poses + e[..., [ix, iy, ith]]
+            return state, displacement(self.info.get("hull"), moved, self.poses) <= self.reach
         q = 1.0 - (1.0 - self.probability) / 2.0
         Sxy = self.cov[:, [ix, iy]][:, :, [ix, iy]]
         dxy = d[..., [ix, iy]]
@@ -204,15 +223,21 @@ class Tube:
         head = np.abs(d[..., ith]) <= z * np.sqrt(self.cov[:, ith, ith])
         return state, pos & head
 
+    @property
+    def certified(self) -> bool | None:
+        """Whether the certified clearance is non-negative (None without a world)."""
+        return None if self.certified_clearance is None else bool(self.certified_clearance >= 0.0)
+
     def summary(self) -> dict:
         """The ``tube`` record of plan.json and run.json."""
         std = self.std
         k_r = int(np.argmax(self.position_radius))
-        out = {"probability": self.probability,
+        sat = self.saturation
+        out = {"kind": self.kind, "probability": self.probability,
                "max_position_radius_m": float(self.position_radius.max()),
                "max_heading_spread_rad": float(self.heading_spread.max()),
-               "certified_clearance_m": self.certified_clearance,
-               "saturation_probability": self.saturation["run_bound"],
+               "certified_clearance_m": self.certified_clearance, "certified": self.certified,
+               "saturation_probability": sat["run_bound"],
                "max_position_radius_time_s": float(self.t[k_r]),
                "max_reach_m": float(self.reach.max()), "mean_reach_m": float(self.reach.mean()),
                "final_reach_m": float(self.reach[-1]),
@@ -220,14 +245,26 @@ class Tube:
                "max_std_by_state": dict(zip(self.state_names, std.max(axis=0).tolist())),
                "final_std_by_state": dict(zip(self.state_names, std[-1].tolist())),
                "samples": len(self.t), "period_s": self.info.get("period_s"),
-               "saturation": {"run_bound": self.saturation["run_bound"],
-                              "union_bound": self.saturation["union_bound"],
-                              "max_per_sample": self.saturation["max_step"],
-                              "expected_fraction_bound": self.saturation["expected_fraction_bound"],
-                              "note": "saturation_probability is an upper bound (linear-Gaussian model) of the "
-                                      "probability that some input reaches a limit at some sample: excursions "
-                                      "counted once (see nhstab.control.tube)"},
-               "construction": CONSTRUCTION}
+               "certificate": dict(self.certificate)}
+        if self.kind == "sampled":
+            out["saturation"] = {"observed_fraction": sat["observed_fraction"],
+                                 "rollouts_saturated": sat["rollouts_saturated"],
+                                 "upper_bound": sat["upper_bound"],
+                                 "max_per_sample": sat["max_per_sample"], "expected_fraction": sat["expected_fraction"],
+                                 "note": "saturation_probability is the fraction of the tube's rollouts whose inputs "
+                                         "reached a limit at some sample (upper_bound: its one-sided Clopper-Pearson "
+                                         "bound at the certificate's confidence)"}
+            out["construction"] = SAMPLED_CONSTRUCTION
+        else:
+            out["saturation"] = {"run_bound": sat["run_bound"], "union_bound": sat["union_bound"],
+                                 "max_per_sample": sat["max_step"],
+                                 "expected_fraction_bound": sat["expected_fraction_bound"],
+                                 "note": "saturation_probability is an upper bound (linear-Gaussian model) of the "
+                                         "probability that some input reaches a limit at some sample: excursions "
+                                         "counted once (see nhstab.control.tube)"}
+            out["construction"] = CONSTRUCTION
+        if "verdict" in self.info:
+            out["verdict"] = self.info["verdict"]
         if self.certified_index is not None:
             k = self.certified_index
             out.update({"certified_clearance_time_s": float(self.t[k]),
@@ -246,17 +283,65 @@ def initial_covariance(noise, state_names) -> np.ndarray:
 
 def predict_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float = 50.0, substeps: int = 4,
                  model=None, probability: float = DEFAULT_PROBABILITY, initial_cov: np.ndarray | None = None,
-                 t_end: float | None = None, impulses: bool = True) -> Tube:
+                 t_end: float | None = None, impulses: bool = True, kind: str = "auto",
+                 confidence: float | None = None) -> Tube:
     """The error tube of ``law`` (a FeedbackLaw) under ``noise`` (a NoiseOptions), see the module
     docstring. ``world``: the CollisionWorld of the obstacles to certify against (None: no certified
     clearance). ``model``: the real robot (input limits for the saturation probability; default the
     nominal's, which for a plan with headroom is the derated one). ``initial_cov``: the initial error's
-    covariance (default: the noise's initial error; a replan starts from a measured state, whose
-    error is the sensor noise). ``impulses``: include the noise's impulses (times from the start)."""
+    covariance, diagonal (default: the noise's initial error; a replan starts from a measured state, whose
+    error is the sensor noise). ``impulses``: include the noise's impulses (times from the start).
+
+    ``kind``: "linear" (the linear-Gaussian tube), "sampled" (rollouts of the run loop,
+    :func:`nhstab.sampled_tube.sampled_tube`, with ``confidence``), or "auto" (default): the linear tube
+    where it holds (:func:`nhstab.sampled_tube.linear_validity`: no input saturation to speak of and no
+    interior stop), the sampled one elsewhere; the tube's ``certificate`` says which and why."""
+    from .sampled_tube import DEFAULT_CONFIDENCE, TUBE_KINDS, linear_validity, sampled_tube
+
     if not (isinstance(probability, (int, float)) and 0.0 < probability < 1.0):
         raise InputError("probability", "a number in (0, 1)", probability)
+    if kind not in TUBE_KINDS:
+        raise InputError("tube", "one of " + ", ".join(TUBE_KINDS), kind)
+    confidence = DEFAULT_CONFIDENCE if confidence is None else confidence
     nominal_model = law.nominal.model
     model = model or nominal_model
+    names = model.state_names
+    lin, why = None, "asked for"
+    if kind != "sampled":
+        try:
+            lin = _linear_tube(law, noise, footprint, None, rate_hz, substeps, model, probability, initial_cov,
+                               t_end, impulses)
+        except NumericalError:
+            if kind == "linear":
+                raise
+            why = "the linearised closed loop diverges"
+        if lin is not None:
+            valid, why = linear_validity(lin, law.nominal)
+            lin.certificate = {"kind": "linear", "probability": float(probability), "valid": valid, "why": why,
+                               "statement": f"per control sample, probability >= {probability:g} under the closed loop "
+                                            "linearised along the nominal (Gaussian noise, no input saturation)"}
+            if kind == "linear" or valid:
+                if world is not None:
+                    (lin.certified_clearance, lin.certified_index, lin.nominal_clearance_there,
+                     lin.clearance_evaluations) = certified_clearance(world, footprint, lin.poses, lin.reach)
+                return lin
+    sample_noise = noise
+    if initial_cov is not None:
+        S0 = np.asarray(initial_cov, dtype=float)
+        if S0.shape != (model.n, model.n) or np.any(S0 != np.diag(np.diag(S0))) or np.any(np.diag(S0) < 0):
+            raise InputError("initial_cov", "a diagonal covariance of the robot's states (the sampled tube draws "
+                             "independent initial errors)", S0.shape)
+        scale = float(noise.scale)
+        raw = np.sqrt(np.diag(S0)) / scale if scale > 0 else np.zeros(model.n)
+        sample_noise = replace(noise, distribution="gaussian", initial={s: float(v) for s, v in zip(names, raw)})
+    if not impulses:
+        sample_noise = replace(sample_noise, impulses=())
+    return sampled_tube(law, sample_noise, footprint, world, rate_hz=rate_hz, substeps=substeps, model=model,
+                        probability=probability, confidence=confidence, t_end=t_end, why=why)
+
+
+def _linear_tube(law, noise, footprint, world, rate_hz, substeps, model, probability, initial_cov, t_end,
+                 impulses) -> Tube:
     names = model.state_names
     T = 1.0 / float(rate_hz)
     sched = run_schedule(law, T, t_end, noise.impulse_list(names) if impulses else ())
@@ -300,6 +385,21 @@ def certified_clearance(world, fp: Footprint, poses: np.ndarray, reach: np.ndarr
     if not len(poses):
         return math.inf, -1, math.nan, 0
     return world.min_clearance_less(poses, fp, np.asarray(reach, dtype=float))
+
+
+def tube_needs(tube, world, fp: Footprint) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The samples where the tube is not clear (idx), the nominal clearance each would need, and its
+    deficit (negative): for a sampled tube with its rollouts measured (``info["rollout_clearance"]``),
+    the nominal clearance there minus the worst rollout's, and that rollout's clearance; otherwise the
+    tube's reach at the samples whose grown footprint is not clear, and the grown footprint's clearance."""
+    rc = tube.info.get("rollout_clearance")
+    if rc is not None:
+        if "failing_index" not in rc:
+            return np.zeros(0, dtype=int), np.zeros(0), np.zeros(0)
+        return (np.asarray(rc["failing_index"], dtype=int), np.asarray(rc["failing_need_m"], dtype=float),
+                np.asarray(rc["failing_worst_m"], dtype=float))
+    idx, gap = failing_samples(world, fp, tube.poses, tube.reach)
+    return idx, tube.reach[idx], gap
 
 
 def failing_samples(world, fp: Footprint, poses: np.ndarray, reach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -366,9 +466,9 @@ def plan_with_auto_margin(plan_at, tube_of, world, fp: Footprint, *, cap: float,
                                       "linearised closed loop diverges under the law); kept that plan")
                 return result, law, None, record
             break
-        idx, gap = failing_samples(world, fp, tube.poses, tube.reach) if tube.certified_clearance < 0 else \
-            (np.zeros(0, dtype=int), np.zeros(0))
-        pinned = tube.reach[idx] + slack > cap
+        idx, need, gap = tube_needs(tube, world, fp) if tube.certified_clearance < 0 else \
+            (np.zeros(0, dtype=int), np.zeros(0), np.zeros(0))
+        pinned = need + slack > cap
         fix_gap = float(gap[~pinned].min()) if np.any(~pinned) else 0.0
         entry.update(certified_clearance_m=tube.certified_clearance,
                      nominal_min_clearance_m=result.metrics.get("min_clearance_m"),
@@ -376,12 +476,12 @@ def plan_with_auto_margin(plan_at, tube_of, world, fp: Footprint, *, cap: float,
                      failing_beyond_cap=int(pinned.sum()), fixable_clearance_m=fix_gap)
         if pinned.any():
             entry["beyond_cap_times_s"] = [float(tube.t[idx[pinned]].min()), float(tube.t[idx[pinned]].max())]
-            entry["beyond_cap_max_reach_m"] = float(tube.reach[idx[pinned]].max())
+            entry["beyond_cap_max_reach_m"] = float(need[pinned].max())
         cands.append(((1, -margin) if fix_gap >= 0.0 else (0, fix_gap), margin, result, law, tube, entry))
         if fix_gap >= 0.0 or i == rounds - 1:
             break
         ok_margin = margin if ok_margin is None else max(ok_margin, margin)
-        nxt = min(cap, max(margin + slack, float(tube.reach[idx[~pinned]].max()) + slack))
+        nxt = min(cap, max(margin + slack, float(need[~pinned].max()) + slack))
         if fail_margin is not None and nxt >= fail_margin:
             if fail_margin - margin < 2 * slack:
                 entry["stopped"] = f"no plan at margin {fail_margin:.3g} m"
@@ -416,6 +516,83 @@ def plan_with_auto_margin(plan_at, tube_of, world, fp: Footprint, *, cap: float,
     record.update(margin_m=margin, certified=ok, certified_clearance_m=tube.certified_clearance,
                   certified_where_possible=bool(chosen["fixable_clearance_m"] >= 0.0), message=text)
     return result, law, tube, record
+
+
+#: ``--fit``: the plans tried at most after the first (a margin that certifies, then other maneuvers)
+FIT_TRIES = 4
+
+
+def fit_plan(plan_at, tube_of, world, fp: Footprint, *, margin: float, cap: float, first, tries: int = FIT_TRIES,
+             slack: float = AUTO_MARGIN_SLACK):
+    """``--fit``: when the first plan's tube is not certified clear, change the plan until one is, cheapest
+    first, and keep the best found.
+
+    1. **The margin the tube needs**, where the room allows: a plan at the tube verdict's needed margin
+       (the largest reach among the samples whose grown footprint is not clear) plus ``slack``, if that
+       is below ``cap`` (the start's and goal's own clearance); a margin that finds no plan is halved
+       towards the last that did, once.
+    2. **Another maneuver**: plans with other seeds (``plan_at(margin, k)`` for k = 1, 2, ...) at the
+       largest margin that found a plan, a different path through the same space (the car planner also
+       falls back to its full steering range where its reserved lock finds nothing).
+
+    Each try is judged by its own tube. Two other remedies were measured and are not tried: slowing the
+    nominal near obstacles and before cusps (process noise grows per second while a car corrects a
+    lateral error per metre driven: on twelve parking plans, 0.5 m/s there raised the gramian law's
+    collisions from 2.9 % to 18.3 % of rollouts) and other gain settings (gamma 2, delta 3 s or alpha x 3
+    were worse on the same plans, or singular). ``plan_at(margin, k)`` -> (PlanResult, FeedbackLaw or None);
+    ``tube_of(law)`` -> a Tube with its verdict, or None; ``first`` = (result, law, tube) at ``margin``.
+    Returns (result, law, tube, margin, record); the record lists every try."""
+    result, law, tube = first
+    rows = [{"try": "the plan", "margin_m": margin, "seed_offset": 0, "status": result.status,
+             "certified_clearance_m": None if tube is None else tube.certified_clearance}]
+    record = {"tries": rows, "max_tries": tries}
+    if law is None or tube is None or tube.certified is not False:
+        record.update(chosen=0, certified=None if tube is None else tube.certified,
+                      message="fit: nothing to do" + ("" if tube is None or tube.certified is None
+                                                       else " (the plan's tube is certified clear)"))
+        return result, law, tube, margin, record
+    cands = [(tube.certified_clearance, 0, result, law, tube, margin)]
+    ok_margin = margin
+
+    def attempt(label, mg, k):
+        r, lw = plan_at(mg, k)
+        tb = tube_of(lw) if lw is not None else None
+        rows.append({"try": label, "margin_m": mg, "seed_offset": k, "status": r.status,
+                     "certified_clearance_m": None if tb is None else tb.certified_clearance})
+        if tb is not None and tb.certified_clearance is not None:
+            cands.append((tb.certified_clearance, len(rows) - 1, r, lw, tb, mg))
+        return lw is not None, tb is not None and tb.certified is True
+
+    v = tube.info.get("verdict") or verdict(tube, world, fp, margin)
+    need = v.get("needed_margin_m")
+    left = tries
+    if need is not None and left > 0:
+        want = min(need + slack, cap)
+        if want > margin + 1e-9:
+            found, done = attempt(f"margin {want:.3g} m (the tube's need)", want, 0)
+            left -= 1
+            if found:
+                ok_margin = want
+            elif left > 0 and want - margin > 2 * slack:
+                half = 0.5 * (margin + want)
+                found, done = attempt(f"margin {half:.3g} m (halfway)", half, 0)
+                left -= 1
+                ok_margin = half if found else ok_margin
+            if done:
+                left = 0
+    k = 1
+    while left > 0 and not any(c[4].certified for c in cands):
+        _, done = attempt(f"another maneuver (seed + {k}) at margin {ok_margin:.3g} m", ok_margin, k)
+        left -= 1
+        k += 1
+    best = max(cands, key=lambda c: (c[4].certified is True, c[0]))
+    clearance, i, result, law, tube, mg = best
+    record.update(chosen=i, certified=bool(tube.certified), margin_m=mg)
+    trail = "; ".join(f"{r['try']}: " + (f"{r['certified_clearance_m']:+.3f} m" if r["certified_clearance_m"] is not None
+                                         else r["status"]) for r in rows)
+    record["message"] = (f"fit: {'certified' if tube.certified else 'NOT certified'} after {len(rows)} plan(s), "
+                         f"kept {rows[i]['try']} (tube clearance {clearance:+.3f} m); {trail}")
+    return result, law, tube, mg, record
 
 
 def choose_gains(nominal, defaults: dict, tube_of, window: str = "future", *,
@@ -479,7 +656,91 @@ def certified_text(tube) -> str:
     of several bodies, whose tube is certified for no body)."""
     if tube.certified_clearance is None:
         return "clearance not certified (a robot of several bodies)"
-    return f"certified clearance {tube.certified_clearance:+.3f} m"
+    word = "certified clear by" if tube.certified_clearance >= 0 else "NOT certified: tube clearance"
+    return f"{word} {tube.certified_clearance:+.3f} m"
+
+
+def verdict(tube, world, fp: Footprint, margin: float | None = None, cap: float | None = None) -> dict:
+    """What a user needs to act on a tube: certified or not, at which probability, by which kind of tube,
+    where it is tightest (time, pose, the nominal's clearance and the tube's reach there), and where it
+    is not certified, the margin that would certify it if the tube stayed as wide (the largest reach
+    among the samples whose grown footprint is not clear; for a sampled tube with its rollouts kept, the
+    nominal clearance each failing sample would need for its worst rollout to clear), and whether that
+    is more than ``cap`` (the start's or goal's own clearance: no plan keeps it). Stored as
+    ``tube.info["verdict"]`` (and in the ``tube`` record of plan.json and run.json)."""
+    out = {"kind": tube.kind, "probability": tube.probability, "certified": tube.certified,
+           "certified_clearance_m": tube.certified_clearance}
+    if tube.kind == "sampled":
+        out.update(rollouts=tube.certificate["rollouts"], confidence=tube.certificate["confidence"],
+                   saturated_fraction=tube.saturation["observed_fraction"])
+    else:
+        out.update(saturation_bound=tube.saturation["run_bound"], linear_valid=tube.certificate.get("valid"))
+    if tube.certificate.get("why"):
+        out["why_this_kind"] = tube.certificate["why"]
+    if margin is not None:
+        out["margin_m"] = float(margin)
+    rc = tube.info.get("rollout_clearance")
+    if tube.certified_clearance is not None and tube.certified_index is not None and tube.certified_index >= 0:
+        k = tube.certified_index
+        out["tightest"] = {"time_s": float(tube.t[k]), "pose": [float(v) for v in tube.poses[k]],
+                           "nominal_clearance_m": tube.nominal_clearance_there, "reach_m": float(tube.reach[k])}
+        if rc is not None:
+            out["tightest"].update(rollout_clearance_m=rc["clearance_m"], rollout_displacement_m=rc["displacement_m"])
+        if tube.certified_clearance < 0 and rc is not None:
+            a, b = rc["failing_times_index"]
+            out.update(failing_samples=rc["failing_samples"], failing_times_s=[float(tube.t[a]), float(tube.t[b])],
+                       needed_margin_m=rc["needed_clearance_m"])
+            if not rc.get("complete", True):
+                out["needed_margin_note"] = "a lower bound: not every pose that may touch was measured"
+        elif tube.certified_clearance < 0 and world is not None:
+            idx, gap = failing_samples(world, fp, tube.poses, tube.reach)
+            if len(idx):
+                out["failing_samples"] = int(len(idx))
+                out["failing_times_s"] = [float(tube.t[idx].min()), float(tube.t[idx].max())]
+                out["needed_margin_m"] = float(tube.reach[idx].max())
+        if cap is not None and "needed_margin_m" in out and out["needed_margin_m"] > cap:
+            out["beyond_start_or_goal"] = {"clearance_m": float(cap), "note": "the margin it needs is more than the "
+                                           "start's or goal's own clearance: no plan between them keeps it"}
+    tube.info["verdict"] = out
+    return out
+
+
+def tube_line(tube, noise_scale: float | None = None, prefix: str = "tube") -> str:
+    """One line for a user: certified or not, at which probability, which tube, where it is tightest and
+    what would certify it (from :func:`verdict`, which must have run)."""
+    v = tube.info.get("verdict") or {}
+    if tube.kind == "sampled":
+        how = (f"sampled: {tube.certificate['rollouts']} rollouts of the run loop, confidence "
+               f"{tube.certificate['confidence']:.3g}, the whole run")
+    else:
+        how = "linear, per sample"
+    head = f"{prefix} (p = {tube.probability:g}, {how}" + (f", noise x{noise_scale:g}" if noise_scale is not None else "") + ")"
+    if tube.certified_clearance is None:
+        return (f"{head}: clearance not certified (a robot of several bodies); reach up to "
+                f"{float(tube.reach.max()):.2f} m")
+    text = f"{head}: {certified_text(tube)}"
+    t = v.get("tightest")
+    if t:
+        x, y, th = t["pose"][:3]
+        text += (f"; tightest at t = {t['time_s']:.2f} s, pose ({x:.2f}, {y:.2f}, {th:.2f} rad), where the plan keeps "
+                 f"{t['nominal_clearance_m']:.3f} m and " + (
+                     f"a rollout moved {t['rollout_displacement_m']:.3f} m" if "rollout_displacement_m" in t
+                     else f"the tube reaches {t['reach_m']:.3f} m"))
+    if tube.certified is False:
+        if "needed_margin_m" in v:
+            a, b = v["failing_times_s"]
+            text += (f"; a margin of {v['needed_margin_m']:.2f} m over t = {a:.1f}-{b:.1f} s would certify it "
+                     + (f"(planned with {v['margin_m']:.2f} m)" if "margin_m" in v else "(if the tube stayed as wide)"))
+            if "beyond_start_or_goal" in v:
+                text += (f", more than the start's or goal's own clearance ({v['beyond_start_or_goal']['clearance_m']:.2f} m): "
+                         "no plan between them keeps it at this noise")
+    if tube.kind == "sampled":
+        frac = tube.saturation["observed_fraction"]
+        if frac > 0:
+            text += f"; inputs reach a limit in {100.0 * frac:.0f} % of rollouts"
+    elif tube.saturation["run_bound"] > LINEAR_SATURATION_NOTE:
+        text += f"; inputs may saturate (probability <= {tube.saturation['run_bound']:.2g})"
+    return text
 
 
 #: the refusal of ``margin: auto`` for a robot of several bodies (a car with trailers)
@@ -489,13 +750,17 @@ SEVERAL_BODIES = ("a margin in metres for a robot of several bodies (the error t
 
 def plan_and_tube(m, robot, start, goal, path_options, timing_options, *, margin="auto",
                   gains: str = "default", noise=None, probability: float = DEFAULT_PROBABILITY,
-                  rate_hz: float = 50.0, substeps: int = 4, world=None, plan_robot=None):
+                  rate_hz: float = 50.0, substeps: int = 4, world=None, plan_robot=None, tube_kind: str = "auto",
+                  confidence: float | None = None, fit: bool = False):
     """``nhstab plan`` with its tube: plan (``margin`` a number, or "auto" for
     :func:`plan_with_auto_margin`), the gramian law with the robot's default parameters (``gains``
     "auto": :func:`choose_gains`), and the error tube under ``noise`` (a NoiseOptions; default: the run's
     default noise) at ``rate_hz``, certified against the map's known obstacles. ``robot`` is the real
     robot (a :class:`~nhstab.robot.Robot`: its limits, footprint, stabilizer defaults), ``plan_robot``
-    the one the nominal is planned for (derated for headroom; default ``robot``).
+    the one the nominal is planned for (derated for headroom; default ``robot``). ``tube_kind`` and
+    ``confidence``: the tube's kind and its certificate's confidence (:func:`predict_tube`); the tube
+    carries its :func:`verdict`. ``fit``: an uncertified plan is changed by :func:`fit_plan` (record in
+    ``extra["fit"]``).
 
     Returns (result, law, tube, extra) with extra = {"tube_model": ..., "margin_auto": ..., "gains_auto": ...,
     "tube_error": ...} (the records that apply); law and tube are None when no plan was found, the tube alone
@@ -526,16 +791,25 @@ def plan_and_tube(m, robot, start, goal, path_options, timing_options, *, margin
 
     def tube_of(law, certify=True):
         try:
-            return predict_tube(law, noise, fp, world if certify and not several else None, rate_hz=rate_hz,
-                                substeps=substeps, model=robot.model, probability=probability)
+            tube = predict_tube(law, noise, fp, world if certify and not several else None, rate_hz=rate_hz,
+                                substeps=substeps, model=robot.model, probability=probability,
+                                kind=tube_kind if certify else "linear", confidence=confidence)
         except NumericalError as exc:
             if not certify:
                 raise                       # choose_gains skips the setting
             extra["tube_error"] = str(exc)  # the plan stands; its tube could not be predicted
             return None
+        if certify:
+            verdict(tube, None if several else world, fp, state["margin"],
+                    cap=None if several else min(world.clearance(np.asarray(p, dtype=float)[:3], fp) for p in (start, goal)))
+        return tube
 
-    def plan_at(mg):
-        result = plan(m, plan_robot, start, goal, replace(path_options, margin=mg), timing_options, world=world)
+    state = {"margin": None}
+
+    def plan_at(mg, k=0):
+        state["margin"] = mg
+        opts = replace(path_options, margin=mg, seed=(path_options.seed + k) % (2**31 - 1))
+        result = plan(m, plan_robot, start, goal, opts, timing_options, world=world)
         if not result.ok:
             return result, None
         if gains == "auto":
@@ -545,10 +819,21 @@ def plan_and_tube(m, robot, start, goal, path_options, timing_options, *, margin
             law = build_law(result.nominal, ControllerOptions(kind="gramian"), defaults, result.schedule)
         return result, law
 
+    clear = [world.clearance(np.asarray(p, dtype=float)[:3], fp) for p in (start, goal)]
     if margin == "auto":
-        clear = [world.clearance(np.asarray(p, dtype=float), fp) for p in (start, goal)]
         result, law, tube, record = plan_with_auto_margin(plan_at, tube_of, world, fp, cap=min(clear) - 1e-3)
         extra["margin_auto"] = record
-        return result, law, tube, extra
-    result, law = plan_at(margin)
-    return result, law, (tube_of(law) if law is not None else None), extra
+        used = record["margin_m"]
+    else:
+        result, law = plan_at(margin)
+        tube, used = (tube_of(law) if law is not None else None), margin
+    if fit and law is not None and tube is not None and tube.certified is False:
+        result, law, tube, used, record = fit_plan(plan_at, tube_of, world, fp, margin=used, cap=min(clear) - 1e-3,
+                                                   first=(result, law, tube))
+        extra["fit"] = record
+        if margin == "auto":
+            extra["margin_auto"]["margin_m"] = used
+        else:
+            extra["fit_margin_m"] = used
+        state["margin"] = used
+    return result, law, tube, extra

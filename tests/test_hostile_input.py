@@ -600,6 +600,7 @@ def test_the_readme_limits_are_the_code_limits():
     assert round(limits.MAX_NOMINAL_SAMPLES * 0.02 / 3600) == 11
     assert limits.MAX_HEADING_RAD == 1e6 and "+-1,000,000 rad" in section
     assert limits.MAX_STUDY_TRIALS == 5_000 and "5,000 trials per cell" in section
+    assert limits.MAX_ROLLOUTS == 100_000 and "| 100,000 rollouts (N >= ln(1 - confidence) / ln(p)) |" in section
     assert limits.MAX_WINDOW_SUBSTEPS == 1024 and StabilizerOptions().max_substep_fraction == 1 / 16
     assert limits.MAX_GAMMA == 1e4 and "| 1/2 to 10,000 |" in section
     assert "1/64 of the nominal's time step (0.3 ms at 0.02 s)" in section and "1,024 per time step" in section

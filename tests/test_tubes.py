@@ -22,7 +22,13 @@ from nhstab.geometry import Footprint, cos_sin, transform_points
 from nhstab.maps.base import Circle, Map, box_polygon
 from nhstab.models import make_model
 from nhstab.nominal import Nominal
-from nhstab.tubes import certified_clearance, predict_tube, run_schedule
+from nhstab.tubes import certified_clearance, run_schedule
+from nhstab.tubes import predict_tube as _predict_tube
+
+
+def predict_tube(*args, **kwargs):
+    """The linear tube (this file tests the linear-Gaussian model; tests/test_sampled_tube.py the sampled one)."""
+    return _predict_tube(*args, kind="linear", **kwargs)
 
 T = 0.02
 

@@ -4,6 +4,7 @@ coverage, the study and the benchmark (each checked against an independent compu
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -47,8 +48,12 @@ def test_margin_auto_certifies_the_plan_it_keeps(room):
     assert rec["certified"] and rec["margin_m"] < 0.1, rec["message"]
     world = CollisionWorld.from_map(room, "known")
     brute = min(world.clearance(p, fp) - r for p, r in zip(tube.poses, tube.reach))
-    assert brute >= 0.0
-    assert tube.certified_clearance == pytest.approx(brute, abs=1e-12)
+    if tube.kind == "linear":
+        assert brute >= 0.0
+        assert tube.certified_clearance == pytest.approx(brute, abs=1e-12)
+    else:           # the rollouts' own clearance (tests/test_sampled_tube.py), at least the grown footprint's
+        grown = tube.info["rollout_clearance"]["grown_footprint_clearance_m"]
+        assert grown == pytest.approx(brute, abs=1e-12) and tube.certified_clearance >= max(grown, 0.0)
     # the plan keeps the chosen margin (the planner's own re-check)
     assert result.metrics["min_clearance_m"] >= rec["margin_m"] - 1e-9
 
@@ -57,9 +62,13 @@ def test_plan_cli_writes_the_tube(tmp_path, room):
     res = CliRunner().invoke(cli, ["plan", "example:cluttered_room", "--seed", "1", "--margin", "auto",
                                    "--headroom", "0.8", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output
-    assert "margin auto: certified at margin" in res.output and "certified clearance" in res.output
+    assert "margin auto: certified at margin" in res.output and "certified clear by" in res.output
     doc = json.loads((tmp_path / "plan.json").read_text())
     tube = doc["tube"]
+    # the tube line names its kind, and plan.json records it with its certificate and verdict
+    assert f"tube (p = 0.997, {tube['kind']}" in res.output
+    assert tube["certificate"]["kind"] == tube["kind"] and tube["verdict"]["certified"] is True
+    assert tube["verdict"]["tightest"]["time_s"] == tube["certified_clearance_time_s"]
     for key in ("probability", "max_position_radius_m", "max_heading_spread_rad", "certified_clearance_m",
                 "saturation_probability"):
         assert key in tube
@@ -79,7 +88,7 @@ def test_plan_cli_writes_the_plan_when_its_tube_diverges(tmp_path, margin):
     robot.write_text("model: unicycle\nstabilizer: {alpha: 20, delta: 2.0, gamma: 1.0}\n")
     out = tmp_path / "o"
     res = CliRunner().invoke(cli, ["plan", "example:cluttered_room", "--robot-config", str(robot), "--seed", "1",
-                                   "--margin", margin, "--no-figure", "--out", str(out)])
+                                   "--margin", margin, "--tube", "linear", "--no-figure", "--out", str(out)])
     _one_line(res, 1, "no tube", "diverges")
     doc = json.loads((out / "plan.json").read_text())
     assert "tube" not in doc and "diverges" in doc["tube_error"]
@@ -90,14 +99,29 @@ def test_plan_cli_writes_the_plan_when_its_tube_diverges(tmp_path, margin):
         assert doc["inputs"]["path_options"]["margin"] == 0.02
 
 
+def test_where_the_linearised_loop_diverges_the_sampled_tube_shows_the_saturated_loop(tmp_path):
+    """The same robot with the default tube (auto): the linearised loop diverges, but the loop that runs
+    clips its inputs and stays bounded; the sampled tube says what it does, and why it was used."""
+    robot = tmp_path / "robot.yaml"
+    robot.write_text("model: unicycle\nstabilizer: {alpha: 20, delta: 2.0, gamma: 1.0}\n")
+    out = tmp_path / "o"
+    res = CliRunner().invoke(cli, ["plan", "example:cluttered_room", "--robot-config", str(robot), "--seed", "1",
+                                   "--no-figure", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    tube = json.loads((out / "plan.json").read_text())["tube"]
+    assert tube["kind"] == "sampled" and "diverges" in tube["certificate"]["why"]
+    assert tube["saturation_probability"] == 1.0            # every rollout chatters at its limits
+    assert math.isfinite(tube["max_reach_m"]) and (out / "tube.npz").exists()
+
+
 def test_a_large_noise_is_a_large_tube_not_a_divergent_one(room):
     """The covariance grows as the square of the noise: at x1e9 the tube is 1e9 times wider (1e-9), where
     an absolute bound on the covariance used to call the loop divergent."""
     robot = default_robot("unicycle")
     args = (room, robot, room.start.as_array(), room.goal.as_array(), PathOptions(turning_radius=0.5, seed=1),
             TimingOptions())
-    one = plan_and_tube(*args, margin=0.1, noise=NoiseOptions(scale=1.0, impulses=()))[2]
-    big = plan_and_tube(*args, margin=0.1, noise=NoiseOptions(scale=1e9, impulses=()))[2]
+    one = plan_and_tube(*args, margin=0.1, noise=NoiseOptions(scale=1.0, impulses=()), tube_kind="linear")[2]
+    big = plan_and_tube(*args, margin=0.1, noise=NoiseOptions(scale=1e9, impulses=()), tube_kind="linear")[2]
     np.testing.assert_allclose(big.cov, 1e18 * one.cov, rtol=1e-9, atol=0)
     assert big.certified_clearance < -1e7
 
@@ -210,7 +234,7 @@ def test_tube_study_machinery_on_one_case(tmp_path):
 def test_bench_tube_agrees_with_its_baseline():
     from nhstab.bench.tube import bench_tube
 
-    b = bench_tube(scenarios=("cluttered_room",), repeats=3)
+    b = bench_tube(scenarios=("cluttered_room",), repeats=3, cases=None, auto_repeats=1)
     row = b["rows"][0]
     assert b["met"]["baseline_agrees"] and row["samples"] > 100
     # the target's ratio: the median over the pairs (a plan, then its tube) of their ratio, from the times kept

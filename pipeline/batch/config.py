@@ -28,6 +28,7 @@ Format (paths relative to the config file)::
       rate_hz: 50                   # robot, start, goal and seed (see nhstab run --config)
       noise: {sensor: {x: 0.02}}
       planning: {margin: auto}      # each plan's margin from its error tube (nhstab.tubes)
+      tube: {require_certified: true}   # a trial whose plan is not certified ends not_certified
 
 Each trial k of a cell has the seed spawned as child k of ``root_seed``, the same in every cell, so
 controllers and noise levels are compared on the same seeds. Trial ids are ``<cell>#<k>``.
@@ -280,7 +281,7 @@ def load_batch_config(path) -> BatchConfig:
                     raise InputError(f"grid.gamma[{j}]", f"a number in [1/2, {MAX_GAMMA:g}]", v)
     run = data.get("run", {}) or {}
     allowed = {"rate_hz", "substeps", "saturate", "headroom", "max_time_s", "controller", "noise", "sensor",
-               "monitor", "planning", "replan", "tolerance"}
+               "monitor", "planning", "replan", "tolerance", "tube"}
     if isinstance(run, dict):
         for key in run:
             if key in _RUN_EXCLUDED:

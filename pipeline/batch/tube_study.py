@@ -202,7 +202,7 @@ def run_study(trials: int = TRIALS, root_seed: int = ROOT_SEED, cases=CASES, con
             for level in noise_levels:
                 noise = NoiseOptions(scale=level)
                 tube = predict_tube(law, noise, run.fp, run.known, rate_hz=run.opts.rate_hz, substeps=run.opts.substeps,
-                                    model=run.model, probability=probability)
+                                    model=run.model, probability=probability, kind="linear")
                 sim = simulate_shared(law, seeds, noise, rate_hz=run.opts.rate_hz, substeps=run.opts.substeps,
                                       model=run.model)
                 cell = cell_metrics(tube, sim, run.model, run.known, run.fp, cusps)
@@ -348,7 +348,7 @@ def run_gains(trials: int = TRIALS, root_seed: int = ROOT_SEED, cases=CASES, noi
 
         def tube_of(law, certify=False):
             return predict_tube(law, noise, run.fp, run.known if certify else None, rate_hz=run.opts.rate_hz,
-                                substeps=run.opts.substeps, model=run.model)
+                                substeps=run.opts.substeps, model=run.model, kind="linear")
 
         started = time.perf_counter()
         law, record = choose_gains(result.nominal, run.stab_defaults, tube_of)

@@ -54,7 +54,7 @@ def bench_tube(scenarios=SCENARIOS, repeats: int = 9) -> dict:
 
         def fast():
             return predict_tube(law, noise, fp, world, rate_hz=run.opts.rate_hz, substeps=run.opts.substeps,
-                                model=model)
+                                model=model, kind="linear")
 
         def baseline():
             names = model.state_names

@@ -30,10 +30,17 @@ was given. The format::
       impulses: [{time: 4.0, x: 0.0, y: 0.3}]                          # state jumps at given times
     sensor: {range_m: 8.0, fov_deg: 360, rate_hz: 10, resolution_deg: 0.5}
     monitor: {rate_hz: 10, horizon_s: 8.0}
-    planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.3, space: reeds_shepp, guide: true}   # margin: the robot's;
-                                      # margin: auto plans with the error tube's clearance (nhstab.tubes)
-    replan: {pause_s: 1.0, max_attempts: 3, max_replans: 10, budget_growth: 4.0}
+    planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.3, space: reeds_shepp, guide: true, fit: false}
+                                      # margin: the robot's; auto plans with the error tube's clearance
+                                      # (nhstab.tubes); fit: an uncertified plan is changed until its tube
+                                      # is certified (the margin it needs, other maneuvers), the best kept
+    replan: {pause_s: 1.0, max_attempts: 3, max_replans: 10, budget_growth: 4.0, at_cusps: true}
+                                      # at_cusps: at each cusp, replan the rest when its tube is not clear
     tolerance: {position_m: 0.3, heading_rad: 0.2}
+    tube: {kind: auto, probability: 0.997, confidence: 0.95, require_certified: false}
+                                      # every plan's error tube (nhstab.tubes): auto = linear where it holds,
+                                      # sampled rollouts elsewhere; require_certified: refuse a plan whose
+                                      # tube is not certified clear (status not_certified)
 
 Noise levels are given per state name; states not named get the robot's default (see
 :data:`DEFAULT_NOISE`).
@@ -160,7 +167,9 @@ class PlanningOptions:
     clearance every nominal keeps from the obstacles the robot knows of; None for the robot's
     (``Robot.margin``, see :mod:`nhstab.robot`); "auto" for the smallest margin whose error tube is
     certified clear (:func:`nhstab.tubes.plan_with_auto_margin`). ``guide``: the guided search (a grid
-    shortest path sets the subgoals); false searches with OMPL's planner over the whole map."""
+    shortest path sets the subgoals); false searches with OMPL's planner over the whole map. ``fit``:
+    when a plan's error tube is not certified clear, try the margin it needs and other maneuvers, and
+    keep the best (:func:`nhstab.tubes.fit_plan`)."""
 
     planner: str = "rrtconnect"
     space: str = "reeds_shepp"
@@ -168,6 +177,7 @@ class PlanningOptions:
     margin: float | str | None = None
     turning_radius: float | None = None
     guide: bool = True
+    fit: bool = False
 
     def validated(self) -> "PlanningOptions":
         from ..planning import PLANNERS, SPACES
@@ -186,6 +196,8 @@ class PlanningOptions:
             check_number("planning.turning_radius", self.turning_radius, 0.0, lo_open=True)
         if not isinstance(self.guide, bool):
             raise InputError("planning.guide", "true or false", self.guide)
+        if not isinstance(self.fit, bool):
+            raise InputError("planning.fit", "true or false", self.fit)
         return self
 
 
@@ -196,12 +208,16 @@ class ReplanOptions:
     it). A failed attempt is retried after another pause with a new seed, up to ``max_attempts`` in a
     row; the attempts after the second get ``budget_growth`` times the planning budget. The first plan
     (before the robot moves, so without pauses) is retried the same way. At most ``max_replans``
-    replans per run."""
+    replans per run. ``at_cusps``: at each cusp of the active plan (the robot at rest), the error tube of
+    the rest of the maneuver is predicted from the measured state; where it is not certified clear the
+    rest is replanned from there, and the new plan is followed if its tube is certified or clears more
+    (a cusp replan counts as a replan)."""
 
     pause_s: float = 1.0
     max_attempts: int = 3
     max_replans: int = 10
     budget_growth: float = 4.0
+    at_cusps: bool = True
 
     def budget_factor(self, attempt: int) -> float:
         """The planning budget of attempt ``attempt`` (0, 1, ...) relative to planning.time_limit_s."""
@@ -212,6 +228,39 @@ class ReplanOptions:
         check_number("replan.max_attempts", self.max_attempts, 1.0, integer=True)
         check_number("replan.budget_growth", self.budget_growth, 1.0)
         check_number("replan.max_replans", self.max_replans, 0.0, integer=True)
+        if not isinstance(self.at_cusps, bool):
+            raise InputError("replan.at_cusps", "true or false", self.at_cusps)
+        return self
+
+
+@dataclass(frozen=True)
+class TubeOptions:
+    """The error tube of every plan (:func:`nhstab.tubes.predict_tube`): ``kind`` auto (the linear tube
+    where it holds, the sampled one elsewhere), linear or sampled; its ``probability`` p and, for the
+    sampled tube, the certificate's ``confidence`` (N >= ln(1 - confidence) / ln(p) rollouts).
+    ``require_certified``: a plan whose tube is not certified clear is not executed (the run ends
+    "not_certified" before the robot follows it; ``nhstab run`` exits with code 5)."""
+
+    kind: str = "auto"
+    probability: float = 0.997
+    confidence: float = 0.95
+    require_certified: bool = False
+
+    def validated(self) -> "TubeOptions":
+        from ..sampled_tube import TUBE_KINDS, rollouts_needed
+
+        if self.kind not in TUBE_KINDS:
+            raise InputError("tube.kind", "one of " + ", ".join(TUBE_KINDS), self.kind)
+        for key in ("probability", "confidence"):
+            v = check_number(f"tube.{key}", getattr(self, key), 0.0, lo_open=True)
+            if v >= 1.0:
+                raise InputError(f"tube.{key}", "a number in (0, 1)", v)
+        try:
+            rollouts_needed(self.probability, self.confidence)
+        except InputError as exc:
+            raise InputError("tube.confidence", exc.expected, exc.got) from None
+        if not isinstance(self.require_certified, bool):
+            raise InputError("tube.require_certified", "true or false", self.require_certified)
         return self
 
 
@@ -250,6 +299,7 @@ class RunOptions:
     planning: PlanningOptions = field(default_factory=PlanningOptions)
     replan: ReplanOptions = field(default_factory=ReplanOptions)
     tolerance: ToleranceOptions = field(default_factory=ToleranceOptions)
+    tube: TubeOptions = field(default_factory=TubeOptions)
 
     def validated(self, state_names, n_inputs: int) -> "RunOptions":
         from ..limits import (MAX_CONTROL_PERIODS, MAX_RATE_HZ, MAX_SEED, MAX_SUBSTEPS, MIN_RATE_HZ, check_int,
@@ -276,12 +326,13 @@ class RunOptions:
         self.planning.validated()
         self.replan.validated()
         self.tolerance.validated()
+        self.tube.validated()
         return self
 
 
 _SECTIONS = {"controller": ControllerOptions, "noise": NoiseOptions, "sensor": SensorOptions,
              "monitor": MonitorOptions, "planning": PlanningOptions, "replan": ReplanOptions,
-             "tolerance": ToleranceOptions}
+             "tolerance": ToleranceOptions, "tube": TubeOptions}
 _TOP = {f.name for f in fields(RunOptions)} | {"map"}
 
 

@@ -153,6 +153,10 @@ def _plan_entry(rec, result: RunResult | None = None) -> tuple[dict, dict]:
                 timing[key] = metrics.pop(key)
         entry["metrics"] = {**metrics, "duration_s": float(rec.law.t_end - rec.law.t0),
                             "controller_max_gain_norm": rec.law.info.get("max_gain_norm")}
+    if getattr(rec, "verdict_line", None):
+        entry["tube_line"] = rec.verdict_line
+    if getattr(rec, "cusp_checks", None):
+        entry["cusp_checks"] = [{k: v for k, v in c.items()} for c in rec.cusp_checks]
     if getattr(rec, "tube", None) is not None:
         entry["tube"] = rec.tube.summary()
         observed = _observed_in_tube(result, rec) if result is not None else None

@@ -61,7 +61,7 @@ from .controllers import FeedbackLaw, build_law
 from .plant import Plant
 
 STATUSES = ("reached", "collision", "replan_failed", "timed_out", "missed_goal", "numerical_failure", "no_plan",
-            "interrupted")
+            "interrupted", "not_certified")
 #: modes of the log: following a nominal, stopped while replanning, stopped at the end
 MODES = ("track", "replanning", "done")
 _SEED_STREAMS = {"initial": 0, "sensor": 1, "process": 2, "planner": 3}
@@ -83,6 +83,9 @@ class PlanRecord:
     law: FeedbackLaw | None = None
     conflict: dict | None = None  # for a replan: the first conflicting nominal pose and its clearance
     tube: object | None = None    # the predicted error tube (nhstab.tubes.Tube)
+    verdict_line: str | None = None  # what the run said of its tube when it adopted the plan
+    #: at each cusp: the rest of the maneuver's tube from the measured state, and a replan if it was not clear
+    cusp_checks: list = field(default_factory=list)
 
     @property
     def nominal(self):
@@ -228,6 +231,11 @@ class CompositeRun:
         self.log = RunLog()
         self.collision = None
         self.k = 0
+        self._margin_now = None
+        #: wall time of each cusp check's tube [s]
+        self.cusp_timing: list = []
+        #: called with one line when a plan becomes active (its tube's verdict), or None
+        self.notify = None
 
     # ---- planning ---------------------------------------------------------------------------
     def _path_options(self, seed: int, margin: float, budget_factor: float = 1.0) -> PathOptions:
@@ -241,7 +249,7 @@ class CompositeRun:
         in a row (later attempts get a larger budget); returns (attempt record, result, law, margin used,
         tube). With ``planning.margin: auto`` the call is the tube loop of
         :func:`nhstab.tubes.plan_with_auto_margin` (its rounds share the call's seed)."""
-        from ..tubes import AUTO_MARGIN_START, plan_with_auto_margin
+        from ..tubes import AUTO_MARGIN_START, fit_plan, plan_with_auto_margin
 
         seed = planner_seed(self.opts.seed, self.planning_calls)
         self.planning_calls += 1
@@ -278,6 +286,16 @@ class CompositeRun:
                 tube = self._tube_of(law)
                 if law is not None:
                     attempt["tube_s"] = time.perf_counter() - law_ready
+            if self.opts.planning.fit and law is not None and tube is not None and tube.certified is False:
+                fit_started = time.perf_counter()
+                cap = min(self._clearance(self.robot_world, start_pose),
+                          self._clearance(self.robot_world, self.goal)) - 1e-3
+                result, law, tube, margin, record = fit_plan(
+                    lambda mg, k: self._plan_at(start_pose, (seed + k) % (2**31 - 1), mg, attempt, factor),
+                    self._tube_of, self.robot_world, self.fp, margin=margin, cap=cap, first=(result, law, tube))
+                self._margin_now = attempt["margin"] = margin
+                attempt["fit"] = record
+                attempt["fit_s"] = time.perf_counter() - fit_started
             if law is not None and tube is None:
                 attempt["tube"] = "none: the linearised closed loop diverges under these gains"
             if law is not None:
@@ -298,6 +316,7 @@ class CompositeRun:
         by the tube, recorded in the attempt)."""
         from ..tubes import choose_gains
 
+        self._margin_now, self._start_now = margin, start_pose
         result = plan(self.m, self.plan_robot, start_pose, self.goal, self._path_options(seed, margin, budget_factor),
                       TimingOptions(dt=self.T), world=self.robot_world)
         if not result.ok:
@@ -310,12 +329,14 @@ class CompositeRun:
             law = build_law(result.nominal, self.opts.controller, self.stab_defaults, result.schedule)
         return result, law
 
-    def _tube_of(self, law: FeedbackLaw, world=True):
-        """The error tube of a nominal of this run (:func:`nhstab.tubes.predict_tube`) under the run's
-        noise, rate and robot, certified against the obstacles the robot knows of now. The first plan
-        starts from the initial error (with the impulses); a replan from a measured state after the
-        pause: sensor noise plus the pause's process noise (impulses are not included)."""
-        from ..tubes import predict_tube
+    def _tube_of(self, law: FeedbackLaw, world=True, margin: float | None = None):
+        """The error tube of a nominal of this run (:func:`nhstab.tubes.predict_tube`, of the kind
+        ``tube.kind``) under the run's noise, rate and robot, certified against the obstacles the robot
+        knows of now, with its verdict (:func:`nhstab.tubes.verdict`). The first plan starts from the
+        initial error (with the impulses); a replan from a measured state after the pause: sensor noise
+        plus the pause's process noise (impulses are not included). ``world`` False: an uncertified
+        linear tube (``--gains auto`` compares settings with it)."""
+        from ..tubes import predict_tube, verdict
 
         if law is None:
             return None
@@ -324,16 +345,26 @@ class CompositeRun:
         if self.plans:
             initial = np.diag(self.opts.noise.vector("sensor", names) ** 2
                               + self.opts.noise.vector("process", names) ** 2 * self.opts.replan.pause_s)
+        to = self.opts.tube
         try:
             # a robot of several bodies: the tube is not certified (it would certify the car's body only)
             certify = world and not self.multibody
-            return predict_tube(law, self.opts.noise, self.fp, self.robot_world if certify else None,
+            tube = predict_tube(law, self.opts.noise, self.fp, self.robot_world if certify else None,
                                 rate_hz=self.opts.rate_hz, substeps=self.opts.substeps, model=self.model,
-                                initial_cov=initial, impulses=not self.plans)
+                                initial_cov=initial, impulses=not self.plans, probability=to.probability,
+                                kind=to.kind if world else "linear", confidence=to.confidence)
         except NumericalError:
             if not world:
                 raise                  # choose_gains skips the setting
-            return None                # no tube: the linearised loop diverges (the run says so)
+            return None                # no tube: the loop diverges (the run says so)
+        if world:
+            cap = None
+            if certify and getattr(self, "_start_now", None) is not None:
+                cap = min(self._clearance(self.robot_world, self._start_now),
+                          self._clearance(self.robot_world, self.goal))
+            verdict(tube, self.robot_world if certify else None, self.fp,
+                    margin if margin is not None else self._margin_now, cap=cap)
+        return tube
 
     # ---- the loop -----------------------------------------------------------------------------
     def _record(self, t, x, y, x0, u, u0, plan_id, mode):
@@ -484,6 +515,7 @@ class CompositeRun:
         if law is None:
             raise _Stop("no_plan", f"no first plan in {len(attempts)} attempt{'s' if len(attempts) > 1 else ''} "
                                    f"(last: {attempt['status']}: {attempt['message']}){self._rate_hint(attempt)}")
+        self._adopt(first)
         max_time = self._deadline(0.0, law)
         # the initial condition error, about the nominal's first state
         sigma0 = opts.noise.vector("initial", model.state_names)
@@ -494,6 +526,7 @@ class CompositeRun:
         self.x_initial = x.copy()
         self._check_collision(x, 0.0)
         rec, t_plan0, replans = first, 0.0, 0
+        cusps = self._cusp_times(rec)
         zero_u = np.zeros(model.m)
         while True:
             t = self.k * self.T
@@ -510,12 +543,28 @@ class CompositeRun:
                     rec, x = self._replan(x, t, conflict)
                     t_plan0 = self.k * self.T
                     max_time = self._deadline(t_plan0, rec.law)
+                    cusps = self._cusp_times(rec)
                     continue
             if tau >= rec.law.t_end - 1e-9:
                 y = self._measure(x)
                 self._record(t, x, y, rec.law.reference(tau)[0], zero_u, zero_u, rec.id, 2)
                 return self._final(x)
             y = self._measure(x)
+            if cusps and tau >= cusps[0] - 1e-9:
+                cusps.pop(0)
+                if replans < opts.replan.max_replans:
+                    outcome = self._at_cusp(rec, tau, t, x, y)
+                    if outcome is not None:             # the robot paused to replan at the cusp
+                        new, x, paused = outcome
+                        if new is not rec:
+                            rec, replans = new, replans + 1
+                            t_plan0 = self.k * self.T
+                            max_time = self._deadline(t_plan0, rec.law)
+                            cusps = self._cusp_times(rec)
+                        else:                           # the old plan resumes where it stopped
+                            t_plan0 += paused
+                            max_time += paused
+                        continue
             u_ff = rec.law.mean_input(tau, tau + self.T)
             u, x0, _ = rec.law.control(tau, y, u_ff)
             if opts.saturate:
@@ -524,6 +573,106 @@ class CompositeRun:
                 raise _Stop("numerical_failure", f"the input became non-finite at t = {t:.3f} s")
             self._record(t, x, y, x0, u, u_ff, rec.id, 0)
             x = self._advance(x, u, t)
+
+    def _cusp_times(self, rec: PlanRecord) -> list[float]:
+        """The plan times of the control samples where the robot comes to rest at the plan's cusps (the
+        first sample of each stop whose motion reverses), when ``replan.at_cusps`` is on."""
+        from ..sampled_tube import cusp_stops
+
+        if not self.opts.replan.at_cusps or self.multibody or rec.law is None:
+            return []
+        return [math.ceil(a / self.T - 1e-9) * self.T for a, _ in cusp_stops(rec.law.nominal, self.pose_idx)]
+
+    def _at_cusp(self, rec: PlanRecord, tau: float, t: float, x, y):
+        """At a cusp (the robot at rest): the error tube of the rest of the maneuver from the measured
+        state y (its rollouts start at y with the sensor noise's spread). Certified clear: nothing to
+        do (None). Else the robot pauses while the rest is replanned from y; the new plan is followed if
+        its tube is certified or clears more than the rest of the old one. Returns None, or (the plan
+        to follow, the state after the pause, the pause's duration)."""
+        from ..sampled_tube import remaining_law, sampled_tube
+        from ..tubes import verdict
+
+        sub = remaining_law(rec.law, tau)
+        if sub is None:
+            return None
+        names = self.model.state_names
+        noise = self.opts.noise
+        sens = noise.vector("sensor", names)
+        raw = sens / noise.scale if noise.scale > 0 else np.zeros(self.model.n)
+        start_noise = dataclasses.replace(noise, distribution="gaussian", impulses=(),
+                                          initial={s: float(v) for s, v in zip(names, raw)})
+        to = self.opts.tube
+        started = time.perf_counter()
+        try:
+            rest = sampled_tube(sub, start_noise, self.fp, self.robot_world, rate_hz=self.opts.rate_hz,
+                                substeps=self.opts.substeps, model=self.model, probability=to.probability,
+                                confidence=to.confidence, x_start=y, why="the rest of the maneuver at a cusp")
+            verdict(rest, self.robot_world, self.fp, rec.margin)
+        except NumericalError as exc:
+            rest = None
+            why = str(exc)
+        check = {"time_s": t, "plan_time_s": tau, "measured_state": y.tolist(),
+                 "certified_clearance_m": None if rest is None else rest.certified_clearance,
+                 "certified": None if rest is None else rest.certified}
+        if rest is None:
+            check["tube_error"] = why
+        rec.cusp_checks.append(check)
+        self.cusp_timing.append(time.perf_counter() - started)
+        if rest is not None and rest.certified:
+            return None
+        start_pose = y[self.pose_idx]
+        attempt, result, law, margin, tube = self._plan_once(start_pose, 0)
+        x = self._pause(x, y, rec.id)
+        better = (law is not None and tube is not None and tube.certified_clearance is not None
+                  and (rest is None or tube.certified_clearance > rest.certified_clearance))
+        check.update(replanned=True, replan_status=attempt["status"], adopted=bool(better),
+                     new_certified_clearance_m=None if tube is None else tube.certified_clearance)
+        if not better:
+            check["attempt"] = {k: v for k, v in attempt.items() if k not in ("latency_s", "tube_s")}
+            return rec, x, self.opts.replan.pause_s if self.opts.replan.pause_s > 0 else self.T
+        new = PlanRecord(len(self.plans), "cusp", t, self.k * self.T, start_pose.copy(), attempt["seed"], margin,
+                         [attempt], result, law, {"cusp_time_s": t, "rest_certified_clearance_m":
+                                                  check["certified_clearance_m"]}, tube)
+        self.plans.append(new)
+        self._adopt(new)
+        return new, x, 0.0
+
+    def _pause(self, x, y, plan_id: int):
+        """The robot stands still (u = 0) for replan.pause_s of simulated time while a plan is made
+        (sensing goes on); the first sample logs the measurement ``y`` already taken. Returns the state
+        after the pause."""
+        zero_u = np.zeros(self.model.m)
+        every_sense = max(1, round(self.opts.rate_hz / self.opts.sensor.rate_hz))
+        t_pause_end = self.k * self.T + self.opts.replan.pause_s
+        first = True
+        while self.k * self.T < t_pause_end - 1e-9 or first:
+            t = self.k * self.T
+            yk = y if first else self._measure(x)
+            self._record(t, x, yk, np.full(self.model.n, np.nan), zero_u, zero_u, plan_id, 1)
+            if self.k % every_sense == 0:
+                self._sense(x, t)
+            x = self._advance(x, zero_u, t)
+            first = False
+        return x
+
+    def _adopt(self, rec: PlanRecord) -> None:
+        """A plan is about to be followed: say its tube's verdict in one line (``notify``), and with
+        ``tube.require_certified`` refuse it unless its tube is certified clear (the robot is at rest)."""
+        from ..tubes import tube_line
+
+        tube = rec.tube
+        if tube is None:
+            line = f"plan {rec.id}: no error tube (the closed loop diverges under the law): NOT certified"
+        else:
+            line = tube_line(tube, self.opts.noise.scale, prefix=f"plan {rec.id} tube")
+        rec.verdict_line = line
+        if self.notify is not None:
+            self.notify(line)
+        if self.opts.tube.require_certified and (tube is None or tube.certified is not True):
+            why = ("no tube" if tube is None else "a robot of several bodies is not certified"
+                   if tube.certified is None else f"certified clearance {tube.certified_clearance:+.3f} m")
+            raise _Stop("not_certified", f"plan {rec.id} refused (tube.require_certified): its error tube is not "
+                                         f"certified clear ({why}); the robot did not follow it")
 
     def _rate_hint(self, attempt: dict) -> str:
         """When a nominal failed its clearance check and the control period is long, say so: the
@@ -555,30 +704,19 @@ class CompositeRun:
     def _replan(self, x, t_detect: float, conflict: dict):
         """Stop; plan from the measured state until a plan is found or attempts run out. Returns the new
         record (active from the current time) and the true state."""
-        zero_u = np.zeros(self.model.m)
         plan_id = len(self.plans)
         attempts = []
-        every_sense = max(1, round(self.opts.rate_hz / self.opts.sensor.rate_hz))
         while True:
             y = self._measure(x)
             start_pose = y[self.robot.configuration_columns] if self.multibody else y[self.pose_idx]
             attempt, result, law, margin, tube = self._plan_once(start_pose, len(attempts))
             attempts.append(attempt)
-            # the robot stands still for the pause (sensing goes on)
-            t_pause_end = self.k * self.T + self.opts.replan.pause_s
-            first = True
-            while self.k * self.T < t_pause_end - 1e-9 or first:
-                t = self.k * self.T
-                yk = y if first else self._measure(x)
-                self._record(t, x, yk, np.full(self.model.n, np.nan), zero_u, zero_u, plan_id - 1, 1)
-                if self.k % every_sense == 0:
-                    self._sense(x, t)
-                x = self._advance(x, zero_u, t)
-                first = False
+            x = self._pause(x, y, plan_id - 1)        # the robot stands still (sensing goes on)
             if law is not None:
                 rec = PlanRecord(plan_id, "conflict", t_detect, self.k * self.T, start_pose.copy(), attempt["seed"],
                                  margin, attempts, result, law, conflict, tube)
                 self.plans.append(rec)
+                self._adopt(rec)
                 return rec, x
             if len(attempts) >= self.opts.replan.max_attempts:
                 self.plans.append(PlanRecord(plan_id, "conflict", t_detect, math.nan, start_pose.copy(),
@@ -623,7 +761,9 @@ def execute(m: Map, *args, **kwargs) -> RunResult:
 
     ``robot``: a :class:`~nhstab.robot.Robot`; None takes ``opts.robot`` (a model name or a robot
     spec), else the map's ``robot:`` block, else the unicycle. ``start``/``goal``: poses; None takes
-    the map's. ``opts``: :class:`RunOptions` (default: all defaults). The older form
+    the map's. ``opts``: :class:`RunOptions` (default: all defaults). ``notify`` (keyword only): a
+    function called with one line of text each time a plan becomes active: its error tube's verdict
+    (certified or not, where it is tightest, what would certify it), before the robot follows it. The older form
     ``execute(m, model, footprint, start, goal, opts)`` is still accepted.
 
     Never raises for what happens during the run (the status says it); bad input raises
@@ -638,6 +778,9 @@ def execute(m: Map, *args, **kwargs) -> RunResult:
     if len(args) > len(names):
         raise InputError("execute", f"at most {len(names) + 1} positional arguments", len(args) + 1)
     given = dict(zip(names, args))
+    notify = kwargs.pop("notify", None)
+    if notify is not None and not callable(notify):
+        raise InputError("notify", "a function of one line of text, or None", type(notify).__name__)
     for key, v in kwargs.items():
         if key not in names or key in given:
             raise InputError(f"execute {key}", "one of robot, start, goal, opts, given once", key)
@@ -653,13 +796,14 @@ def execute(m: Map, *args, **kwargs) -> RunResult:
 
     start, goal = resolve_poses(m, given.get("start") if given.get("start") is not None else opts.start,
                                 given.get("goal") if given.get("goal") is not None else opts.goal)
-    return _execute(m, robot, start, goal, opts)
+    return _execute(m, robot, start, goal, opts, notify)
 
 
-def _execute(m: Map, robot: Robot, start, goal, opts: RunOptions) -> RunResult:
+def _execute(m: Map, robot: Robot, start, goal, opts: RunOptions, notify=None) -> RunResult:
     model, fp = robot.model, robot.footprint
     started = time.perf_counter()
     run = CompositeRun(m, robot, start, goal, opts)
+    run.notify = notify
     run.final_errors = None
     try:
         status, message = run.run()

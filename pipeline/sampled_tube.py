@@ -1,0 +1,440 @@
+"""Sampled error tubes: the closed loop as it actually runs, with a finite-sample certificate.
+
+The linear tube (:mod:`nhstab.tubes`) is exact for the closed loop linearised along the nominal. It
+stops holding where that model is wrong: where the inputs reach their limits with non-negligible
+probability (the law is clipped, the linear model does not know it) and at stops and cusps, where the
+robot is at rest and its error dynamics are the most nonlinear. That is where a parking maneuver's
+clearance is small. There, :func:`sampled_tube` runs **N rollouts of the run loop itself** (the
+saturating law, the plant's RK4 steps under zero-order hold, the sensor, process and initial noise:
+:func:`nhstab.batch.vector.simulate_shared`, each rollout bit-identical to ``nhstab run``'s tracking
+loop for its seed) and reports what they did.
+
+**The region.** At control sample k, rollout i's footprint is the nominal footprint moved rigidly by
+the pose error: a footprint point b (robot frame) moves by |(R(theta_i) - R(theta_0)) b + (p_i - p_0)|.
+That is convex in b, so over the footprint it is largest at a vertex of the footprint's convex hull
+(for a disc about the reference point, which a turn does not move: |p_i - p_0|). Call it D_k^i, the
+rollout's **displacement**; the rollout's footprint lies inside the nominal footprint grown by D_k^i.
+The tube's **reach** is reach_k = max_i D_k^i, and its certified clearance is
+
+    c_cert = min_k [ c_k - reach_k ],   c_k = FCL's clearance of the footprint at the nominal pose k,
+
+the clearance of the footprint grown by the reach: the same construction as the linear tube, with
+the reach measured instead of bounded.
+
+**The certificate (scenario bound).** Let g = min_k (c_k - D_k) for a run of this loop: a lower bound
+of the run's own clearance at every control sample. min_i g^i = min_k (c_k - max_i D_k^i) = c_cert
+(the minima commute). For N independent rollouts of a continuous distribution, the probability mass
+of g below the smallest of N samples is Beta(1, N) distributed, so P[P(g < c_cert) > 1 - p] = p^N.
+With **N >= ln(beta) / ln(p)** rollouts that is at most beta: with confidence 1 - beta, a run keeps a
+clearance of at least c_cert at every control sample with probability at least p. The same argument
+at one sample k says that reach_k bounds the p-quantile of the displacement D_k with confidence
+1 - beta. This is a statement about **the whole run**, stronger than the linear tube's per-sample
+one, and it needs no linearisation, no Gaussian assumption and nothing about saturation: only that
+the rollouts are independent runs of the loop that will run (same law, plant, rate, noise model).
+It is not a statement about model error (a real robot that is not the model).
+
+Rollout i's root seed is :data:`ROLLOUT_SEED_BASE` + i (numpy SeedSequence streams as a run's), recorded
+with the tube, so a rollout can be replayed with ``nhstab run --seed`` on the same plan.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from .errors import InputError, NumericalError
+from .geometry import Footprint
+from .limits import MAX_ROLLOUTS
+
+#: the default confidence 1 - beta of the sampled tube's certificate
+DEFAULT_CONFIDENCE = 0.95
+#: rollout i of a sampled tube uses the root seed ROLLOUT_SEED_BASE + i (apart from the small seeds
+#: that runs and batches usually take, so that a run is not one of its own plan's rollouts)
+ROLLOUT_SEED_BASE = 1 << 40
+#: a linear tube is trusted when its run saturation bound is at most this (the same 1 % as --gains auto)
+LINEAR_MAX_SATURATION = 0.01
+#: the rollouts' poses and displacements are kept for the exact certificate (:func:`rollout_clearance`)
+#: up to this much memory (a 30 s car plan's 998 rollouts take 46 MB); beyond, the certificate is the
+#: grown footprint's (nominal clearance minus reach), a lower bound of it
+EXACT_MEMORY_BYTES = 512 * 1024 * 1024
+#: exact clearances measured at most while finding the rollouts' clearance deficit (the margin estimate)
+EXACT_MAX_EVALUATIONS = 200_000
+#: samples of the rollouts reduced together (a block of (samples, rollouts, states) floats)
+BLOCK_SAMPLES = 64
+#: tube kinds: "auto" chooses linear where it holds and sampled elsewhere
+TUBE_KINDS = ("auto", "linear", "sampled")
+
+
+def rollouts_needed(probability: float, confidence: float = DEFAULT_CONFIDENCE) -> int:
+    """The smallest N with p^N <= 1 - confidence: N rollouts, none outside the reported region, bound
+    its p-quantile with that confidence (the scenario bound; see the module docstring)."""
+    if not (isinstance(probability, (int, float)) and 0.0 < probability < 1.0):
+        raise InputError("probability", "a number in (0, 1)", probability)
+    if not (isinstance(confidence, (int, float)) and 0.0 < confidence < 1.0):
+        raise InputError("confidence", "a number in (0, 1)", confidence)
+    n = math.log1p(-confidence) / math.log(probability)
+    if not math.isfinite(n) or n > MAX_ROLLOUTS:
+        raise InputError("confidence", f"a probability and confidence needing at most {MAX_ROLLOUTS:,} rollouts "
+                         f"(N >= ln(1 - confidence) / ln(p))", confidence,
+                         detail=f"p = {probability:.10g} at confidence {confidence:.10g} needs {n:.4g}")
+    # ceil with a guard: p^N may round a hair above the target at an exact integer
+    N = max(1, math.ceil(n - 1e-9))
+    while probability ** N > 1.0 - confidence:
+        N += 1
+    return N
+
+
+def hull_vertices(fp: Footprint) -> np.ndarray | None:
+    """The footprint's convex hull vertices (k, 2) in its frame; None for a disc (centred on the
+    reference point: a turn does not move it)."""
+    if fp.radius is not None:
+        return None
+    v = np.asarray(fp.vertices, dtype=float)
+    if len(v) <= 3:
+        return v
+    from scipy.spatial import ConvexHull
+
+    try:
+        return v[ConvexHull(v).vertices]
+    except Exception:               # degenerate (collinear) outline: every vertex is a candidate
+        return v
+
+
+def displacement(hull: np.ndarray | None, poses: np.ndarray, nominal: np.ndarray) -> np.ndarray:
+    """How far the footprint's farthest-moving point moves from its nominal place: poses (..., 3)
+    against the nominal pose(s) (..., 3) (broadcast). max over the hull's vertices b of
+    |(R(theta) - R(theta0)) b + (p - p0)|; |p - p0| for a disc (hull None)."""
+    dx = poses[..., 0] - nominal[..., 0]
+    dy = poses[..., 1] - nominal[..., 1]
+    if hull is None:
+        return np.hypot(dx, dy)
+    dc = np.cos(poses[..., 2]) - np.cos(nominal[..., 2])
+    ds = np.sin(poses[..., 2]) - np.sin(nominal[..., 2])
+    out = None
+    for bx, by in hull:
+        d = np.hypot(dx + dc * bx - ds * by, dy + ds * bx + dc * by)
+        out = d if out is None else np.maximum(out, d, out=out)
+    return out
+
+
+def interior_stops(nominal, pose_idx, speed_tol: float = 1e-6) -> list[tuple[float, float]]:
+    """Intervals (t_from, t_to) where the nominal's reference point is at rest strictly inside the plan
+    (not the leading or trailing rest): cusps, and cars steering in place. At rest: translational speed
+    below ``speed_tol`` times the largest speed along the nominal."""
+    ix, iy, _ = pose_idx
+    xd = nominal.model.rhs(nominal.x, nominal.u)
+    speed = np.hypot(xd[:, ix], xd[:, iy])
+    top = float(speed.max()) if len(speed) else 0.0
+    if top <= 0.0:
+        return []
+    rest = speed <= speed_tol * top
+    moving = np.flatnonzero(~rest)
+    first, last = int(moving[0]), int(moving[-1])
+    out, k = [], first
+    t = nominal.t
+    while k <= last:
+        if rest[k]:
+            j = k
+            while j + 1 <= last and rest[j + 1]:
+                j += 1
+            out.append((float(t[k]), float(t[j])))
+            k = j + 1
+        else:
+            k += 1
+    return out
+
+
+def cusp_stops(nominal, pose_idx) -> list[tuple[float, float]]:
+    """The interior stops (:func:`interior_stops`) where the motion reverses: the direction of travel
+    (the velocity along the heading) before the stop and after it differ in sign."""
+    ix, iy, ith = pose_idx
+    xd = nominal.model.rhs(nominal.x, nominal.u)
+    along = xd[:, ix] * np.cos(nominal.x[:, ith]) + xd[:, iy] * np.sin(nominal.x[:, ith])
+    t = nominal.t
+    out = []
+    for a, b in interior_stops(nominal, pose_idx):
+        before = along[(t < a) & (np.abs(along) > 0)]
+        after = along[(t > b) & (np.abs(along) > 0)]
+        if len(before) and len(after) and np.sign(before[-1]) != np.sign(after[0]):
+            out.append((a, b))
+    return out
+
+
+def remaining_law(law, tau: float):
+    """The feedback law ``law`` from time ``tau`` of its plan on, as a law of its own starting at 0 (the
+    same grid values of x0, u0 and K from the first grid time at or after tau; None if fewer than three
+    grid points are left). For the error tube of the rest of a maneuver."""
+    from .execution.controllers import FeedbackLaw
+    from .nominal import Nominal
+
+    t = law.t
+    i = int(np.searchsorted(t, float(tau) - 1e-9 * max(1.0, abs(float(tau)))))
+    if i > len(t) - 3:
+        return None
+    nom = law.nominal
+    ts = t[i:] - t[i]
+    sub = Nominal(nom.model, ts, nom.x[i:], nom.u[i:])
+    return FeedbackLaw(law.kind, sub, ts, law.K[i:], None, dict(law.info))
+
+
+def linear_validity(tube, nominal) -> tuple[bool, str]:
+    """Whether the linear tube holds for this nominal: (valid, why). It does where the inputs do not
+    saturate (run bound at most :data:`LINEAR_MAX_SATURATION`) and the nominal has no interior stop."""
+    reasons = []
+    bound = tube.saturation["run_bound"]
+    if bound > LINEAR_MAX_SATURATION:
+        reasons.append(f"inputs may saturate (linear bound {bound:.2g} > {LINEAR_MAX_SATURATION:g})")
+    stops = interior_stops(nominal, tube.info["pose_indices"])
+    if stops:
+        reasons.append(f"{len(stops)} interior stop{'s' if len(stops) > 1 else ''} (cusps or steering in place), "
+                       f"the first at t = {stops[0][0]:.2f} s")
+    if reasons:
+        return False, "; ".join(reasons)
+    return True, (f"inputs do not saturate (linear bound {bound:.2g} <= {LINEAR_MAX_SATURATION:g}) and the nominal "
+                  "has no interior stop")
+
+
+def replan_noise(noise, state_names, pause_s: float):
+    """The noise of a plan that starts from a measured state after ``pause_s`` at rest: its initial
+    error is the sensor noise plus the pause's process noise (gaussian), and no impulses."""
+    sens = noise.vector("sensor", state_names)
+    proc = noise.vector("process", state_names)
+    scale = float(noise.scale)
+    init = np.sqrt(sens ** 2 + proc ** 2 * float(pause_s))
+    raw = init / scale if scale > 0 else np.zeros_like(init)
+    return replace(noise, distribution="gaussian", impulses=(),
+                   initial={s: float(v) for s, v in zip(state_names, raw)})
+
+
+def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float = 50.0, substeps: int = 4,
+                 model=None, probability: float = 0.997, confidence: float = DEFAULT_CONFIDENCE,
+                 rollouts: int | None = None, seed_base: int = ROLLOUT_SEED_BASE, t_end: float | None = None,
+                 keep_displacements: bool = False, keep_states: bool = False, x_start=None, why: str = ""):
+    """The sampled error tube of ``law`` (a FeedbackLaw) under ``noise`` (a NoiseOptions): N rollouts of
+    the run loop (N = :func:`rollouts_needed` (probability, confidence) unless ``rollouts`` is given), the
+    per-sample reach (the largest footprint displacement of any rollout), and with ``world`` the
+    certified clearance (see the module docstring). ``model``: the real robot (its input limits clip
+    the law; default the nominal's). Returns a :class:`nhstab.tubes.Tube` of kind "sampled", whose
+    mean and cov are the rollouts' sample mean and covariance of the tracking error, position_radius
+    and heading_spread the largest position and heading errors, and ``saturation`` the fraction of
+    rollouts whose inputs reached a limit. ``keep_displacements``: also return every rollout's
+    displacement per sample, (N, S), in ``tube.info["displacements"]``; ``keep_states``: every rollout's true
+    states (N, S, n) in ``tube.info["states"]`` (for studies and tests). ``x_start``: the mean of the
+    initial state (default the nominal's start): the rest of a maneuver from a measured state.
+
+    Raises :class:`NumericalError` when a rollout diverges (a non-finite state or input): the loop
+    cannot be certified."""
+    from .batch.vector import simulate_shared
+    from .tubes import Tube, certified_clearance, pose_indices, run_schedule
+
+    model = model or law.nominal.model
+    if rollouts is None:
+        N = rollouts_needed(probability, confidence)
+    else:
+        if not (isinstance(rollouts, (int, np.integer)) and not isinstance(rollouts, bool)
+                and 1 <= rollouts <= MAX_ROLLOUTS):
+            raise InputError("rollouts", f"an integer in [1, {MAX_ROLLOUTS:,}]", rollouts)
+        N = int(rollouts)
+        rollouts_needed(probability, 0.5)        # checks the probability
+    beta = probability ** N
+    idx = pose_indices(model)
+    n, m = model.n, model.m
+    T = 1.0 / float(rate_hz)
+    sched = run_schedule(law, T, t_end)
+    S = len(sched.t)
+    nominal_poses = sched.x0[:, idx]
+    hull = hull_vertices(footprint)
+    angles = list(model.angle_states)
+    lim = model.input_limits()
+    acc = {"reach": np.zeros(S), "pos": np.zeros(S), "head": np.zeros(S), "sum": np.zeros((S, n)),
+           "sq": np.zeros((S, n, n)), "u_sum": np.zeros((S - 1, m)), "u_sq": np.zeros((S - 1, m)),
+           "u_at": np.zeros((S - 1, m)), "sat_any": np.zeros(N, dtype=bool)}
+    exact = world is not None and N * S * 8 * 4 <= EXACT_MEMORY_BYTES
+    D_all = np.empty((N, S)) if keep_displacements or exact else None
+    X_all = np.empty((N, S, n)) if keep_states else None
+    P_all = np.empty((N, S, 3)) if exact else None
+
+    # the rollouts' states are gathered in blocks of samples and reduced block by block: numpy's
+    # operations then run over (block, rollouts) arrays instead of one sample's rollouts at a time
+    block = {"k": [], "x": None, "u": None, "rows": None}
+
+    def flush() -> None:
+        ks = np.array(block["k"])
+        if not len(ks):
+            return
+        b, rows = len(ks), block["rows"]
+        X = block["x"][:b]
+        E = X - sched.x0[ks][:, None, :]
+        if angles:
+            ea = E[..., angles]
+            if np.any(np.abs(ea) >= math.pi):
+                E[..., angles] = (ea + math.pi) % (2.0 * math.pi) - math.pi
+        D = displacement(hull, X[..., idx], nominal_poses[ks][:, None, :])
+        acc["reach"][ks] = np.maximum(acc["reach"][ks], D.max(axis=1))
+        acc["pos"][ks] = np.maximum(acc["pos"][ks], np.hypot(E[..., idx[0]], E[..., idx[1]]).max(axis=1))
+        acc["head"][ks] = np.maximum(acc["head"][ks], np.abs(E[..., idx[2]]).max(axis=1))
+        acc["sum"][ks] += E.sum(axis=1)
+        acc["sq"][ks] += np.swapaxes(E, 1, 2) @ E
+        if D_all is not None:
+            D_all[rows, ks[0]:ks[-1] + 1] = D.T
+        if X_all is not None:
+            X_all[rows, ks[0]:ks[-1] + 1] = np.swapaxes(X, 0, 1)
+        if P_all is not None:
+            P_all[rows, ks[0]:ks[-1] + 1] = np.swapaxes(X[..., idx], 0, 1)
+        ctrl = ks < S - 1
+        if ctrl.any():
+            c = int(ctrl.sum())                 # the control samples come first in a block
+            Ub = block["u"][:c]
+            kc = ks[:c]
+            acc["u_sum"][kc] += Ub.sum(axis=1)
+            acc["u_sq"][kc] += (Ub * Ub).sum(axis=1)
+            at = (Ub <= lim[:, 0]) | (Ub >= lim[:, 1])
+            acc["u_at"][kc] += at.sum(axis=1)
+            acc["sat_any"][rows] |= at.any(axis=(0, 2))
+        block["k"] = []
+
+    def observe(rows: slice, k: int, x: np.ndarray, u: np.ndarray | None = None) -> None:
+        if block["rows"] != rows or block["x"] is None or block["x"].shape[1] != x.shape[0]:
+            flush()
+            block.update(rows=rows, x=np.empty((BLOCK_SAMPLES,) + x.shape), u=np.empty((BLOCK_SAMPLES, x.shape[0], m)))
+        j = len(block["k"])
+        block["x"][j] = x
+        if u is not None:
+            block["u"][j] = u
+        block["k"].append(k)
+        if j + 1 == BLOCK_SAMPLES or k == S - 1:
+            flush()
+
+    seeds = [int(seed_base) + i for i in range(N)]
+    with np.errstate(over="ignore", invalid="ignore"):
+        extra = {} if x_start is None else {"x_start": np.asarray(x_start, dtype=float)}
+        res = simulate_shared(law, seeds, noise, rate_hz=rate_hz, substeps=substeps, model=model,
+                              t_end=t_end, record=False, on_states=observe, **extra)
+        flush()
+    if len(res.t) != S:
+        raise NumericalError(f"the rollouts' samples ({len(res.t)}) differ from the tube's schedule ({S})")
+    failed = ~res.completed
+    if failed.any():
+        i = int(np.flatnonzero(failed)[0])
+        raise NumericalError(f"{int(failed.sum())} of {N} rollouts of the closed loop diverged (a non-finite state or "
+                             f"input), the first at t = {res.t_fail[i]:.2f} s (seed {seeds[i]}): no tube")
+    mean = acc["sum"] / N
+    cov = acc["sq"] / N - np.einsum("ki,kj->kij", mean, mean)
+    if N > 1:
+        cov *= N / (N - 1.0)
+    cov = 0.5 * (cov + np.transpose(cov, (0, 2, 1)))
+    u_mean = acc["u_sum"] / N
+    u_std = np.sqrt(np.maximum(acc["u_sq"] / N - u_mean ** 2, 0.0))
+    per_step = acc["u_at"] / N
+    hits = int(acc["sat_any"].sum())
+    saturation = {"observed_fraction": hits / N, "rollouts_saturated": hits,
+                  "upper_bound": _clopper_pearson_upper(hits, N, confidence),
+                  "max_per_sample": float(per_step.max(initial=0.0)),
+                  "expected_fraction": float(np.minimum(per_step.sum(axis=1), 1.0).mean()) if S > 1 else 0.0}
+    # the fields the linear tube's consumers read, with the sampled meaning
+    saturation.update(run_bound=saturation["observed_fraction"], union_bound=None,
+                      max_step=saturation["max_per_sample"], expected_fraction_bound=saturation["expected_fraction"])
+    reach = acc["reach"]
+    cert, k_cert, c_there, evals = (None, None, None, 0)
+    exact_info = None
+    if world is not None and exact:
+        exact_info = rollout_clearance(world, footprint, P_all, D_all, nominal_poses)
+        cert, k_cert, c_there, evals = (exact_info["clearance_m"], exact_info["sample"],
+                                        exact_info["nominal_clearance_m"], exact_info["evaluations"])
+    elif world is not None:
+        cert, k_cert, c_there, evals = certified_clearance(world, footprint, nominal_poses, reach)
+    certificate = {"kind": "sampled", "rollouts": N, "probability": float(probability),
+                   "confidence": float(1.0 - beta), "beta": float(beta),
+                   "seeds": {"first": seeds[0], "last": seeds[-1],
+                             "streams": "rollout i: root seed first + i; numpy SeedSequence([root, stream, 0]), "
+                                        "streams initial=0, sensor=1, process=2 (as nhstab run)"},
+                   "clearance": ("the smallest FCL clearance of any rollout's footprint at any control sample"
+                                 if exact else "min over samples of FCL clearance at the nominal pose minus reach "
+                                 "(the rollouts were too many to keep)"),
+                   "statement": (f"with confidence {1.0 - beta:.4g} (N = {N} rollouts of the run loop, none below it), a "
+                                 f"run keeps the certified clearance at every control sample with probability >= "
+                                 f"{probability:g}; reach_k bounds the {probability:g}-quantile of the footprint's "
+                                 f"displacement at each sample with the same confidence")}
+    if why:
+        certificate["why"] = why
+    info = {"pose_indices": idx, "period_s": T, "kind": "sampled", "rollouts": N, "hull": hull,
+            "model": "the run loop itself: saturating law, RK4 plant under zero-order hold, the noise model "
+                     "(nhstab.batch.vector.simulate_shared)"}
+    if exact_info is not None:
+        info["rollout_clearance"] = exact_info
+    if keep_displacements:
+        info["displacements"] = D_all
+    if X_all is not None:
+        info["states"] = X_all
+    return Tube(probability, sched.t, nominal_poses, mean, cov, acc["pos"], acc["head"], reach, u_mean, u_std,
+                per_step, saturation, cert, k_cert, c_there, evals, tuple(model.state_names),
+                footprint.bounding_radius, info, kind="sampled", certificate=certificate)
+
+
+def rollout_clearance(world, fp: Footprint, poses: np.ndarray, D: np.ndarray, nominal: np.ndarray) -> dict:
+    """The smallest FCL clearance of the footprint at any rollout pose, poses (N, S, 3), exactly, with
+    where it is, without measuring most poses: a branch and bound on the lower bounds c_k - D[i, k] (the
+    nominal pose's clearance c_k, measured at every sample, minus the rollout's displacement there: the
+    footprint moved by at most D lies within the nominal one grown by D). Poses are measured in
+    increasing order of their bound, in batches, until no bound is below the best found; where the
+    best is negative, every pose whose bound is negative is measured (at most
+    :data:`EXACT_MAX_EVALUATIONS`), for the clearance each sample would need: the nominal clearance
+    there minus the worst rollout's clearance (``needed_clearance_m``, per failing sample).
+
+    This is the certificate's statistic: for rollout i, g_i = min_k clearance(pose[i, k]) (its own
+    clearance over the run); the smallest g_i over the N rollouts bounds the p-quantile of g with the
+    scenario bound's confidence. It is at least min_k (c_k - reach_k) (the grown footprint's)."""
+    N, S = D.shape
+    c = world.clearance_many(nominal, fp)                              # (S,) exact
+    lb = c[None, :] - D
+    order = np.argsort(lb, axis=None)
+    flat_lb = lb.ravel()[order]
+    best, best_at = math.inf, -1
+    measured = np.full(N * S, np.nan)
+    pos = 0
+    batch = 256
+    evaluations = 0
+    while pos < len(order) and evaluations < EXACT_MAX_EVALUATIONS:
+        if flat_lb[pos] >= max(best, 0.0):       # no pose left can beat the best, nor be in contact
+            break
+        take = order[pos:pos + batch]
+        pts = poses.reshape(-1, 3)[take]
+        vals = world.clearance_many(pts, fp)
+        measured[take] = vals
+        evaluations += len(take)
+        j = int(np.argmin(vals))
+        if vals[j] < best:
+            best, best_at = float(vals[j]), int(take[j])
+        pos += len(take)
+        batch = min(4 * batch, 16384)
+    if best_at < 0:                        # nothing measured: every bound already at or above c's minimum
+        k = int(np.argmin(c))
+        i = int(np.argmin(lb[:, k]))
+        best_at = i * S + k
+        best = float(world.clearance_many(poses[i, k][None], fp)[0])
+        evaluations += 1
+    i, k = divmod(best_at, S)
+    out = {"clearance_m": best, "rollout": int(i), "sample": int(k), "nominal_clearance_m": float(c[k]),
+           "displacement_m": float(D[i, k]), "evaluations": int(evaluations),
+           "grown_footprint_clearance_m": float(np.min(c - D.max(axis=0)))}
+    if best < 0:
+        neg = measured.reshape(N, S)
+        with np.errstate(invalid="ignore"):
+            worst = np.where(neg < 0, neg, np.inf).min(axis=0)       # NaN (not measured) compares False
+        bad = np.flatnonzero(np.isfinite(worst))
+        complete = pos >= len(order) or flat_lb[pos] >= 0.0
+        out.update(failing_samples=int(len(bad)), failing_times_index=[int(bad.min()), int(bad.max())],
+                   needed_clearance_m=float(np.max(c[bad] - worst[bad])), complete=bool(complete),
+                   failing_index=bad, failing_need_m=c[bad] - worst[bad], failing_worst_m=worst[bad])
+    return out
+
+
+def _clopper_pearson_upper(k: int, n: int, confidence: float) -> float:
+    """One-sided Clopper-Pearson upper bound on a proportion after k successes in n trials."""
+    if k >= n:
+        return 1.0
+    from scipy.stats import beta as beta_dist
+
+    return float(beta_dist.ppf(confidence, k + 1, n - k))

@@ -1,0 +1,114 @@
+"""Runs that act on their error tubes: the verdict line before the robot moves, --require-certified,
+and the cusp checks (the rest of the maneuver's tube from the measured state, a replan where it is not
+clear)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from nhstab.cli.main import cli
+from nhstab.collision import CollisionWorld
+from nhstab.execution import RunOptions, execute
+from nhstab.execution.config import TubeOptions, options_from_mapping
+from nhstab.errors import InputError
+from nhstab.maps import load_map
+from nhstab.maps.base import Map, Pose, box_polygon
+from nhstab.models import make_model
+from nhstab.robot import default_footprint
+from nhstab.sampled_tube import remaining_law, sampled_tube
+
+
+def test_require_certified_refuses_an_uncertified_plan_and_says_why(tmp_path):
+    """A parallel slot of 1.0 x L1 at the map's 0.1 m margin: the plan's tube is not certified, so with
+    --require-certified the robot never moves: exit code 5, run.json says not_certified with the plan, its
+    tube and verdict, and the log holds no sample (nothing that looks like a run)."""
+    out = tmp_path / "o"
+    res = CliRunner().invoke(cli, ["run", "example:parallel_rwd_car_100", "--require-certified",
+                                                   "--out", str(out)])
+    assert res.exit_code == 5, res.output + res.stderr
+    assert "NOT certified" in res.stderr and "would certify it" in res.stderr
+    doc = json.loads((out / "run.json").read_text())
+    assert doc["status"] == "not_certified" and "require_certified" in doc["message"]
+    plan = doc["plans"][0]
+    assert plan["tube"]["certified"] is False and plan["tube"]["verdict"]["needed_margin_m"] > 0.1
+    assert plan["tube_line"].startswith("plan 0 tube") and "NOT certified" in plan["tube_line"]
+    assert doc["tracking"]["samples"] == 0 and doc["collision"] is None
+    lines = (out / "trajectory.csv").read_text().strip().splitlines()
+    assert len(lines) == 1                       # the header alone
+
+
+def _open_map():
+    return Map("open", (0.0, 0.0, 20.0, 10.0), obstacles=(box_polygon(10.0, 8.5, 4.0, 1.0),),
+               start=Pose(2.0, 5.0, 0.0), goal=Pose(17.0, 5.0, 0.0))
+
+
+def test_require_certified_lets_a_certified_plan_run():
+    m = _open_map()
+    lines = []
+    r = execute(m, make_model("unicycle"), default_footprint("unicycle"), m.start.as_array(), m.goal.as_array(),
+                RunOptions(seed=2, tube=TubeOptions(require_certified=True)), notify=lines.append)
+    assert r.status == "reached" and r.plans[0].tube.certified
+    assert len(lines) == 1 and "certified clear by" in lines[0]
+
+
+def test_tube_options_are_checked_and_read_from_configs():
+    opts = options_from_mapping({"tube": {"kind": "sampled", "probability": 0.99, "confidence": 0.9,
+                                          "require_certified": True}, "replan": {"at_cusps": False}})
+    opts.validated(("x", "y", "theta"), 2)
+    assert opts.tube.require_certified and opts.tube.kind == "sampled" and not opts.replan.at_cusps
+    for bad, key in (({"tube": {"kind": "wide"}}, "tube.kind"), ({"tube": {"confidence": 1.0}}, "tube.confidence"),
+                     ({"tube": {"require_certified": "yes"}}, "tube.require_certified"),
+                     ({"tube": {"probability": 0.999999, "confidence": 0.999999}}, "tube.confidence"),
+                     ({"replan": {"at_cusps": 1}}, "replan.at_cusps")):
+        with pytest.raises(InputError, match=key.replace(".", r"\.")):
+            options_from_mapping(bad).validated(("x", "y", "theta"), 2)
+
+
+@pytest.mark.parametrize("flags,needle", [(["--confidence", "1.5"], "'--confidence'"),
+                                          (["--probability", "0"], "'--probability'"),
+                                          (["--tube", "wide"], "--tube")])
+def test_run_refuses_bad_tube_flags_by_their_names(tmp_path, flags, needle):
+    res = CliRunner().invoke(cli, ["run", "example:parallel_rwd_car_100", "--out", str(tmp_path / "o"), *flags])
+    assert res.exit_code == 2 and needle in res.output and "Traceback" not in res.output
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("name", ["parallel_rwd_car_120", "perpendicular_rwd_car_aisle160"])
+def test_cusp_replanning_triggers_exactly_where_the_rest_is_not_certified(name):
+    """At every cusp the run predicts the rest of the maneuver's tube from the measured state. Recomputed
+    here independently (the rest of the plan's law from the measured state, the rollouts starting at it
+    with the sensor noise's spread), the certified clearance is the one the run found, and the run
+    replanned at exactly the cusps where it is negative. (On the 1.2 x L1 slot the rest is not certified
+    at the cusp, and the run follows the replan; on the 1.6 x A90 aisle every rest is certified.)"""
+    m = load_map(f"maps/parking/{name}.yaml")
+    r = execute(m, opts=RunOptions(seed=0))
+    assert r.status == "reached", r.message
+    checks = [(rec, c) for rec in r.plans for c in rec.cusp_checks]
+    assert checks
+    world = CollisionWorld.from_map(m, "known")
+    o = r.options
+    names = r.model.state_names
+    sens = o.noise.vector("sensor", names)
+    start_noise = dataclasses.replace(o.noise, distribution="gaussian", impulses=(),
+                                      initial={s: float(v) for s, v in zip(names, sens)})
+    for rec, c in checks:
+        k = int(np.flatnonzero(np.isclose(r.log["t"], c["time_s"]))[0])
+        y = r.log["y"][k]
+        assert np.array_equal(np.asarray(c["measured_state"]), y)
+        rest = sampled_tube(remaining_law(rec.law, c["plan_time_s"]), start_noise, r.footprint, world,
+                            model=r.model, probability=o.tube.probability, confidence=o.tube.confidence, x_start=y)
+        assert rest.certified_clearance == pytest.approx(c["certified_clearance_m"], abs=1e-12)
+        assert bool(c.get("replanned", False)) == (rest.certified_clearance < 0)
+    if name.startswith("parallel"):
+        assert any(c.get("replanned") for _, c in checks)
+        adopted = [c for _, c in checks if c.get("adopted")]
+        assert len(r.plans) == 1 + len(adopted)
+        for rec in r.plans[1:]:
+            assert rec.trigger == "cusp" and rec.tube is not None
+    else:
+        assert all(c["certified"] for _, c in checks) and len(r.plans) == 1
