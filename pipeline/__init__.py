@@ -17,7 +17,9 @@ The names a user needs for the common jobs are here, at the top (each is documen
 ``plan(m, robot, s, g)`` map + robot + start/goal -> ``PlanResult`` with a feasible ``Nominal``
 ``PathOptions``          options of the planning search (planner, budget, seed, margin)
 ``compute_schedule``     the gramian gain schedule along a nominal (``StabilizerOptions``)
-``predict_tube(...)``    the error tube of a feedback law under a noise model (``nhstab.tubes``)
+``predict_tube(...)``    the error tube of a feedback law under a noise model (``nhstab.tubes``): linear where
+                         it holds, else ``sampled_tube`` (rollouts of the run loop, ``nhstab.sampled_tube``)
+``tube_line(tube)``      the one line that says whether a tube is certified, where and what would certify it
 ``execute(m, robot)``    one run of the composite controller -> ``RunResult``
 ``RunOptions``           options of a run (controller, noise, sensing, replanning); ``load_run_config``
 ``write_run``            a run's files (run.json, trajectory.csv, figures)
@@ -54,6 +56,8 @@ _PUBLIC = {
     "compute_schedule": "nhstab.control",
     "StabilizerOptions": "nhstab.control",
     "predict_tube": "nhstab.tubes",
+    "sampled_tube": "nhstab.sampled_tube",
+    "tube_line": "nhstab.tubes",
     "execute": "nhstab.execution",
     "RunOptions": "nhstab.execution",
     "RunResult": "nhstab.execution",

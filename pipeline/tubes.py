@@ -295,7 +295,8 @@ def predict_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
     ``kind``: "linear" (the linear-Gaussian tube), "sampled" (rollouts of the run loop,
     :func:`nhstab.sampled_tube.sampled_tube`, with ``confidence``), or "auto" (default): the linear tube
     where it holds (:func:`nhstab.sampled_tube.linear_validity`: no input saturation to speak of and no
-    interior stop), the sampled one elsewhere; the tube's ``certificate`` says which and why."""
+    interior stop), the sampled one elsewhere; the tube's ``certificate`` says which and why. With a
+    world the tube carries its :func:`verdict` (without the plan's margin; call it again with it)."""
     from .sampled_tube import DEFAULT_CONFIDENCE, TUBE_KINDS, linear_validity, sampled_tube
 
     if not (isinstance(probability, (int, float)) and 0.0 < probability < 1.0):
@@ -324,6 +325,7 @@ def predict_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
                 if world is not None:
                     (lin.certified_clearance, lin.certified_index, lin.nominal_clearance_there,
                      lin.clearance_evaluations) = certified_clearance(world, footprint, lin.poses, lin.reach)
+                    verdict(lin, world, footprint)
                 return lin
     sample_noise = noise
     if initial_cov is not None:
@@ -336,8 +338,11 @@ def predict_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
         sample_noise = replace(noise, distribution="gaussian", initial={s: float(v) for s, v in zip(names, raw)})
     if not impulses:
         sample_noise = replace(sample_noise, impulses=())
-    return sampled_tube(law, sample_noise, footprint, world, rate_hz=rate_hz, substeps=substeps, model=model,
+    tube = sampled_tube(law, sample_noise, footprint, world, rate_hz=rate_hz, substeps=substeps, model=model,
                         probability=probability, confidence=confidence, t_end=t_end, why=why)
+    if world is not None:
+        verdict(tube, world, footprint)
+    return tube
 
 
 def _linear_tube(law, noise, footprint, world, rate_hz, substeps, model, probability, initial_cov, t_end,
