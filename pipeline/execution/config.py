@@ -34,8 +34,8 @@ was given. The format::
                                       # margin: the robot's; auto plans with the error tube's clearance
                                       # (nhstab.tubes); fit: an uncertified plan is changed until its tube
                                       # is certified (the margin it needs, other maneuvers), the best kept
-    replan: {pause_s: 1.0, max_attempts: 3, max_replans: 10, budget_growth: 4.0, at_cusps: true}
-                                      # at_cusps: at each cusp, replan the rest when its tube is not clear
+    replan: {pause_s: 1.0, max_attempts: 3, max_replans: 10, budget_growth: 4.0, at_cusps: true,
+             max_cusp_replans: 3}      # at_cusps: at each cusp, replan the rest when its tube is not clear
     tolerance: {position_m: 0.3, heading_rad: 0.2}
     tube: {kind: auto, probability: 0.997, confidence: 0.95, require_certified: false}
                                       # every plan's error tube (nhstab.tubes): auto = linear where it holds,
@@ -210,14 +210,15 @@ class ReplanOptions:
     (before the robot moves, so without pauses) is retried the same way. At most ``max_replans``
     replans per run. ``at_cusps``: at each cusp of the active plan (the robot at rest), the error tube of
     the rest of the maneuver is predicted from the measured state; where it is not certified clear the
-    rest is replanned from there, and the new plan is followed if its tube is certified or clears more
-    (a cusp replan counts as a replan)."""
+    rest is replanned from there (at most ``max_cusp_replans`` times a run), within the stop, and the
+    new plan is followed if its tube is certified clear (a followed cusp replan counts as a replan)."""
 
     pause_s: float = 1.0
     max_attempts: int = 3
     max_replans: int = 10
     budget_growth: float = 4.0
     at_cusps: bool = True
+    max_cusp_replans: int = 3
 
     def budget_factor(self, attempt: int) -> float:
         """The planning budget of attempt ``attempt`` (0, 1, ...) relative to planning.time_limit_s."""
@@ -230,6 +231,7 @@ class ReplanOptions:
         check_number("replan.max_replans", self.max_replans, 0.0, integer=True)
         if not isinstance(self.at_cusps, bool):
             raise InputError("replan.at_cusps", "true or false", self.at_cusps)
+        check_number("replan.max_cusp_replans", self.max_cusp_replans, 0.0, integer=True)
         return self
 
 

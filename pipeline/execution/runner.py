@@ -232,8 +232,9 @@ class CompositeRun:
         self.collision = None
         self.k = 0
         self._margin_now = None
-        #: wall time of each cusp check's tube [s]
+        #: wall time of each cusp check's tube [s]; replans tried at cusps
         self.cusp_timing: list = []
+        self.cusp_replans = 0
         #: called with one line when a plan becomes active (its tube's verdict), or None
         self.notify = None
 
@@ -553,17 +554,12 @@ class CompositeRun:
             if cusps and tau >= cusps[0] - 1e-9:
                 cusps.pop(0)
                 if replans < opts.replan.max_replans:
-                    outcome = self._at_cusp(rec, tau, t, x, y)
-                    if outcome is not None:             # the robot paused to replan at the cusp
-                        new, x, paused = outcome
-                        if new is not rec:
-                            rec, replans = new, replans + 1
-                            t_plan0 = self.k * self.T
-                            max_time = self._deadline(t_plan0, rec.law)
-                            cusps = self._cusp_times(rec)
-                        else:                           # the old plan resumes where it stopped
-                            t_plan0 += paused
-                            max_time += paused
+                    new = self._at_cusp(rec, tau, t, x, y)
+                    if new is not None:                 # a certified plan of the rest, from now on
+                        rec, replans = new, replans + 1
+                        t_plan0 = self.k * self.T
+                        max_time = self._deadline(t_plan0, rec.law)
+                        cusps = self._cusp_times(rec)
                         continue
             u_ff = rec.law.mean_input(tau, tau + self.T)
             u, x0, _ = rec.law.control(tau, y, u_ff)
@@ -586,9 +582,10 @@ class CompositeRun:
     def _at_cusp(self, rec: PlanRecord, tau: float, t: float, x, y):
         """At a cusp (the robot at rest): the error tube of the rest of the maneuver from the measured
         state y (its rollouts start at y with the sensor noise's spread). Certified clear: nothing to
-        do (None). Else the robot pauses while the rest is replanned from y; the new plan is followed if
-        its tube is certified or clears more than the rest of the old one. Returns None, or (the plan
-        to follow, the state after the pause, the pause's duration)."""
+        do (None). Else the rest is replanned from y (at most ``replan.max_cusp_replans`` times a run),
+        taken to finish within the stop (the robot steers in place there; the planning latency is
+        measured and recorded), and the new plan is followed from now if its tube is certified clear;
+        otherwise the old plan goes on. Returns the new plan, or None."""
         from ..sampled_tube import remaining_law, sampled_tube
         from ..tubes import verdict
 
@@ -620,22 +617,26 @@ class CompositeRun:
         self.cusp_timing.append(time.perf_counter() - started)
         if rest is not None and rest.certified:
             return None
+        if self.cusp_replans >= self.opts.replan.max_cusp_replans:
+            check["replanned"] = False
+            check["why_not"] = f"replan.max_cusp_replans = {self.opts.replan.max_cusp_replans} reached"
+            return None
+        self.cusp_replans += 1
         start_pose = y[self.pose_idx]
         attempt, result, law, margin, tube = self._plan_once(start_pose, 0)
-        x = self._pause(x, y, rec.id)
-        better = (law is not None and tube is not None and tube.certified_clearance is not None
-                  and (rest is None or tube.certified_clearance > rest.certified_clearance))
-        check.update(replanned=True, replan_status=attempt["status"], adopted=bool(better),
-                     new_certified_clearance_m=None if tube is None else tube.certified_clearance)
-        if not better:
+        adopt = law is not None and tube is not None and tube.certified is True
+        check.update(replanned=True, replan_status=attempt["status"], adopted=bool(adopt),
+                     new_certified_clearance_m=None if tube is None else tube.certified_clearance,
+                     latency_s=attempt.get("latency_s"))
+        if not adopt:
             check["attempt"] = {k: v for k, v in attempt.items() if k not in ("latency_s", "tube_s")}
-            return rec, x, self.opts.replan.pause_s if self.opts.replan.pause_s > 0 else self.T
+            return None
         new = PlanRecord(len(self.plans), "cusp", t, self.k * self.T, start_pose.copy(), attempt["seed"], margin,
                          [attempt], result, law, {"cusp_time_s": t, "rest_certified_clearance_m":
                                                   check["certified_clearance_m"]}, tube)
         self.plans.append(new)
         self._adopt(new)
-        return new, x, 0.0
+        return new
 
     def _pause(self, x, y, plan_id: int):
         """The robot stands still (u = 0) for replan.pause_s of simulated time while a plan is made
