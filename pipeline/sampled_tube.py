@@ -59,8 +59,12 @@ LINEAR_MAX_SATURATION = 0.01
 #: up to this much memory (a 30 s car plan's 998 rollouts take 46 MB); beyond, the certificate is the
 #: grown footprint's (nominal clearance minus reach), a lower bound of it
 EXACT_MEMORY_BYTES = 512 * 1024 * 1024
-#: exact clearances measured at most while finding the rollouts' clearance deficit (the margin estimate)
+#: exact clearances measured at most while finding the rollouts' smallest clearance (beyond, the certified
+#: clearance is the lower bound of the poses not measured); where it is a contact, the search goes on
+#: through the poses that may touch while it has measured fewer than EXACT_CONTACT_EVALUATIONS (the
+#: samples in contact and the margin they need)
 EXACT_MAX_EVALUATIONS = 200_000
+EXACT_CONTACT_EVALUATIONS = 20_000
 #: samples of the rollouts reduced together (a block of (samples, rollouts, states) floats)
 BLOCK_SAMPLES = 64
 #: tube kinds: "auto" chooses linear where it holds and sampled elsewhere
@@ -252,9 +256,11 @@ def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
            "sq": np.zeros((S, n, n)), "u_sum": np.zeros((S - 1, m)), "u_sq": np.zeros((S - 1, m)),
            "u_at": np.zeros((S - 1, m)), "sat_any": np.zeros(N, dtype=bool)}
     exact = world is not None and N * S * 8 * 4 <= EXACT_MEMORY_BYTES
-    D_all = np.empty((N, S)) if keep_displacements or exact else None
+    D_all = np.empty((S, N)) if keep_displacements or exact else None          # time-major: one sample's rollouts
     X_all = np.empty((N, S, n)) if keep_states else None
-    P_all = np.empty((N, S, 3)) if exact else None
+    P_all = np.empty((S, N, 3)) if exact else None
+    ix, iy, ith = idx
+    nom_c, nom_s = np.cos(nominal_poses[:, 2]), np.sin(nominal_poses[:, 2])
 
     # the rollouts' states are gathered in blocks of samples and reduced block by block: numpy's
     # operations then run over (block, rollouts) arrays instead of one sample's rollouts at a time
@@ -265,24 +271,47 @@ def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
         if not len(ks):
             return
         b, rows = len(ks), block["rows"]
-        X = block["x"][:b]
-        E = X - sched.x0[ks][:, None, :]
-        if angles:
-            ea = E[..., angles]
-            if np.any(np.abs(ea) >= math.pi):
-                E[..., angles] = (ea + math.pi) % (2.0 * math.pi) - math.pi
-        D = displacement(hull, X[..., idx], nominal_poses[ks][:, None, :])
+        X = block["x"][:, :b]                   # (n, b, Kc): each state's plane contiguous
+        E = X - sched.x0[ks].T[:, :, None]
+        for a in angles:
+            if np.abs(E[a]).max() >= math.pi:
+                E[a] = (E[a] + math.pi) % (2.0 * math.pi) - math.pi
+        dx, dy = E[ix], E[iy]
+        r2 = dx * dx
+        r2 += dy * dy
+        if hull is None:
+            D2 = r2
+        else:
+            dc = np.cos(X[ith])
+            dc -= nom_c[ks][:, None]
+            ds = np.sin(X[ith])
+            ds -= nom_s[ks][:, None]
+            D2, tx, ty = None, np.empty_like(dx), np.empty_like(dx)
+            for bx, by in hull:                 # |(R - R0) b + dp|^2 at each hull vertex, the largest
+                np.multiply(dc, bx, out=tx)
+                tx -= ds * by
+                tx += dx
+                np.multiply(ds, bx, out=ty)
+                ty += dc * by
+                ty += dy
+                tx *= tx
+                ty *= ty
+                tx += ty
+                D2 = tx.copy() if D2 is None else np.maximum(D2, tx, out=D2)
+        D = np.sqrt(D2)                         # (b, Kc)
         acc["reach"][ks] = np.maximum(acc["reach"][ks], D.max(axis=1))
-        acc["pos"][ks] = np.maximum(acc["pos"][ks], np.hypot(E[..., idx[0]], E[..., idx[1]]).max(axis=1))
-        acc["head"][ks] = np.maximum(acc["head"][ks], np.abs(E[..., idx[2]]).max(axis=1))
-        acc["sum"][ks] += E.sum(axis=1)
-        acc["sq"][ks] += np.swapaxes(E, 1, 2) @ E
+        acc["pos"][ks] = np.maximum(acc["pos"][ks], np.sqrt(r2.max(axis=1)))
+        acc["head"][ks] = np.maximum(acc["head"][ks], np.abs(E[ith]).max(axis=1))
+        acc["sum"][ks] += E.sum(axis=2).T
+        Eb = np.moveaxis(E, 0, 1)               # (b, n, Kc)
+        acc["sq"][ks] += Eb @ np.swapaxes(Eb, 1, 2)
         if D_all is not None:
-            D_all[rows, ks[0]:ks[-1] + 1] = D.T
+            D_all[ks[0]:ks[-1] + 1, rows] = D
         if X_all is not None:
-            X_all[rows, ks[0]:ks[-1] + 1] = np.swapaxes(X, 0, 1)
+            X_all[rows, ks[0]:ks[-1] + 1] = np.moveaxis(X, 0, 2).swapaxes(0, 1)
         if P_all is not None:
-            P_all[rows, ks[0]:ks[-1] + 1] = np.swapaxes(X[..., idx], 0, 1)
+            Pb = P_all[ks[0]:ks[-1] + 1, rows]
+            Pb[..., 0], Pb[..., 1], Pb[..., 2] = X[ix], X[iy], X[ith]
         ctrl = ks < S - 1
         if ctrl.any():
             c = int(ctrl.sum())                 # the control samples come first in a block
@@ -296,11 +325,12 @@ def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
         block["k"] = []
 
     def observe(rows: slice, k: int, x: np.ndarray, u: np.ndarray | None = None) -> None:
-        if block["rows"] != rows or block["x"] is None or block["x"].shape[1] != x.shape[0]:
+        if block["rows"] != rows or block["x"] is None or block["x"].shape[2] != x.shape[0]:
             flush()
-            block.update(rows=rows, x=np.empty((BLOCK_SAMPLES,) + x.shape), u=np.empty((BLOCK_SAMPLES, x.shape[0], m)))
+            block.update(rows=rows, x=np.empty((n, BLOCK_SAMPLES, x.shape[0])),
+                         u=np.empty((BLOCK_SAMPLES, x.shape[0], m)))
         j = len(block["k"])
-        block["x"][j] = x
+        block["x"][:, j] = x.T
         if u is not None:
             block["u"][j] = u
         block["k"].append(k)
@@ -365,7 +395,7 @@ def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
     if exact_info is not None:
         info["rollout_clearance"] = exact_info
     if keep_displacements:
-        info["displacements"] = D_all
+        info["displacements"] = D_all.T
     if X_all is not None:
         info["states"] = X_all
     return Tube(probability, sched.t, nominal_poses, mean, cov, acc["pos"], acc["head"], reach, u_mean, u_std,
@@ -374,21 +404,22 @@ def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
 
 
 def rollout_clearance(world, fp: Footprint, poses: np.ndarray, D: np.ndarray, nominal: np.ndarray) -> dict:
-    """The smallest FCL clearance of the footprint at any rollout pose, poses (N, S, 3), exactly, with
-    where it is, without measuring most poses: a branch and bound on the lower bounds c_k - D[i, k] (the
+    """The smallest FCL clearance of the footprint at any rollout pose, poses (S, N, 3) (sample-major), exactly,
+    with where it is, without measuring most poses: a branch and bound on the lower bounds c_k - D[k, i] (the
     nominal pose's clearance c_k, measured at every sample, minus the rollout's displacement there: the
     footprint moved by at most D lies within the nominal one grown by D). Poses are measured in
-    increasing order of their bound, in batches, until no bound is below the best found; where the
-    best is negative, every pose whose bound is negative is measured (at most
-    :data:`EXACT_MAX_EVALUATIONS`), for the clearance each sample would need: the nominal clearance
-    there minus the worst rollout's clearance (``needed_clearance_m``, per failing sample).
+    increasing order of their bound, in batches, until no bound is below the best found (at most
+    :data:`EXACT_MAX_EVALUATIONS`). Where the best is negative, the samples where a measured pose is in
+    contact, and the nominal clearance each would need for its worst measured rollout to clear
+    (``needed_clearance_m``: at least that; ``complete`` says whether every pose that may touch was
+    measured, which the search does not wait for).
 
     This is the certificate's statistic: for rollout i, g_i = min_k clearance(pose[i, k]) (its own
     clearance over the run); the smallest g_i over the N rollouts bounds the p-quantile of g with the
     scenario bound's confidence. It is at least min_k (c_k - reach_k) (the grown footprint's)."""
-    N, S = D.shape
+    S, N = D.shape
     c = world.clearance_many(nominal, fp)                              # (S,) exact
-    lb = c[None, :] - D
+    lb = c[:, None] - D
     order = np.argsort(lb, axis=None)
     flat_lb = lb.ravel()[order]
     best, best_at = math.inf, -1
@@ -397,7 +428,9 @@ def rollout_clearance(world, fp: Footprint, poses: np.ndarray, D: np.ndarray, no
     batch = 256
     evaluations = 0
     while pos < len(order) and evaluations < EXACT_MAX_EVALUATIONS:
-        if flat_lb[pos] >= max(best, 0.0):       # no pose left can beat the best, nor be in contact
+        # no pose left can beat the best (nor, where the best is a contact, touch: while the extra budget
+        # for the contacts lasts; a penetration depth is not bounded by the displacement)
+        if flat_lb[pos] >= best and (best >= 0.0 or flat_lb[pos] >= 0.0 or evaluations >= EXACT_CONTACT_EVALUATIONS):
             break
         take = order[pos:pos + batch]
         pts = poses.reshape(-1, 3)[take]
@@ -409,22 +442,25 @@ def rollout_clearance(world, fp: Footprint, poses: np.ndarray, D: np.ndarray, no
             best, best_at = float(vals[j]), int(take[j])
         pos += len(take)
         batch = min(4 * batch, 16384)
+    bounded = pos < len(order) and flat_lb[pos] < best and best >= 0.0
+    if bounded:                            # the budget ran out: the certificate is the bound, not a pose's value
+        best_bound = float(flat_lb[pos])
     if best_at < 0:                        # nothing measured: every bound already at or above c's minimum
         k = int(np.argmin(c))
-        i = int(np.argmin(lb[:, k]))
-        best_at = i * S + k
-        best = float(world.clearance_many(poses[i, k][None], fp)[0])
+        i = int(np.argmin(lb[k]))
+        best_at = k * N + i
+        best = float(world.clearance_many(poses[k, i][None], fp)[0])
         evaluations += 1
-    i, k = divmod(best_at, S)
-    out = {"clearance_m": best, "rollout": int(i), "sample": int(k), "nominal_clearance_m": float(c[k]),
-           "displacement_m": float(D[i, k]), "evaluations": int(evaluations),
-           "grown_footprint_clearance_m": float(np.min(c - D.max(axis=0)))}
+    k, i = divmod(best_at, N)
+    out = {"clearance_m": best_bound if bounded else best, "rollout": int(i), "sample": int(k),
+           "nominal_clearance_m": float(c[k]), "displacement_m": float(D[k, i]), "evaluations": int(evaluations),
+           "grown_footprint_clearance_m": float(np.min(c - D.max(axis=1))), "exact": not bounded}
     if best < 0:
-        neg = measured.reshape(N, S)
+        neg = measured.reshape(S, N)
         with np.errstate(invalid="ignore"):
-            worst = np.where(neg < 0, neg, np.inf).min(axis=0)       # NaN (not measured) compares False
+            worst = np.where(neg < 0, neg, np.inf).min(axis=1)       # NaN (not measured) compares False
         bad = np.flatnonzero(np.isfinite(worst))
-        complete = pos >= len(order) or flat_lb[pos] >= 0.0
+        complete = pos >= len(order) or flat_lb[min(pos, len(order) - 1)] >= 0.0
         out.update(failing_samples=int(len(bad)), failing_times_index=[int(bad.min()), int(bad.max())],
                    needed_clearance_m=float(np.max(c[bad] - worst[bad])), complete=bool(complete),
                    failing_index=bad, failing_need_m=c[bad] - worst[bad], failing_worst_m=worst[bad])
