@@ -75,7 +75,9 @@ SUBCOMMANDS = {
     "run": "Composite controller: replan latency on the depot and warehouse scenarios; cost of a control update.",
     "batch": "Batch throughput: vectorised Hilare trials on one and two workers against the competent per-trial "
              "baseline (a naive one as an extra row), full map trials.",
-    "tube": "Error tube: its time against the plan's on the bundled scenarios, and a per-step loop baseline.",
+    "tube": "Error tube: the linear tube's time against the plan's on the bundled scenarios, and a per-step loop "
+            "baseline; the default (auto) tube, linear or sampled, against the plan on those scenarios and on "
+            "parking cases, its parts, and the sampled tube against a rollout-by-rollout baseline.",
 }
 
 
@@ -86,6 +88,14 @@ EXTRA_OPTIONS = {
         click.option("--budget", "budget_s", type=float, default=None, help="Planning budget per call [s] (default 5)."),
         click.option("--case", "cases", multiple=True,
                      help="Only this case (repeatable; names as in `nhstab parking table`)."),
+    ],
+    "tube": [
+        click.option("--case", "cases", multiple=True,
+                     help="Parking cases of the auto-tube rows (repeatable; names as in `nhstab parking table`, "
+                          "all, or none; default all)."),
+        click.option("--auto-repeats", type=int, default=None, help="Plan-and-tube pairs per auto-tube row (default 3)."),
+        click.option("--baseline-rollouts", type=int, default=None,
+                     help="Rollouts of the sampled tube's baseline, extrapolated to N (default 40)."),
     ],
 }
 
