@@ -82,3 +82,77 @@ def figure(car, seeds, out_dir):
     click.echo(f"{row['name']} ({row['factor']:g} x L1, slot {row['size_m']:.2f} m), seed {seed}: {result.message}")
     click.echo("wrote " + ", ".join(str(f) for f in files) + f", {out_dir / 'tried.json'}")
     return 0
+
+
+#: the study's tube figures by default: the tightest parallel slots of both cars (results/ stays small)
+FIGURE_MAPS = ("parallel_rwd_car_090", "parallel_rwd_car_100", "parallel_van_100", "perpendicular_van_aisle110")
+
+
+def _numbers(option: str, text: str, what: str) -> list[float]:
+    try:
+        return [float(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        from nhstab.errors import InputError
+
+        raise InputError(option, what, text) from None
+
+
+@parking.command("study")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("results/parking/study"), show_default=True)
+@click.option("--trials", type=int, default=50, show_default=True, help="Trials per cell (1 to 5,000).")
+@click.option("--mc-factor", type=int, default=10, show_default=True,
+              help="The tube check's Monte Carlo: this many times the sampled tube's N rollouts per cell.")
+@click.option("--maps", "maps", multiple=True, metavar="NAME",
+              help="Maps of the suite (repeat, or a comma list; default: all 28).")
+@click.option("--noise", default="0.5,1,2", show_default=True, help="Noise scales (comma list).")
+@click.option("--controllers", default="gramian,tvlqr", show_default=True, help="Feedback laws (comma list).")
+@click.option("--root-seed", type=int, default=2026, show_default=True,
+              help="Root seed of the trials (the Monte Carlo's is this + 1).")
+@click.option("--plan-seed", type=int, default=0, show_default=True, help="The plans' seed (nhstab run --seed).")
+@click.option("--workers", type=int, default=2, show_default=True,
+              help="Processes over the maps (one BLAS thread each); the result does not depend on it.")
+@click.option("--fit/--no-fit", default=True, show_default=True,
+              help="Plan as `nhstab run --fit` (an uncertified plan is changed until its tube certifies, the best "
+                   "kept) or as plain `nhstab run`.")
+@click.option("--figures", "figure_maps", default=",".join(FIGURE_MAPS), show_default=True,
+              help="Maps whose tube figure is drawn (comma list; 'all' or 'none').")
+def study(out_dir, trials, mc_factor, maps, noise, controllers, root_seed, plan_seed, workers, fit, figure_maps):
+    """The parking study: per suite map one plan (the first of `nhstab run example:NAME --seed PLAN_SEED --fit`);
+    per controller and noise level its error tube and verdict, trials of the run loop (collisions,
+    goal reached) and the tube held to an independent Monte Carlo (coverage, conservatism). Writes
+    study.json, study.md and figures into OUT (see nhstab.batch.parking_study)."""
+    from nhstab.batch.parking_study import (check_controllers, check_levels, check_maps, run_parking_study,
+                                            study_markdown, success_figure, tube_figure)
+    from nhstab.limits import MAX_SEED, MAX_STUDY_TRIALS, check_int
+    from nhstab.records import save_figure, write_json, write_text
+
+    check_int("--trials", trials, 1, MAX_STUDY_TRIALS, "a number of trials per cell")
+    check_int("--mc-factor", mc_factor, 1, 100, "a factor of the tube's rollouts")
+    check_int("--root-seed", root_seed, 0, MAX_SEED - 1, "a seed")
+    check_int("--plan-seed", plan_seed, 0, MAX_SEED, "a seed")
+    check_int("--workers", workers, 1, 64, "a number of worker processes")
+    names = [s.strip() for m in maps for s in m.split(",") if s.strip()]
+    check_maps(names, "--maps")
+    levels = check_levels(_numbers("--noise", noise, "noise scales separated by commas, e.g. 0.5,1,2"), "--noise")
+    ctrls = check_controllers([s.strip() for s in controllers.split(",") if s.strip()], "--controllers")
+    figs = [s.strip() for s in figure_maps.split(",") if s.strip()]
+    if figs not in (["all"], ["none"]):
+        check_maps(figs, "--figures")
+    from nhstab.execution.config import PlanningOptions, RunOptions
+
+    options = RunOptions(planning=PlanningOptions(fit=fit))
+    result, curves = run_parking_study(trials, mc_factor, names, levels, ctrls, root_seed, plan_seed, options=options,
+                                       workers=workers, progress=lambda s: click.echo(s, err=True))
+    # the numbers first: a figure that fails must not lose an hour's study
+    files = [write_json(out_dir / "study.json", result), write_text(out_dir / "study.md", study_markdown(result))]
+    files.append(save_figure(success_figure(result), out_dir / "success.png", dpi=90))
+    for case in result["cases"]:
+        if case.get("cells") and (figs == ["all"] or case["map"] in figs):
+            files.append(save_figure(tube_figure(curves, result, case["map"]), out_dir / f"tube_{case['map']}.png",
+                                     dpi=80))
+    tg = result["targets"]
+    click.echo("targets: " + "; ".join(f"{k} {'met' if t['met'] else 'NOT met'} ({len(t['failing'])} failing)"
+                                        for k, t in tg.items()))
+    click.echo(f"wrote {len(files)} files into {out_dir} (study.md, study.json, figures) in {result['wall_s']:.0f} s")
+    return 0

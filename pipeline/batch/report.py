@@ -43,7 +43,9 @@ def wilson(successes: int, n: int, z: float = Z95) -> tuple[float, float, float]
     denom = 1 + z * z / n
     centre = (p + z * z / (2 * n)) / denom
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return p, max(0.0, centre - half), min(1.0, centre + half)
+    # the ends bracket the rate exactly: at 10 of 10 the rounded centre + half came out 1 - 1e-16, below it,
+    # and at 0 of 50 the lower end 7e-18 (matplotlib refuses error bars on the wrong side)
+    return p, min(p, max(0.0, centre - half)), max(p, min(1.0, centre + half))
 
 
 def _cells(trials: list[dict]) -> dict:
