@@ -125,7 +125,9 @@ def study(out_dir, trials, mc_factor, maps, noise, controllers, root_seed, plan_
     from nhstab.batch.parking_study import (check_controllers, check_levels, check_maps, run_parking_study,
                                             study_markdown, success_figure, tube_figure)
     from nhstab.limits import MAX_SEED, MAX_STUDY_TRIALS, check_int
-    from nhstab.records import save_figure, write_json, write_text
+    import json
+
+    from nhstab.records import save_figure, to_jsonable, write_text
 
     check_int("--trials", trials, 1, MAX_STUDY_TRIALS, "a number of trials per cell")
     check_int("--mc-factor", mc_factor, 1, 100, "a factor of the tube's rollouts")
@@ -145,7 +147,9 @@ def study(out_dir, trials, mc_factor, maps, noise, controllers, root_seed, plan_
     result, curves = run_parking_study(trials, mc_factor, names, levels, ctrls, root_seed, plan_seed, options=options,
                                        workers=workers, progress=lambda s: click.echo(s, err=True))
     # the numbers first: a figure that fails must not lose an hour's study
-    files = [write_json(out_dir / "study.json", result), write_text(out_dir / "study.md", study_markdown(result))]
+    # study.json compact (about 1 MB for the whole suite; 2 MB indented): results/ stays small
+    files = [write_text(out_dir / "study.json", json.dumps(to_jsonable(result), separators=(",", ":")) + "\n"),
+             write_text(out_dir / "study.md", study_markdown(result))]
     files.append(save_figure(success_figure(result), out_dir / "success.png", dpi=90))
     for case in result["cases"]:
         if case.get("cells") and (figs == ["all"] or case["map"] in figs):

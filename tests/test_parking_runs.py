@@ -8,9 +8,10 @@ every obstacle and the map's bounds, with FCL (``check_path`` at 5 cm) and, inde
 shapely on the polygons.
 
 The runs are whole ``nhstab run`` processes, two at a time: 14 maps x 2 seeds = 28 runs (about 2
-minutes on 2 cores when they plan; failed plans take longer, the run retries); >= 95 % means at most
-1 failure. The committed batch report (results/parking/: 5 trials per cell on ten maps of the suite,
-against TVLQR and open loop, at three noise levels) is the larger sample.
+minutes on 2 cores when they plan; failed plans take longer, the run retries; each run also predicts
+its sampled error tube and checks the rest of its maneuver at every cusp); >= 95 % means at most 1
+failure. The committed parking study (results/parking/study/: every case of the suite, the gramian law
+and TVLQR, three noise levels, 50 trials per cell) is the larger sample.
 """
 
 from __future__ import annotations
