@@ -328,20 +328,25 @@ def test_bench_parking_refuses_unknown_cases():
     assert res.exit_code == 2 and "'case'" in res.output
 
 
-def test_parking_batch_config_covers_the_suite_with_three_controllers_and_noise_levels():
-    from nhstab.batch.config import load_batch_config
+def test_the_committed_parking_study_covers_the_suite_with_both_laws_and_three_noise_levels():
+    """results/parking/study/ (nhstab parking study): every case of the suite, planned, the gramian law and
+    TVLQR at x0.5, x1, x2, 50 trials and a tube check of 10 x N runs per cell; its targets recomputed from
+    its cells agree with what it says."""
+    import json
 
-    config = load_batch_config(ROOT / "results" / "parking" / "batch.yaml")
-    cells = config.cells()
-    names = {c["map"] for c in cells}
+    from nhstab.batch.parking_study import targets
+
+    result = json.loads((ROOT / "results" / "parking" / "study" / "study.json").read_text())
     rows = {r["name"]: r for r in P.read_suite_csv(FOLDER / "suite.csv")}
-    assert names <= set(rows)
-    assert {rows[n]["kind"] for n in names} == {"parallel", "perpendicular", "angled45", "angled60"}
-    assert {rows[n]["factor"] for n in names if rows[n]["kind"] == "parallel"} == set(P.PARALLEL_FACTORS)
-    assert {c["controller"] for c in cells} == {"gramian", "tvlqr", "open-loop"}
-    assert sorted({c["noise"] for c in cells}) == [0.5, 1.0, 2.0]
-    assert len(cells) == len(names) * 9
-    assert all(c["robot"] is None for c in cells)        # each map's own car
+    assert {c["map"] for c in result["cases"]} == set(rows)
+    assert all(c["plan"]["found"] for c in result["cases"])
+    for case in result["cases"]:
+        cells = {(c["controller"], c["noise"]) for c in case["cells"]}
+        assert cells == {(k, v) for k in ("gramian", "tvlqr") for v in (0.5, 1.0, 2.0)}
+        for c in case["cells"]:
+            assert c["trials"]["trials"] == 50 and c["tube_check"]["mc_runs"] == 10 * result["rollouts"]
+    assert result["planning"]["fit"] is True
+    assert targets(result) == result["targets"]
 
 
 def test_parking_figure_refuses_bad_input():
