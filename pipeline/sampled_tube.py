@@ -40,7 +40,6 @@ with the tube, so a rollout can be replayed with ``nhstab run --seed`` on the sa
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import numpy as np
 
@@ -198,18 +197,6 @@ def linear_validity(tube, nominal) -> tuple[bool, str]:
         return False, "; ".join(reasons)
     return True, (f"inputs do not saturate (linear bound {bound:.2g} <= {LINEAR_MAX_SATURATION:g}) and the nominal "
                   "has no interior stop")
-
-
-def replan_noise(noise, state_names, pause_s: float):
-    """The noise of a plan that starts from a measured state after ``pause_s`` at rest: its initial
-    error is the sensor noise plus the pause's process noise (gaussian), and no impulses."""
-    sens = noise.vector("sensor", state_names)
-    proc = noise.vector("process", state_names)
-    scale = float(noise.scale)
-    init = np.sqrt(sens ** 2 + proc ** 2 * float(pause_s))
-    raw = init / scale if scale > 0 else np.zeros_like(init)
-    return replace(noise, distribution="gaussian", impulses=(),
-                   initial={s: float(v) for s, v in zip(state_names, raw)})
 
 
 def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float = 50.0, substeps: int = 4,

@@ -49,7 +49,6 @@ def test_displacement_bounds_every_point_of_the_moved_footprint_and_is_attained(
     """The displaced footprint lies in the nominal footprint grown by the displacement (shapely), and the
     displacement is the largest point displacement over a dense sampling of the footprint (attained at a
     hull vertex), for convex and non-convex footprints; a disc's is its centre's."""
-    shapely = pytest.importorskip("shapely")
     from shapely import affinity
     from shapely.geometry import Polygon
 
@@ -188,7 +187,6 @@ def test_the_certified_clearance_is_the_rollouts_smallest_clearance(scale):
     rollouts, at the default noise (clear) and four times it (touching)); with the needed clearance of
     each failing sample the nominal's minus its worst rollout's."""
     from nhstab.collision import CollisionWorld
-    from nhstab.models import make_model
     from nhstab.robot import default_robot
 
     robot = default_robot("rwd_car")

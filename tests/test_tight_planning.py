@@ -12,15 +12,14 @@ import time
 
 import numpy as np
 import pytest
-import shapely
-from shapely.geometry import LineString, MultiLineString, Point
+from shapely.geometry import LineString, Point
 from shapely.geometry import Polygon as SPolygon
 from shapely.ops import unary_union
 
 from nhstab.collision import CollisionWorld
 from nhstab.errors import InputError
 from nhstab.geometry import Footprint
-from nhstab.maps.base import Map, MapError, Polygon, box_polygon, polyline
+from nhstab.maps.base import Map, MapError, Polygon, polyline
 from nhstab.maps.svg import load_benchmr_svg
 from nhstab.maps.yaml_format import parse_yaml_map
 from nhstab.parking import _geometry, case_yaml, cars, parallel_case, parallel_min_length

@@ -265,14 +265,15 @@ def _instrumented(world):
 
     def engine(*a, on_states=None, **kw):
         spent = [0.0]
-        hook = on_states
-        if on_states is not None:
-            def hook(*h):
-                t1 = time.perf_counter()
-                try:
-                    return on_states(*h)
-                finally:
-                    spent[0] += time.perf_counter() - t1
+
+        def timed(*h):
+            t1 = time.perf_counter()
+            try:
+                return on_states(*h)
+            finally:
+                spent[0] += time.perf_counter() - t1
+
+        hook = timed if on_states is not None else None
         t0 = time.perf_counter()
         try:
             return saved[2](*a, on_states=hook, **kw)
