@@ -235,6 +235,7 @@ class CompositeRun:
         #: wall time of each cusp check's tube [s]; replans tried at cusps
         self.cusp_timing: list = []
         self.cusp_replans = 0
+        self._replan_at_cusp = False
         #: called with one line when a plan becomes active (its tube's verdict), or None
         self.notify = None
 
@@ -344,8 +345,11 @@ class CompositeRun:
         names = self.model.state_names
         initial = None
         if self.plans:
+            # a replan after a conflict starts where the robot stood still for the pause; one at a cusp
+            # starts at once (the robot does not wait for it)
+            pause = 0.0 if self._replan_at_cusp else self.opts.replan.pause_s
             initial = np.diag(self.opts.noise.vector("sensor", names) ** 2
-                              + self.opts.noise.vector("process", names) ** 2 * self.opts.replan.pause_s)
+                              + self.opts.noise.vector("process", names) ** 2 * pause)
         to = self.opts.tube
         try:
             # a robot of several bodies: the tube is not certified (it would certify the car's body only)
@@ -623,7 +627,11 @@ class CompositeRun:
             return None
         self.cusp_replans += 1
         start_pose = y[self.pose_idx]
-        attempt, result, law, margin, tube = self._plan_once(start_pose, 0)
+        self._replan_at_cusp = True
+        try:
+            attempt, result, law, margin, tube = self._plan_once(start_pose, 0)
+        finally:
+            self._replan_at_cusp = False
         adopt = law is not None and tube is not None and tube.certified is True
         check.update(replanned=True, replan_status=attempt["status"], adopted=bool(adopt),
                      new_certified_clearance_m=None if tube is None else tube.certified_clearance,
