@@ -27,7 +27,11 @@ import math
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import binomtest as _binomtest
+from scipy.stats import norm as _norm
 
+from ..errors import InputError
+from ..records import OutputFolder
 from ..report import subplots
 from .store import Store
 
@@ -35,17 +39,30 @@ Z95 = 1.959963984540054
 
 
 def wilson(successes: int, n: int, z: float = Z95) -> tuple[float, float, float]:
-    """(rate, low, high): the Wilson score interval for a binomial proportion."""
+    """The Wilson score interval for a binomial proportion.
+
+    Parameters
+    ----------
+    successes : int
+        Number of successes, 0 to ``n``.
+    n : int
+        Number of trials; 0 gives NaNs.
+    z : float
+        Standard normal quantile of the two-sided level (default: 95 %).
+
+    Returns
+    -------
+    tuple of float
+        ``(rate, low, high)``, from :func:`scipy.stats.binomtest`'s ``proportion_ci(method="wilson")``,
+        with the ends made to bracket the rate exactly (rounding can leave an end a few ulp on the
+        wrong side of it at 0 or n successes, and matplotlib refuses such error bars).
+    """
     if n == 0:
         return math.nan, math.nan, math.nan
     p = successes / n
-    # centre +- half, clipped to [0, 1]; at p = 0 or 1 one end is the rate itself
-    denom = 1 + z * z / n
-    centre = (p + z * z / (2 * n)) / denom
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    # the ends bracket the rate exactly: at 10 of 10 the rounded centre + half came out 1 - 1e-16, below it,
-    # and at 0 of 50 the lower end 7e-18 (matplotlib refuses error bars on the wrong side)
-    return p, min(p, max(0.0, centre - half)), max(p, min(1.0, centre + half))
+    level = 2.0 * float(_norm.cdf(z)) - 1.0
+    ci = _binomtest(int(successes), int(n)).proportion_ci(confidence_level=level, method="wilson")
+    return p, min(p, max(0.0, float(ci.low))), max(p, min(1.0, float(ci.high)))
 
 
 def _cells(trials: list[dict]) -> dict:
@@ -472,9 +489,6 @@ def _trailer_table(rows):
 
 def write_report(store_path, out_dir=None) -> list[Path]:
     """Write report.html, report.md, trials.csv and figures/*.png next to the store (or in out_dir)."""
-    from ..errors import InputError
-    from ..records import OutputFolder
-
     store_path = Path(store_path)
     db = store_path / "trials.sqlite" if store_path.is_dir() else store_path
     out_dir = Path(out_dir) if out_dir is not None else db.parent

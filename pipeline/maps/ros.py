@@ -46,15 +46,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from PIL import Image as _PILImage
 
 from ..errors import InputError
 from ..safe_io import read_bytes
 from .base import Map, MapError, OccupancyGrid
-
-try:  # Pillow is a required dependency of matplotlib; fall back to matplotlib.image if it is absent.
-    from PIL import Image as _PILImage
-except ImportError:  # pragma: no cover - exercised only without Pillow
-    _PILImage = None
 
 __all__ = [
     "ALLOWED_KEYS",
@@ -287,7 +283,7 @@ def read_map_yaml(path) -> RosMapParams:
 
 def read_image(path, referenced_by=None) -> RasterImage:
     """Read a map image: PGM/PPM (P2, P5, P3, P6; 8- or 16-bit) with the built-in reader, PNG and
-    other formats with Pillow (or ``matplotlib.image.imread`` for PNG when Pillow is absent).
+    other formats with Pillow.
 
     Truncated, corrupt or unsupported images raise :class:`MapError` naming the file.
     """
@@ -419,8 +415,6 @@ def _check_png_chunks(data: bytes) -> None:
 def _read_with_pillow(data: bytes) -> RasterImage:
     if data[:8] == _PNG_SIGNATURE:
         _check_png_chunks(data)
-    if _PILImage is None:  # pragma: no cover - Pillow ships with matplotlib
-        return _read_png_with_matplotlib(data)
     try:
         with _PILImage.open(io.BytesIO(data)) as im:
             _check_pixels(*im.size)             # before the pixels are decoded
@@ -459,27 +453,6 @@ def _check_pixels(width: int, height: int) -> None:
     if width * height > MAX_GRID_CELLS:
         raise _ImageProblem(f"an image of at most {MAX_GRID_CELLS:,} pixels (4096 x 4096)",
                             f"{width} x {height} = {width * height:,} pixels")
-
-
-def _read_png_with_matplotlib(data: bytes) -> RasterImage:  # pragma: no cover
-    import matplotlib.image as mpimg
-
-    if data[:8] != _PNG_SIGNATURE or len(data) < 29:
-        raise _ImageProblem("a PGM or PNG image (Pillow is not installed for other formats)")
-    bit_depth, colour_type = data[24], data[25]
-    levels = 65535.0 if bit_depth == 16 and colour_type != 3 else 255.0
-    try:
-        pixels = np.asarray(mpimg.imread(io.BytesIO(data), format="png"), dtype=np.float64)
-    except Exception as exc:  # noqa: BLE001
-        raise _ImageProblem("a readable PNG image", type(exc).__name__, detail=_oneline(exc)) from None
-    quanta = np.rint(pixels * levels) * (QUANTUM_MAX / levels)
-    if quanta.ndim == 2:
-        return RasterImage(quanta)
-    if quanta.shape[2] == 2:
-        return RasterImage(quanta[..., 0], quanta[..., 1])
-    if quanta.shape[2] == 4:
-        return RasterImage(quanta[..., :3], quanta[..., 3])
-    return RasterImage(quanta[..., :3])
 
 
 # --------------------------------------------------------------------------------------------------
