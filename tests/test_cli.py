@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from conftest import hilare_sinusoid
+from nominals import hilare_sinusoid
 
 from nhstab.cli.main import cli
 from nhstab.control import StabilizerOptions, compute_schedule

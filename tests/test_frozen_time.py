@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import heisenberg_line, hilare_sinusoid
+from nominals import heisenberg_line, hilare_sinusoid
 from scipy.linalg import expm
 
 from nhstab.control import StabilizerOptions, compute_schedule

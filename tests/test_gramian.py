@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from conftest import fwd_car_parking, heisenberg_line, hilare_sinusoid
+from nominals import fwd_car_parking, heisenberg_line, hilare_sinusoid
 from reference import reference_H, transition, window_gramian
 
 from nhstab.control import StabilizerOptions, compute_schedule

