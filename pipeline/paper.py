@@ -29,10 +29,23 @@ from pathlib import Path
 import numpy as np
 
 from .control import StabilizerOptions, compute_schedule
-from .errors import InputError, NotStabilizingWarning, PipelineError, SingularGramianError
+from .errors import (
+    InputError,
+    NotStabilizingWarning,
+    PipelineError,
+    SingularGramianError,
+)
 from .models import make_model
 from .nominal import Nominal
 from .records import save_figure, write_json, write_text
+from .report import subplots
+from .report.tracking import (
+    error_norm_comparison_figure,
+    errors_figure,
+    gramian_figure,
+    inputs_figure,
+    phase_figure,
+)
 from .simulation import fit_decay_rate, simulate_tracking
 
 
@@ -325,8 +338,6 @@ def remark2_study(grid: dict | None = None) -> dict:
 
 
 def _remark2_figure(study: dict, runs: dict):
-    from .report import subplots
-
     fig, axes = subplots(1, 2, figsize=(11.5, 4.2), layout="constrained")
     ax = axes[0]
     colors = {0.5: "tab:blue", 1.0: "tab:orange", 2.0: "tab:green", 4.0: "tab:red"}
@@ -381,8 +392,6 @@ def frozen_time_comparison(names, overrides: dict | None = None) -> list[dict]:
 
 
 def _frozen_figure(frozen, series, norms):
-    from .report import subplots
-
     fig, ax = subplots(figsize=(7.0, 4.0), layout="constrained")
     for j, (f, ser) in enumerate(zip(frozen, series)):
         if ser is None:
@@ -405,8 +414,6 @@ def _frozen_figure(frozen, series, norms):
 # ---- outputs ---------------------------------------------------------------------------------------------
 
 def _figures(summary: dict, out: Path) -> list[str]:
-    from .report.tracking import errors_figure, gramian_figure, inputs_figure, phase_figure
-
     run = summary["_run"]["run"]
     schedule = summary["_run"]["schedule"]
     model = schedule.nominal.model
@@ -607,8 +614,6 @@ def run_paper(out_dir, case_names: list[str] | None = None, overrides: dict | No
         save()
     pair = [norms[k] for k in ("fwd-car-parking", "fwd-car-parking-gamma1") if k in norms]
     if len(pair) == 2:
-        from .report.tracking import error_norm_comparison_figure
-
         fig = error_norm_comparison_figure(pair, title="FWD car parallel parking: ||e(t)|| for gamma = 1/2 and 1")
         save_figure(fig, out / "fwd-car-gamma-comparison.png")
         for s in summaries:

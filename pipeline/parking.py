@@ -57,6 +57,11 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
+from .examples import data_root
+from .execution import RunOptions, execute
+from .maps import load_map
+from .records import write_text
+from .robot import default_robot, robot_from_spec
 
 #: parallel slot lengths, as multiples of the single-maneuver minimum L1
 PARALLEL_FACTORS = (0.9, 1.0, 1.05, 1.1, 1.2, 1.4)
@@ -94,8 +99,6 @@ def _van_spec() -> dict:
 
 def _default_car_spec() -> dict:
     """The built-in rwd_car, every parameter explicit, with the suite's margin."""
-    from .robot import default_robot
-
     spec = default_robot("rwd_car").spec()
     fp = default_robot("rwd_car").footprint
     geo = CarGeometry.from_footprint(fp, spec["wheelbase"], spec["max_steer"])
@@ -351,8 +354,6 @@ def _row_ends(row: dict, x_min: float, x_max: float, y_a: float, y_b: float) -> 
 
 
 def _geometry(spec: dict) -> CarGeometry:
-    from .robot import robot_from_spec
-
     return CarGeometry.from_robot(robot_from_spec(spec))
 
 
@@ -656,8 +657,6 @@ def suite_files(cases: list[Case] | None = None) -> dict[str, str]:
 def write_suite(out, check: bool = False) -> dict:
     """Write the suite into the folder ``out`` (atomically, file by file), or with ``check`` only
     compare: returns {"written" | "differ": [...], "missing": [...], "extra": [...]}."""
-    from .records import write_text
-
     out = Path(out)
     files = suite_files()
     if check:
@@ -679,13 +678,8 @@ def tightest_parallel_run(car: str = "rwd_car", seeds=(0, 1, 2), opts=None, fold
     every attempt with its status, so the figure's caption can say what failed before it."""
     from dataclasses import replace
 
-    from .execution import RunOptions, execute
-    from .maps import load_map
-    from .robot import robot_from_spec
 
     if folder is None:
-        from .examples import data_root
-
         folder = data_root() / "parking"
     folder = Path(folder)
     rows = sorted((r for r in read_suite_csv(folder / "suite.csv") if r["kind"] == "parallel" and r["car"] == car),

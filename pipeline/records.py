@@ -10,6 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
+from . import __version__
+from .errors import InputError
+
 
 def to_jsonable(obj):
     """Convert numpy scalars/arrays and non-finite floats to JSON-safe values (NaN/inf -> None)."""
@@ -169,8 +172,6 @@ class OutputFolder:
     # -- writing into the staging folder ---------------------------------------------------------
     def __enter__(self) -> "OutputFolder":
         if self.dir.exists() and not self.dir.is_dir():
-            from .errors import InputError
-
             raise InputError("--out", "a folder (or a path where one can be made)", str(self.dir),
                              detail="it is a file")
         self.dir.mkdir(parents=True, exist_ok=True)
@@ -247,7 +248,6 @@ class OutputFolder:
             os.replace(self.staging / name, target)
             self.written.append(target)
         # 4. the manifest, last
-        from . import __version__
 
         self.written.append(write_json(manifest, {
             "command": self.command, "nhstab_version": __version__, **self.info,

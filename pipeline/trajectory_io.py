@@ -20,9 +20,11 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError, TrajectoryError
+from .limits import MAX_FILE_BYTES
 from .models import Model
 from .nominal import Nominal
 from .records import write_npz, write_text
+from .safe_io import read_bytes, read_text
 
 _UNIT = re.compile(r"\s*\[[^\]]*\]\s*$")
 
@@ -40,9 +42,6 @@ def read_trajectory(path, model: Model) -> Nominal:
         raise InputError("trajectory", "an existing CSV or NPZ file", str(path))
     suffix = path.suffix.lower()
     if suffix == ".npz":
-        from .limits import MAX_FILE_BYTES
-        from .safe_io import read_bytes
-
         raw = io.BytesIO(read_bytes(path, what="NPZ file"))
         try:
             with zipfile.ZipFile(raw) as z:         # a compressed array may expand: check before it does
@@ -66,8 +65,6 @@ def read_trajectory(path, model: Model) -> Nominal:
 
 
 def _read_csv(path: Path, model: Model) -> Nominal:
-    from .safe_io import read_text
-
     text = read_text(path, what="UTF-8 CSV file")
     rows = list(csv.reader(io.StringIO(text)))
     rows = [r for r in rows if r and not (len(r) == 1 and not r[0].strip())]

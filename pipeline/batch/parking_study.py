@@ -75,8 +75,22 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import InputError, NumericalError, PipelineError
+from ..examples import data_root
+from ..execution.config import RunOptions
+from ..execution.controllers import CONTROLLERS as KNOWN
+from ..execution.controllers import build_law
+from ..execution.outputs import nominal_cusps
+from ..execution.runner import CompositeRun, final_errors
+from ..limits import MAX_ROLLOUTS, MAX_SEED, MAX_STUDY_TRIALS, check_int
+from ..maps import load_map, resolve_poses
+from ..parking import read_suite_csv
+from ..report import subplots
+from ..robot import resolve_robot
+from ..sampled_tube import displacement, hull_vertices, rollouts_needed
+from ..tubes import pose_indices, predict_tube, verdict
 from .report import wilson
 from .tube_study import trial_seeds
+from .vector import simulate_shared
 
 CONTROLLERS = ("gramian", "tvlqr")
 NOISE_LEVELS = (0.5, 1.0, 2.0)
@@ -107,9 +121,6 @@ TARGET_NOISE = 1.0
 
 def suite_rows() -> list[dict]:
     """The parking suite's cases (maps/parking/suite.csv), in its order."""
-    from ..examples import data_root
-    from ..parking import read_suite_csv
-
     return read_suite_csv(data_root() / "parking" / "suite.csv")
 
 
@@ -147,8 +158,6 @@ def check_levels(levels, key: str = "noise") -> list[float]:
 
 
 def check_controllers(names, key: str = "controllers") -> list[str]:
-    from ..execution.controllers import CONTROLLERS as KNOWN
-
     out = list(names)
     if not out:
         raise InputError(key, "at least one of " + ", ".join(KNOWN), "nothing")
@@ -166,11 +175,6 @@ def first_plan(map_name: str, options=None):
     retried as ``CompositeRun.run`` retries it (a new seed, then a larger budget, at most
     ``replan.max_attempts`` calls). Returns (run, attempts, result, law, margin, tube); law None when
     no call found a plan (the attempts say why)."""
-    from ..execution.config import RunOptions
-    from ..execution.runner import CompositeRun
-    from ..maps import load_map, resolve_poses
-    from ..robot import resolve_robot
-
     opts = options if options is not None else RunOptions(seed=PLAN_SEED)
     m = load_map(f"example:{map_name}")
     robot = resolve_robot(opts.robot, m.robot)
@@ -188,8 +192,6 @@ def first_plan(map_name: str, options=None):
 def cell_law(run, result, plan_law, controller: str):
     """The cell's feedback law: the plan's own for the run's controller, else ``controller`` with the
     run's options (TVLQR: Q = I, R = I unless the options say otherwise) along the same nominal."""
-    from ..execution.controllers import build_law
-
     if controller == run.opts.controller.kind:
         return plan_law
     copts = replace(run.opts.controller, kind=controller, gains="default")
@@ -229,10 +231,6 @@ def tube_record(tube, v: dict, c_start: float, c_goal: float) -> dict:
 def trial_outcomes(run, law, seeds, noise) -> dict:
     """Trials of the run loop on ``law``: collisions at every sample (FCL), goal reached, the smallest
     clearance along each trial (see the module docstring)."""
-    from ..execution.runner import final_errors
-    from ..tubes import pose_indices
-    from .vector import simulate_shared
-
     sim = simulate_shared(law, seeds, noise, rate_hz=run.opts.rate_hz, substeps=run.opts.substeps, model=run.model)
     K, S = len(seeds), len(sim.t)
     idx = pose_indices(run.model)
@@ -277,10 +275,6 @@ def mc_displacements(run, law, poses: np.ndarray, seeds, noise, nominal_clearanc
     lower bound c_k - D_k is below it are measured, at most :data:`MAX_MEASURED`; beyond, the runs left
     unmeasured count as below: a lower bound of the certificate's coverage). ``poses`` (S, 3): the
     nominal poses at the samples (the tube's)."""
-    from ..sampled_tube import displacement, hull_vertices
-    from ..tubes import pose_indices
-    from .vector import simulate_shared
-
     idx = pose_indices(run.model)
     hull = hull_vertices(run.fp)
     S, M = len(poses), len(seeds)
@@ -443,9 +437,6 @@ def _say(progress, text: str) -> None:
 
 def study_map(row: dict, settings: dict, progress=None) -> tuple[dict, dict]:
     """One map of the study: its plan and its cells. Returns (case record, curves by (controller, noise))."""
-    from ..execution.outputs import nominal_cusps
-    from ..tubes import predict_tube, verdict
-
     opts = settings["options"]
     p, conf = settings["probability"], settings["confidence"]
     case = {k: row[k] for k in ("name", "car", "kind", "factor", "size_m", "reference_m")}
@@ -577,10 +568,6 @@ def run_parking_study(trials: int = TRIALS, mc_factor: int = MC_FACTOR, maps=Non
     controller, noise) for the figures). ``options``: the RunOptions of the plans (default
     ``RunOptions(seed=plan_seed)``; with options given, its seed is replaced by ``plan_seed``).
     ``progress``: called with one line per plan and per cell."""
-    from ..execution.config import RunOptions
-    from ..limits import MAX_ROLLOUTS, MAX_SEED, MAX_STUDY_TRIALS, check_int
-    from ..sampled_tube import rollouts_needed
-
     trials = check_int("trials", trials, 1, MAX_STUDY_TRIALS, "a number of trials per cell")
     root_seed = check_int("root_seed", root_seed, 0, MAX_SEED - 1, "a seed")
     plan_seed = check_int("plan_seed", plan_seed, 0, MAX_SEED, "a seed")
@@ -919,8 +906,6 @@ def study_markdown(result: dict) -> str:
 def tube_figure(curves: dict, result: dict, map_name: str):
     """Rows: controllers; columns: noise levels. The reach (tube) against the MC p-quantile of the
     displacement with its 95 % order-statistic interval; the tightest sample marked."""
-    from ..report import subplots
-
     ctrls, levels = result["controllers"], result["noise_levels"]
     fig, axes = subplots(len(ctrls), len(levels), figsize=(max(6.0, 3.3 * len(levels)), 2.3 * len(ctrls) + 0.6),
                          squeeze=False,
@@ -962,8 +947,6 @@ def tube_figure(curves: dict, result: dict, map_name: str):
 
 def success_figure(result: dict):
     """Success rate (Wilson 95 % bars) against the size factor, per car and kind; one panel per noise level."""
-    from ..report import subplots
-
     levels = result["noise_levels"]
     fig, axes = subplots(1, len(levels), figsize=(4.2 * len(levels), 3.4), squeeze=False, sharey=True,
                          layout="constrained")

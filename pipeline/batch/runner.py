@@ -48,7 +48,10 @@ import warnings
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
-from ..errors import InputError
+from .. import __version__
+from ..collision import defer_interrupt
+from ..control import PAST_WINDOW_WARNING
+from ..errors import InputError, NotStabilizingWarning
 from .config import BatchConfig
 from .store import Store, versions
 from .trial import MapChangedError, provide_bundles, run_trial, withdraw_bundles
@@ -176,8 +179,6 @@ def run_batch(config: BatchConfig, out_dir, workers: int = 1, scheduler: str | N
     if scheduler is not None:
         client = connect_dask(scheduler)     # before the store is made: a refused request leaves nothing behind
     if "past" in config.windows():       # once here; the trials do not repeat it
-        from ..control import PAST_WINDOW_WARNING
-        from ..errors import NotStabilizingWarning
 
         warnings.warn(PAST_WINDOW_WARNING, NotStabilizingWarning, stacklevel=2)
     try:
@@ -329,8 +330,6 @@ def _interrupt_flag():
         return
 
     def handler(signum, frame):
-        from ..collision import defer_interrupt
-
         flag.set()
         if not defer_interrupt(frame):       # inside an FCL callback: raised when FCL returns
             raise KeyboardInterrupt
@@ -438,7 +437,6 @@ def _dask_trial(spec: dict, bundle: bytes, version: str) -> dict:
     is lifted for the task."""
     import multiprocessing
 
-    from .. import __version__
 
     if version != __version__:
         raise WorkerMismatch(version, __version__)
@@ -458,9 +456,6 @@ class WorkerMismatch(Exception):
 
 
 def _worker_versions() -> dict:
-    from .. import __version__
-    from .store import versions
-
     return {**versions(), "nhstab": __version__}
 
 
@@ -469,8 +464,6 @@ def check_workers(client, scheduler: str) -> dict:
     ``--scheduler`` otherwise: install ``nhstab[cluster]`` of the same version on every worker).
     Returns their versions by address. A cluster without workers yet (e.g. an adaptive one) is
     not refused: its trials wait for workers, each checked when it runs one."""
-    from .. import __version__
-
     expected = f"Dask workers with nhstab {__version__} installed (the version of this machine)"
     try:
         found = client.run(_worker_versions)
@@ -547,7 +540,6 @@ def _run_dask(todo: list, client, store: Store, bar, bundles: dict, tally: _Tall
     future; records stored as they come back (see the module docstring)."""
     from distributed import as_completed
 
-    from .. import __version__
 
     if not todo:
         return
@@ -590,8 +582,6 @@ def _run_dask(todo: list, client, store: Store, bar, bundles: dict, tally: _Tall
 def _lost_trial(spec: dict, exc) -> dict:
     """The record of a trial whose worker died running it (Dask gave up on it: ``KilledWorker``):
     an error, the crash being what the trial did."""
-    from .store import versions
-
     return {"id": spec["id"], "cell": spec["cell"], "trial": spec["trial"], "seed": spec["seed"], "spec": spec,
             "versions": versions(), "status": "error", "metrics": None, "series": None,
             "error": f"{type(exc).__name__}: the worker running it died ({_one_line(exc)[:160]})",

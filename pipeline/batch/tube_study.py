@@ -41,7 +41,21 @@ import time
 import numpy as np
 
 from ..errors import InputError
+from ..execution.config import NoiseOptions, PlanningOptions, RunOptions
+from ..execution.controllers import ControllerOptions, build_law
+from ..execution.outputs import nominal_cusps
+from ..execution.runner import CompositeRun
+from ..limits import MAX_STUDY_TRIALS, check_int
+from ..maps import load_map
+from ..models import make_model
+from ..planning import pose_columns
+from ..records import save_figure, write_json, write_text
+from ..report import subplots
+from ..report.plans import plan_figure
+from ..robot import default_robot
+from ..tubes import choose_gains, pose_indices, predict_tube
 from .report import wilson
+from .vector import simulate_shared
 
 CASES = (("unicycle", "depot_blocked_aisle"), ("unicycle", "cluttered_room"),
          ("rwd_car", "warehouse_aisle_a2"), ("rwd_car", "parking_lot"))
@@ -66,11 +80,6 @@ def trial_seeds(trials: int, root_seed: int) -> list[int]:
 def first_plan(robot: str, map_name: str, margin="auto", seed: int = PLAN_SEED):
     """The first plan of ``nhstab run example:MAP --robot ROBOT --margin MARGIN --seed SEED`` (its
     attempt record, result, gramian law, margin, tube) and the run object (map, robot, worlds)."""
-    from ..execution.config import PlanningOptions, RunOptions
-    from ..execution.runner import CompositeRun
-    from ..maps import load_map
-    from ..robot import default_robot
-
     m = load_map(f"example:{map_name}")
     run = CompositeRun(m, default_robot(robot), m.start.as_array(), m.goal.as_array(),
                        RunOptions(seed=seed, planning=PlanningOptions(margin=margin)))
@@ -81,16 +90,12 @@ def first_plan(robot: str, map_name: str, margin="auto", seed: int = PLAN_SEED):
 
 
 def _law(run, result, controller: str, **gains):
-    from ..execution.controllers import ControllerOptions, build_law
-
     return build_law(result.nominal, ControllerOptions(kind=controller, **gains), run.stab_defaults,
                      result.schedule if controller == "gramian" and not gains else None)
 
 
 def cell_metrics(tube, sim, model, world, fp, cusps: list[float]) -> dict:
     """Compare one predicted tube with simulated trials on its nominal (see the module docstring)."""
-    from ..tubes import pose_indices
-
     ok = sim.completed
     e = sim.e[ok]
     K, S, n = e.shape
@@ -174,13 +179,7 @@ def diagnose(cell: dict) -> str:
 def run_study(trials: int = TRIALS, root_seed: int = ROOT_SEED, cases=CASES, controllers=CONTROLLERS,
               noise_levels=NOISE_LEVELS, probability: float = PROBABILITY, progress=None) -> tuple[dict, dict]:
     """The study; returns (JSON-ready result, curves for the figures)."""
-    from ..limits import MAX_STUDY_TRIALS, check_int
-
     trials = check_int("trials", trials, 2, MAX_STUDY_TRIALS, "a number of trials per cell")
-    from ..execution.config import NoiseOptions
-    from ..execution.outputs import nominal_cusps
-    from ..tubes import predict_tube
-    from .vector import simulate_shared
 
     seeds = trial_seeds(trials, root_seed)
     out = {"probability": probability, "trials": trials, "root_seed": root_seed, "plan_seed": PLAN_SEED,
@@ -225,11 +224,8 @@ def run_study(trials: int = TRIALS, root_seed: int = ROOT_SEED, cases=CASES, con
 def std_figure(curves: dict, robot: str, map_name: str, trials: int, controllers=CONTROLLERS,
                noise_levels=NOISE_LEVELS):
     """Rows: noise levels; columns: states. Observed std over trials (solid) against predicted (dashed)."""
-    from ..report import subplots
-
     key0 = next(k for k in curves if k[0] == robot and k[1] == map_name)
     n = curves[key0]["pred_sd"].shape[1]
-    from ..models import make_model
 
     names = make_model(robot).state_names
     fig, axes = subplots(len(noise_levels), n, figsize=(3.0 * n, 2.1 * len(noise_levels) + 0.6), squeeze=False,
@@ -258,8 +254,6 @@ def std_figure(curves: dict, robot: str, map_name: str, trials: int, controllers
 
 def coverage_figure(curves: dict, robot: str, map_name: str, probability: float, cusps: list[float],
                     controllers=CONTROLLERS, noise_levels=NOISE_LEVELS):
-    from ..report import subplots
-
     fig, axes = subplots(len(controllers), 1, figsize=(8, 2.2 * len(controllers) + 0.5), squeeze=False, sharex=True,
                          layout="constrained")
     for i, ctrl in enumerate(controllers):
@@ -333,10 +327,6 @@ def run_gains(trials: int = TRIALS, root_seed: int = ROOT_SEED, cases=CASES, noi
               plans: dict | None = None, progress=None) -> dict:
     """The ``--gains auto`` grid on the study's fixed nominals, with a Monte Carlo check of the default
     and the pick (see the module docstring)."""
-    from ..execution.config import NoiseOptions
-    from ..tubes import choose_gains, pose_indices, predict_tube
-    from .vector import simulate_shared
-
     seeds = trial_seeds(trials, root_seed)
     noise = NoiseOptions(scale=noise_level)
     out = {"noise": noise_level, "trials": trials, "cases": [], "recommended": {}}
@@ -445,8 +435,6 @@ def write_study(out_dir, trials: int = TRIALS, root_seed: int = ROOT_SEED, gains
     """Run the study (and the gains part) and write study.json, study.md and the figures."""
     from pathlib import Path
 
-    from ..records import save_figure, write_json, write_text
-    from ..report.plans import plan_figure
 
     out_dir = Path(out_dir)
     started = time.perf_counter()
@@ -462,7 +450,6 @@ def write_study(out_dir, trials: int = TRIALS, root_seed: int = ROOT_SEED, gains
                                                    case["plan"]["cusp_times_s"]),
                                    out_dir / f"coverage_{robot}_{map_name}.png", dpi=80))
         run, res, tube = extra["plans"][(robot, map_name)]
-        from ..planning import pose_columns
 
         nom = res.nominal
         title = (f"{map_name}: {robot}, margin auto {case['margin_m']:.3f} m; {tube.probability:g}-tube (gramian, x1): "

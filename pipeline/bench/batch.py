@@ -7,16 +7,20 @@ import os
 import time
 
 import numpy as np
-
-from .common import machine, maps_dir
 from scipy.integrate import solve_ivp
 
+from ..batch.config import load_batch_config
+from ..batch.trial import run_trial
+from ..batch.vector import _shared, simulate_shared
+from ..execution import ControllerOptions, build_law
+from ..execution.config import NoiseOptions
+from ..execution.runner import seed_for
+from ..paper import CASES
+from .common import machine, maps_dir
 from .gains import hilare_sinusoid
 
-def _hilare_law():
-    from ..execution import ControllerOptions, build_law
-    from ..paper import CASES
 
+def _hilare_law():
     case = CASES["hilare-sinusoid"]
     return build_law(hilare_sinusoid(315), ControllerOptions(kind="gramian", alpha=case.alpha, delta=case.delta,
                                                              gamma=case.gamma), {})
@@ -25,8 +29,6 @@ def _hilare_law():
 def _shared_worker(args) -> tuple[float, int]:
     """Simulate ``k`` Hilare trials with sensor noise in this process; returns (seconds, trials)."""
     k, first_seed = args
-    from ..batch.vector import simulate_shared
-    from ..execution.config import NoiseOptions
 
     law = _hilare_law()
     seeds = list(range(first_seed, first_seed + k))
@@ -41,9 +43,6 @@ def _competent_trials(law, seeds, noise, rate_hz: float = 50.0, substeps: int = 
     and substeps, the feedforward and gains precomputed once per control step (as nested lists) and
     shared by all trials, each trial's noise drawn in blocks from its own seeded generators (the run
     loop's streams). Returns the final states (len(seeds), 3)."""
-    from ..batch.vector import _shared
-    from ..execution.runner import seed_for
-
     model = law.nominal.model
     T = 1.0 / rate_hz
     h = T / substeps
@@ -91,7 +90,6 @@ def _competent_trials(law, seeds, noise, rate_hz: float = 50.0, substeps: int = 
 
 def _competent_worker(args) -> tuple[float, int]:
     k, first_seed = args
-    from ..execution.config import NoiseOptions
 
     law = _hilare_law()
     started = time.perf_counter()
@@ -103,8 +101,6 @@ def _naive_trials(law, seeds, noise) -> float:
     """The naive extra row: one trial at a time, every hold interval integrated with solve_ivp (RK45,
     rtol 1e-8), the same seeded noise and ZOH law. Returns the mean final error norm (a check that
     it computed the same thing)."""
-    from ..execution.runner import seed_for
-
     model = law.nominal.model
     T = 0.02                                       # 50 Hz, as simulate_shared's default
     sig_s = noise.vector("sensor", model.state_names)
@@ -141,10 +137,6 @@ def bench_batch(k: int = 4000, competent_trials: int = 400, naive_trials: int = 
     trials (plan, execute, sense, monitor, replan) on the bundled cluttered room."""
     import multiprocessing as mp
 
-    from ..batch.config import load_batch_config
-    from ..batch.trial import run_trial
-    from ..batch.vector import simulate_shared
-    from ..execution.config import NoiseOptions
 
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")

@@ -2,19 +2,17 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 
+from ..collision import CollisionWorld
+from ..maps import load_map
+from ..robot import default_footprint
 from .common import _best, machine, maps_dir
 
 
 def bench_collision(n_poses: int = 20_000, seed: int = 7) -> dict:
     """Build time of the FCL world and pose checks per second for a car footprint on the 512 x 512
     Moving AI rooms map (0.5 m cells) and the nav2 depot map; single calls and batched."""
-    from ..collision import CollisionWorld
-    from ..robot import default_footprint
-    from ..maps import load_map
-
     maps = maps_dir()
     fp = default_footprint("rwd_car")
     rows = []

@@ -8,6 +8,8 @@ import time
 
 import numpy as np
 
+from ..examples import data_root
+
 
 def machine() -> dict:
     import scipy
@@ -27,6 +29,4 @@ def _best(fn, repeats: int) -> tuple[float, float, object]:
 
 def maps_dir():
     """The bundled maps (the package data ``nhstab.data``), so that benchmarks run from an installed wheel."""
-    from ..examples import data_root
-
     return data_root()

@@ -32,6 +32,12 @@ import time
 
 import numpy as np
 
+from ..errors import InputError
+from ..maps import load_map
+from ..parking import read_suite_csv
+from ..planning import PathOptions, plan
+from ..planning.sweep import GAIN_BOUND
+from ..robot import robot_from_spec
 from .common import machine, maps_dir
 
 BUDGET_S = 5.0
@@ -59,13 +65,6 @@ def duration_bound(length_m: float, cusps: int, model) -> float:
 
 def bench_parking(seeds: int = SEEDS, budget_s: float = BUDGET_S, cases=None, progress=None) -> dict:
     """Plan every case of the bundled parking suite (or the named ``cases``) over ``seeds`` seeds."""
-    from ..errors import InputError
-    from ..maps import load_map
-    from ..parking import read_suite_csv
-    from ..planning import PathOptions, plan
-    from ..planning.sweep import GAIN_BOUND
-    from ..robot import robot_from_spec
-
     folder = maps_dir() / "parking"
     rows_csv = read_suite_csv(folder / "suite.csv")
     if cases:

@@ -8,6 +8,18 @@ from pathlib import Path
 
 import numpy as np
 
+from ..collision import CollisionWorld
+from ..errors import InputError
+from ..execution.outputs import write_plan
+from ..maps import load_map
+from ..maps.base import MapError
+from ..planning import PathOptions, plan, pose_columns
+from ..planning.guide import Guide
+from ..planning.problems import random_problems
+from ..records import save_figure
+from ..report.plans import plan_figure
+from ..robot import default_robot
+from ..trajectory_io import write_trajectory
 from .common import machine, maps_dir
 
 #: the scale series: robot -> (Moving AI map, cell size [m], budget [s], why this cell size)
@@ -35,12 +47,6 @@ def bench_planning(pairs: int = 20, budget_s: float = 5.0, seed: int = 2026, lon
     """Time to a feasible, stabilizable nominal (plan + time-parameterisation + clearance check +
     gain schedule) over fixed start/goal pairs on the nav2 depot and a Bench-MR parking world, for the
     unicycle and the rwd car; and the scale series (see :func:`scale_series`)."""
-    from ..collision import CollisionWorld
-    from ..robot import default_robot
-    from ..maps import load_map
-    from ..planning import PathOptions, plan
-    from ..planning.problems import random_problems
-
     maps = maps_dir()
     rows = []
     for label, path in [("nav2 depot", maps / "nav2" / "depot.yaml"),
@@ -110,14 +116,6 @@ def scale_series(robot: str, longest_buckets: int = 4, per_bucket: int = 10, spr
     budget, the median time and the exponent of time against path length fitted over the successes
     (least squares in log-log). Problems whose start or goal the robot does not fit (its footprint
     within the margin of a wall) are skipped and counted."""
-    from ..collision import CollisionWorld
-    from ..errors import InputError
-    from ..maps import load_map
-    from ..maps.base import MapError
-    from ..planning import PathOptions, plan
-    from ..planning.guide import Guide
-    from ..robot import default_robot
-
     name, cell, budget, why = SCALE_SERIES[robot]
     m = load_map(maps_dir() / "bench-mr" / "moving_ai_scenarios" / name, cell_size=cell)
     world = CollisionWorld.from_map(m)
@@ -198,8 +196,6 @@ def _diagnostics_cost(m, rob, world, ok_rows: list[dict], count: int) -> dict | 
     import shutil
     import tempfile
 
-    from ..execution.outputs import write_plan
-    from ..planning import PathOptions, plan
 
     rows = sorted(ok_rows, key=lambda r: -r["duration_s"])[:count]
     if not rows:
@@ -281,11 +277,6 @@ def _command_share(rob, problems: list[int]) -> list[dict]:
 
 def _output_parts(r, m, rob, start, goal, folder: Path) -> dict:
     """The parts of :func:`nhstab.execution.outputs.write_plan`, each timed on its own [s]."""
-    from ..planning import pose_columns
-    from ..records import save_figure
-    from ..report.plans import plan_figure
-    from ..trajectory_io import write_trajectory
-
     nom = r.nominal
     folder.mkdir(parents=True, exist_ok=True)
     parts = {}

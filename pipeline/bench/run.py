@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 
+from ..collision import CollisionWorld
+from ..execution import ControllerOptions, RunOptions, build_law, execute
+from ..maps import load_map
+from ..robot import default_footprint, default_robot
+from ..sensing import RangeSensor
 from .common import _best, machine, maps_dir
 
 #: target of the replan latency's 95th percentile [s] (Nav2 replans at 1 Hz by default; issue 13 asks for
@@ -36,10 +40,6 @@ def bench_run(runs: int = 10) -> dict:
     beside), split into its phases (:data:`PHASES_NOTE`), over ``runs`` seeds of the replanning scenarios
     on the nav2 depot (unicycle) and our warehouse (rwd_car); and the cost of one control update
     (measure -> u, with the feedforward mean over the hold interval and saturation)."""
-    from ..execution import ControllerOptions, RunOptions, build_law, execute
-    from ..robot import default_footprint, default_robot
-    from ..maps import load_map
-
     maps = maps_dir()
     rows = []
     laws = {}
@@ -94,8 +94,6 @@ def bench_run(runs: int = 10) -> dict:
             steps.append({"robot": robot, "controller": kind, "updates": len(taus),
                           "us_per_update": 1e6 * best / len(taus), "us_per_update_median": 1e6 * median / len(taus)})
     # one scan of the run's range sensor (all round, 0.5 degree beams) from random free poses
-    from ..collision import CollisionWorld
-    from ..sensing import RangeSensor
 
     scans = []
     for label, path in [("nav2 depot (604x307 cells, 0.05 m)", maps / "nav2" / "depot.yaml"),

@@ -33,6 +33,28 @@ import time
 
 import numpy as np
 
+from .. import sampled_tube as st
+from .. import tubes
+from ..batch import vector
+from ..control.tube import plant_derivatives, propagate, propagate_loop, saturation
+from ..errors import InputError
+from ..execution import Plant
+from ..execution.config import NoiseOptions, RunOptions
+from ..execution.controllers import build_law
+from ..execution.runner import CompositeRun, planner_seed, seed_for
+from ..maps import load_map
+from ..parking import read_suite_csv
+from ..planning import TimingOptions, plan
+from ..robot import resolve_robot
+from ..sampled_tube import ROLLOUT_SEED_BASE, rollouts_needed, sampled_tube
+from ..tubes import (
+    _spatial,
+    certified_clearance,
+    initial_covariance,
+    pose_indices,
+    predict_tube,
+    run_schedule,
+)
 from .common import _best, machine, maps_dir
 
 SCENARIOS = ("depot_blocked_aisle", "berlin_roadworks", "cluttered_room", "warehouse_aisle_a2", "parking_lot",
@@ -72,10 +94,6 @@ def bench_tube(scenarios=SCENARIOS, repeats: int = 9, cases=PARKING_CASES, auto_
     ``progress(line)``: told of each case as it is done; ``observe(row, run, law, world)``: given each
     auto row with the plan its tube was computed for (the planner's result depends on its time budget
     and the machine's load, so a plan made again may differ)."""
-    from ..control.tube import propagate_loop, saturation
-    from ..execution.config import NoiseOptions
-    from ..tubes import _spatial, initial_covariance, predict_tube, run_schedule
-
     say = progress or (lambda line: None)
     cases = parking_cases(cases)                   # checked before anything is timed
     rows = []
@@ -175,9 +193,6 @@ def bench_tube(scenarios=SCENARIOS, repeats: int = 9, cases=PARKING_CASES, auto_
 def parking_cases(cases) -> list[str]:
     """The parking cases named by ``cases``: "all" (the whole suite, in its order), None or () (none), or
     names of ``maps/parking/suite.csv``."""
-    from ..errors import InputError
-    from ..parking import read_suite_csv
-
     if not cases:
         return []
     names = [r["name"] for r in read_suite_csv(maps_dir() / "parking" / "suite.csv")]
@@ -196,13 +211,6 @@ def _first_plan(where):
     """``nhstab run``'s first plan on the map ``where`` (seed 0, the map's robot, headroom and margin as
     the run's defaults): (robot, run, world, planned, first_s) with ``planned()`` -> (PlanResult,
     FeedbackLaw or None) and first_s the time of a first call (which builds the world's caches)."""
-    from ..execution.config import RunOptions
-    from ..execution.controllers import build_law
-    from ..execution.runner import CompositeRun, planner_seed
-    from ..maps import load_map
-    from ..planning import TimingOptions, plan
-    from ..robot import resolve_robot
-
     m = load_map(where)
     rob = resolve_robot(None, m.robot)
     run = CompositeRun(m, rob, m.start.as_array(), m.goal.as_array(), RunOptions(seed=0))
@@ -223,8 +231,6 @@ def _first_plan(where):
 def run_tube(run, law, world, kind: str = "auto"):
     """The tube of ``nhstab run``'s first plan as the run computes it (CompositeRun._tube_of without the
     verdict): the run's noise, rate, substeps, robot and tube options, certified against ``world``."""
-    from ..tubes import predict_tube
-
     to = run.opts.tube
     return predict_tube(law, run.opts.noise, run.fp, world, rate_hz=run.opts.rate_hz, substeps=run.opts.substeps,
                         model=run.model, probability=to.probability, kind=kind, confidence=to.confidence)
@@ -244,10 +250,6 @@ def _instrumented(world):
     (``world.clearance_many`` inside ``rollout_clearance``) and the rest of its branch and bound (the
     lower bounds of all rollout poses, their sort, the bookkeeping). Yields a dict of seconds per part,
     accumulated until reset by the caller."""
-    from .. import sampled_tube as st
-    from .. import tubes
-    from ..batch import vector
-
     acc = dict.fromkeys(PARTS, 0.0)
     saved = (tubes._linear_tube, tubes.certified_clearance, vector.simulate_shared, st.rollout_clearance)
     world_had = "clearance_many" in world.__dict__
@@ -373,9 +375,6 @@ def _one_rollout(law, seed: int, noise, model, rate_hz: float, substeps: int):
     monitoring or replanning: the law's ``control`` on the measured state, the inputs clipped at the
     robot's limits, ``Plant.step``, the process noise and impulses, the run's seeded generators); returns
     the true states and the nominal's at every sample, (S, n) each, the end sample included."""
-    from ..execution import Plant
-    from ..execution.runner import seed_for
-
     n, names = model.n, model.state_names
     T = 1.0 / rate_hz
     plant = Plant(model, T, substeps)
@@ -416,9 +415,6 @@ def _sampled_baseline(name: str, run, law, world, *, rollouts: int, fast_s: floa
     minimum the certified clearance. Timed (the loop and the clearances apart) and extrapolated to N;
     checked against :func:`nhstab.sampled_tube.sampled_tube` on the same rollouts: the reach per sample
     and the certified clearance agree within 1e-9 m."""
-    from ..sampled_tube import ROLLOUT_SEED_BASE, rollouts_needed, sampled_tube
-    from ..tubes import pose_indices
-
     model, fp, noise = run.model, run.fp, run.opts.noise
     to = run.opts.tube
     N = rollouts_needed(to.probability, to.confidence)
@@ -470,9 +466,6 @@ def _parts(law, noise, model, fp, world, rate_hz: float, substeps: int, repeats:
     """:func:`nhstab.tubes.predict_tube`'s parts, each timed on its own (warm, best of ``repeats``; they need
     not add up to the whole): the sample schedule, the plant's derivatives, the rest of the covariance
     propagation, the saturation bound, the spatial tube and the certified clearance."""
-    from ..control.tube import plant_derivatives, propagate, saturation
-    from ..tubes import _spatial, certified_clearance, initial_covariance, run_schedule
-
     names = model.state_names
     T = 1.0 / rate_hz
     sched = run_schedule(law, T, impulses=noise.impulse_list(names))

@@ -20,6 +20,8 @@ from typing import Callable
 
 import numpy as np
 
+from ..errors import InputError
+
 
 class GridInterpolant:
     """x0 (cubic Hermite), u0 (linear or a given function) and K (linear) on a uniform grid."""
@@ -28,8 +30,6 @@ class GridInterpolant:
                  u_func: Callable | None = None):
         self.t = np.asarray(t, dtype=float)
         if self.t.ndim != 1 or len(self.t) < 2 or not np.all(np.diff(self.t) > 0):
-            from ..errors import InputError
-
             raise InputError("t", "a strictly increasing grid of at least 2 times", f"shape {self.t.shape}")
         self.t0 = float(self.t[0])
         self.t_end = float(self.t[-1])

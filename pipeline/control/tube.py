@@ -72,6 +72,8 @@ from scipy.special import ndtr, owens_t
 from ..errors import InputError, NumericalError
 from ..geometry import cos_sin
 from ..models import Model
+from ..models.rwd_car import RwdCar
+from ..models.unicycle import Unicycle
 from .windows import transposed
 
 
@@ -132,9 +134,6 @@ def _derivatives(model: Model, x: np.ndarray, u: np.ndarray, period: float, subs
     """:func:`plant_derivatives` with the derivatives laid out steps last, (n, n, K) and (n, m, K), as
     :func:`propagate` uses them: each entry's values over the steps contiguous, so that every operation
     on them is one long array operation."""
-    from ..models.rwd_car import RwdCar
-    from ..models.unicycle import Unicycle
-
     if type(model) is Unicycle:
         return _unicycle_derivatives(np.asarray(x, dtype=float), np.asarray(u, dtype=float), period, substeps)
     if type(model) is RwdCar:

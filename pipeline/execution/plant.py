@@ -20,9 +20,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..models import Model
+from ..models.fwd_car import FwdCar
+from ..models.rwd_car import RwdCar
+from ..models.unicycle import Unicycle
 
 try:
-    from numpy._core.umath import clip as _clip          # np.clip's ufunc, without its Python wrapper
+    from numpy._core.umath import (
+        clip as _clip,  # np.clip's ufunc, without its Python wrapper
+    )
 except ImportError:                                       # numpy 1.x
     from numpy.core.umath import clip as _clip
 
@@ -336,10 +341,6 @@ class _UnicycleStack(_StackStep):
 
 
 def _steps() -> tuple[dict, dict]:
-    from ..models.fwd_car import FwdCar
-    from ..models.rwd_car import RwdCar
-    from ..models.unicycle import Unicycle
-
     return ({Unicycle: _unicycle_step, RwdCar: _rwd_car_step, FwdCar: _fwd_car_step},
             {Unicycle: _UnicycleStack, RwdCar: _RwdCarStack, FwdCar: _FwdCarStack})
 
