@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import InputError
+from .geometry import wrap_angle
 
 
 def _states(states) -> np.ndarray:
@@ -105,10 +106,10 @@ def interpolate_states(robot, states: np.ndarray, resolution: float, angular_res
     d = np.diff(states, axis=0)
     angles = list(robot.model.angle_states)
     if angles:
-        d[:, angles] = (d[:, angles] + np.pi) % (2.0 * np.pi) - np.pi
+        d[:, angles] = wrap_angle(d[:, angles])
     poses = robot.body_poses(states)
     moved = np.hypot(*np.moveaxis(np.diff(poses[..., :2], axis=0), -1, 0)).max(axis=1)
-    turned = np.abs((np.diff(poses[..., 2], axis=0) + np.pi) % (2.0 * np.pi) - np.pi).max(axis=1)
+    turned = np.abs(wrap_angle(np.diff(poses[..., 2], axis=0))).max(axis=1)
     steps = np.maximum(1, np.ceil(np.maximum(moved / resolution, turned / angular_resolution))).astype(int)
     seg = np.repeat(np.arange(len(steps)), steps)
     first = np.concatenate([[0], np.cumsum(steps)[:-1]])

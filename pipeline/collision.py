@@ -32,10 +32,22 @@ from dataclasses import dataclass, field
 import fcl
 import numpy as np
 
+from .clearance_field import (
+    FINE_DISCS_PER_WIDTH,
+    ClearanceField,
+    disc_cover,
+    footprint_points,
+)
 from .errors import InputError
-from .clearance_field import FINE_DISCS_PER_WIDTH, ClearanceField, disc_cover, footprint_points
-from .geometry import Footprint, convex_parts, point_polygon_distance, transform_points, wrap_angle
-from .maps.base import Circle, Map, OccupancyGrid, Polygon
+from .geometry import (
+    Footprint,
+    convex_parts,
+    point_polygon_distance,
+    transform_points,
+    wrap_angle,
+)
+from .limits import MAX_WORLD_OBJECTS
+from .maps.base import Circle, Map, MapError, OccupancyGrid, Polygon
 
 _Z = 1.0                 # prisms span z in [-_Z, _Z]
 _WALL = 1.0              # thickness of the boundary walls [m]
@@ -888,8 +900,6 @@ _DISTANCE_REQUEST = fcl.DistanceRequest()
 
 
 def _check_world_size(n: int) -> None:
-    from .limits import MAX_WORLD_OBJECTS
-
     if n > MAX_WORLD_OBJECTS:
         raise InputError("map", f"obstacles that make at most {MAX_WORLD_OBJECTS:,} collision objects (convex parts "
                          "and merged rectangles of occupied cells)", f"{n:,}",
@@ -1154,8 +1164,6 @@ def interpolate_poses(poses: np.ndarray, resolution: float, angular_resolution: 
 def check_poses(m: Map, fp: Footprint, poses: dict, obstacles: str = "all", world: CollisionWorld | None = None) -> dict:
     """Signed clearance of named poses (e.g. {"start": ..., "goal": ...}); raises a MapError naming
     the map and the pose if one lies outside the bounds or its footprint overlaps an obstacle."""
-    from .maps.base import MapError
-
     world = world or CollisionWorld.from_map(m, obstacles)
     out = {}
     for name, pose in poses.items():

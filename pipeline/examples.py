@@ -20,7 +20,8 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-from .errors import InputError
+from .errors import InputError, PipelineError
+from .safe_io import load_yaml_file
 
 #: the prefix that names a bundled example instead of a file
 EXAMPLE_PREFIX = "example:"
@@ -125,8 +126,6 @@ def _describe(name: str, path: Path) -> Example:
         robot = {"car": "rwd_car (car.svg)", "warehouse_robot": "unicycle (warehouse_robot.svg)"}.get(shape or "", "any")
         return Example(name, path, "Bench-MR SVG", robot, "problems" if n else "map",
                        f"polygon world; {n} start/goal problem(s) from polygon_scenarios.csv")
-    from .errors import PipelineError
-    from .safe_io import load_yaml_file
 
     try:
         doc = load_yaml_file(path)
@@ -138,7 +137,9 @@ def _describe(name: str, path: Path) -> Example:
         res = doc.get("resolution")
         return Example(name, path, "ROS map_server", "any", "map",
                        f"occupancy grid at {res} m per cell (give --start and --goal)")
-    from .maps import load_map     # nhstab YAML: load it, so that a base map's robot and obstacles count
+    from .maps import (
+        load_map,  # nhstab YAML: load it, so that a base map's robot and obstacles count
+    )
 
     try:
         m = load_map(path)

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+import shapely
 
 from .errors import InputError
 
@@ -60,6 +61,33 @@ def polygon_area(v: np.ndarray) -> float:
     """Signed area (positive for counter-clockwise)."""
     x, y = v[:, 0], v[:, 1]
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def point_in_polygon(x: float, y: float, v: np.ndarray) -> bool:
+    """Even-odd ray casting, with points on an edge (to 1e-12 relative) counted as inside."""
+    a, b = v, np.roll(v, -1, axis=0)
+    d = b - a
+    p = np.array([x, y], dtype=float)
+    # on an edge?
+    t = np.clip(np.einsum("ij,ij->i", p - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300), 0.0, 1.0)
+    dist = np.hypot(*(a + t[:, None] * d - p).T)
+    scale = max(1.0, float(np.abs(v).max()))
+    if dist.min() <= 1e-12 * scale:
+        return True
+    crosses = (a[:, 1] > y) != (b[:, 1] > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xi = a[:, 0] + (y - a[:, 1]) * d[:, 0] / d[:, 1]
+    return bool(np.count_nonzero(crosses & (x < xi)) % 2)
+
+
+def is_simple_polygon(v: np.ndarray) -> bool:
+    """True if the closed ring ``v`` (k, 2) has no self-intersection, touching or folded-back edges, and
+    no edge of zero length. GEOS's ring simplicity test (shapely), O(k log k)."""
+    v = np.asarray(v, dtype=float)
+    k = len(v)
+    if k < 3 or np.any(np.all(np.roll(v, -1, axis=0) == v, axis=1)):
+        return False
+    return bool(shapely.is_simple(shapely.linearrings(v)))
 
 
 def is_convex(v: np.ndarray, tol: float = 1e-12) -> bool:

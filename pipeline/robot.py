@@ -52,8 +52,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import InputError
+from .geometry import Footprint, polygon_area
 from .limits import number_hint
-from .geometry import Footprint
 from .models import MODELS, Model, make_model
 
 #: per-model defaults: footprint (a YAML footprint spec), planning margin [m], stabilizer, turning
@@ -312,6 +312,7 @@ def robot_from_spec(spec, where: str = "robot", source: str = "default") -> Robo
             if k not in STABILIZER_KEYS:
                 raise InputError(f"{where}.stabilizer.{k}", "one of " + ", ".join(STABILIZER_KEYS), k)
             if k in ("end_strategy", "cusps"):
+                # deferred: control.gramian imports scipy.integrate (heavy); a robot is read without it
                 from .control.gramian import CUSP_HANDLING, END_STRATEGIES
 
                 allowed = END_STRATEGIES if k == "end_strategy" else CUSP_HANDLING
@@ -358,8 +359,6 @@ def parse_footprint(spec, where: str = "footprint", notes: list | None = None) -
     ``{polygon: [[x, y], ...]}``. Repeated consecutive polygon vertices (and a repeated closing
     vertex) are dropped and noted; a polygon must keep >= 3 distinct vertices, be simple and have
     area; the reference point need not lie inside it."""
-    from .geometry import polygon_area
-
     if isinstance(spec, Footprint):
         return spec
     if not isinstance(spec, dict) or len(spec) != 1:
@@ -453,7 +452,7 @@ def load_robot(path) -> Robot:
     under ``robot:``. Errors name the file and the key."""
     from pathlib import Path
 
-    from .execution.config import read_yaml_mapping     # the one YAML reader of configs
+    from .execution.config import read_yaml_mapping  # the one YAML reader of configs
 
     path = Path(path)
     data = read_yaml_mapping(path, "--robot-config", "robot description (YAML)")

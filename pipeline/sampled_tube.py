@@ -44,8 +44,9 @@ import math
 import numpy as np
 
 from .errors import InputError, NumericalError
-from .geometry import Footprint
+from .geometry import Footprint, wrap_angle
 from .limits import MAX_ROLLOUTS
+from .nominal import Nominal
 
 #: the default confidence 1 - beta of the sampled tube's certificate
 DEFAULT_CONFIDENCE = 0.95
@@ -170,7 +171,6 @@ def remaining_law(law, tau: float):
     same grid values of x0, u0 and K from the first grid time at or after tau; None if fewer than three
     grid points are left). For the error tube of the rest of a maneuver."""
     from .execution.controllers import FeedbackLaw
-    from .nominal import Nominal
 
     t = law.t
     i = int(np.searchsorted(t, float(tau) - 1e-9 * max(1.0, abs(float(tau)))))
@@ -262,7 +262,7 @@ def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
         E = X - sched.x0[ks].T[:, :, None]
         for a in angles:
             if np.abs(E[a]).max() >= math.pi:
-                E[a] = (E[a] + math.pi) % (2.0 * math.pi) - math.pi
+                E[a] = wrap_angle(E[a])
         dx, dy = E[ix], E[iy]
         r2 = dx * dx
         r2 += dy * dy

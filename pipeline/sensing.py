@@ -44,6 +44,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .errors import InputError
+from .geometry import wrap_angle
 from .maps.base import Circle, Map, OccupancyGrid, Polygon
 
 HIT_KNOWN = -1          # Scan.hit: a known shape, occupied grid cell or the map boundary
@@ -304,8 +305,8 @@ class RangeSensor:
                 p, e = rel[near], d[near]
                 a1 = np.arctan2(p[:, 1], p[:, 0]) - heading
                 a2 = np.arctan2(p[:, 1] + e[:, 1], p[:, 0] + e[:, 0]) - heading
-                diff = _wrap(a2 - a1)
-                start = _wrap(np.where(diff >= 0, a1, a2))
+                diff = wrap_angle(a2 - a1)
+                start = wrap_angle(np.where(diff >= 0, a1, a2))
                 arc, beam = self._arc_beams(start, np.abs(diff))
                 seg = near[arc]
                 dx, dy = cos[beam], sin[beam]
@@ -326,7 +327,7 @@ class RangeSensor:
             near = np.flatnonzero(dist - self._c_radius <= R)
             if len(near):
                 half = np.arcsin(np.minimum(self._c_radius[near] / dist[near], 1.0))
-                start = _wrap(np.arctan2(rel[near, 1], rel[near, 0]) - heading - half)
+                start = wrap_angle(np.arctan2(rel[near, 1], rel[near, 0]) - heading - half)
                 arc, beam = self._arc_beams(start, 2 * half)
                 c = near[arc]
                 b = cos[beam] * rel[c, 0] + sin[beam] * rel[c, 1]          # projection of the centre
@@ -447,10 +448,6 @@ def _grid_hits(g: _Grid, o, cos, sin, limit: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------------------------------
-
-
-def _wrap(a):
-    return (a + np.pi) % _TWO_PI - np.pi
 
 
 def _pose(pose) -> tuple[float, float, float]:

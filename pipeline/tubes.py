@@ -45,10 +45,22 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.special import ndtri
 
+from .clearance_field import disc_cover
+from .collision import CollisionWorld
 from .control.interpolant import hermite_weights
 from .control.tube import CovariancePropagation, propagate, saturation
-from .errors import InputError, NumericalError
+from .errors import InputError, NumericalError, PipelineError
+from .execution.config import NoiseOptions
+from .execution.controllers import ControllerOptions, build_law
 from .geometry import Footprint
+from .planning import plan
+from .sampled_tube import (
+    DEFAULT_CONFIDENCE,
+    TUBE_KINDS,
+    displacement,
+    linear_validity,
+    sampled_tube,
+)
 
 #: the default probability of the tube
 DEFAULT_PROBABILITY = 0.997
@@ -210,8 +222,6 @@ class Tube:
         state = d2 <= self.state_quantile()
         ix, iy, ith = pose_idx if pose_idx is not None else self.info["pose_indices"]
         if self.kind == "sampled":
-            from .sampled_tube import displacement
-
             moved = self.poses + e[..., [ix, iy, ith]]
             return state, displacement(self.info.get("hull"), moved, self.poses) <= self.reach
         q = 1.0 - (1.0 - self.probability) / 2.0
@@ -297,8 +307,6 @@ def predict_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
     where it holds (:func:`nhstab.sampled_tube.linear_validity`: no input saturation to speak of and no
     interior stop), the sampled one elsewhere; the tube's ``certificate`` says which and why. With a
     world the tube carries its :func:`verdict` (without the plan's margin; call it again with it)."""
-    from .sampled_tube import DEFAULT_CONFIDENCE, TUBE_KINDS, linear_validity, sampled_tube
-
     if not (isinstance(probability, (int, float)) and 0.0 < probability < 1.0):
         raise InputError("probability", "a number in (0, 1)", probability)
     if kind not in TUBE_KINDS:
@@ -410,8 +418,6 @@ def tube_needs(tube, world, fp: Footprint) -> tuple[np.ndarray, np.ndarray, np.n
 def failing_samples(world, fp: Footprint, poses: np.ndarray, reach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The samples whose grown footprint is not clear (c_k < reach_k), and their c_k - reach_k. Samples
     the distance field shows clear are not measured."""
-    from .clearance_field import disc_cover
-
     field = world.clearance_field()
     cand = np.arange(len(poses))
     if field is not None:
@@ -609,9 +615,6 @@ def choose_gains(nominal, defaults: dict, tube_of, window: str = "future", *,
     window does not fit the nominal or whose gramian is singular are skipped. ``tube_of(law)`` -> Tube
     (no world needed). Returns (law, record); if no setting meets the saturation bound, the one with
     the smallest bound, and the record says so."""
-    from .errors import PipelineError
-    from .execution.controllers import ControllerOptions, build_law
-
     rows, best, fallback = [], None, None
     for fa in alphas:
         for fd in deltas:
@@ -772,10 +775,6 @@ def plan_and_tube(m, robot, start, goal, path_options, timing_options, *, margin
     (with "tube_error" saying why) when the linearised loop diverges under the law."""
     from dataclasses import replace
 
-    from .collision import CollisionWorld
-    from .execution.config import NoiseOptions
-    from .execution.controllers import ControllerOptions, build_law
-    from .planning import plan
 
     if gains not in ("default", "auto"):
         raise InputError("--gains", "default or auto", gains)

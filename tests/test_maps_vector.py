@@ -16,8 +16,8 @@ import pytest
 import shapely.geometry as sg
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
 from nhstab.errors import InputError, PipelineError
+from nhstab.geometry import is_simple_polygon, point_in_polygon
 from nhstab.maps import Circle, Map, MapError, Polygon, load_map
 from nhstab.maps.svg import (
     BENCHMR_SCALE,
@@ -26,7 +26,7 @@ from nhstab.maps.svg import (
     load_benchmr_svg,
     parse_path_d,
 )
-from nhstab.maps.yaml_format import is_simple_polygon, load_yaml_map, point_in_polygon
+from nhstab.maps.yaml_format import load_yaml_map
 
 MAPS = Path(__file__).resolve().parents[1] / "maps"
 MAZES = MAPS / "bench-mr" / "polygon_mazes"

@@ -46,6 +46,11 @@ from functools import cached_property
 from pathlib import Path, PurePosixPath
 
 from ..errors import InputError
+from ..examples import resolve_map_path
+from ..limits import MAX_BUNDLE_BYTES, MAX_BUNDLE_FILES
+from ..maps import load_map
+from ..safe_io import not_recorded, read_bytes
+from .trial import MapChangedError
 
 FORMAT = "nhstab map bundle"
 VERSION = 1
@@ -89,10 +94,6 @@ class MapBundle:
         """The bundle of the map at ``path`` (``load_map`` options as for that format). Loads the map
         to learn its files, then reads each once more; a file that changed in between raises
         :class:`~nhstab.batch.trial.MapChangedError`."""
-        from ..examples import resolve_map_path
-        from ..maps import load_map
-        from ..safe_io import not_recorded, read_bytes
-
         given = resolve_map_path(path)
         m = load_map(given, **options)
         records = m.meta["files"]
@@ -114,8 +115,6 @@ class MapBundle:
                     continue
                 data = read_bytes(p, what="map file")
                 if _sha(data) != rec["sha256"]:
-                    from .trial import MapChangedError
-
                     raise MapChangedError(str(given), "map files that do not change while they are read",
                                           f"{p} changed")
                 files[rel] = data
@@ -137,8 +136,6 @@ class MapBundle:
     def unpack(cls, data, source: str = "map bundle") -> "MapBundle":
         """The bundle packed in ``data``, checked (see the module docstring); :class:`BundleError`
         naming ``source`` otherwise."""
-        from ..limits import MAX_BUNDLE_BYTES, MAX_BUNDLE_FILES
-
         def bad(expected, got=None, detail=""):
             return BundleError(source, expected, got, detail=detail)
 
@@ -231,8 +228,6 @@ class MapBundle:
         return m
 
     def _load_fresh(self, options: dict, argument: str):
-        from ..maps import load_map
-
         tmp = Path(tempfile.mkdtemp(prefix="nhstab-map-")).resolve()
         try:
             m = load_map(self.write_into(tmp), **options)

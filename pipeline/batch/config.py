@@ -44,11 +44,23 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..limits import MAX_GAMMA
-from ..execution.config import RunOptions, check_number, check_pose, options_from_mapping, read_yaml_mapping
+from ..collision import CollisionWorld
 from ..control import WINDOWS
+from ..errors import InputError
+from ..examples import resolve_map_path
+from ..execution.config import (
+    RunOptions,
+    check_number,
+    check_pose,
+    options_from_mapping,
+    read_yaml_mapping,
+)
 from ..execution.controllers import CONTROLLERS
+from ..limits import MAX_BATCH_TRIALS, MAX_GAMMA, MAX_SEED, check_int
+from ..planning import PLANNABLE
+from ..robot import robot_from_spec
+from ..tubes import AUTO_MARGIN_START
+from .bundle import MapBundle
 
 _TOP = ("name", "root_seed", "trials", "maps", "robots", "robot", "controllers", "grid", "run")
 _MAP_KEYS = ("path", "problems", "cell_size")
@@ -194,11 +206,6 @@ def load_batch_config(path) -> BatchConfig:
     Each map is read into a bundle (its files' bytes, :mod:`nhstab.batch.bundle`) and loaded from
     that bundle, exactly as every trial will load it, wherever it runs: a map that cannot travel
     (it names a base map or image by an absolute path) is refused here, naming ``maps[i].path``."""
-    from ..examples import resolve_map_path
-    from ..planning import PLANNABLE
-    from .bundle import MapBundle
-    from ..robot import robot_from_spec
-
     path = Path(path)
     data = read_yaml_mapping(path, "CONFIG", "batch config (YAML)")
     for key in data:
@@ -210,7 +217,6 @@ def load_batch_config(path) -> BatchConfig:
     name = data.get("name", path.stem)
     if not isinstance(name, str) or not name:
         raise InputError("name", "a non-empty string", name)
-    from ..limits import MAX_BATCH_TRIALS, MAX_SEED, check_int
 
     root_seed = check_int("root_seed", data["root_seed"], 0, MAX_SEED, "a non-negative integer")
     trials = check_int("trials", data["trials"], 1, MAX_BATCH_TRIALS, "a number of trials per cell")
@@ -312,9 +318,6 @@ def _check_problems(key: str, m, problems, robot, opts) -> None:
     the planning margin (with ``margin: auto``, the margin its first plan asks for), for the robot's
     footprint: what the first plan of every trial would refuse, refused once here instead of stored as
     an error in every trial."""
-    from ..collision import CollisionWorld
-    from ..tubes import AUTO_MARGIN_START
-
     fp = robot.footprint
     margin = opts.planning.margin if opts.planning.margin is not None else robot.margin
     if margin == "auto":                  # the first plan's margin; the search grows it from there

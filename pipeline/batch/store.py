@@ -42,6 +42,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..records import to_jsonable
+from .bundle import BundleError, MapBundle
 
 SCHEMA_VERSION = 2
 #: the schemas this version reads (1: before the maps table)
@@ -275,8 +276,6 @@ class Store:
         """The map stored under ``bundle_id`` (or, for trials that name none, the one map with
         ``content_hash``), unpacked and checked; None if the store has no such map (or, schema 1,
         none at all). A stored map that is not intact raises :class:`StoreError`."""
-        from .bundle import BundleError, MapBundle
-
         if self.schema < 2:
             return None
         bundle_id = bundle_id if isinstance(bundle_id, str) else None       # a spec is data from the file

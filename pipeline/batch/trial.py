@@ -21,6 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, NotStabilizingWarning
+from ..execution import execute, summary
+from ..execution.config import options_from_mapping
+from ..records import to_jsonable
+from ..robot import resolve_robot
 
 #: the error-norm series of a trial is sampled every this many seconds (for the envelopes)
 SERIES_DT = 0.2
@@ -74,8 +78,6 @@ def trial_map(spec: dict, bundle=None):
 def trial_options(spec: dict):
     """The RunOptions of a trial: the batch's base options with the cell's controller, gains, noise
     level, robot and the trial's seed."""
-    from ..execution.config import options_from_mapping
-
     cell = spec["cell_spec"]
     base = options_from_mapping(spec["run"], prefix="run.")
     ctrl = dataclasses.replace(base.controller, kind=cell["controller"],
@@ -115,8 +117,6 @@ def run_trial(spec: dict, bundle=None) -> dict:
 
 
 def _run(spec: dict, bundle=None) -> dict:
-    from ..execution import execute, summary
-    from ..robot import resolve_robot
     from .config import robot_label
 
     cell = spec["cell_spec"]
@@ -202,8 +202,6 @@ def replay_config(record: dict, map_path: str | None = None) -> dict:
     """A run config (the ``nhstab run --config`` format) that replays the trial exactly, on the map
     at ``map_path`` (relative to the config; ``nhstab batch replay`` writes the trial's map files
     beside it), or by default the absolute form of the path the trial records."""
-    from ..records import to_jsonable
-
     opts = trial_options(record["spec"])
     cell = record["spec"]["cell_spec"]
     d = dataclasses.asdict(opts)

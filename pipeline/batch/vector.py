@@ -51,6 +51,7 @@ from ..execution.config import NoiseOptions
 from ..execution.controllers import FeedbackLaw
 from ..execution.plant import Plant, _clip
 from ..execution.runner import _SEED_STREAMS, seed_for
+from ..geometry import wrap_angle
 from ..models import Model
 
 TRIAL_STATUSES = ("completed", "numerical_failure")
@@ -424,7 +425,7 @@ class _Wrap:
         if not self.angles:
             return e
         if self.rows is None:
-            e[self.angles] = (e[self.angles] + math.pi) % (2.0 * math.pi) - math.pi
+            e[self.angles] = wrap_angle(e[self.angles])
             return e
         a = e[self.rows]
         np.add(a, math.pi, out=a)

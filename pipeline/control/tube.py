@@ -70,7 +70,7 @@ from scipy.linalg.lapack import dtbtrs
 from scipy.special import ndtr, owens_t
 
 from ..errors import InputError, NumericalError
-from ..geometry import cos_sin
+from ..geometry import cos_sin, wrap_angle
 from ..models import Model
 from ..models.rwd_car import RwdCar
 from ..models.unicycle import Unicycle
@@ -486,7 +486,7 @@ def propagate(model: Model, t: np.ndarray, x0: np.ndarray, u_ff: np.ndarray, K: 
         idx = list(model.angle_states)
         turn = drift[:, idx]
         if not np.abs(turn).max() < math.pi:           # wrap (only where needed: the miss is ~1e-7)
-            drift[:, idx] = (turn + math.pi) % (2.0 * math.pi) - math.pi
+            drift[:, idx] = wrap_angle(turn)
     if jumps is not None:
         drift = drift + np.asarray(jumps, dtype=float)
     Kt = np.ascontiguousarray(K.transpose(1, 2, 0))                  # (m, n, N)

@@ -55,8 +55,24 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..limits import check_headings
-from ..sensing import SensorOptions
+from ..examples import resolve_map_path
+from ..limits import (
+    MAX_CONTROL_PERIODS,
+    MAX_RATE_HZ,
+    MAX_SEED,
+    MAX_SUBSTEPS,
+    MIN_RATE_HZ,
+    _short_int,
+    check_headings,
+    check_int,
+    check_range,
+    number_hint,
+)
+from ..planning import PLANNERS, SPACES
+from ..robot import robot_from_spec
+from ..safe_io import load_yaml_file
+from ..sampled_tube import TUBE_KINDS, rollouts_needed
+from ..sensing import MAX_BEAMS, SensorOptions
 from .controllers import ControllerOptions
 
 #: default noise per state name: initial error std, sensor std, process intensity [unit/sqrt(s)]; a
@@ -75,8 +91,6 @@ def check_number(key: str, v, lo: float = -math.inf, lo_open: bool = False, inte
     """``v`` as a float (or an int with ``integer``) >= lo (> lo with ``lo_open``), else an InputError
     naming ``key``. Integers of any size are compared exactly (never converted to float first), and
     text such as ``1e9`` (a string to YAML 1.1) gets a hint on how to write it."""
-    from ..limits import _short_int, number_hint
-
     ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
     if ok and isinstance(v, (float, np.floating)):
         ok = math.isfinite(v) and (not integer or float(v).is_integer())
@@ -152,8 +166,6 @@ class MonitorOptions:
     horizon_s: float = 8.0
 
     def validated(self) -> "MonitorOptions":
-        from ..limits import MAX_RATE_HZ
-
         check_number("monitor.rate_hz", self.rate_hz, 0.0, lo_open=True)
         if self.rate_hz > MAX_RATE_HZ:
             raise InputError("monitor.rate_hz", f"a rate in (0, {MAX_RATE_HZ:g}] Hz", self.rate_hz)
@@ -180,8 +192,6 @@ class PlanningOptions:
     fit: bool = False
 
     def validated(self) -> "PlanningOptions":
-        from ..planning import PLANNERS, SPACES
-
         if self.planner not in PLANNERS:
             raise InputError("planning.planner", "one of " + ", ".join(PLANNERS), self.planner)
         if self.space not in SPACES:
@@ -249,8 +259,6 @@ class TubeOptions:
     require_certified: bool = False
 
     def validated(self) -> "TubeOptions":
-        from ..sampled_tube import TUBE_KINDS, rollouts_needed
-
         if self.kind not in TUBE_KINDS:
             raise InputError("tube.kind", "one of " + ", ".join(TUBE_KINDS), self.kind)
         for key in ("probability", "confidence"):
@@ -304,9 +312,6 @@ class RunOptions:
     tube: TubeOptions = field(default_factory=TubeOptions)
 
     def validated(self, state_names, n_inputs: int) -> "RunOptions":
-        from ..limits import (MAX_CONTROL_PERIODS, MAX_RATE_HZ, MAX_SEED, MAX_SUBSTEPS, MIN_RATE_HZ, check_int,
-                              check_range)
-
         check_int("seed", self.seed, 0, MAX_SEED, "a non-negative integer")
         check_range("rate_hz", self.rate_hz, MIN_RATE_HZ, MAX_RATE_HZ, "Hz")
         check_int("substeps", self.substeps, 1, MAX_SUBSTEPS)
@@ -405,8 +410,6 @@ def _section(name: str, data) -> object:
 def _sensor_degrees(data: dict) -> None:
     """``fov_deg`` and ``resolution_deg`` checked in degrees (the errors name the keys the user
     wrote), then converted to the radians of :class:`SensorOptions` in place."""
-    from ..sensing import MAX_BEAMS
-
     fov = None
     if "fov_deg" in data:
         fov = check_number("sensor.fov_deg", data.pop("fov_deg"), 0.0, lo_open=True)
@@ -443,8 +446,6 @@ def options_from_mapping(data: dict, allowed=None, prefix: str = "") -> RunOptio
             elif key in ("start", "goal"):
                 kw[key] = check_pose(key, v)
             elif key == "robot":
-                from ..robot import robot_from_spec
-
                 robot_from_spec(v, where="robot")          # checked here, kept as plain data
                 kw[key] = v
             else:
@@ -461,8 +462,6 @@ def read_yaml_mapping(path: Path, argument: str, what: str) -> dict:
     """A YAML file whose top level is a mapping, read by nhstab's one safe YAML loader
     (:func:`nhstab.safe_io.load_yaml_file`: regular files only, bounded size, nesting and alias
     expansion, duplicate keys refused); errors name ``argument`` (e.g. ``--config``)."""
-    from ..safe_io import load_yaml_file
-
     data = load_yaml_file(path, argument, what)
     if not isinstance(data, dict):
         raise InputError(argument, "a YAML mapping at the top level", type(data).__name__)
@@ -483,7 +482,6 @@ def load_run_config(path) -> tuple[dict, RunOptions]:
     if "map" in data:
         if not isinstance(data["map"], str):
             raise InputError("map", "a path to a map file", data["map"])
-        from ..examples import resolve_map_path
 
         m = resolve_map_path(data["map"])            # example:NAME, or relative to the config
         extra["map"] = m if m.is_absolute() else (path.parent / m)

@@ -23,6 +23,7 @@ import numpy as np
 from ..control import WINDOWS, GainSchedule, StabilizerOptions, compute_schedule
 from ..control.interpolant import GridInterpolant
 from ..errors import InputError, NumericalError
+from ..geometry import wrap_angle
 from ..nominal import Nominal
 
 CONTROLLERS = ("gramian", "tvlqr", "open-loop")
@@ -133,7 +134,7 @@ class FeedbackLaw:
         x0 = interp.state(k, a)
         e = x_measured - x0
         if self._angles:
-            e[self._angles] = (e[self._angles] + math.pi) % (2.0 * math.pi) - math.pi
+            e[self._angles] = wrap_angle(e[self._angles])
         uff = interp.input(k, a) if u_feedforward is None else u_feedforward
         return uff - interp.gain(k, a) @ e, x0, e
 

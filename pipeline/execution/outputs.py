@@ -13,9 +13,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
+from .. import __version__, bodies
+from ..collision import CollisionWorld
 from ..errors import InputError
+from ..planning import pose_columns
+from ..records import OutputFolder
+from ..report.plans import plan_figure
+from ..report.runs import run_map_figure, run_tracking_figure, write_animation
 from ..robot import make_robot
+from ..trajectory_io import float_rows, write_trajectory
 from .runner import MODES, RunResult
 
 #: a cusp's neighbourhood for the per-cusp error statistics [s]
@@ -41,8 +47,6 @@ def csv_columns(result: RunResult) -> list[str]:
 def trajectory_csv(result: RunResult) -> str:
     """The run's samples as CSV text (header, then one row per control sample; every float as its
     shortest round-trip repr), formatted column-wise (:func:`nhstab.trajectory_io.float_rows`)."""
-    from ..trajectory_io import float_rows
-
     lg = result.log
     header = ",".join(csv_columns(result)) + "\n"
     if not len(lg["t"]):
@@ -183,15 +187,11 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
             "per_cusp": _cusps(result, e), "cusp_window_s": CUSP_WINDOW_S, "cusp_min_run_m": CUSP_MIN_RUN_M,
             "error_norm_note": "||x - x0|| over all states in SI units (angles wrapped), as in the paper"})
     # executed clearance, recomputed against every real obstacle
-    from ..collision import CollisionWorld
-    from ..planning import pose_columns
 
     poses = lg["x"][:, pose_columns(model)]
     clearance = {}
     robot = result.robot if result.robot is not None else make_robot(model, footprint=result.footprint)
     if len(poses) and len(robot.footprints) > 1:
-        from .. import bodies
-
         truth = result.world if result.world is not None else CollisionWorld.from_map(result.map, "all")
         c_min, i_min, b_min = bodies.min_clearance(truth, robot, lg["x"])
         margin = result.options.planning.margin
@@ -269,8 +269,6 @@ def write_run(result: RunResult, out_dir, map_path: str | None = None, figures: 
     ``out_dir`` as one output (:class:`nhstab.records.OutputFolder`): an earlier run's files there
     are replaced as a whole, never mixed with these, and ``nhstab-manifest.json`` (last) names them.
     Returns the paths written, the manifest last."""
-    from ..records import OutputFolder
-
     with OutputFolder(out_dir, "run", owned=RUN_FILES + tuple(extra_files or ()),
                       info={"status": result.status}) as out:
         for name, content in (extra_files or {}).items():
@@ -280,13 +278,9 @@ def write_run(result: RunResult, out_dir, map_path: str | None = None, figures: 
                 out.write_text(name, content)
         out.write_text("trajectory.csv", trajectory_csv(result))
         if figures:
-            from ..report.runs import run_map_figure, run_tracking_figure
-
             out.save_figure(run_map_figure(result), "run_map.png")
             out.save_figure(run_tracking_figure(result), "run_tracking.png")
         if animate:
-            from ..report.runs import write_animation
-
             write_animation(result, out.path("run.gif"))
         out.write_json("run.json", summary(result, map_path))
     return out.written
@@ -319,13 +313,10 @@ def write_plan(result, out_dir, m, map_label: str, robot, start, goal, path_opti
 
     import numpy as np
 
-    from ..planning import pose_columns
-    from ..trajectory_io import write_trajectory
 
     started = time.perf_counter()
     if not result.ok:
         raise InputError("result", "a successful plan (result.ok)", result.status)
-    from ..records import OutputFolder
 
     model, footprint = robot.model, robot.footprint
     path_options = path_options.for_robot(robot)
@@ -334,7 +325,6 @@ def write_plan(result, out_dir, m, map_label: str, robot, start, goal, path_opti
         write_trajectory(out.path("trajectory.csv"), nom)
         write_trajectory(out.path("trajectory.npz"), nom)
         if figures:
-            from ..report.plans import plan_figure
             from ..tubes import certified_text
 
             met = result.metrics

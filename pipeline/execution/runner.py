@@ -50,12 +50,22 @@ from .. import bodies
 from ..collision import CollisionWorld, interpolate_poses
 from ..errors import InputError, NumericalError, PipelineError
 from ..geometry import Footprint, wrap_angle
+from ..limits import MAX_CONTROL_PERIODS
+from ..maps import resolve_poses
 from ..maps.base import Circle, Map
 from ..models import Model
-from ..planning import (PathOptions, PlanResult, TimingOptions, plan,
-                        pose_columns)
-from ..sensing import RangeSensor
+from ..planning import (
+    PathOptions,
+    PlanResult,
+    TimingOptions,
+    check_map_budget,
+    check_start_goal,
+    plan,
+    pose_columns,
+)
 from ..robot import Robot, make_robot, resolve_robot
+from ..sampled_tube import cusp_stops, remaining_law, sampled_tube
+from ..sensing import RangeSensor
 from .config import RunOptions
 from .controllers import FeedbackLaw, build_law
 from .plant import Plant
@@ -185,8 +195,6 @@ class CompositeRun:
     """State of one run; :func:`execute` drives it."""
 
     def __init__(self, m: Map, robot: Robot, start, goal, opts: RunOptions):
-        from ..planning import check_map_budget, check_start_goal
-
         model, fp = robot.model, robot.footprint
         check_start_goal(np.asarray(start, dtype=float), np.asarray(goal, dtype=float))
         self.m, self.robot, self.model, self.fp = m, robot, model, fp
@@ -577,8 +585,6 @@ class CompositeRun:
     def _cusp_times(self, rec: PlanRecord) -> list[float]:
         """The plan times of the control samples where the robot comes to rest at the plan's cusps (the
         first sample of each stop whose motion reverses), when ``replan.at_cusps`` is on."""
-        from ..sampled_tube import cusp_stops
-
         if not self.opts.replan.at_cusps or self.multibody or rec.law is None:
             return []
         return [math.ceil(a / self.T - 1e-9) * self.T for a, _ in cusp_stops(rec.law.nominal, self.pose_idx)]
@@ -590,7 +596,6 @@ class CompositeRun:
         taken to finish within the stop (the robot steers in place there; the planning latency is
         measured and recorded), and the new plan is followed from now if its tube is certified clear;
         otherwise the old plan goes on. Returns the new plan, or None."""
-        from ..sampled_tube import remaining_law, sampled_tube
         from ..tubes import verdict
 
         sub = remaining_law(rec.law, tau)
@@ -696,8 +701,6 @@ class CompositeRun:
     def _deadline(self, t_start: float, law: FeedbackLaw) -> float:
         """The simulated time limit: ``max_time_s`` if given; else twice the active nominal's duration
         plus 30 s from when it began (each replan moves it)."""
-        from ..limits import MAX_CONTROL_PERIODS
-
         if self.opts.max_time_s is not None:
             return self.opts.max_time_s
         deadline = t_start + 2.0 * (law.t_end - law.t0) + 30.0
@@ -801,7 +804,6 @@ def execute(m: Map, *args, **kwargs) -> RunResult:
         raise InputError("map", "a Map (nhstab.load_map(path))", type(m).__name__)
     robot = resolve_robot(given.get("robot") if given.get("robot") is not None else opts.robot, m.robot,
                           source="run options" if given.get("robot") is None and opts.robot is not None else "")
-    from ..maps import resolve_poses
 
     start, goal = resolve_poses(m, given.get("start") if given.get("start") is not None else opts.start,
                                 given.get("goal") if given.get("goal") is not None else opts.goal)

@@ -16,8 +16,22 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from .base import Circle, Map, MapError, OccupancyGrid, Polygon, Pose, Problem, box_polygon
-from .yaml_format import is_file
+from ..examples import resolve_map_path
+from ..safe_io import content_digest, load_yaml_file, not_recorded, recording
+from .base import (
+    Circle,
+    Map,
+    MapError,
+    OccupancyGrid,
+    Polygon,
+    Pose,
+    Problem,
+    box_polygon,
+)
+from .movingai import load_movingai_map, load_movingai_scenarios
+from .ros import load_ros_map
+from .svg import benchmr_robot_shapes, load_benchmr_scenarios, load_benchmr_svg
+from .yaml_format import is_file, load_yaml_map
 
 __all__ = ["Map", "Pose", "Polygon", "Circle", "OccupancyGrid", "Problem", "MapError", "box_polygon", "load_map",
            "content_hash", "resolve_poses"]
@@ -54,9 +68,6 @@ def load_map(path: str | Path, **options: Any) -> Map:
     ``meta["files"]`` lists every file read with its SHA-256, and ``meta["content_hash"]`` is their
     combined digest (:func:`content_hash`).
     """
-    from ..examples import resolve_map_path
-    from ..safe_io import content_digest, recording
-
     path = resolve_map_path(path)
     if not is_file(path):
         raise MapError(str(path), "an existing map file", "no such file or not a file")
@@ -96,10 +107,8 @@ def _dispatch(path: Path, options: dict) -> Map:
     if suffix in (".yaml", ".yml"):
         if _is_ros_yaml(path):
             _check_options(path, "ros", options)
-            from .ros import load_ros_map
             return load_ros_map(path, **options)
         _check_options(path, "yaml", options)
-        from .yaml_format import load_yaml_map
         return load_yaml_map(path)
     raise MapError(str(path), "a map file ending in .svg, .map, .yaml or .yml", path.suffix or "no extension")
 
@@ -123,7 +132,6 @@ def _scenario_path(value: Any, default: Path) -> Path | None:
 
 
 def _load_svg(path: Path, convex_hull: bool = False, scenarios: Any = True) -> Map:
-    from .svg import benchmr_robot_shapes, load_benchmr_scenarios, load_benchmr_svg
     if not isinstance(convex_hull, bool):
         raise InputError("convex_hull", "True or False", convex_hull)
     m = load_benchmr_svg(path, convex_hull=convex_hull)
@@ -139,7 +147,6 @@ def _load_svg(path: Path, convex_hull: bool = False, scenarios: Any = True) -> M
 
 
 def _load_movingai(path: Path, cell_size: float = 1.0, scenarios: Any = True) -> Map:
-    from .movingai import load_movingai_map, load_movingai_scenarios
     m = load_movingai_map(path, cell_size=cell_size)
     scen = _scenario_path(scenarios, path.with_name(path.name + ".scen"))
     if scen is None or m.problems:
@@ -152,8 +159,6 @@ def _load_movingai(path: Path, cell_size: float = 1.0, scenarios: Any = True) ->
 def _is_ros_yaml(path: Path) -> bool:
     """Whether a YAML file's top level is a mapping with an ``image`` key (ROS map_server metadata).
     Read with the safe loader, and not recorded: the loader that follows reads the file again."""
-    from ..safe_io import load_yaml_file, not_recorded
-
     with not_recorded():
         doc = load_yaml_file(path, what="YAML map file", error=MapError)
     return isinstance(doc, dict) and "image" in doc

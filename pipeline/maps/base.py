@@ -19,7 +19,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import InputError
-from ..limits import MAX_CELL_M, MAX_COORD_M, MAX_GRID_CELLS, MIN_CELL_M
+from ..geometry import is_simple_polygon, polygon_area
+from ..limits import MAX_CELL_M, MAX_COORD_M, MAX_GRID_CELLS, MIN_CELL_M, check_range
 
 
 def check_extent(what: str, values) -> None:
@@ -38,8 +39,6 @@ def check_grid_size(what: str, rows: int, cols: int) -> None:
 
 def check_cell_size(what: str, value) -> float:
     """A grid cell size within [MIN_CELL_M, MAX_CELL_M] metres, or an InputError naming ``what``."""
-    from ..limits import check_range
-
     return check_range(what, value, MIN_CELL_M, MAX_CELL_M, "m per cell")
 
 
@@ -72,24 +71,22 @@ class Polygon:
         if not np.all(np.isfinite(v)):
             raise InputError("polygon", "finite vertex coordinates", "NaN or inf")
         check_extent("polygon", v)
-        if signed_area(v) < 0:
+        if polygon_area(v) < 0:
             v = v[::-1]
         object.__setattr__(self, "vertices", np.ascontiguousarray(v))
 
     @property
     def area(self) -> float:
-        return abs(signed_area(self.vertices))
+        return abs(polygon_area(self.vertices))
 
     @cached_property
     def parts(self) -> "RingParts":
         """The ring split into its area (a simple counter-clockwise ring, or None) and its thin
         segments (m, 2, 2) (:func:`ring_parts`). A ring that does not split so (it crosses or touches
         itself) is all area, as it was drawn."""
-        from .yaml_format import is_simple_polygon
-
         v = self.vertices
-        if abs(signed_area(v)) > 1e-12 * max(1.0, float(np.abs(v).max())) ** 2 and is_simple_polygon(v):
-            return RingParts(v if signed_area(v) > 0 else v[::-1], np.zeros((0, 2, 2)))   # all area (fast)
+        if abs(polygon_area(v)) > 1e-12 * max(1.0, float(np.abs(v).max())) ** 2 and is_simple_polygon(v):
+            return RingParts(v if polygon_area(v) > 0 else v[::-1], np.zeros((0, 2, 2)))   # all area (fast)
         try:
             return ring_parts(v)
         except ValueError:
@@ -232,11 +229,6 @@ class Map:
         return self.bounds[2] - self.bounds[0], self.bounds[3] - self.bounds[1]
 
 
-def signed_area(v: np.ndarray) -> float:
-    x, y = v[:, 0], v[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
-
-
 class RingParts(NamedTuple):
     """A polygon's ring split by :func:`ring_parts`: ``area`` a simple counter-clockwise ring (k, 2) or
     None; ``segments`` (m, 2, 2) the pieces traversed back and forth (zero thickness)."""
@@ -329,13 +321,11 @@ def ring_parts(v) -> RingParts:
     dot = np.einsum("ij,ij->i", R - prev, nextv - R)
     straight = (np.abs(cross) <= tol * scale) & (dot > 0)
     R = R[~straight] if (~straight).sum() >= 3 else R
-    if len(R) < 3 or abs(signed_area(R)) <= 1e-12 * scale * scale:
+    if len(R) < 3 or abs(polygon_area(R)) <= 1e-12 * scale * scale:
         raise ValueError("the ring's area part has no area")
-    from .yaml_format import is_simple_polygon
-
     if not is_simple_polygon(R):
         raise ValueError("the ring's area part crosses itself")
-    return RingParts(R if signed_area(R) > 0 else R[::-1], segments)
+    return RingParts(R if polygon_area(R) > 0 else R[::-1], segments)
 
 
 def polyline(points) -> Polygon:

@@ -33,7 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .base import Map, MapError, OccupancyGrid, Pose, Problem
+from ..errors import InputError
+from ..limits import MAX_CELL_M, MAX_COORD_M, MIN_CELL_M
+from ..safe_io import read_bytes
+from .base import Map, MapError, OccupancyGrid, Pose, Problem, check_grid_size
 
 __all__ = [
     "FREE_CHARACTERS",
@@ -190,8 +193,6 @@ def load_movingai_scenarios(path, cell_size: float = 1.0, map_height: int | None
 
 
 def _check_cell_size(cell_size, path: Path) -> float:
-    from ..limits import MAX_CELL_M, MIN_CELL_M
-
     if isinstance(cell_size, bool) or not isinstance(cell_size, (int, float, np.integer, np.floating)):
         raise MapError("cell_size", "a positive finite number of metres per cell", cell_size, detail=f"loading {path}")
     value = float(cell_size)
@@ -203,10 +204,6 @@ def _check_cell_size(cell_size, path: Path) -> float:
 
 def _map_limits(path: Path, height: int, width: int, cell_size: float) -> None:
     """The grid's size and extent against nhstab.limits, before anything is allocated."""
-    from ..errors import InputError
-    from ..limits import MAX_COORD_M
-    from .base import check_grid_size
-
     try:
         check_grid_size("grid", height, width)
     except InputError as exc:
@@ -218,8 +215,6 @@ def _map_limits(path: Path, height: int, width: int, cell_size: float) -> None:
 
 def _read_lines(path: Path) -> list[str]:
     """The file's lines without line endings (LF or CRLF); non-ASCII bytes are errors."""
-    from ..safe_io import read_bytes
-
     raw = read_bytes(path, what="Moving AI file", error=MapError)
     try:
         text = raw.decode("ascii")

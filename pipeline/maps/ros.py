@@ -49,7 +49,8 @@ import numpy as np
 from PIL import Image as _PILImage
 
 from ..errors import InputError
-from ..safe_io import read_bytes
+from ..limits import MAX_CELL_M, MAX_COORD_M, MAX_GRID_CELLS, MIN_CELL_M
+from ..safe_io import load_yaml_file, read_bytes
 from .base import Map, MapError, OccupancyGrid
 
 __all__ = [
@@ -218,8 +219,6 @@ def map_server_values(image: RasterImage, mode: str = "trinary", negate: bool = 
 def read_map_yaml(path) -> RosMapParams:
     """Read and validate a map_server YAML file (strict: only the map_server keys), with nhstab's
     safe YAML loader (:mod:`nhstab.safe_io`)."""
-    from ..safe_io import load_yaml_file
-
     path = Path(path)
     doc = load_yaml_file(path, what="map YAML file", error=MapError)
     if not isinstance(doc, dict):
@@ -241,7 +240,6 @@ def read_map_yaml(path) -> RosMapParams:
         image_path = path.parent / image_path
 
     resolution = _number(path, "resolution", doc["resolution"])
-    from ..limits import MAX_CELL_M, MAX_COORD_M, MIN_CELL_M
 
     if not MIN_CELL_M <= resolution <= MAX_CELL_M:
         raise MapError(f"{path}:resolution", f"a number of metres per pixel in [{MIN_CELL_M:g}, {MAX_CELL_M:g}]",
@@ -448,8 +446,6 @@ def _read_with_pillow(data: bytes) -> RasterImage:
 
 
 def _check_pixels(width: int, height: int) -> None:
-    from ..limits import MAX_GRID_CELLS
-
     if width * height > MAX_GRID_CELLS:
         raise _ImageProblem(f"an image of at most {MAX_GRID_CELLS:,} pixels (4096 x 4096)",
                             f"{width} x {height} = {width * height:,} pixels")

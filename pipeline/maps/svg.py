@@ -37,8 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..geometry import is_simple_polygon, polygon_area
+from ..limits import MAX_COORD_M
 from ..safe_io import read_bytes, read_text
-from .base import Map, MapError, Polygon, Pose, Problem, signed_area
+from .base import Map, MapError, Polygon, Pose, Problem, ring_parts
 
 BENCHMR_SCALE = 1.0 / 22.0
 """World units per SVG user unit in the Bench-MR polygon worlds (``polygon.scaling`` = 0.0454545)."""
@@ -202,22 +204,18 @@ def convex_hull_2d(points: np.ndarray) -> np.ndarray:
 
 
 def _polygon(v: np.ndarray, path: Path, what: str) -> Polygon:
-    from ..limits import MAX_COORD_M
-    from .base import ring_parts
-    from .yaml_format import is_simple_polygon
-
     v = _clean_ring(v)
     if len(v) and not float(np.max(np.abs(v))) <= MAX_COORD_M:
         raise MapError(f"{path.name}: {what}", f"coordinates within +-{MAX_COORD_M:g} m",
                        f"{float(np.max(np.abs(v))):.6g} m")
     if len(np.unique(v, axis=0)) < 2:
         raise MapError(f"{path.name}: {what}", "a path of at least 2 distinct vertices", f"{len(v)} vertices")
-    if len(v) >= 3 and abs(signed_area(v)) > 1e-12 and is_simple_polygon(v):
+    if len(v) >= 3 and abs(polygon_area(v)) > 1e-12 and is_simple_polygon(v):
         return Polygon(v)
     try:
         ring_parts(v)               # thin (zero area), or an area part with thin spikes
     except ValueError as exc:
-        if len(v) >= 3 and abs(signed_area(v)) > 1e-12:
+        if len(v) >= 3 and abs(polygon_area(v)) > 1e-12:
             return Polygon(v)       # as before: kept as drawn (triangulated by the collision world)
         raise MapError(f"{path.name}: {what}", "a polygon, or a path of zero area (a thin obstacle)",
                        f"{len(v)} vertices", detail=str(exc)) from None

@@ -76,8 +76,25 @@ from typing import Any
 import numpy as np
 
 from ..errors import PipelineError
-from .base import (Circle, Map, MapError, OccupancyGrid, Polygon, Pose, Problem, Shape, box_polygon, polyline,
-                   ring_parts, signed_area)
+from ..geometry import is_simple_polygon, point_in_polygon, polygon_area
+from ..limits import MAX_COORD_M, MAX_YAML_BYTES, number_hint
+from ..robot import robot_from_spec
+from ..safe_io import load_yaml, read_text
+from .base import (
+    Circle,
+    Map,
+    MapError,
+    OccupancyGrid,
+    Polygon,
+    Pose,
+    Problem,
+    Shape,
+    box_polygon,
+    polyline,
+    ring_parts,
+)
+from .movingai import load_movingai_map, load_movingai_scenarios
+from .ros import load_ros_map
 
 _TOP_KEYS = ("name", "description", "bounds", "base", "obstacles", "unknown_obstacles", "start", "goal", "robot")
 _BASE_KEYS = {
@@ -90,15 +107,12 @@ _BASE_KEYS = {
 _MAX_BASE_NESTING = 4
 _nesting = [0]
 _MAX_DEPTH = 64
-from ..limits import MAX_COORD_M as MAX_ABS  # noqa: E402
-"""Largest magnitude accepted for any number in a YAML map (keeps products of coordinates finite)."""
+#: largest magnitude accepted for any number in a YAML map (keeps products of coordinates finite)
+MAX_ABS = MAX_COORD_M
 
 
 def load_yaml_map(path: str | Path) -> Map:
     """Load a map in nhstab's YAML format (see the module docstring) with strict validation."""
-    from ..limits import MAX_YAML_BYTES
-    from ..safe_io import read_text
-
     path = Path(path)
     text = read_text(path, what="YAML map file", limit=MAX_YAML_BYTES, error=MapError)
     return parse_yaml_map(text, path)
@@ -106,8 +120,6 @@ def load_yaml_map(path: str | Path) -> Map:
 
 def parse_yaml_map(text: str, path: str | Path) -> Map:
     """Build a :class:`Map` from YAML ``text``; ``path`` names it in errors and anchors relative paths."""
-    from ..safe_io import load_yaml
-
     path = Path(path)
     return _Reader(path).map(load_yaml(text, str(path), MapError))
 
@@ -128,42 +140,12 @@ def point_in_shape(x: float, y: float, shape: Shape) -> bool:
     return point_in_polygon(x, y, shape.vertices)
 
 
-def point_in_polygon(x: float, y: float, v: np.ndarray) -> bool:
-    """Even-odd ray casting, with points on an edge (to 1e-12 relative) counted as inside."""
-    a, b = v, np.roll(v, -1, axis=0)
-    d = b - a
-    p = np.array([x, y], dtype=float)
-    # on an edge?
-    t = np.clip(np.einsum("ij,ij->i", p - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300), 0.0, 1.0)
-    dist = np.hypot(*(a + t[:, None] * d - p).T)
-    scale = max(1.0, float(np.abs(v).max()))
-    if dist.min() <= 1e-12 * scale:
-        return True
-    crosses = (a[:, 1] > y) != (b[:, 1] > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xi = a[:, 0] + (y - a[:, 1]) * d[:, 0] / d[:, 1]
-    return bool(np.count_nonzero(crosses & (x < xi)) % 2)
-
-
 def point_in_grid(x: float, y: float, grid: OccupancyGrid) -> bool:
     """Whether (x, y) lies in an occupied cell of ``grid`` (points outside the grid are not)."""
     i, j = grid.world_to_cell(x, y)
     i, j = int(i), int(j)
     h, w = grid.shape
     return 0 <= i < h and 0 <= j < w and bool(grid.occupied[i, j])
-
-
-def is_simple_polygon(v: np.ndarray) -> bool:
-    """True if the closed ring ``v`` (k, 2) has no self-intersection, touching or folded-back edges, and
-    no edge of zero length. GEOS's ring simplicity test (shapely), O(k log k): a 40,000-vertex ring in
-    milliseconds, where the pairwise test it replaced allocated k x k arrays."""
-    import shapely
-
-    v = np.asarray(v, dtype=float)
-    k = len(v)
-    if k < 3 or np.any(np.all(np.roll(v, -1, axis=0) == v, axis=1)):
-        return False
-    return bool(shapely.is_simple(shapely.linearrings(v)))
 
 
 class _Reader:
@@ -195,8 +177,6 @@ class _Reader:
 
     def number(self, value: Any, key: str) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            from ..limits import number_hint
-
             raise self.err(key, "a number", _type_name(value) if not isinstance(value, str) else value,
                            detail=number_hint(value))
         try:
@@ -268,7 +248,7 @@ class _Reader:
         v = cleaned
         if len(np.unique(v, axis=0)) < 2:
             raise self.err(key, "at least 2 distinct [x, y] points", f"{len(np.unique(v, axis=0))} distinct")
-        if is_simple_polygon(v) and abs(signed_area(v)) > 1e-12 * max(1.0, float(np.abs(v).max())) ** 2:
+        if is_simple_polygon(v) and abs(polygon_area(v)) > 1e-12 * max(1.0, float(np.abs(v).max())) ** 2:
             return Polygon(v)
         # not simple: edges drawn out and back are thin parts (zero thickness); the rest must be simple
         try:
@@ -309,8 +289,6 @@ class _Reader:
 
     def robot(self, value: Any) -> dict:
         """The robot block, checked as a robot description (nhstab.robot) and kept as plain data."""
-        from ..robot import robot_from_spec
-
         if isinstance(value, str):
             value = {"model": value}
         spec = value if isinstance(value, dict) else None
@@ -382,10 +360,8 @@ class _Reader:
                 finally:
                     _nesting[0] -= 1
             elif fmt == "ros":
-                from .ros import load_ros_map
                 base = load_ros_map(target, unknown=unknown)
             elif fmt == "movingai":
-                from .movingai import load_movingai_map, load_movingai_scenarios
                 base = load_movingai_map(target, cell_size=cell)
                 if scen is not None:
                     height = base.grids[0].shape[0] if base.grids else None

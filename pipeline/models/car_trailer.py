@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..geometry import wrap_angle
 from .base import Model, positive_param
 
 #: the most trailers a model may tow (a bound on the state's size, not a physical limit)
@@ -111,7 +112,7 @@ class CarTrailer(Model):
         """theta_(i-1) - theta_i for i = 1 .. N, wrapped to [-pi, pi); shape (..., N)."""
         x = np.asarray(x, dtype=float)
         h = x[..., self.heading_columns]
-        return (h[..., :-1] - h[..., 1:] + np.pi) % (2.0 * np.pi) - np.pi
+        return wrap_angle(h[..., :-1] - h[..., 1:])
 
     def body_poses(self, x) -> np.ndarray:
         """Pose (x, y, heading) of every body's reference point, shape (..., N + 1, 3): the car's rear

@@ -19,12 +19,21 @@ import numpy as np
 from ..collision import CollisionWorld, check_poses
 from ..control import GainSchedule, StabilizerOptions, compute_schedule
 from ..errors import InputError, SingularGramianError
-from ..limits import check_headings
+from ..geometry import wrap_angle
+from ..limits import FCL_CHECK_S, check_headings
 from ..maps.base import Map
 from ..models import Model
 from ..nominal import Nominal
 from ..robot import Robot, default_robot, make_robot
-from .geometric import PLANNERS, SPACES, GeometricPath, PathOptions, path_length, plan_path
+from .cars import CarPlanningError, car_nominal, exact_nominal
+from .geometric import (
+    PLANNERS,
+    SPACES,
+    GeometricPath,
+    PathOptions,
+    path_length,
+    plan_path,
+)
 from .parking import CarOptions, car_paths, failed_path
 from .timing import TimingOptions, unicycle_nominal
 
@@ -53,8 +62,6 @@ def check_map_budget(m: Map, time_limit_s: float, resolution: float = 0.05) -> N
     (:data:`nhstab.limits.FCL_CHECK_S`), must fit in ``time_limit_s``. Below that, the search and
     its simplification keep within the budget, and the distance field and collision world are
     bounded in size (:mod:`nhstab.limits`)."""
-    from ..limits import FCL_CHECK_S
-
     w, h = m.size
     diagonal = math.hypot(w, h)
     largest = time_limit_s * resolution / FCL_CHECK_S
@@ -72,8 +79,6 @@ SAME_POSE_M, SAME_POSE_RAD = 1e-6, 1e-6
 
 def check_start_goal(start: np.ndarray, goal: np.ndarray) -> None:
     """Refuse a goal equal to the start (one line naming ``goal``)."""
-    from ..geometry import wrap_angle
-
     if math.hypot(*(goal[:2] - start[:2])) <= SAME_POSE_M and abs(float(wrap_angle(goal[2] - start[2]))) <= SAME_POSE_RAD:
         raise InputError("goal", "a pose different from the start (nothing to plan: the robot is there)",
                          np.round(goal, 6).tolist())
@@ -276,8 +281,6 @@ def _from_path(path: GeometricPath, robot: Robot, world: CollisionWorld, path_op
     if model.name == "unicycle":
         nominal, tinfo = unicycle_nominal(model, path, timing_opts)
     else:
-        from .cars import CarPlanningError, car_nominal, exact_nominal
-
         try:
             if car_opts.nominal == "exact":
                 nominal, tinfo = exact_nominal(model, path, timing_opts, arc_speed=car_opts.arc_speed_mps)

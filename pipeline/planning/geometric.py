@@ -50,7 +50,9 @@ import numpy as np
 from ..collision import CollisionWorld
 from ..errors import InputError
 from ..geometry import Footprint, wrap_angle
+from ..limits import MAX_PLANNER_SEED, check_int
 from . import local_paths
+from .guide import Guide
 
 PLANNERS = ("rrtconnect", "rrt", "rrtstar", "informedrrtstar", "bitstar", "prmstar", "prm", "kpiece", "fmt")
 SPACES = ("reeds_shepp", "dubins")
@@ -95,7 +97,6 @@ class PathOptions:
         if self.margin is not None and not (isinstance(self.margin, (int, float)) and not isinstance(self.margin, bool)
                                             and math.isfinite(self.margin) and self.margin >= 0):
             raise InputError("margin", "a finite number >= 0", self.margin)
-        from ..limits import MAX_PLANNER_SEED, check_int
 
         check_int("seed", self.seed, 0, MAX_PLANNER_SEED, "an integer (OMPL's seed)")
         for key in ("simplify", "guide"):
@@ -435,8 +436,6 @@ def _plan_path(world: CollisionWorld, fp: Footprint, start, goal, opts: PathOpti
 def _guided(search: _Search, start, goal, info: dict):
     """The guided search (module docstring, step 2): waypoints (W, 3) joined by free local paths, or
     None (no guide path, or a gap that OMPL did not bridge in its share of the budget)."""
-    from .guide import Guide
-
     opts, world = search.opts, search.world
     guide = Guide(world.clearance_field(), search.fp, opts.margin, start, goal,
                   cache=world.cache.setdefault("guide", {}))

@@ -61,11 +61,20 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..clearance_field import disc_cover
 from ..collision import CollisionWorld
 from ..errors import InputError
 from ..geometry import Footprint, wrap_angle
 from ..models import Model
-from .geometric import GeometricPath, PathOptions, local_length, local_path, local_segments, path_directions, plan_path
+from .geometric import (
+    GeometricPath,
+    PathOptions,
+    local_length,
+    local_path,
+    local_segments,
+    path_directions,
+    plan_path,
+)
 
 #: samples of the exact maneuvers and of the joined path [m] (as the geometric paths are sampled)
 SAMPLE_STEP = 0.005
@@ -500,7 +509,6 @@ def _shuffle(world: CollisionWorld, fp: Footprint, model: Model, root, margin: f
     (candidates, exhausted: no open pose left, poses expanded, poses checked)."""
     import heapq
 
-    from ..clearance_field import disc_cover
 
     L = float(model.wheelbase)
     phi_lock = float(model.max_steer) - opts.steering_reserve_rad

@@ -77,13 +77,14 @@ import numpy as np
 
 from .. import bodies
 from ..collision import CollisionWorld
-from ..limits import nominal_grid
 from ..control import StabilizerOptions, compute_schedule
 from ..errors import InputError, PipelineError, SingularGramianError
 from ..geometry import wrap_angle
+from ..limits import nominal_grid
 from ..maps.base import Map, MapError
 from ..nominal import Nominal
-from . import local_paths
+from . import PlanResult, local_paths
+from .cars import direction_reversals
 from .geometric import GeometricPath, PathOptions, densify, path_directions, plan_path
 from .timing import TimingOptions
 from .trailer_charts import steer_trailer
@@ -505,7 +506,6 @@ def trailer_nominal(robot, path: GeometricPath, timing: TimingOptions, world: Co
     t_tail = np.linspace(0.0, TAIL_S, int(round(TAIL_S / timing.dt)) + 1)
     nominal.tail = Nominal.from_inputs(model, lambda tau: np.tile([v_end, 0.0], (np.size(tau), 1)),
                                        nominal.x[-1], t_tail)
-    from .cars import direction_reversals
 
     hitches = model.hitch_angles(nominal.x)[:, 0]
     return nominal, {"duration_s": joined.duration, "tracked_s": float(t_track[-1]), "final_piece_s": piece.T,
@@ -564,8 +564,6 @@ def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts
     """:func:`nhstab.planning.plan` for a car_trailer with one trailer (module docstring). ``start`` and
     ``goal``: poses (x, y, theta) with the trailer in line, configurations (x, y, theta, theta1), or
     full states."""
-    from . import PlanResult
-
     model = robot.model
     if model.trailers != 1:
         raise InputError("robot", "a car_trailer with one trailer (nhstab plans N = 1; the model itself takes "

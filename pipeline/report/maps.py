@@ -9,7 +9,9 @@ from matplotlib import patches
 from matplotlib.artist import Artist
 from matplotlib.transforms import Affine2D
 
+from ..collision import check_poses, grid_rectangles
 from ..maps.base import Circle, Map, Polygon
+from ..maps.raster import free_fraction
 from . import subplots
 
 KNOWN = "#4a4a4a"
@@ -204,9 +206,6 @@ def map_summary(m: Map, footprint=None) -> dict:
     """The facts ``nhstab map info`` prints: bounds, size, grids (cells, resolution, occupied, unknown,
     merged boxes), obstacle counts, free fraction, problems, start, goal, robot, and, with a
     footprint, the start's and goal's clearance (FCL)."""
-    from ..collision import check_poses, grid_rectangles
-    from ..maps.raster import free_fraction
-
     frac, cell = free_fraction(m)
     grids = []
     for g in m.grids:

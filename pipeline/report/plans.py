@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib import patches
 
-from .maps import add_shape, map_figure, map_legend
+from .maps import add_shape, draw_rig, map_figure, map_legend
 
 
 def grown_outline(fp, pose, radius: float, arc_points: int = 8) -> np.ndarray:
@@ -68,8 +68,6 @@ def plan_figure(m, poses, direction, fp, start, goal, title=None, footprints: in
         ax.plot(poses[:, 0], rev, color="tab:purple", lw=1.6, ls="--", label="nominal, reverse")
     for k in np.linspace(0, len(poses) - 1, footprints).astype(int)[1:-1]:
         if rig is not None:
-            from .maps import draw_rig
-
             draw_rig(ax, rig, states[k], color="tab:orange", fill=False, lw=0.7)
             continue
         add_shape(ax, patches.Polygon(fp.outline_at(poses[k]), closed=True, fill=False, edgecolor="tab:orange",

@@ -7,8 +7,11 @@ import numpy as np
 from matplotlib import patches
 
 from ..maps.base import Circle
+from ..planning import pose_columns
+from ..records import _atomic_write
 from . import subplots
-from .maps import map_figure, map_legend
+from .maps import draw_rig, map_figure, map_legend
+from .plans import draw_tube
 
 MODE_TEXT = ("tracking", "stopped: replanning", "done")
 PLAN_COLORS = ("tab:orange", "tab:purple", "tab:cyan", "tab:olive", "tab:brown", "tab:pink")
@@ -23,8 +26,6 @@ def _draw_discovered(ax, shape):
 
 
 def _poses(result, x):
-    from ..planning import pose_columns
-
     return x[:, pose_columns(result.model)]
 
 
@@ -47,7 +48,6 @@ def run_map_figure(result, footprints: int = 12):
         _draw_discovered(ax, shape)
         c = np.asarray(shape.center if isinstance(shape, Circle) else shape.vertices.mean(axis=0))
         ax.annotate(f"seen {d['time_s']:.1f} s", c, fontsize=6, color="tab:red", ha="center")
-    from .plans import draw_tube
 
     for rec in result.plans:
         if getattr(rec, "tube", None) is not None:
@@ -63,7 +63,6 @@ def run_map_figure(result, footprints: int = 12):
         p = _poses(result, lg["x"])
         ax.plot(p[:, 0], p[:, 1], color="k", lw=1.0, label="executed")
         if rig is not None:         # every body, and the trailers' axle paths
-            from .maps import draw_rig
 
             tp = rig.body_poses(lg["x"])
             for b in range(1, tp.shape[1]):
@@ -137,7 +136,6 @@ def write_animation(result, path, fps: int = 8, max_frames: int = 120, dpi: int 
     GIF."""
     from PIL import Image
 
-    from ..records import _atomic_write
 
     lg = result.log
     p = _poses(result, lg["x"])
