@@ -55,6 +55,7 @@ from .errors import InputError
 from .geometry import Footprint, polygon_area
 from .limits import number_hint
 from .models import MODELS, Model, make_model
+from .safe_io import read_yaml_mapping
 
 #: per-model defaults: footprint (a YAML footprint spec), planning margin [m], stabilizer, turning
 #: radius rule (("fixed", metres) or ("factor", multiple of the minimum turning radius))
@@ -452,7 +453,6 @@ def load_robot(path) -> Robot:
     under ``robot:``. Errors name the file and the key."""
     from pathlib import Path
 
-    from .execution.config import read_yaml_mapping  # the one YAML reader of configs
 
     path = Path(path)
     data = read_yaml_mapping(path, "--robot-config", "robot description (YAML)")

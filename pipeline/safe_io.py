@@ -151,6 +151,19 @@ def load_yaml_file(path, argument: str | None = None, what: str = "YAML file", e
     return load_yaml(text, f"{argument} {path}" if argument else str(path), error)
 
 
+def read_yaml_mapping(path: Path, argument: str, what: str) -> dict:
+    """A YAML file whose top level is a mapping, read by nhstab's one safe YAML loader
+    (:func:`load_yaml_file`: regular files only, bounded size, nesting and alias
+    expansion, duplicate keys refused); errors name ``argument`` (e.g. ``--config``)."""
+    data = load_yaml_file(path, argument, what)
+    if not isinstance(data, dict):
+        raise InputError(argument, "a YAML mapping at the top level", type(data).__name__)
+    for key in data:
+        if not isinstance(key, str):
+            raise InputError(argument, "a mapping with text keys", key)
+    return data
+
+
 def load_yaml(text: str, source: str, error=InputError):
     """Parse one YAML document safely (see the module docstring); ``source`` names it in errors.
 

@@ -498,12 +498,12 @@ def test_a_run_over_an_earlier_one_never_mixes_them(tmp_path, monkeypatch):
         assert entry["sha256"] == first[name]
 
     # interrupted just after the new trajectory.csv is written: the earlier run stays whole
-    from nhstab.report import runs
+    from nhstab.execution import outputs
 
     def interrupted(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(runs, "run_map_figure", interrupted)
+    monkeypatch.setattr(outputs, "run_map_figure", interrupted)
     res = _run(out, "--noise", "2")
     assert res.exit_code == 130, res.output
     assert tree(out) == first

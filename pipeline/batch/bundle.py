@@ -50,7 +50,6 @@ from ..examples import resolve_map_path
 from ..limits import MAX_BUNDLE_BYTES, MAX_BUNDLE_FILES
 from ..maps import load_map
 from ..safe_io import not_recorded, read_bytes
-from .trial import MapChangedError
 
 FORMAT = "nhstab map bundle"
 VERSION = 1
@@ -58,6 +57,12 @@ _HEX64 = re.compile(r"[0-9a-f]{64}")
 _MAX_HEADER = 1 << 20
 #: how many loaded maps a process keeps (a batch has a few; a long-lived Dask worker serves many)
 CACHE_SIZE = 8
+
+
+class MapChangedError(InputError):
+    """A trial's map is not the one its batch was configured with (its files changed since, or a
+    bundle holds another map). Not recorded as a trial's error: the batch stops, since its trials
+    would mix two maps."""
 
 
 class BundleError(InputError):

@@ -53,12 +53,12 @@ from ..execution.config import (
     check_number,
     check_pose,
     options_from_mapping,
-    read_yaml_mapping,
 )
 from ..execution.controllers import CONTROLLERS
 from ..limits import MAX_BATCH_TRIALS, MAX_GAMMA, MAX_SEED, check_int
 from ..planning import PLANNABLE
 from ..robot import robot_from_spec
+from ..safe_io import read_yaml_mapping
 from ..tubes import AUTO_MARGIN_START
 from .bundle import MapBundle
 

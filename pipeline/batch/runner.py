@@ -52,9 +52,10 @@ from .. import __version__
 from ..collision import defer_interrupt
 from ..control import PAST_WINDOW_WARNING
 from ..errors import InputError, NotStabilizingWarning
+from .bundle import MapChangedError
 from .config import BatchConfig
 from .store import Store, versions
-from .trial import MapChangedError, provide_bundles, run_trial, withdraw_bundles
+from .trial import provide_bundles, run_trial, withdraw_bundles
 
 STORE_NAME = "trials.sqlite"
 

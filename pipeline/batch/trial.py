@@ -20,22 +20,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, NotStabilizingWarning
+from ..errors import NotStabilizingWarning
 from ..execution import execute, summary
 from ..execution.config import options_from_mapping
 from ..records import to_jsonable
 from ..robot import resolve_robot
+from .bundle import MapBundle, MapChangedError, loaded
+from .config import robot_label
+from .store import versions
 
 #: the error-norm series of a trial is sampled every this many seconds (for the envelopes)
 SERIES_DT = 0.2
 
 _PROVIDED: dict = {}
-
-
-class MapChangedError(InputError):
-    """A trial's map is not the one its batch was configured with (its files changed since, or a
-    bundle holds another map). Not recorded as a trial's error: the batch stops, since its trials
-    would mix two maps."""
 
 
 def provide_bundles(bundles: dict) -> None:
@@ -52,8 +49,6 @@ def withdraw_bundles(ids) -> None:
 def trial_map(spec: dict, bundle=None):
     """The map of a trial (see the module docstring), checked against the spec's bundle id and
     content hash (:class:`MapChangedError` otherwise)."""
-    from .bundle import MapBundle, loaded
-
     cell = spec["cell_spec"]
     key, digest, size = cell.get("map_bundle"), cell.get("map_hash"), cell.get("cell_size")
     if bundle is None and key is not None:
@@ -93,8 +88,6 @@ def run_trial(spec: dict, bundle=None) -> dict:
     batch instead: a map that is not the batch's (:class:`MapChangedError`), and Ctrl-C
     (KeyboardInterrupt, also when the run reports itself "interrupted"): an interrupted trial has no
     result and must not be stored."""
-    from .store import versions
-
     started = time.perf_counter()
     record = {"id": spec["id"], "cell": spec["cell"], "trial": spec["trial"], "seed": spec["seed"], "spec": spec,
               "versions": versions()}
@@ -117,8 +110,6 @@ def run_trial(spec: dict, bundle=None) -> dict:
 
 
 def _run(spec: dict, bundle=None) -> dict:
-    from .config import robot_label
-
     cell = spec["cell_spec"]
     m = trial_map(spec, bundle)
     opts = trial_options(spec)

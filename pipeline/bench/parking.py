@@ -32,11 +32,11 @@ import time
 
 import numpy as np
 
+from ..control import GAIN_BOUND
 from ..errors import InputError
 from ..maps import load_map
 from ..parking import read_suite_csv
 from ..planning import PathOptions, plan
-from ..planning.sweep import GAIN_BOUND
 from ..robot import robot_from_spec
 from .common import machine, maps_dir
 

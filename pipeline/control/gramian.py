@@ -99,6 +99,10 @@ PAST_WINDOW_WARNING = (
     "gain, so on a straight line at constant speed the closed loop has an eigenvalue with positive real part "
     "for every alpha, delta and gamma (NOTES.md item 7, `nhstab paper --case remark2-line-past`); use it for "
     "study only, and --window frozen-time for a causal law that works")
+#: the largest gain norm max ||K|| the stabilizer defaults are chosen for (``nhstab sweep`` picks, per
+#: robot, the gains within it); a plan whose schedule exceeds it is flagged in its metrics
+GAIN_BOUND = 50.0
+
 #: what the reported rate_bound means, per window
 GUARANTEES = {
     "future": "3 alpha (w alpha / 2): V = e^T P_c e decays at least as exp(-w alpha t) along the linearised closed "

@@ -70,7 +70,7 @@ from ..limits import (
 )
 from ..planning import PLANNERS, SPACES
 from ..robot import robot_from_spec
-from ..safe_io import load_yaml_file
+from ..safe_io import read_yaml_mapping
 from ..sampled_tube import TUBE_KINDS, rollouts_needed
 from ..sensing import MAX_BEAMS, SensorOptions
 from .controllers import ControllerOptions
@@ -456,19 +456,6 @@ def options_from_mapping(data: dict, allowed=None, prefix: str = "") -> RunOptio
             raise
         name = prefix.rstrip(".") if not exc.argument else prefix + exc.argument
         raise InputError(name, exc.expected, exc.got) from None
-
-
-def read_yaml_mapping(path: Path, argument: str, what: str) -> dict:
-    """A YAML file whose top level is a mapping, read by nhstab's one safe YAML loader
-    (:func:`nhstab.safe_io.load_yaml_file`: regular files only, bounded size, nesting and alias
-    expansion, duplicate keys refused); errors name ``argument`` (e.g. ``--config``)."""
-    data = load_yaml_file(path, argument, what)
-    if not isinstance(data, dict):
-        raise InputError(argument, "a YAML mapping at the top level", type(data).__name__)
-    for key in data:
-        if not isinstance(key, str):
-            raise InputError(argument, "a mapping with text keys", key)
-    return data
 
 
 def load_run_config(path) -> tuple[dict, RunOptions]:

@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from ..examples import resolve_map_path
 from ..safe_io import content_digest, load_yaml_file, not_recorded, recording
 from .base import (
     Circle,
@@ -28,6 +27,7 @@ from .base import (
     Problem,
     box_polygon,
 )
+from .bundled import resolve_map_path
 from .movingai import load_movingai_map, load_movingai_scenarios
 from .ros import load_ros_map
 from .svg import benchmr_robot_shapes, load_benchmr_scenarios, load_benchmr_svg

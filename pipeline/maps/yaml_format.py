@@ -95,6 +95,7 @@ from .base import (
 )
 from .movingai import load_movingai_map, load_movingai_scenarios
 from .ros import load_ros_map
+from .svg import load_benchmr_scenarios, load_benchmr_svg
 
 _TOP_KEYS = ("name", "description", "bounds", "base", "obstacles", "unknown_obstacles", "start", "goal", "robot")
 _BASE_KEYS = {
@@ -368,7 +369,6 @@ class _Reader:
                     base = replace(base, problems=tuple(
                         load_movingai_scenarios(scen, cell_size=cell, map_height=height)))
             else:
-                from .svg import load_benchmr_scenarios, load_benchmr_svg
                 base = load_benchmr_svg(target, convex_hull=hull)
                 if scen is not None:
                     base = replace(base, problems=load_benchmr_scenarios(scen).get(base.name, ()))

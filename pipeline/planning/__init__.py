@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 
 from ..collision import CollisionWorld, check_poses
-from ..control import GainSchedule, StabilizerOptions, compute_schedule
+from ..control import GAIN_BOUND, StabilizerOptions, compute_schedule
 from ..errors import InputError, SingularGramianError
 from ..geometry import wrap_angle
 from ..limits import FCL_CHECK_S, check_headings
@@ -35,7 +35,9 @@ from .geometric import (
     plan_path,
 )
 from .parking import CarOptions, car_paths, failed_path
+from .result import PlanResult
 from .timing import TimingOptions, unicycle_nominal
+from .trailer import plan_trailer
 
 #: the geometric planner keeps this much more than the requested margin, so that the nominal still
 #: clears the margin: the unicycle's follows the sampled path to a few millimetres. Cars get more room
@@ -95,24 +97,6 @@ def default_turning_radius(model: Model) -> float:
         raise InputError("robot", "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)",
                          getattr(model, "name", model))
     return default_robot(model.name, **model.params()).turning_radius
-
-
-@dataclass
-class PlanResult:
-    """status: "ok", or why there is no usable plan: "no_path" (the planner found none in its budget),
-    "infeasible" (the car's local planner could not follow the path), "not_clear" (the nominal does not
-    keep the margin), "not_stabilizable" (singular gramian)."""
-
-    status: str
-    message: str
-    path: GeometricPath | None
-    nominal: Nominal | None = None
-    schedule: GainSchedule | None = None
-    metrics: dict = field(default_factory=dict)
-
-    @property
-    def ok(self) -> bool:
-        return self.status == "ok"
 
 
 def plan(m: Map, robot: Robot, *args, **kwargs) -> PlanResult:
@@ -178,8 +162,6 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
     stab_opts = (stab_opts or StabilizerOptions(**robot.stabilizer)).validated()
     check_map_budget(m, path_opts.time_limit_s, path_opts.resolution)
     if model.name == "car_trailer":       # the trailer's path, the rig checked (nhstab.planning.trailer)
-        from .trailer import plan_trailer
-
         return plan_trailer(m, robot, start, goal, path_opts, timing_opts, stab_opts, check_resolution, world)
     start, goal = _pose(start, "start", model), _pose(goal, "goal", model)
     check_start_goal(start, goal)
@@ -396,10 +378,8 @@ def tracking_metrics(model: Model, path: GeometricPath, nominal: Nominal, max_ga
       at the steering-rate limit: sum over cusps |phi_after - phi_before| / max_steer_rate);
     - steering within its limit (max |phi| of the nominal <= max_steer);
     - the largest gain norm within the bound the stabilizer defaults were chosen for: the sweep's
-      max ||K|| <= 50 (:data:`nhstab.planning.sweep.GAIN_BOUND`).
+      max ||K|| <= 50 (:data:`nhstab.control.GAIN_BOUND`).
     The unicycle gets the gain criterion only (it has no steering and turns on the spot at cusps)."""
-    from .sweep import GAIN_BOUND
-
     out = {"max_gain_norm": float(max_gain_norm), "gain_bound": GAIN_BOUND,
            "gain_within_bound": bool(max_gain_norm <= GAIN_BOUND)}
     if "phi" not in model.state_names:

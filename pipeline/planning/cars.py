@@ -47,8 +47,8 @@ from ..geometry import Footprint, wrap_angle
 from ..limits import nominal_grid
 from ..models import Model
 from ..nominal import Nominal
-from .geometric import GeometricPath
 from .car_charts import _car_inputs, _pose_parts, _theta_phi, from_chained, steer_car
+from .geometric import GeometricPath
 from .steering import _constant_phase, _constant_v1_phase, _sin_phase
 from .timing import TimingOptions
 

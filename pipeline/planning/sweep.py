@@ -15,10 +15,10 @@ schedule reach gains of 95 with the current nominals.)
 
 from __future__ import annotations
 
-from ..control import StabilizerOptions, compute_schedule
+from ..control import GAIN_BOUND, StabilizerOptions, compute_schedule
 from ..errors import SingularGramianError
-from ..robot import default_robot
 from ..maps import load_map
+from ..robot import default_robot
 from . import PathOptions, plan
 
 GRID = {
@@ -26,7 +26,6 @@ GRID = {
     "rwd_car": {"alpha": [0.05, 0.1, 0.2], "delta": [2.0, 3.0, 4.0, 6.0]},
     "fwd_car": {"alpha": [0.05, 0.1, 0.2], "delta": [2.0, 3.0, 4.0, 6.0]},
 }
-GAIN_BOUND = 50.0
 
 
 def sweep(map_path, seed: int = 1) -> dict:

@@ -83,9 +83,10 @@ from ..geometry import wrap_angle
 from ..limits import nominal_grid
 from ..maps.base import Map, MapError
 from ..nominal import Nominal
-from . import PlanResult, local_paths
+from . import local_paths
 from .cars import direction_reversals
 from .geometric import GeometricPath, PathOptions, densify, path_directions, plan_path
+from .result import PlanResult
 from .timing import TimingOptions
 from .trailer_charts import steer_trailer
 
