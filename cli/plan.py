@@ -71,20 +71,21 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     found but its tube cannot be predicted (the linearised loop diverges under the law: the plan is
     written, plan.json's ``tube_error`` says why).
     """
-    from nhstab.execution import write_plan
-    from nhstab.maps import resolve_poses
     from nhstab.errors import InputError
+    from nhstab.execution import write_plan
     from nhstab.execution.config import NoiseOptions
     from nhstab.execution.runner import derated
+    from nhstab.maps import resolve_poses
     from nhstab.planning import PathOptions, TimingOptions
-    from nhstab.tubes import plan_and_tube, tube_line
+    from nhstab.tubes.base import tube_line
+    from nhstab.tubes.fit import plan_and_tube
 
     margin = None if margin is None else parse_margin("--margin", margin)
     if not (0.0 < probability < 1.0):
         raise InputError("--probability", "a number in (0, 1)", probability)
     if not (0.0 < confidence < 1.0):
         raise InputError("--confidence", "a number in (0, 1)", confidence)
-    from nhstab.sampled_tube import rollouts_needed
+    from nhstab.tubes.base import rollouts_needed
 
     try:
         rollouts_needed(probability, confidence)

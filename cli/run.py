@@ -118,7 +118,7 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
         if v is not None and not (0.0 < v < 1.0):
             raise InputError(flag, "a number in (0, 1)", v)
     if probability is not None or confidence is not None:
-        from nhstab.sampled_tube import DEFAULT_CONFIDENCE, rollouts_needed
+        from nhstab.tubes.base import DEFAULT_CONFIDENCE, rollouts_needed
 
         try:
             rollouts_needed(probability if probability is not None else 0.997,
@@ -165,7 +165,7 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
     from nhstab.errors import InputError
     from nhstab.execution import execute, write_run
     from nhstab.planning import PLANNABLE
-    from nhstab.tubes import certified_text
+    from nhstab.tubes.base import certified_text
 
     if robot.model.name not in PLANNABLE:
         raise InputError(robot_key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)",

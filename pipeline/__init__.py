@@ -18,7 +18,7 @@ The names a user needs for the common jobs are here, at the top (each is documen
 ``PathOptions``          options of the planning search (planner, budget, seed, margin)
 ``compute_schedule``     the gramian gain schedule along a nominal (``StabilizerOptions``)
 ``predict_tube(...)``    the error tube of a feedback law under a noise model (``nhstab.tubes``): linear where
-                         it holds, else ``sampled_tube`` (rollouts of the run loop, ``nhstab.sampled_tube``)
+                         it holds, else ``sampled_tube`` (rollouts of the run loop, ``nhstab.tubes.sampled``)
 ``tube_line(tube)``      the one line that says whether a tube is certified, where and what would certify it
 ``execute(m, robot)``    one run of the composite controller -> ``RunResult``
 ``RunOptions``           options of a run (controller, noise, sensing, replanning); ``load_run_config``
@@ -56,7 +56,7 @@ _PUBLIC = {
     "compute_schedule": "nhstab.control",
     "StabilizerOptions": "nhstab.control",
     "predict_tube": "nhstab.tubes",
-    "sampled_tube": "nhstab.sampled_tube",
+    "sampled_tube": "nhstab.tubes",
     "tube_line": "nhstab.tubes",
     "execute": "nhstab.execution",
     "RunOptions": "nhstab.execution",

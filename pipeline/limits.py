@@ -83,7 +83,7 @@ MAX_BUNDLE_FILES = 64
 #: trials at once and keeps their series (states, measurements, inputs, errors), measured at 0.17 MB
 #: per trial for the study's longest plan (1852 control periods), so about 0.9 GB at this count
 MAX_STUDY_TRIALS = 5_000
-#: most rollouts of one sampled error tube (N >= ln(1 - confidence) / ln(p); nhstab.sampled_tube): the
+#: most rollouts of one sampled error tube (N >= ln(1 - confidence) / ln(p); nhstab.tubes.sampled): the
 #: rollouts run in chunks of 4,096 whatever N is, so this bounds time, not memory: about 1 s per 1,000
 #: rollouts of a 30 s car plan here, so a few minutes at the limit; p = 0.9999 at confidence 0.999 needs
 #: 69,075

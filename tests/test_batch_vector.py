@@ -6,18 +6,24 @@ import math
 
 import numpy as np
 import pytest
-
 from nhstab.batch.vector import simulate_shared
 from nhstab.bench import hilare_sinusoid
 from nhstab.errors import InputError
-from nhstab.execution import ControllerOptions, Plant, RunOptions, build_law, execute, summary
+from nhstab.execution import (
+    ControllerOptions,
+    Plant,
+    RunOptions,
+    build_law,
+    execute,
+    summary,
+)
 from nhstab.execution.config import NoiseOptions
-from nhstab.execution.runner import seed_for
-from nhstab.robot import default_footprint
+from nhstab.execution.seeds import seed_for
 from nhstab.maps.base import Map, Pose, box_polygon
 from nhstab.models import make_model
 from nhstab.nominal import Nominal
 from nhstab.paper import CASES
+from nhstab.robot import default_footprint
 
 SEEDS = [0, 1, 7, 123, 2026]
 
@@ -197,7 +203,7 @@ def test_the_generators_are_the_runs_own(monkeypatch):
     words of seed_for's SeedSequence (seeds below and above 2**32, every stream), so the same draws
     as the run's default_rng(seed_for(...)); if they were not, it would notice and seed the slow way."""
     from nhstab.batch import vector
-    from nhstab.execution.runner import _SEED_STREAMS
+    from nhstab.execution.seeds import _SEED_STREAMS
 
     rng = np.random.default_rng(8)
     seeds = np.array([0, 1, 7, 2**32 - 1, 2**32, 2**40 + 3, 2**63 - 1, *rng.integers(0, 2**63 - 1, 200),

@@ -9,8 +9,7 @@ import json
 
 import numpy as np
 import pytest
-
-from nhstab.sampled_tube import rollouts_needed
+from nhstab.tubes.base import rollouts_needed
 
 SCENARIO, CASE = "parking_lot", "parallel_rwd_car_110"
 
@@ -30,7 +29,7 @@ def bench():
 def test_sampled_rows_are_independent_predict_tubes_with_the_scenario_count(bench):
     """The row's tube is what nhstab run computes for that plan: predict_tube with the run's options,
     written out here (not the benchmark's helper), certified against the obstacles the run knows."""
-    from nhstab.tubes import predict_tube
+    from nhstab.tubes.predict import predict_tube
 
     b, plans = bench
     rows = {r["name"]: r for r in b["auto_rows"]}

@@ -8,19 +8,26 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
-from scipy.linalg import solve_continuous_are
-
 from nhstab.control import StabilizerOptions, compute_schedule
 from nhstab.errors import InputError
-from nhstab.execution import ControllerOptions, Plant, RunOptions, build_law, execute, summary, tvlqr_gains
+from nhstab.execution import (
+    ControllerOptions,
+    Plant,
+    RunOptions,
+    build_law,
+    execute,
+    summary,
+    tvlqr_gains,
+)
 from nhstab.execution.config import NoiseOptions, load_run_config, merge
 from nhstab.execution.outputs import nominal_cusps
-from nhstab.execution.runner import planner_seed
-from nhstab.robot import default_footprint
+from nhstab.execution.seeds import planner_seed
 from nhstab.maps.base import Map, Pose, box_polygon
 from nhstab.models import make_model
 from nhstab.nominal import Nominal
+from nhstab.robot import default_footprint
+from scipy.integrate import solve_ivp
+from scipy.linalg import solve_continuous_are
 
 
 @pytest.mark.parametrize("name,u", [("unicycle", [1.0, 2.0]), ("rwd_car", [1.5, 0.8]), ("fwd_car", [1.0, -0.9]),

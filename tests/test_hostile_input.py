@@ -15,11 +15,10 @@ import shutil
 import sqlite3
 from pathlib import Path
 
+import nhstab
 import numpy as np
 import pytest
 from click.testing import CliRunner
-
-import nhstab
 from nhstab.cli.main import cli
 from nhstab.errors import InputError
 from nhstab.records import MANIFEST
@@ -165,7 +164,7 @@ def test_integers_of_any_size_give_one_line(tmp_path):
     one_line(invoke("batch", b, "--out", out), 2, "trials", "2 cells x 600000")
     assert not out.exists()
     # a seed below the limit is used as it is, through SeedSequence (no overflow anywhere)
-    from nhstab.execution.runner import planner_seed
+    from nhstab.execution.seeds import planner_seed
 
     assert 0 <= planner_seed(2**128 - 1, 3) < 2**31 - 1
 

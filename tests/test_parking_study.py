@@ -7,9 +7,8 @@ import math
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from scipy.stats import binom
-
 from nhstab.cli.main import cli
+from scipy.stats import binom
 
 MAP = "parallel_rwd_car_140"
 TRIALS = 20
@@ -31,14 +30,18 @@ def study(tmp_path_factory):
 @pytest.fixture(scope="module")
 def recomputed():
     """The same cell, recomputed here from the plan, simulate_shared (recording every state) and FCL."""
+    from nhstab.batch.parking_study import first_plan
     from nhstab.batch.tube_study import trial_seeds
     from nhstab.batch.vector import simulate_shared
     from nhstab.execution.config import NoiseOptions
     from nhstab.execution.runner import final_errors
-    from nhstab.sampled_tube import displacement, hull_vertices, rollouts_needed
-    from nhstab.tubes import pose_indices, predict_tube
-
-    from nhstab.batch.parking_study import first_plan
+    from nhstab.tubes.base import (
+        displacement,
+        hull_vertices,
+        pose_indices,
+        rollouts_needed,
+    )
+    from nhstab.tubes.predict import predict_tube
 
     run, _, result, law, _, _ = first_plan(MAP)
     noise = NoiseOptions(scale=1.0)

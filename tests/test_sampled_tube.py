@@ -7,9 +7,6 @@ import math
 
 import numpy as np
 import pytest
-from scipy.optimize import brentq
-from scipy.stats import binom, norm
-
 from nhstab.errors import InputError, NumericalError
 from nhstab.execution import ControllerOptions, RunOptions, build_law, execute
 from nhstab.execution.config import NoiseOptions
@@ -18,9 +15,11 @@ from nhstab.maps.base import Map, Pose, box_polygon
 from nhstab.models import make_model
 from nhstab.nominal import Nominal
 from nhstab.robot import default_footprint
-from nhstab.sampled_tube import (displacement, hull_vertices, interior_stops, linear_validity, rollouts_needed,
-                                 sampled_tube)
-from nhstab.tubes import predict_tube
+from nhstab.tubes.base import displacement, hull_vertices, rollouts_needed
+from nhstab.tubes.predict import predict_tube
+from nhstab.tubes.sampled import interior_stops, linear_validity, sampled_tube
+from scipy.optimize import brentq
+from scipy.stats import binom, norm
 
 ZERO = {"x": 0.0, "y": 0.0, "theta": 0.0}
 

@@ -10,17 +10,16 @@ import json
 import numpy as np
 import pytest
 from click.testing import CliRunner
-
 from nhstab.cli.main import cli
 from nhstab.collision import CollisionWorld
+from nhstab.errors import InputError
 from nhstab.execution import RunOptions, execute
 from nhstab.execution.config import TubeOptions, options_from_mapping
-from nhstab.errors import InputError
 from nhstab.maps import load_map
 from nhstab.maps.base import Map, Pose, box_polygon
 from nhstab.models import make_model
 from nhstab.robot import default_footprint
-from nhstab.sampled_tube import remaining_law, sampled_tube
+from nhstab.tubes.sampled import remaining_law, sampled_tube
 
 
 def test_require_certified_refuses_an_uncertified_plan_and_says_why(tmp_path):

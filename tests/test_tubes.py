@@ -7,14 +7,9 @@ import math
 
 import numpy as np
 import pytest
-from scipy.linalg import expm, solve_discrete_lyapunov
-from scipy.stats import multivariate_normal
-
 from nhstab.batch.vector import _shared, simulate_shared
 from nhstab.bench import hilare_sinusoid
 from nhstab.collision import CollisionWorld
-from nhstab.control.tube import (bivariate_normal_cdf, plant_derivatives, propagate, propagate_loop,
-                                 saturation)
 from nhstab.errors import InputError
 from nhstab.execution import ControllerOptions, Plant, build_law
 from nhstab.execution.config import NoiseOptions
@@ -22,8 +17,17 @@ from nhstab.geometry import Footprint, cos_sin, transform_points
 from nhstab.maps.base import Circle, Map, box_polygon
 from nhstab.models import make_model
 from nhstab.nominal import Nominal
-from nhstab.tubes import certified_clearance, run_schedule
-from nhstab.tubes import predict_tube as _predict_tube
+from nhstab.tubes.base import certified_clearance, run_schedule
+from nhstab.tubes.covariance import (
+    bivariate_normal_cdf,
+    plant_derivatives,
+    propagate,
+    propagate_loop,
+    saturation,
+)
+from nhstab.tubes.predict import predict_tube as _predict_tube
+from scipy.linalg import expm, solve_discrete_lyapunov
+from scipy.stats import multivariate_normal
 
 
 def predict_tube(*args, **kwargs):
@@ -97,7 +101,7 @@ def test_the_closed_forms_are_the_variational_rk4(robot, substeps):
     equations, with rest and straight motion among the inputs: the map equals the plant's step to 1e-14 m
     at 20 m from the origin (the same operations, the headings' cosines and sines taken otherwise; the
     car's steering kept inside its end stop), the derivatives agree to 1e-13."""
-    from nhstab.control.tube import _variational_derivatives
+    from nhstab.tubes.covariance import _variational_derivatives
 
     model = make_model(robot)
     rng = np.random.default_rng(substeps)
@@ -239,7 +243,7 @@ def test_banded_and_blocked_scans_equal_the_plain_recursion(n):
     """Both fast evaluations of S_{k+1} = A_k S_k A_k^T + M_k, m_{k+1} = A_k m_k + b_k against the loop
     (random stable A_k, lengths around the banded solve's chunks and the blocked scan's blocks):
     relative agreement to 1e-13, and the banded covariance exactly symmetric."""
-    import nhstab.control.tube as ct
+    import nhstab.tubes.covariance as ct
 
     rng = np.random.default_rng(n)
     c = ct.BANDED_CHUNK
@@ -389,7 +393,7 @@ def test_saturation_slack_loosens_the_bound_by_at_most_its_stated_amount(hilare,
     """The pairs left out of the bivariate computation (the smallest per-sample probabilities) make the
     run bound larger than the full computation's by at most max(SATURATION_SLACK_REL x bound,
     SATURATION_SLACK_ABS), never smaller; the per-sample probabilities and the union bound are the same."""
-    import nhstab.control.tube as ct
+    import nhstab.tubes.covariance as ct
 
     model = make_model("unicycle", max_speed=1.3, max_turn_rate=1.5)
     noise = NoiseOptions(scale=scale)

@@ -9,17 +9,16 @@ import math
 import numpy as np
 import pytest
 from click.testing import CliRunner
-
 from nhstab.batch.report import cell_table, wilson
 from nhstab.cli.main import cli
 from nhstab.collision import CollisionWorld
 from nhstab.errors import InputError
 from nhstab.execution import ControllerOptions, RunOptions, execute, summary
 from nhstab.execution.config import NoiseOptions, PlanningOptions, options_from_mapping
-from nhstab.robot import default_robot
 from nhstab.maps import load_map
 from nhstab.planning import PathOptions, TimingOptions
-from nhstab.tubes import plan_and_tube
+from nhstab.robot import default_robot
+from nhstab.tubes.fit import plan_and_tube
 
 
 def _one_line(res, code, *needles):

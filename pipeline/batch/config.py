@@ -59,7 +59,7 @@ from ..limits import MAX_BATCH_TRIALS, MAX_GAMMA, MAX_SEED, check_int
 from ..planning import PLANNABLE
 from ..robot import robot_from_spec
 from ..safe_io import read_yaml_mapping
-from ..tubes import AUTO_MARGIN_START
+from ..tubes.fit import AUTO_MARGIN_START
 from .bundle import MapBundle
 
 _TOP = ("name", "root_seed", "trials", "maps", "robots", "robot", "controllers", "grid", "run")

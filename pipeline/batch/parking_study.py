@@ -29,7 +29,7 @@ sensor noise and process disturbance), a **cell**:
 3. **Tube check**: an independent Monte Carlo of M = mc_factor x N runs of the same loop, with seeds
    ``trial_seeds(M, root_seed + 1)`` (32-bit SeedSequence children: disjoint from the tube's rollouts,
    whose root seeds are 2^40 + i, and from the trials'), and per run and control sample the footprint's
-   displacement D_k (:func:`nhstab.sampled_tube.displacement`: the largest move of a hull vertex from
+   displacement D_k (:func:`nhstab.tubes.displacement`: the largest move of a hull vertex from
    its nominal place). Against the cell's reach_k:
 
    * **certificate coverage**: the fraction of the M runs whose own smallest FCL clearance over the
@@ -86,8 +86,14 @@ from ..maps import load_map, resolve_poses
 from ..parking import read_suite_csv
 from ..report import subplots
 from ..robot import resolve_robot
-from ..sampled_tube import displacement, hull_vertices, rollouts_needed
-from ..tubes import pose_indices, predict_tube, verdict
+from ..tubes.base import (
+    displacement,
+    hull_vertices,
+    pose_indices,
+    rollouts_needed,
+    verdict,
+)
+from ..tubes.predict import predict_tube
 from .report import wilson
 from .tube_study import trial_seeds
 from .vector import simulate_shared
@@ -268,7 +274,7 @@ def trial_outcomes(run, law, seeds, noise) -> dict:
 
 def mc_displacements(run, law, poses: np.ndarray, seeds, noise, nominal_clearance: np.ndarray | None = None,
                      certified_clearance: float | None = None) -> tuple[np.ndarray, dict]:
-    """The footprint displacement (:func:`nhstab.sampled_tube.displacement`) of M runs of the loop at
+    """The footprint displacement (:func:`nhstab.tubes.displacement`) of M runs of the loop at
     every sample, as an (S, M) array (+inf for a run whose loop diverged), and a record: the runs that
     diverged, and with ``nominal_clearance`` (S,) and ``certified_clearance``, how many runs' own
     smallest FCL clearance over the samples is below the certified clearance (exactly: the poses whose

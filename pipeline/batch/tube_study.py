@@ -53,7 +53,9 @@ from ..records import save_figure, write_json, write_text
 from ..report import subplots
 from ..report.plans import plan_figure
 from ..robot import default_robot
-from ..tubes import choose_gains, pose_indices, predict_tube
+from ..tubes.base import pose_indices
+from ..tubes.fit import choose_gains
+from ..tubes.predict import predict_tube
 from .report import wilson
 from .vector import simulate_shared
 

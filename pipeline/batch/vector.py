@@ -50,7 +50,7 @@ from ..errors import InputError
 from ..execution.config import NoiseOptions
 from ..execution.controllers import FeedbackLaw
 from ..execution.plant import Plant, _clip
-from ..execution.runner import _SEED_STREAMS, seed_for
+from ..execution.seeds import _SEED_STREAMS, seed_for
 from ..geometry import wrap_angle
 from ..models import Model
 

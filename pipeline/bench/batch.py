@@ -14,7 +14,7 @@ from ..batch.trial import run_trial
 from ..batch.vector import _shared, simulate_shared
 from ..execution import ControllerOptions, build_law
 from ..execution.config import NoiseOptions
-from ..execution.runner import seed_for
+from ..execution.seeds import seed_for
 from ..paper import CASES
 from .common import machine, maps_dir
 from .gains import hilare_sinusoid

@@ -8,7 +8,7 @@ tube timed right after its plan runs at nearly the same speed):
 - **the linear tube** (``rows``) on the six bundled scenarios, forced to ``kind="linear"``, against the
   per-step loop baseline; target: under 10 % of the plan's time (this target is the linear tube's);
 - **the tube ``nhstab run`` and ``nhstab plan`` compute by default** (``auto_rows``, ``kind="auto"``:
-  the linear tube where it holds, the sampled tube of :mod:`nhstab.sampled_tube` elsewhere) on the same
+  the linear tube where it holds, the sampled tube of :mod:`nhstab.tubes.sampled` elsewhere) on the same
   six scenarios and on parking cases of ``maps/parking/`` (each with its map's car, planned as
   ``nhstab run``'s first plan: seed 0, headroom 0.8, the robot's margin): its kind, N, time, its
   share of the plan and its absolute cost per plan, and its parts (the linear attempt, the rollouts on
@@ -33,28 +33,30 @@ import time
 
 import numpy as np
 
-from .. import sampled_tube as st
-from .. import tubes
-from ..batch import vector
-from ..control.tube import plant_derivatives, propagate, propagate_loop, saturation
 from ..errors import InputError
 from ..execution import Plant
 from ..execution.config import NoiseOptions, RunOptions
 from ..execution.controllers import build_law
-from ..execution.runner import CompositeRun, planner_seed, seed_for
+from ..execution.runner import CompositeRun
+from ..execution.seeds import planner_seed, seed_for
 from ..maps import load_map
 from ..parking import read_suite_csv
 from ..planning import TimingOptions, plan
 from ..robot import resolve_robot
-from ..sampled_tube import ROLLOUT_SEED_BASE, rollouts_needed, sampled_tube
-from ..tubes import (
-    _spatial,
+from ..tubes import linear as linear_module
+from ..tubes import predict as predict_module
+from ..tubes import sampled as st
+from ..tubes.base import (
     certified_clearance,
     initial_covariance,
     pose_indices,
-    predict_tube,
+    rollouts_needed,
     run_schedule,
 )
+from ..tubes.covariance import plant_derivatives, propagate, propagate_loop, saturation
+from ..tubes.linear import _spatial
+from ..tubes.predict import predict_tube
+from ..tubes.sampled import ROLLOUT_SEED_BASE, sampled_tube
 from .common import _best, machine, maps_dir
 
 SCENARIOS = ("depot_blocked_aisle", "berlin_roadworks", "cluttered_room", "warehouse_aisle_a2", "parking_lot",
@@ -251,7 +253,9 @@ def _instrumented(world):
     lower bounds of all rollout poses, their sort, the bookkeeping). Yields a dict of seconds per part,
     accumulated until reset by the caller."""
     acc = dict.fromkeys(PARTS, 0.0)
-    saved = (tubes._linear_tube, tubes.certified_clearance, vector.simulate_shared, st.rollout_clearance)
+    # the names are patched where the tube's modules look them up
+    saved = (predict_module._linear_tube, linear_module.certified_clearance, st.simulate_shared, st.rollout_clearance)
+    saved_cc = (predict_module.certified_clearance, st.certified_clearance)
     world_had = "clearance_many" in world.__dict__
     inner = world.clearance_many
     state = {"in_certificate": False}
@@ -302,15 +306,17 @@ def _instrumented(world):
         finally:
             acc["certificate_queries"] += time.perf_counter() - t0
 
-    tubes._linear_tube = timed("linear_attempt", saved[0])
-    tubes.certified_clearance = timed("linear_certified_clearance", saved[1])
-    vector.simulate_shared = engine
+    predict_module._linear_tube = timed("linear_attempt", saved[0])
+    linear_module.certified_clearance = predict_module.certified_clearance = st.certified_clearance = \
+        timed("linear_certified_clearance", saved[1])
+    st.simulate_shared = engine
     st.rollout_clearance = certificate
     world.clearance_many = queries
     try:
         yield acc
     finally:
-        tubes._linear_tube, tubes.certified_clearance, vector.simulate_shared, st.rollout_clearance = saved
+        predict_module._linear_tube, linear_module.certified_clearance, st.simulate_shared, st.rollout_clearance = saved
+        predict_module.certified_clearance, st.certified_clearance = saved_cc
         if world_had:
             world.clearance_many = inner
         else:
@@ -413,7 +419,7 @@ def _sampled_baseline(name: str, run, law, world, *, rollouts: int, fast_s: floa
     rollout by :func:`_one_rollout`, the reach as the largest displacement of a footprint vertex over
     the rollouts at each sample, and FCL's clearance (``world.clearance``) at every rollout pose, their
     minimum the certified clearance. Timed (the loop and the clearances apart) and extrapolated to N;
-    checked against :func:`nhstab.sampled_tube.sampled_tube` on the same rollouts: the reach per sample
+    checked against :func:`nhstab.tubes.sampled_tube` on the same rollouts: the reach per sample
     and the certified clearance agree within 1e-9 m."""
     model, fp, noise = run.model, run.fp, run.opts.noise
     to = run.opts.tube

@@ -1,10 +1,27 @@
 """The composite controller in closed loop: execution, sensing, monitoring, replanning (``nhstab run``)."""
 
-from .config import RunOptions, load_run_config
-from .controllers import CONTROLLERS, ControllerOptions, FeedbackLaw, build_law, tvlqr_gains
-from .outputs import plan_record, read_run_csv, summary, write_plan, write_run
-from .plant import Plant
-from .runner import STATUSES, RunResult, execute
+from __future__ import annotations
 
-__all__ = ["RunOptions", "load_run_config", "CONTROLLERS", "ControllerOptions", "FeedbackLaw", "build_law",
-           "tvlqr_gains", "read_run_csv", "summary", "write_run", "write_plan", "plan_record", "Plant", "STATUSES", "RunResult", "execute"]
+from .._lazy import lazy_exports
+
+#: public name -> the module that defines it
+_NAMES = {
+    "RunOptions": ".config",
+    "load_run_config": ".config",
+    "CONTROLLERS": ".controllers",
+    "ControllerOptions": ".controllers",
+    "FeedbackLaw": ".controllers",
+    "build_law": ".controllers",
+    "tvlqr_gains": ".controllers",
+    "plan_record": ".outputs",
+    "read_run_csv": ".outputs",
+    "summary": ".outputs",
+    "write_plan": ".outputs",
+    "write_run": ".outputs",
+    "Plant": ".plant",
+    "STATUSES": ".runner",
+    "RunResult": ".runner",
+    "execute": ".runner",
+}
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _NAMES)

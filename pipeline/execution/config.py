@@ -71,8 +71,8 @@ from ..limits import (
 from ..planning import PLANNERS, SPACES
 from ..robot import robot_from_spec
 from ..safe_io import read_yaml_mapping
-from ..sampled_tube import TUBE_KINDS, rollouts_needed
 from ..sensing import MAX_BEAMS, SensorOptions
+from ..tubes.base import TUBE_KINDS, rollouts_needed
 from .controllers import ControllerOptions
 
 #: default noise per state name: initial error std, sensor std, process intensity [unit/sqrt(s)]; a

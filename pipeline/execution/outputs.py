@@ -22,6 +22,7 @@ from ..report.plans import plan_figure
 from ..report.runs import run_map_figure, run_tracking_figure, write_animation
 from ..robot import make_robot
 from ..trajectory_io import float_rows, write_trajectory
+from ..tubes.base import certified_text
 from .runner import MODES, RunResult
 
 #: a cusp's neighbourhood for the per-cusp error statistics [s]
@@ -325,8 +326,6 @@ def write_plan(result, out_dir, m, map_label: str, robot, start, goal, path_opti
         write_trajectory(out.path("trajectory.csv"), nom)
         write_trajectory(out.path("trajectory.npz"), nom)
         if figures:
-            from ..tubes import certified_text
-
             met = result.metrics
             cusps = met["cusps"]
             title = (f"{m.name}: {model.name}, {met['length_m']:.1f} m, {cusps} cusp{'' if cusps == 1 else 's'}, "

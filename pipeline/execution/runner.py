@@ -64,17 +64,26 @@ from ..planning import (
     pose_columns,
 )
 from ..robot import Robot, make_robot, resolve_robot
-from ..sampled_tube import cusp_stops, remaining_law, sampled_tube
 from ..sensing import RangeSensor
+from ..tubes.base import tube_line, verdict
+from ..tubes.fit import (
+    AUTO_MARGIN_START,
+    SEVERAL_BODIES,
+    choose_gains,
+    fit_plan,
+    plan_with_auto_margin,
+)
+from ..tubes.predict import predict_tube
+from ..tubes.sampled import cusp_stops, remaining_law, sampled_tube
 from .config import RunOptions
 from .controllers import FeedbackLaw, build_law
 from .plant import Plant
+from .seeds import planner_seed, seed_for
 
 STATUSES = ("reached", "collision", "replan_failed", "timed_out", "missed_goal", "numerical_failure", "no_plan",
             "interrupted", "not_certified")
 #: modes of the log: following a nominal, stopped while replanning, stopped at the end
 MODES = ("track", "replanning", "done")
-_SEED_STREAMS = {"initial": 0, "sensor": 1, "process": 2, "planner": 3}
 
 
 @dataclass
@@ -175,16 +184,6 @@ def _bounding_circle(shape) -> tuple[np.ndarray, float]:
     return c, float(np.max(np.hypot(*(v - c).T)))
 
 
-def seed_for(root: int, stream: str, index: int = 0) -> np.random.SeedSequence:
-    """The SeedSequence of one random stream of a run ("initial", "sensor", "process", "planner")."""
-    return np.random.SeedSequence([int(root), _SEED_STREAMS[stream], int(index)])
-
-
-def planner_seed(root: int, call: int) -> int:
-    """OMPL's seed for the planning call number ``call`` of a run (a 31-bit integer)."""
-    return int(seed_for(root, "planner", call).generate_state(1)[0] % (2**31 - 1))
-
-
 class _Stop(Exception):
     def __init__(self, status: str, message: str):
         super().__init__(message)
@@ -217,8 +216,6 @@ class CompositeRun:
         #: a robot of several bodies (a car with trailers): every body is checked, the hitch angles too
         self.multibody = len(robot.footprints) > 1
         if self.multibody and opts.planning.margin == "auto":
-            from ..tubes import SEVERAL_BODIES
-
             raise InputError("planning.margin", SEVERAL_BODIES, "auto")
         self.known = CollisionWorld.from_map(m, "known")
         self.truth = CollisionWorld.from_map(m, "all")
@@ -259,8 +256,6 @@ class CompositeRun:
         in a row (later attempts get a larger budget); returns (attempt record, result, law, margin used,
         tube). With ``planning.margin: auto`` the call is the tube loop of
         :func:`nhstab.tubes.plan_with_auto_margin` (its rounds share the call's seed)."""
-        from ..tubes import AUTO_MARGIN_START, fit_plan, plan_with_auto_margin
-
         seed = planner_seed(self.opts.seed, self.planning_calls)
         self.planning_calls += 1
         auto = self.opts.planning.margin == "auto"
@@ -324,8 +319,6 @@ class CompositeRun:
     def _plan_at(self, start_pose, seed: int, margin: float, attempt: dict, budget_factor: float = 1.0):
         """plan() at ``margin`` and the feedback law along the nominal (``controller.gains: auto``: chosen
         by the tube, recorded in the attempt)."""
-        from ..tubes import choose_gains
-
         self._margin_now, self._start_now = margin, start_pose
         result = plan(self.m, self.plan_robot, start_pose, self.goal, self._path_options(seed, margin, budget_factor),
                       TimingOptions(dt=self.T), world=self.robot_world)
@@ -346,8 +339,6 @@ class CompositeRun:
         initial error (with the impulses); a replan from a measured state after the pause: sensor noise
         plus the pause's process noise (impulses are not included). ``world`` False: an uncertified
         linear tube (``--gains auto`` compares settings with it)."""
-        from ..tubes import predict_tube, verdict
-
         if law is None:
             return None
         names = self.model.state_names
@@ -596,8 +587,6 @@ class CompositeRun:
         taken to finish within the stop (the robot steers in place there; the planning latency is
         measured and recorded), and the new plan is followed from now if its tube is certified clear;
         otherwise the old plan goes on. Returns the new plan, or None."""
-        from ..tubes import verdict
-
         sub = remaining_law(rec.law, tau)
         if sub is None:
             return None
@@ -672,8 +661,6 @@ class CompositeRun:
     def _adopt(self, rec: PlanRecord) -> None:
         """A plan is about to be followed: say its tube's verdict in one line (``notify``), and with
         ``tube.require_certified`` refuse it unless its tube is certified clear (the robot is at rest)."""
-        from ..tubes import tube_line
-
         tube = rec.tube
         if tube is None:
             line = f"plan {rec.id}: no error tube (the closed loop diverges under the law): NOT certified"

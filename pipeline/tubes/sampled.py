@@ -43,84 +43,49 @@ import math
 
 import numpy as np
 
-from .errors import InputError, NumericalError
-from .geometry import Footprint, wrap_angle
-from .limits import MAX_ROLLOUTS
-from .nominal import Nominal
+from ..batch.vector import simulate_shared
+from ..errors import InputError, NumericalError
+from ..execution.controllers import FeedbackLaw
+from ..geometry import Footprint, wrap_angle
+from ..limits import MAX_ROLLOUTS
+from ..nominal import Nominal
+from .base import (
+    DEFAULT_CONFIDENCE,
+    Tube,
+    certified_clearance,
+    hull_vertices,
+    pose_indices,
+    rollouts_needed,
+    run_schedule,
+)
 
-#: the default confidence 1 - beta of the sampled tube's certificate
-DEFAULT_CONFIDENCE = 0.95
 #: rollout i of a sampled tube uses the root seed ROLLOUT_SEED_BASE + i (apart from the small seeds
 #: that runs and batches usually take, so that a run is not one of its own plan's rollouts)
 ROLLOUT_SEED_BASE = 1 << 40
+
+
 #: a linear tube is trusted when its run saturation bound is at most this (the same 1 % as --gains auto)
 LINEAR_MAX_SATURATION = 0.01
+
+
 #: the rollouts' poses and displacements are kept for the exact certificate (:func:`rollout_clearance`)
 #: up to this much memory (a 30 s car plan's 998 rollouts take 46 MB); beyond, the certificate is the
 #: grown footprint's (nominal clearance minus reach), a lower bound of it
 EXACT_MEMORY_BYTES = 512 * 1024 * 1024
+
+
 #: exact clearances measured at most while finding the rollouts' smallest clearance (beyond, the certified
 #: clearance is the lower bound of the poses not measured); where it is a contact, the search goes on
 #: through the poses that may touch while it has measured fewer than EXACT_CONTACT_EVALUATIONS (the
 #: samples in contact and the margin they need)
 EXACT_MAX_EVALUATIONS = 200_000
+
+
 EXACT_CONTACT_EVALUATIONS = 20_000
+
+
 #: samples of the rollouts reduced together (a block of (samples, rollouts, states) floats)
 BLOCK_SAMPLES = 64
-#: tube kinds: "auto" chooses linear where it holds and sampled elsewhere
-TUBE_KINDS = ("auto", "linear", "sampled")
-
-
-def rollouts_needed(probability: float, confidence: float = DEFAULT_CONFIDENCE) -> int:
-    """The smallest N with p^N <= 1 - confidence: N rollouts, none outside the reported region, bound
-    its p-quantile with that confidence (the scenario bound; see the module docstring)."""
-    if not (isinstance(probability, (int, float)) and 0.0 < probability < 1.0):
-        raise InputError("probability", "a number in (0, 1)", probability)
-    if not (isinstance(confidence, (int, float)) and 0.0 < confidence < 1.0):
-        raise InputError("confidence", "a number in (0, 1)", confidence)
-    n = math.log1p(-confidence) / math.log(probability)
-    if not math.isfinite(n) or n > MAX_ROLLOUTS:
-        raise InputError("confidence", f"a probability and confidence needing at most {MAX_ROLLOUTS:,} rollouts "
-                         f"(N >= ln(1 - confidence) / ln(p))", confidence,
-                         detail=f"p = {probability:.10g} at confidence {confidence:.10g} needs {n:.4g}")
-    # ceil with a guard: p^N may round a hair above the target at an exact integer
-    N = max(1, math.ceil(n - 1e-9))
-    while probability ** N > 1.0 - confidence:
-        N += 1
-    return N
-
-
-def hull_vertices(fp: Footprint) -> np.ndarray | None:
-    """The footprint's convex hull vertices (k, 2) in its frame; None for a disc (centred on the
-    reference point: a turn does not move it)."""
-    if fp.radius is not None:
-        return None
-    v = np.asarray(fp.vertices, dtype=float)
-    if len(v) <= 3:
-        return v
-    from scipy.spatial import ConvexHull
-
-    try:
-        return v[ConvexHull(v).vertices]
-    except Exception:               # degenerate (collinear) outline: every vertex is a candidate
-        return v
-
-
-def displacement(hull: np.ndarray | None, poses: np.ndarray, nominal: np.ndarray) -> np.ndarray:
-    """How far the footprint's farthest-moving point moves from its nominal place: poses (..., 3)
-    against the nominal pose(s) (..., 3) (broadcast). max over the hull's vertices b of
-    |(R(theta) - R(theta0)) b + (p - p0)|; |p - p0| for a disc (hull None)."""
-    dx = poses[..., 0] - nominal[..., 0]
-    dy = poses[..., 1] - nominal[..., 1]
-    if hull is None:
-        return np.hypot(dx, dy)
-    dc = np.cos(poses[..., 2]) - np.cos(nominal[..., 2])
-    ds = np.sin(poses[..., 2]) - np.sin(nominal[..., 2])
-    out = None
-    for bx, by in hull:
-        d = np.hypot(dx + dc * bx - ds * by, dy + ds * bx + dc * by)
-        out = d if out is None else np.maximum(out, d, out=out)
-    return out
 
 
 def interior_stops(nominal, pose_idx, speed_tol: float = 1e-6) -> list[tuple[float, float]]:
@@ -170,7 +135,6 @@ def remaining_law(law, tau: float):
     """The feedback law ``law`` from time ``tau`` of its plan on, as a law of its own starting at 0 (the
     same grid values of x0, u0 and K from the first grid time at or after tau; None if fewer than three
     grid points are left). For the error tube of the rest of a maneuver."""
-    from .execution.controllers import FeedbackLaw
 
     t = law.t
     i = int(np.searchsorted(t, float(tau) - 1e-9 * max(1.0, abs(float(tau)))))
@@ -217,8 +181,6 @@ def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
 
     Raises :class:`NumericalError` when a rollout diverges (a non-finite state or input): the loop
     cannot be certified."""
-    from .batch.vector import simulate_shared
-    from .tubes import Tube, certified_clearance, pose_indices, run_schedule
 
     model = model or law.nominal.model
     if rollouts is None:

@@ -69,12 +69,12 @@ import numpy as np
 from scipy.linalg.lapack import dtbtrs
 from scipy.special import ndtr, owens_t
 
+from ..control.windows import transposed
 from ..errors import InputError, NumericalError
 from ..geometry import cos_sin, wrap_angle
 from ..models import Model
 from ..models.rwd_car import RwdCar
 from ..models.unicycle import Unicycle
-from .windows import transposed
 
 
 @dataclass
