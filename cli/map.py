@@ -22,7 +22,7 @@ def parse_pose(name: str, text: str | None):
         raise InputError(name, "x,y,theta (metres, metres, radians)", text) from None
     if not 3 <= len(values) <= 12 or not all(abs(v) < float("inf") for v in values):
         raise InputError(name, "x,y,theta (metres, metres, radians), finite; a car with trailers may add "
-                         "their headings theta1,...", text)
+                         "their headings theta1,..., a car its steering angle (the full state, phi = 0)", text)
     from nhstab.limits import check_headings
 
     check_headings(name, values)

@@ -19,8 +19,8 @@ EXIT_FAILURE = 1
 @click.command()
 @click.argument("map_file", metavar="MAP", type=click.Path(path_type=Path))
 @robot_options
-@click.option("--start", default=None, help="Start pose x,y,theta (default: the map's).")
-@click.option("--goal", default=None, help="Goal pose x,y,theta (default: the map's).")
+@click.option("--start", default=None, help="Start: the pose x,y,theta (a car_trailer may add its trailer angle theta1), or the robot's full state in its state order with phi = 0, e.g. rwd_car x,y,theta,0 (default: the map's).")
+@click.option("--goal", default=None, help="Goal: the pose x,y,theta (a car_trailer may add its trailer angle theta1), or the robot's full state in its state order with phi = 0, e.g. rwd_car x,y,theta,0 (default: the map's).")
 @click.option("--problem", type=int, default=None, help="Use the map's start/goal problem with this index.")
 @click.option("--planner", default="rrtconnect", show_default=True, help="OMPL planner: rrtconnect, rrtstar, bitstar, prmstar, ...")
 @click.option("--space", default="reeds_shepp", show_default=True, help="reeds_shepp (forward and reverse) or dubins.")
@@ -105,6 +105,8 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
         raise InputError(key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)", rob.model.name)
     s, g = resolve_poses(m, parse_pose("--start", start), parse_pose("--goal", goal), problem,
                          names=("--start", "--goal", "--problem"))
+    s = rob.configuration(s, "--start" if start is not None and problem is None else "start")
+    g = rob.configuration(g, "--goal" if goal is not None and problem is None else "goal")
     path_opts = PathOptions(space=space, turning_radius=turning_radius, planner=planner, time_limit_s=time_limit,
                             seed=seed, margin=None if margin in (None, "auto") else margin, guide=guide)
     if margin is None:

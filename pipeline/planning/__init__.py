@@ -176,7 +176,7 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
         from .trailer import plan_trailer
 
         return plan_trailer(m, robot, start, goal, path_opts, timing_opts, stab_opts, check_resolution, world)
-    start, goal = _pose(start, "start", model), _pose(goal, "goal", model)
+    start, goal = _pose(start, "start", robot), _pose(goal, "goal", robot)
     check_start_goal(start, goal)
     if model.name != "unicycle" and path_opts.turning_radius < min_turning_radius(model) - 1e-9:
         raise InputError("turning_radius", f"at least the {model.name}'s minimum turning radius "
@@ -417,20 +417,12 @@ def tracking_metrics(model: Model, path: GeometricPath, nominal: Nominal, max_ga
     return out
 
 
-def _pose(value, name: str, model: Model) -> np.ndarray:
-    """A start or goal pose: (x, y, theta) finite numbers (a full state of the model is also
-    accepted: its pose columns are used)."""
+def _pose(value, name: str, robot: Robot) -> np.ndarray:
+    """A start or goal pose (x, y, theta) of a single-body robot: the rule of
+    :meth:`~nhstab.robot.Robot.configuration` (a pose, or the full state with phi = 0)."""
     if isinstance(value, (str, bytes, dict)) or value is None:
-        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value)
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError, OverflowError):
-        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value) from None
-    if arr.shape == (model.n,) and model.n != 3:
-        arr = arr[pose_columns(model)]
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise InputError(name, "a pose of three finite numbers (x, y, theta)",
-                         value if arr.size < 10 else f"shape {arr.shape}")
+        raise InputError(name, robot.start_goal_text(), value)
+    arr = robot.configuration(value, name)
     check_headings(name, arr)
     return arr
 
