@@ -92,6 +92,7 @@ def open_store(config: BatchConfig, out_dir: Path, resume: bool) -> Store:
         raise InputError("--resume", "an existing batch store in --out", str(path))
     if resume:
         with Store(path, argument="--resume") as ro:
+            ro.verify()                 # every page and row read: a corrupt store is refused unchanged
             stored = ro.meta("fingerprint")
             stored_config = ro.meta("config", {}) or {}
         if stored != config.fingerprint():
@@ -184,7 +185,15 @@ def run_batch(config: BatchConfig, out_dir, workers: int = 1, scheduler: str | N
         if client is not None:
             check_workers(client, scheduler)
         specs = config.trial_specs()
-        with open_store(config, out_dir, resume) as store, _only_batch_in(out_dir):
+        with contextlib.ExitStack() as held:
+            # a resumed store is locked before it is opened for writing (nothing is written by a refused
+            # second resume); a new one once it exists under its name
+            early = resume and os.path.isdir(out_dir)
+            if early:
+                held.enter_context(_only_batch_in(out_dir))
+            store = held.enter_context(open_store(config, out_dir, resume))
+            if not early:
+                held.enter_context(_only_batch_in(out_dir))
             if retry_errors:
                 store.remove_errors()
             done = store.done_ids()
