@@ -14,6 +14,8 @@ from .options import cli_robot, robot_options
 EXIT_NO_PLAN = 3
 #: exit code when the plan is written but its tube could not be predicted
 EXIT_FAILURE = 1
+#: exit code when interrupted (a Ctrl-C while the plan's files are written: they are completed first)
+EXIT_INTERRUPTED = 130
 
 
 @click.command()
@@ -69,7 +71,8 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     Exit code 2 for a bad request (start or goal out of bounds or in collision, unknown planner, zero
     budget, ...), 3 when no plan was found within the budget (nothing is written then), 1 when the plan is
     found but its tube cannot be predicted (the linearised loop diverges under the law: the plan is
-    written, plan.json's ``tube_error`` says why).
+    written, plan.json's ``tube_error`` says why), 130 when interrupted (a Ctrl-C once the plan is found
+    does not stop its files being written).
     """
     from nhstab.execution import write_plan
     from nhstab.maps import resolve_poses
@@ -130,7 +133,13 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     if "fit" in extra:
         row = extra["fit"]["tries"][extra["fit"]["chosen"]]
         path_opts = replace(path_opts, seed=(path_opts.seed + row["seed_offset"]) % (2**31 - 1))
-    write_plan(result, out_dir, m, str(map_file), rob, s, g, path_opts, figures=figure, tube=tube, extra=extra)
+    from nhstab.interrupts import holding_interrupts, interrupt_held
+
+    with holding_interrupts():      # a Ctrl-C now does not lose the plan: its files are completed, then exit 130
+        write_plan(result, out_dir, m, str(map_file), rob, s, g, path_opts, figures=figure, tube=tube, extra=extra)
+    if interrupt_held():
+        click.echo(f"nhstab: interrupted after planning; the plan's files in {out_dir} are complete", err=True)
+        return EXIT_INTERRUPTED
     met = result.metrics
     cusps = met["cusps"]
     click.echo(f"plan found for {rob.name}: {met['length_m']:.2f} m, {cusps} cusp{'' if cusps == 1 else 's'}, "

@@ -100,7 +100,8 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     goal is reached, 4 when the run ended otherwise (collision, replan failed, timed out, missed goal,
     numerical failure), 5 when --require-certified refused a plan (run.json records the plan and its
     tube; the robot did not follow it), 3 when there was no first plan, 2 for bad input, 130 when
-    interrupted (the files then describe the interrupted run).
+    interrupted (the files then describe the interrupted run; a Ctrl-C once the simulation has ended
+    does not stop the writing: the files describe the run as it ended).
     """
     from nhstab.errors import InputError
     from nhstab.execution.config import RunOptions, load_run_config, merge
@@ -170,6 +171,7 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
                       pose_keys: tuple[str, str] = ("start", "goal")) -> int:
     from nhstab.errors import InputError
     from nhstab.execution import execute, write_run
+    from nhstab.interrupts import holding_interrupts, interrupt_held
     from nhstab.planning import PLANNABLE
     from nhstab.tubes import certified_text
 
@@ -184,7 +186,8 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
     check_map_budget(m, opts.planning.time_limit_s)
     click.echo(f"running {opts.controller.kind} control of {robot.name} on {m.name} (seed {opts.seed}) ...", err=True)
     result = execute(m, robot, start, goal, opts, notify=lambda line: click.echo(line, err=True))
-    files = write_run(result, out_dir, map_path, animate=animate, extra_files=extra_files)
+    with holding_interrupts():      # a Ctrl-C now does not lose the finished run: its files are completed
+        files = write_run(result, out_dir, map_path, animate=animate, extra_files=extra_files)
     replans = sum(1 for p in result.plans if p.trigger != "initial")
     click.echo(f"{result.status}: {result.message}")
     for rec in result.plans:
@@ -206,6 +209,9 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
     click.echo(f"{replans} replan(s), {len(result.discovered)} obstacle(s) discovered, "
                f"{result.log['t'][-1] if len(result.log['t']) else 0:.1f} s simulated in {result.wall_time_s:.1f} s")
     click.echo("wrote " + ", ".join(str(f) for f in files))
+    if interrupt_held():
+        click.echo(f"nhstab: interrupted after the run ended ({result.status}); its files are complete", err=True)
+        return EXIT_INTERRUPTED
     if result.status == "reached":
         return 0
     if result.status == "no_plan":

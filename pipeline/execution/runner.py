@@ -50,6 +50,7 @@ from .. import bodies
 from ..collision import CollisionWorld, interpolate_poses
 from ..errors import InputError, NumericalError, PipelineError
 from ..geometry import Footprint, wrap_angle
+from ..interrupts import holding_interrupts
 from ..maps.base import Circle, Map
 from ..models import Model
 from ..planning import (PathOptions, PlanResult, TimingOptions, plan,
@@ -811,7 +812,6 @@ def execute(m: Map, *args, **kwargs) -> RunResult:
 
 
 def _execute(m: Map, robot: Robot, start, goal, opts: RunOptions, notify=None) -> RunResult:
-    model, fp = robot.model, robot.footprint
     started = time.perf_counter()
     run = CompositeRun(m, robot, start, goal, opts)
     run.notify = notify
@@ -824,13 +824,19 @@ def _execute(m: Map, robot: Robot, start, goal, opts: RunOptions, notify=None) -
         status, message = "interrupted", f"interrupted by the user at t = {run.k * run.T:.2f} s"
     except NumericalError as exc:
         status, message = "numerical_failure", str(exc)
+    with holding_interrupts():          # the run has ended: a Ctrl-C now does not lose it (nhstab.interrupts)
+        return _result(run, robot, status, message, started)
+
+
+def _result(run: CompositeRun, robot: Robot, status: str, message: str, started: float) -> RunResult:
+    model, fp, opts = robot.model, robot.footprint, run.opts
     log = run.log.arrays(model.n, model.m)
     if run.final_errors is None and len(log["t"]):
         run.final_errors = final_errors(robot, log["x"][-1], run.goal)
     seeds = {"root": int(opts.seed), "planner_calls": [a["seed"] for p in run.plans for a in p.attempts],
              "streams": "numpy SeedSequence([root, stream, 0]); streams initial=0, sensor=1, process=2; "
                         "planner call i: SeedSequence([root, 3, i])"}
-    return RunResult(status, message, model, fp, m, run.start, run.goal, run.opts, run.plans, log, run.discovered,
+    return RunResult(status, message, model, fp, run.m, run.start, run.goal, run.opts, run.plans, log, run.discovered,
                      run.collision, seeds, time.perf_counter() - started,
                      {"final_errors": run.final_errors, "x_initial": getattr(run, "x_initial", None),
                       "period_s": run.T}, run.truth, robot)
