@@ -136,3 +136,15 @@ def test_batch_config_refuses_a_steered_problem_naming_the_key(tmp_path):
     with pytest.raises(InputError) as err:
         load_batch_config(cfg)
     assert err.value.argument == "maps[0].problems[0].start" and "phi = 0.3 rad" in str(err.value)
+
+
+def test_map_show_follows_the_same_rule(tmp_path):
+    png = tmp_path / "m.png"
+    res = CliRunner().invoke(cli, ["map", "show", ROOM, "--robot", "rwd_car", "--start", "1.8,1.8,0,-0.3",
+                                   "--out", str(png)])
+    assert "phi = -0.3 rad" in _one_error_line(res, "'--start'")
+    assert not png.exists()
+    res = CliRunner().invoke(cli, ["map", "show", ROOM, "--robot", "fwd_car", "--start", "1.8,1.8,0,0.3",
+                                   "--out", str(png)])
+    assert res.exit_code == 0, res.output
+    assert png.stat().st_size > 1000
