@@ -114,7 +114,9 @@ def plan(m: Map, robot: Robot, *args, **kwargs) -> PlanResult:
     """Plan a nominal trajectory of ``robot`` from start to goal on the map's known obstacles:
     ``plan(m, robot, start, goal, path_opts=None, timing_opts=None, stab_opts=None,
     check_resolution=0.05, world=None, car_opts=None)``; ``car_opts``: the car planner's
-    :class:`CarOptions` (:mod:`nhstab.planning.parking`).
+    :class:`CarOptions` (:mod:`nhstab.planning.parking`). ``start`` and ``goal``: poses x, y, theta (a
+    car_trailer may add its trailer headings) or the model's full state with phi = 0, the rule of
+    :meth:`~nhstab.robot.Robot.configuration` (the nominal starts and ends with phi = 0).
 
     ``robot`` is a :class:`~nhstab.robot.Robot` (footprint, turning radius, margin and stabilizer
     defaults come from it where the options leave them None). The older form
