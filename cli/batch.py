@@ -34,7 +34,8 @@ def run_cmd(config_file, out_dir, workers, scheduler, resume, retry_errors, no_p
     """Run every trial of CONFIG (strict YAML; see pipeline/batch/config.py), committing each to
     OUT/trials.sqlite as it finishes. A trial that fails by error is recorded with its error; the
     batch says how many did, and exits 1 if every trial it ran did. Ctrl-C stops the batch (exit
-    code 130) without storing the trials that were running; --resume runs them."""
+    code 130; SIGTERM 143, SIGHUP 129) without storing the trials that were running, and ends every
+    worker; --resume runs them. Workers also end when this process is killed."""
     import os
 
     from nhstab.batch.config import load_batch_config
@@ -53,12 +54,14 @@ def run_cmd(config_file, out_dir, workers, scheduler, resume, retry_errors, no_p
     try:
         counts = run_batch(config, out_dir, workers=workers or os.cpu_count() or 1, scheduler=scheduler,
                            resume=resume, progress=not no_progress, retry_errors=retry_errors)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", 2)          # SIGTERM, SIGHUP: BatchSignal; Ctrl-C: SIGINT
         store = out_dir / STORE_NAME
         stored = _stored_count(store)
-        click.echo(f"nhstab: interrupted: {stored} of {n} trials are stored in {store}; the running ones were "
+        how = "interrupted" if signum == 2 else f"stopped by {exc}"
+        click.echo(f"nhstab: {how}: {stored} of {n} trials are stored in {store}; the running ones were "
                    f"not; `nhstab batch {config_file} --out {out_dir} --resume` runs the rest", err=True)
-        return 130
+        return 128 + signum
     outcomes = ", ".join(f"{k} {v}" for k, v in sorted(counts["outcomes"].items(), key=lambda kv: (kv[0] == "error",
                                                                                                     -kv[1], kv[0])))
     click.echo(f"ran {counts['ran']} trials in {counts['wall_s']:.1f} s ({counts['already_stored']} already stored)"

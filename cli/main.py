@@ -37,8 +37,14 @@ _default_showwarning = warnings.showwarning
 
 
 def _on_sigint(signum, frame):
-    """Ctrl-C: KeyboardInterrupt, as Python's own handler, except inside an FCL callback, where the
-    exception would be printed and lost: there the collision query raises it when FCL returns."""
+    """Ctrl-C: KeyboardInterrupt, as Python's own handler, except while the files of a finished
+    computation are written (:func:`nhstab.interrupts.holding_interrupts`: they are completed, and the
+    command then exits 130), and inside an FCL callback, where the exception would be printed and
+    lost: there the collision query raises it when FCL returns."""
+    from nhstab.interrupts import hold_interrupt
+
+    if hold_interrupt():
+        return
     from nhstab.collision import defer_interrupt
 
     if not defer_interrupt(frame):
@@ -54,11 +60,15 @@ def _sigint_handler():
     if not main or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
         yield
         return
+    from nhstab.interrupts import interrupt_held
+
+    interrupt_held()                  # none held from an earlier command in this process
     signal.signal(signal.SIGINT, _on_sigint)
     try:
         yield
     finally:
         signal.signal(signal.SIGINT, signal.default_int_handler)
+        interrupt_held()
 
 
 class NhstabGroup(click.Group):

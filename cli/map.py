@@ -22,7 +22,7 @@ def parse_pose(name: str, text: str | None):
         raise InputError(name, "x,y,theta (metres, metres, radians)", text) from None
     if not 3 <= len(values) <= 12 or not all(abs(v) < float("inf") for v in values):
         raise InputError(name, "x,y,theta (metres, metres, radians), finite; a car with trailers may add "
-                         "their headings theta1,...", text)
+                         "their headings theta1,..., a car its steering angle (the full state, phi = 0)", text)
     from nhstab.limits import check_headings
 
     check_headings(name, values)
@@ -116,8 +116,8 @@ def info(map_file, as_json, robot, robot_config, cell_size, unknown):
 @click.argument("map_file", metavar="MAP", type=click.Path(path_type=Path))
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="PNG to write (default: MAP's name with .png in the current folder).")
-@click.option("--start", default=None, help="Start pose x,y,theta (default: the map's).")
-@click.option("--goal", default=None, help="Goal pose x,y,theta (default: the map's).")
+@click.option("--start", default=None, help="Start: the pose x,y,theta (a car_trailer may add theta1), or the robot's full state with phi = 0 (default: the map's).")
+@click.option("--goal", default=None, help="Goal: the pose x,y,theta (a car_trailer may add theta1), or the robot's full state with phi = 0 (default: the map's).")
 @robot_options
 @click.option("--problems", type=click.IntRange(min=0), default=0, show_default=True,
               help="Also draw this many of the map's start/goal problems.")
@@ -132,13 +132,20 @@ def show(map_file, out, start, goal, robot, robot_config, problems, cell_size, u
 
     if out is not None and (not str(out).strip() or str(out) in (".", "..") or str(out).endswith(("/", "\\"))):
         raise InputError("--out", "the path of a PNG file to write", str(out))
+    from .options import cli_robot
+
     m = load(map_file, cell_size, unknown)
-    fp = _footprint(m, robot, robot_config)
+    rob = cli_robot(robot, robot_config, None, m.robot)
+    fp = rob.footprint
     s = parse_pose("--start", start) or _arr(m.start)
     g = parse_pose("--goal", goal) or _arr(m.goal)
-    clear = check_poses(m, fp, {"start": s, "goal": g})
+    # the rule of every start and goal (Robot.configuration), for the robots nhstab plans for
+    if "x" in rob.model.state_names and "theta" in rob.model.state_names:
+        s = None if s is None else rob.configuration(s, "--start" if start is not None else "start")
+        g = None if g is None else rob.configuration(g, "--goal" if goal is not None else "goal")
+    clear = check_poses(m, fp, {"start": None if s is None else s[:3], "goal": None if g is None else g[:3]})
     out = out or Path(safe_file_name(m.name, fallback=Path(str(map_file)).stem) + ".png")
-    fig = map_figure(m, start=s, goal=g, footprint=fp, problems=problems,
+    fig = map_figure(m, start=s, goal=g, footprint=fp, problems=problems, robot=rob,
                      title=f"{m.name}: {fp.label}" + "".join(f", {k} clearance {v:.2f} m" for k, v in clear.items()))
     save_figure(fig, out)
     click.echo(f"wrote {out}")

@@ -78,9 +78,15 @@ def figure(car, seeds, out_dir):
     if result is None:
         click.echo(f"no parallel slot of the {car} was parked with seeds {seeds}; see {out_dir / 'tried.json'}")
         return 4
-    files = write_run(result, out_dir, f"example:{row['name']}")
+    from nhstab.interrupts import holding_interrupts, interrupt_held
+
+    with holding_interrupts():      # a Ctrl-C now does not lose the finished run: its files are completed
+        files = write_run(result, out_dir, f"example:{row['name']}")
     click.echo(f"{row['name']} ({row['factor']:g} x L1, slot {row['size_m']:.2f} m), seed {seed}: {result.message}")
     click.echo("wrote " + ", ".join(str(f) for f in files) + f", {out_dir / 'tried.json'}")
+    if interrupt_held():
+        click.echo("nhstab: interrupted after the run ended; its files are complete", err=True)
+        return 130
     return 0
 
 

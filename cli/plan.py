@@ -14,13 +14,15 @@ from .options import cli_robot, robot_options
 EXIT_NO_PLAN = 3
 #: exit code when the plan is written but its tube could not be predicted
 EXIT_FAILURE = 1
+#: exit code when interrupted (a Ctrl-C while the plan's files are written: they are completed first)
+EXIT_INTERRUPTED = 130
 
 
 @click.command()
 @click.argument("map_file", metavar="MAP", type=click.Path(path_type=Path))
 @robot_options
-@click.option("--start", default=None, help="Start pose x,y,theta (default: the map's).")
-@click.option("--goal", default=None, help="Goal pose x,y,theta (default: the map's).")
+@click.option("--start", default=None, help="Start: the pose x,y,theta (a car_trailer may add its trailer angle theta1), or the robot's full state in its state order with phi = 0, e.g. rwd_car x,y,theta,0 (default: the map's).")
+@click.option("--goal", default=None, help="Goal: the pose x,y,theta (a car_trailer may add its trailer angle theta1), or the robot's full state in its state order with phi = 0, e.g. rwd_car x,y,theta,0 (default: the map's).")
 @click.option("--problem", type=int, default=None, help="Use the map's start/goal problem with this index.")
 @click.option("--planner", default="rrtconnect", show_default=True, help="OMPL planner: rrtconnect, rrtstar, bitstar, prmstar, ...")
 @click.option("--space", default="reeds_shepp", show_default=True, help="reeds_shepp (forward and reverse) or dubins.")
@@ -69,7 +71,8 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     Exit code 2 for a bad request (start or goal out of bounds or in collision, unknown planner, zero
     budget, ...), 3 when no plan was found within the budget (nothing is written then), 1 when the plan is
     found but its tube cannot be predicted (the linearised loop diverges under the law: the plan is
-    written, plan.json's ``tube_error`` says why).
+    written, plan.json's ``tube_error`` says why), 130 when interrupted (a Ctrl-C once the plan is found
+    does not stop its files being written).
     """
     from nhstab.errors import InputError
     from nhstab.execution import write_plan
@@ -106,6 +109,8 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
         raise InputError(key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)", rob.model.name)
     s, g = resolve_poses(m, parse_pose("--start", start), parse_pose("--goal", goal), problem,
                          names=("--start", "--goal", "--problem"))
+    s = rob.configuration(s, "--start" if start is not None and problem is None else "start")
+    g = rob.configuration(g, "--goal" if goal is not None and problem is None else "goal")
     path_opts = PathOptions(space=space, turning_radius=turning_radius, planner=planner, time_limit_s=time_limit,
                             seed=seed, margin=None if margin in (None, "auto") else margin, guide=guide)
     if margin is None:
@@ -129,7 +134,13 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     if "fit" in extra:
         row = extra["fit"]["tries"][extra["fit"]["chosen"]]
         path_opts = replace(path_opts, seed=(path_opts.seed + row["seed_offset"]) % (2**31 - 1))
-    write_plan(result, out_dir, m, str(map_file), rob, s, g, path_opts, figures=figure, tube=tube, extra=extra)
+    from nhstab.interrupts import holding_interrupts, interrupt_held
+
+    with holding_interrupts():      # a Ctrl-C now does not lose the plan: its files are completed, then exit 130
+        write_plan(result, out_dir, m, str(map_file), rob, s, g, path_opts, figures=figure, tube=tube, extra=extra)
+    if interrupt_held():
+        click.echo(f"nhstab: interrupted after planning; the plan's files in {out_dir} are complete", err=True)
+        return EXIT_INTERRUPTED
     met = result.metrics
     cusps = met["cusps"]
     click.echo(f"plan found for {rob.name}: {met['length_m']:.2f} m, {cusps} cusp{'' if cusps == 1 else 's'}, "

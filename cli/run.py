@@ -41,8 +41,8 @@ def parse_levels(name: str, text: str | None) -> dict | None:
 @click.option("--config", "config_file", type=click.Path(path_type=Path), default=None,
               help="Run config (YAML) giving any option; the command line overrides it.")
 @robot_options
-@click.option("--start", default=None, help="Start pose x,y,theta (default: the map's).")
-@click.option("--goal", default=None, help="Goal pose x,y,theta (default: the map's).")
+@click.option("--start", default=None, help="Start: the pose x,y,theta (a car_trailer may add its trailer angle theta1), or the robot's full state in its state order with phi = 0, e.g. rwd_car x,y,theta,0 (default: the map's).")
+@click.option("--goal", default=None, help="Goal: the pose x,y,theta (a car_trailer may add its trailer angle theta1), or the robot's full state in its state order with phi = 0, e.g. rwd_car x,y,theta,0 (default: the map's).")
 @click.option("--problem", type=int, default=None, help="Use the map's start/goal problem with this index.")
 @click.option("--controller", default=None, help="gramian (default), tvlqr or open-loop.")
 @click.option("--window", default=None,
@@ -100,7 +100,8 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     goal is reached, 4 when the run ended otherwise (collision, replan failed, timed out, missed goal,
     numerical failure), 5 when --require-certified refused a plan (run.json records the plan and its
     tube; the robot did not follow it), 3 when there was no first plan, 2 for bad input, 130 when
-    interrupted (the files then describe the interrupted run).
+    interrupted (the files then describe the interrupted run; a Ctrl-C once the simulation has ended
+    does not stop the writing: the files describe the run as it ended).
     """
     from nhstab.errors import InputError
     from nhstab.execution.config import RunOptions, load_run_config, merge
@@ -155,28 +156,38 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     rob = cli_robot(robot, robot_config, opts.robot, m.robot)
     s, g = resolve_poses(m, parse_pose("--start", start) or opts.start, parse_pose("--goal", goal) or opts.goal,
                          problem, names=("--start", "--goal", "--problem"))
+    s_key = "--start" if start is not None else f"start (in {config_file})" if opts.start is not None else "start"
+    g_key = "--goal" if goal is not None else f"goal (in {config_file})" if opts.goal is not None else "goal"
+    if problem is not None:
+        s_key, g_key = "start", "goal"
     robot_key = ("--robot" if robot else "--robot-config" if robot_config else
                  f"robot (in {config_file})" if opts.robot is not None else f"robot.model (in {map_path})")
-    return execute_and_write(m, str(map_path), opts, rob, s, g, out_dir, animate, robot_key=robot_key)
+    return execute_and_write(m, str(map_path), opts, rob, s, g, out_dir, animate, robot_key=robot_key,
+                             pose_keys=(s_key, g_key))
 
 
 def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path, animate: bool,
-                      robot_key: str = "robot", extra_files: dict | None = None) -> int:
+                      robot_key: str = "robot", extra_files: dict | None = None,
+                      pose_keys: tuple[str, str] = ("start", "goal")) -> int:
     from nhstab.errors import InputError
     from nhstab.execution import execute, write_run
+    from nhstab.interrupts import holding_interrupts, interrupt_held
     from nhstab.planning import PLANNABLE
     from nhstab.tubes.base import certified_text
 
     if robot.model.name not in PLANNABLE:
         raise InputError(robot_key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)",
                          robot.model.name)
+    # a pose, or the full state with phi = 0 (Robot.configuration): refused here, under the name it was given by
+    start, goal = robot.configuration(start, pose_keys[0]), robot.configuration(goal, pose_keys[1])
     opts.validated(robot.model.state_names, robot.model.m)      # every option checked before anything runs
     from nhstab.planning import check_map_budget
 
     check_map_budget(m, opts.planning.time_limit_s)
     click.echo(f"running {opts.controller.kind} control of {robot.name} on {m.name} (seed {opts.seed}) ...", err=True)
     result = execute(m, robot, start, goal, opts, notify=lambda line: click.echo(line, err=True))
-    files = write_run(result, out_dir, map_path, animate=animate, extra_files=extra_files)
+    with holding_interrupts():      # a Ctrl-C now does not lose the finished run: its files are completed
+        files = write_run(result, out_dir, map_path, animate=animate, extra_files=extra_files)
     replans = sum(1 for p in result.plans if p.trigger != "initial")
     click.echo(f"{result.status}: {result.message}")
     for rec in result.plans:
@@ -198,6 +209,9 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
     click.echo(f"{replans} replan(s), {len(result.discovered)} obstacle(s) discovered, "
                f"{result.log['t'][-1] if len(result.log['t']) else 0:.1f} s simulated in {result.wall_time_s:.1f} s")
     click.echo("wrote " + ", ".join(str(f) for f in files))
+    if interrupt_held():
+        click.echo(f"nhstab: interrupted after the run ended ({result.status}); its files are complete", err=True)
+        return EXIT_INTERRUPTED
     if result.status == "reached":
         return 0
     if result.status == "no_plan":

@@ -153,26 +153,44 @@ class Robot:
         return x[..., self.pose_columns][..., None, :]
 
     def configuration(self, value, name: str = "pose") -> np.ndarray:
-        """A start or goal as the planning configuration (x, y, theta[, theta1 .. thetaN]): from a pose
-        (x, y, theta) (a car_trailer's trailers then in line with the car), a configuration, or a full
-        state. Raises :class:`InputError` naming ``name`` otherwise."""
-        sizes = "a pose of three finite numbers (x, y, theta)" if not self.trailers else (
-            "a pose of three finite numbers (x, y, theta; the trailers in line with the car) or x, y, theta, "
-            + ", ".join(f"theta{i}" for i in range(1, self.trailers + 1)))
+        """A start or goal as the planning configuration (x, y, theta[, theta1 .. thetaN]).
+
+        Accepted, for every model alike: the pose x, y, theta (a car_trailer's trailers then in line
+        with the car), the configuration itself, or the model's full state in its state order
+        (:attr:`state_names`). Every plan starts and ends with the steering angle at 0, so a full state
+        is accepted only with phi = 0; any other phi, or any other length, raises :class:`InputError`
+        naming ``name`` (no coordinate is dropped)."""
+        expected = self.start_goal_text()
         try:
-            arr = np.asarray(value, dtype=float).reshape(-1)
-        except (TypeError, ValueError):
-            raise InputError(name, sizes, value) from None
+            arr = np.asarray(value, dtype=float)
+        except (TypeError, ValueError, OverflowError):
+            raise InputError(name, expected, value) from None
         cols = self.configuration_columns
-        if not np.all(np.isfinite(arr)):
-            raise InputError(name, sizes, value)
+        if arr.ndim != 1 or not np.all(np.isfinite(arr)):
+            raise InputError(name, expected, value)
+        shown = [float(v) for v in arr] if arr.size < 12 else f"{arr.size} numbers"
         if len(arr) == self.model.n and len(arr) != len(cols):
+            k = self.steering_column
+            if k is not None and arr[k] != 0.0:
+                lo, hi = self.model.state_limits()[k]
+                beyond = "" if lo <= arr[k] <= hi else f", beyond the steering limits [{lo:g}, {hi:g}] rad"
+                raise InputError(name, expected, shown,
+                                 detail=f"phi = {arr[k]:g} rad{beyond}: the plan starts and ends with phi = 0")
             return arr[cols]
         if len(arr) == len(cols):
             return arr.copy()
         if len(arr) == 3 and self.trailers:
             return np.concatenate([arr, np.full(self.trailers, arr[2])])
-        raise InputError(name, sizes, value if arr.size < 12 else f"{arr.size} numbers")
+        raise InputError(name, expected, shown)
+
+    def start_goal_text(self) -> str:
+        """What a start or goal of this robot may be (for errors and help)."""
+        pose = "a pose of three finite numbers x,y,theta"
+        if self.trailers:
+            pose += " (the trailers in line) or x,y,theta," + ",".join(f"theta{i}" for i in range(1, self.trailers + 1))
+        if self.model.n == len(self.configuration_columns):
+            return pose
+        return f"{pose}, or the {self.model.name}'s full state {','.join(self.model.state_names)} with phi = 0"
 
     @property
     def min_turning_radius(self) -> float:

@@ -125,7 +125,9 @@ def test_robot_description_lists_and_trailer_footprints():
     assert d.turning_radius == pytest.approx(5.0 * d.model.min_turning_radius)
     assert d.configuration([1, 2, 0.3]).tolist() == [1, 2, 0.3, 0.3]          # trailer in line
     assert d.configuration([1, 2, 0.3, 0.1]).tolist() == [1, 2, 0.3, 0.1]
-    assert d.configuration([1, 2, 0.3, 0.05, 0.1]).tolist() == [1, 2, 0.3, 0.1]  # a full state
+    assert d.configuration([1, 2, 0.3, 0.0, 0.1]).tolist() == [1, 2, 0.3, 0.1]   # a full state, phi = 0
+    with pytest.raises(InputError, match="phi = 0.05 rad"):                        # no phi is dropped
+        d.configuration([1, 2, 0.3, 0.05, 0.1])
 
 
 @pytest.mark.parametrize("spec,argument", [

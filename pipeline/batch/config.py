@@ -326,13 +326,18 @@ def _check_problems(key: str, m, problems, robot, opts) -> None:
     for j, (start, goal) in enumerate(problems):
         for which, pose in (("start", start), ("goal", goal)):
             where = f"{key}[{j}].{which}"
+            rob_name = robot.name or robot.model.name
+            try:                    # the rule every start and goal follows (nhstab.robot.Robot.configuration)
+                pose = robot.configuration(pose, where)
+            except InputError as exc:
+                raise InputError(where, f"for the {rob_name}: {exc.expected}", exc.got, detail=exc.detail) from None
             if not m.contains(pose[0], pose[1]):
-                raise InputError(where, f"a pose inside the bounds of {m.name} {list(m.bounds)}", list(pose))
+                raise InputError(where, f"a pose inside the bounds of {m.name} {list(m.bounds)}", [float(v) for v in pose])
             world = world or CollisionWorld.from_map(m, "known")
-            c = world.clearance(np.asarray(pose, dtype=float), fp)
+            c = world.clearance(pose[:3], fp)
             if c <= margin:
                 raise InputError(where, f"a pose more than the planning margin {margin:g} m from the known "
-                                 f"obstacles of {m.name} for the {robot.name or robot.model.name}", [round(float(v), 4) for v in pose],
+                                 f"obstacles of {m.name} for the {rob_name}", [round(float(v), 4) for v in pose],
                                  detail=f"clearance {c:.3g} m")
 
 

@@ -9,7 +9,10 @@ Interruption (Ctrl-C, SIGINT): the batch stops, the trials already stored stay s
 ones are abandoned (never stored: an interrupted trial has no result) and :class:`KeyboardInterrupt`
 propagates (``nhstab batch`` exits with 130); ``--resume`` runs every trial without a row. Local
 workers ignore SIGINT, so a Ctrl-C at a terminal (which signals the whole process group) and a
-SIGINT to the driving process alone behave the same: the driver stops the workers.
+SIGINT to the driving process alone behave the same: the driver stops the workers. SIGTERM and
+SIGHUP stop the batch the same way (:class:`BatchSignal`, a KeyboardInterrupt); a worker they reach
+directly ends at once with its children. A worker whose driver is gone (killed with SIGKILL) ends
+too (:func:`_die_with`), so no process of a batch outlives it.
 
 Before anything is created in ``--out``, the config, the scheduler address and the connection to
 it are checked, so a refused request leaves nothing behind; a resumed batch must match the stored
@@ -67,20 +70,69 @@ def _progress(total: int, initial: int, enabled: bool):
                 dynamic_ncols=True, smoothing=0.1)
 
 
-def _worker_init(bundles: dict | None = None):
+def _worker_init(bundles: dict | None = None, driver: int | None = None):
     if bundles:
         provide_bundles(bundles)
     # one core per worker: no nested threading in numpy's BLAS
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = "1"
-    # Ctrl-C is the driver's business (it stops the workers); SIGTERM from the driver ends the
-    # running trial through the normal exit path, so that the planner's child process is reaped
+    # Ctrl-C is the driver's business (it stops the workers). SIGTERM (from the driver, or sent to
+    # the whole process group) and SIGHUP end the worker at once, with its own children: the pool's
+    # loop would catch an exception raised by the handler and wait for the next trial for ever
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, _exit_on_term)
+    signal.signal(signal.SIGTERM, _worker_exit)
+    if hasattr(signal, "SIGHUP") and signal.getsignal(signal.SIGHUP) is not signal.SIG_IGN:     # not under nohup
+        signal.signal(signal.SIGHUP, _worker_exit)
+    if driver is not None:
+        _die_with(driver)
 
 
-def _exit_on_term(signum, frame):
-    raise SystemExit(128 + signum)
+def _worker_exit(signum, frame):
+    """End this worker now: its children first (a planner's forked search), then the process, without
+    going back to the pool's loop."""
+    import multiprocessing as mp
+
+    children = mp.active_children()
+    for child in children:
+        with contextlib.suppress(Exception):
+            child.terminate()
+    for child in children:
+        with contextlib.suppress(Exception):
+            child.join(1.0)
+            if child.is_alive():
+                child.kill()
+    os._exit(128 + signum)
+
+
+#: how often a worker without PR_SET_PDEATHSIG checks that its driver is alive [s]
+PARENT_POLL_S = 0.5
+
+
+def _die_with(driver: int) -> None:
+    """End this worker (as SIGTERM does) when the driving process ``driver`` is gone, however it ended
+    (SIGKILL included): on Linux the kernel sends SIGTERM when the parent dies (prctl
+    PR_SET_PDEATHSIG; the pool forks its workers from the thread that runs the batch, which lives as
+    long as the batch); elsewhere a daemon thread checks every PARENT_POLL_S that the parent is still
+    ``driver``. A driver already gone when this runs ends the worker at once."""
+    armed = False
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            armed = libc.prctl(1, int(signal.SIGTERM), 0, 0, 0) == 0         # PR_SET_PDEATHSIG = 1
+        except (OSError, AttributeError):
+            armed = False
+    if os.getppid() != driver:
+        _worker_exit(signal.SIGTERM, None)
+    if not armed:
+        threading.Thread(target=_watch_driver, args=(driver,), name="nhstab-driver-watch", daemon=True).start()
+
+
+def _watch_driver(driver: int) -> None:
+    while os.getppid() == driver:
+        time.sleep(PARENT_POLL_S)
+    os.kill(os.getpid(), signal.SIGTERM)
 
 
 def open_store(config: BatchConfig, out_dir: Path, resume: bool) -> Store:
@@ -96,6 +148,7 @@ def open_store(config: BatchConfig, out_dir: Path, resume: bool) -> Store:
         raise InputError("--resume", "an existing batch store in --out", str(path))
     if resume:
         with Store(path, argument="--resume") as ro:
+            ro.verify()                 # every page and row read: a corrupt store is refused unchanged
             stored = ro.meta("fingerprint")
             stored_config = ro.meta("config", {}) or {}
         if stored != config.fingerprint():
@@ -186,7 +239,15 @@ def run_batch(config: BatchConfig, out_dir, workers: int = 1, scheduler: str | N
         if client is not None:
             check_workers(client, scheduler)
         specs = config.trial_specs()
-        with open_store(config, out_dir, resume) as store, _only_batch_in(out_dir):
+        with contextlib.ExitStack() as held:
+            # a resumed store is locked before it is opened for writing (nothing is written by a refused
+            # second resume); a new one once it exists under its name
+            early = resume and os.path.isdir(out_dir)
+            if early:
+                held.enter_context(_only_batch_in(out_dir))
+            store = held.enter_context(open_store(config, out_dir, resume))
+            if not early:
+                held.enter_context(_only_batch_in(out_dir))
             if retry_errors:
                 store.remove_errors()
             done = store.done_ids()
@@ -195,12 +256,13 @@ def run_batch(config: BatchConfig, out_dir, workers: int = 1, scheduler: str | N
             tally = _Tally(config.bundles())
             started = time.perf_counter()
             try:
-                if client is not None:
-                    _run_dask(todo, client, store, bar, config.bundles(), tally)
-                elif workers <= 1:
-                    _run_serial(todo, store, bar, config.bundles(), tally)
-                else:
-                    _run_local(todo, workers, store, bar, config.bundles(), tally)
+                with _stop_signals() as stopping:
+                    if client is not None:
+                        _run_dask(todo, client, store, bar, config.bundles(), tally)
+                    elif workers <= 1:
+                        _run_serial(todo, store, bar, config.bundles(), tally, stopping)
+                    else:
+                        _run_local(todo, workers, store, bar, config.bundles(), tally)
             finally:
                 bar.close()
                 wall = time.perf_counter() - started
@@ -306,40 +368,77 @@ def _record_run(store: Store, tally: _Tally, executor: str, where, wall: float) 
         pass
 
 
-def _run_serial(todo: list, store: Store, bar, bundles: dict, tally: _Tally) -> None:
+def _run_serial(todo: list, store: Store, bar, bundles: dict, tally: _Tally, stopping=None) -> None:
     provide_bundles(bundles)
     try:
-        with _interrupt_flag() as interrupted:
-            for spec in todo:
-                record = run_trial(spec)
-                if interrupted.is_set():     # a Ctrl-C the trial's code may have swallowed
-                    raise KeyboardInterrupt
-                _store(store, record, tally)
-                bar.update(1)
+        for spec in todo:
+            record = run_trial(spec)
+            if stopping is not None and stopping.is_set():     # a signal the trial's code may have swallowed
+                raise stopping.exception()
+            _store(store, record, tally)
+            bar.update(1)
     finally:
         withdraw_bundles(bundles)
 
 
+class BatchSignal(KeyboardInterrupt):
+    """SIGTERM or SIGHUP stopped the batch: handled as Ctrl-C is (the running trials are abandoned and
+    the workers ended); ``signum`` says which (``nhstab batch`` exits with 128 + signum)."""
+
+    def __init__(self, signum: int):
+        self.signum = int(signum)
+        super().__init__(signal.Signals(self.signum).name)
+
+
+#: the signals that stop a batch (each ends every worker before the batch returns)
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+class _Stopping(threading.Event):
+    """Set by the first stop signal; ``signum`` is that signal's."""
+
+    signum: int = signal.SIGINT
+
+    def exception(self) -> KeyboardInterrupt:
+        return KeyboardInterrupt() if self.signum == signal.SIGINT else BatchSignal(self.signum)
+
+
 @contextlib.contextmanager
-def _interrupt_flag():
-    """While trials run in this process: SIGINT raises KeyboardInterrupt as usual and also sets the
-    flag, so that a trial during which Ctrl-C was pressed is never stored, even if some library
-    code on the way caught the exception."""
-    flag = threading.Event()
+def _stop_signals():
+    """While the batch runs: the first SIGINT raises KeyboardInterrupt, the first SIGTERM or SIGHUP
+    :class:`BatchSignal`, in the driving process, so that the batch stops its workers on its way out
+    (a process killed by the signal's default action would leave them running); the flag is set too,
+    so that a trial during which one arrived is never stored even if library code on the way caught
+    the exception. Later signals wait (the batch is already stopping; ``timeout`` sends SIGTERM to
+    the process and then to its group). A signal the process ignores (SIGHUP under nohup, SIGINT in a
+    background job) stays ignored. Outside the main thread nothing is installed."""
+    flag = _Stopping()
     if threading.current_thread() is not threading.main_thread():
         yield flag
         return
 
     def handler(signum, frame):
+        if flag.is_set():
+            return
+        flag.signum = signum
         flag.set()
+        if signum != signal.SIGINT:
+            raise BatchSignal(signum)
         if not defer_interrupt(frame):       # inside an FCL callback: raised when FCL returns
             raise KeyboardInterrupt
 
-    previous = signal.signal(signal.SIGINT, handler)
+    previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS
+                if signal.getsignal(sig) is not signal.SIG_IGN}
     try:
-        yield flag
+        try:
+            yield flag
+        except KeyboardInterrupt as exc:
+            if flag.is_set() and flag.signum != signal.SIGINT and not isinstance(exc, BatchSignal):
+                raise BatchSignal(flag.signum) from exc     # the signal, whatever the trial turned it into
+            raise
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for sig, old in previous.items():
+            signal.signal(sig, old)
 
 
 def _store(store: Store, record: dict, tally: _Tally) -> None:
@@ -357,7 +456,8 @@ def _run_local(todo: list, workers: int, store: Store, bar, bundles: dict, tally
     # fork keeps the already imported modules (and the maps the config loaded); the workers get the
     # bundles as their initializer's argument, so that any start method gives them the same maps
     ctx = mp.get_context("fork")
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=(bundles,))
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
+                               initargs=(bundles, os.getpid()))
     try:
         pending = set()
         queue = iter(todo)
@@ -388,12 +488,13 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
     """Abandon the running trials: cancel what is queued, end the workers (SIGTERM, then SIGKILL
     after a grace period) and wait for them, so that no worker outlives the batch."""
     main = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None     # a second Ctrl-C waits
+    # a second Ctrl-C (or SIGTERM, SIGHUP) waits for the workers' end
+    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in STOP_SIGNALS} if main else {}
     try:
         _end_workers(pool)
     finally:
-        if main:
-            signal.signal(signal.SIGINT, previous)
+        for sig, old in previous.items():
+            signal.signal(sig, old)
 
 
 def _end_workers(pool: ProcessPoolExecutor) -> None:

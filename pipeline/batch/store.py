@@ -157,6 +157,32 @@ class Store:
             self.db.close()
             self.db = None
 
+    def verify(self) -> None:
+        """Read the whole store and refuse it (:class:`StoreError`) unless it is intact: SQLite's
+        integrity check of every page, then every row of every table read and every JSON value
+        parsed. Reads only; a store about to be written (``--resume``) is verified first, so that a
+        corrupt one is refused before a byte of it changes."""
+        rows = self._query("PRAGMA integrity_check")
+        problems = [str(r[0]) for r in rows if r and r[0] != "ok"]
+        if problems:
+            more = f" (and {len(problems) - 1} more problems)" if len(problems) > 1 else ""
+            raise self._error(f"database disk image is malformed: {problems[0]}{more}")
+        json_columns = {"meta": ("value",), "trials": ("spec", "metrics", "series", "timings", "versions")}
+        tables = ("meta", "trials") + (("maps",) if self.schema >= 2 else ())
+        for table in tables:
+            columns = _COLUMNS[table]
+            try:
+                for row in self.db.execute(f"SELECT {', '.join(columns)} FROM {table}"):
+                    record = dict(zip(columns, row))
+                    for column in json_columns.get(table, ()):
+                        if record[column] is not None:
+                            try:
+                                json.loads(record[column])
+                            except (TypeError, ValueError) as exc:
+                                raise self._error(f"{table} row {row[0]!r}: {column} is not JSON ({exc})") from None
+            except sqlite3.DatabaseError as exc:
+                raise self._error(exc) from None
+
     # ---- meta -----------------------------------------------------------------------------------
     def set_meta(self, key: str, value) -> None:
         if not self.writable:

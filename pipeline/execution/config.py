@@ -10,7 +10,8 @@ was given. The format::
                                       #   {model: rwd_car, wheelbase: 2.7, footprint: {...}, margin: 0.1, ...}
                                       #   (see nhstab.robot)
     start: [x, y, theta]              # default: the map's (car_trailer: [x, y, theta, theta1, ...] gives the
-    goal: [x, y, theta]               #   trailers' headings; three numbers put them in line with the car)
+    goal: [x, y, theta]               #   trailers' headings; three numbers put them in line with the car;
+                                      #   or the model's full state with phi = 0, see Robot.configuration)
     seed: 0                           # root seed: initial error, sensor and process noise, planner
     rate_hz: 50                       # controller rate (zero-order hold)
     substeps: 4                       # RK4 steps of the plant per control period

@@ -50,6 +50,7 @@ from .. import bodies
 from ..collision import CollisionWorld, interpolate_poses
 from ..errors import InputError, NumericalError, PipelineError
 from ..geometry import Footprint, wrap_angle
+from ..interrupts import holding_interrupts
 from ..limits import MAX_CONTROL_PERIODS
 from ..maps import resolve_poses
 from ..maps.base import Circle, Map
@@ -195,19 +196,19 @@ class CompositeRun:
 
     def __init__(self, m: Map, robot: Robot, start, goal, opts: RunOptions):
         model, fp = robot.model, robot.footprint
-        check_start_goal(np.asarray(start, dtype=float), np.asarray(goal, dtype=float))
+        # the planning configurations (x, y, theta, and a car_trailer's trailer headings): the rule of
+        # Robot.configuration, so that nothing given is dropped and every record holds what was planned
+        start, goal = robot.configuration(start, "start"), robot.configuration(goal, "goal")
+        check_start_goal(start, goal)
         self.m, self.robot, self.model, self.fp = m, robot, model, fp
         opts = opts.validated(model.state_names, model.m)
         check_map_budget(m, opts.planning.time_limit_s)
         if opts.planning.margin is None:
             opts = dataclasses.replace(opts, planning=dataclasses.replace(opts.planning, margin=robot.margin))
         self.opts = opts
-        self.start = np.asarray(start, dtype=float)
-        self.goal = np.asarray(goal, dtype=float)
+        self.start, self.goal = start, goal
         #: the planning configuration of the start (x, y, theta, and a car_trailer's trailer headings)
-        self._start_configuration = robot.configuration(self.start, "start")
-        if robot.trailers:
-            self.goal = robot.configuration(self.goal, "goal")
+        self._start_configuration = start.copy()
         self.T = 1.0 / opts.rate_hz
         self.plant = Plant(model, self.T, opts.substeps)
         self.plan_model = derated(model, opts.headroom) if opts.headroom < 1.0 else model
@@ -759,8 +760,9 @@ def execute(m: Map, *args, **kwargs) -> RunResult:
     """Run the composite controller once: ``execute(m, robot=None, start=None, goal=None, opts=None)``.
 
     ``robot``: a :class:`~nhstab.robot.Robot`; None takes ``opts.robot`` (a model name or a robot
-    spec), else the map's ``robot:`` block, else the unicycle. ``start``/``goal``: poses; None takes
-    the map's. ``opts``: :class:`RunOptions` (default: all defaults). ``notify`` (keyword only): a
+    spec), else the map's ``robot:`` block, else the unicycle. ``start``/``goal``: poses x, y, theta (a
+    car_trailer may add its trailer headings) or the model's full state with phi = 0
+    (:meth:`~nhstab.robot.Robot.configuration`); None takes the map's. ``opts``: :class:`RunOptions` (default: all defaults). ``notify`` (keyword only): a
     function called with one line of text each time a plan becomes active: its error tube's verdict
     (certified or not, where it is tightest, what would certify it), before the robot follows it. The older form
     ``execute(m, model, footprint, start, goal, opts)`` is still accepted.
@@ -794,11 +796,11 @@ def execute(m: Map, *args, **kwargs) -> RunResult:
 
     start, goal = resolve_poses(m, given.get("start") if given.get("start") is not None else opts.start,
                                 given.get("goal") if given.get("goal") is not None else opts.goal)
+    start, goal = robot.configuration(start, "start"), robot.configuration(goal, "goal")
     return _execute(m, robot, start, goal, opts, notify)
 
 
 def _execute(m: Map, robot: Robot, start, goal, opts: RunOptions, notify=None) -> RunResult:
-    model, fp = robot.model, robot.footprint
     started = time.perf_counter()
     run = CompositeRun(m, robot, start, goal, opts)
     run.notify = notify
@@ -811,13 +813,19 @@ def _execute(m: Map, robot: Robot, start, goal, opts: RunOptions, notify=None) -
         status, message = "interrupted", f"interrupted by the user at t = {run.k * run.T:.2f} s"
     except NumericalError as exc:
         status, message = "numerical_failure", str(exc)
+    with holding_interrupts():          # the run has ended: a Ctrl-C now does not lose it (nhstab.interrupts)
+        return _result(run, robot, status, message, started)
+
+
+def _result(run: CompositeRun, robot: Robot, status: str, message: str, started: float) -> RunResult:
+    model, fp, opts = robot.model, robot.footprint, run.opts
     log = run.log.arrays(model.n, model.m)
     if run.final_errors is None and len(log["t"]):
         run.final_errors = final_errors(robot, log["x"][-1], run.goal)
     seeds = {"root": int(opts.seed), "planner_calls": [a["seed"] for p in run.plans for a in p.attempts],
              "streams": "numpy SeedSequence([root, stream, 0]); streams initial=0, sensor=1, process=2; "
                         "planner call i: SeedSequence([root, 3, i])"}
-    return RunResult(status, message, model, fp, m, run.start, run.goal, run.opts, run.plans, log, run.discovered,
+    return RunResult(status, message, model, fp, run.m, run.start, run.goal, run.opts, run.plans, log, run.discovered,
                      run.collision, seeds, time.perf_counter() - started,
                      {"final_errors": run.final_errors, "x_initial": getattr(run, "x_initial", None),
                       "period_s": run.T}, run.truth, robot)

@@ -103,7 +103,9 @@ def plan(m: Map, robot: Robot, *args, **kwargs) -> PlanResult:
     """Plan a nominal trajectory of ``robot`` from start to goal on the map's known obstacles:
     ``plan(m, robot, start, goal, path_opts=None, timing_opts=None, stab_opts=None,
     check_resolution=0.05, world=None, car_opts=None)``; ``car_opts``: the car planner's
-    :class:`CarOptions` (:mod:`nhstab.planning.parking`).
+    :class:`CarOptions` (:mod:`nhstab.planning.parking`). ``start`` and ``goal``: poses x, y, theta (a
+    car_trailer may add its trailer headings) or the model's full state with phi = 0, the rule of
+    :meth:`~nhstab.robot.Robot.configuration` (the nominal starts and ends with phi = 0).
 
     ``robot`` is a :class:`~nhstab.robot.Robot` (footprint, turning radius, margin and stabilizer
     defaults come from it where the options leave them None). The older form
@@ -163,7 +165,7 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
     check_map_budget(m, path_opts.time_limit_s, path_opts.resolution)
     if model.name == "car_trailer":       # the trailer's path, the rig checked (nhstab.planning.trailer)
         return plan_trailer(m, robot, start, goal, path_opts, timing_opts, stab_opts, check_resolution, world)
-    start, goal = _pose(start, "start", model), _pose(goal, "goal", model)
+    start, goal = _pose(start, "start", robot), _pose(goal, "goal", robot)
     check_start_goal(start, goal)
     if model.name != "unicycle" and path_opts.turning_radius < min_turning_radius(model) - 1e-9:
         raise InputError("turning_radius", f"at least the {model.name}'s minimum turning radius "
@@ -400,20 +402,12 @@ def tracking_metrics(model: Model, path: GeometricPath, nominal: Nominal, max_ga
     return out
 
 
-def _pose(value, name: str, model: Model) -> np.ndarray:
-    """A start or goal pose: (x, y, theta) finite numbers (a full state of the model is also
-    accepted: its pose columns are used)."""
+def _pose(value, name: str, robot: Robot) -> np.ndarray:
+    """A start or goal pose (x, y, theta) of a single-body robot: the rule of
+    :meth:`~nhstab.robot.Robot.configuration` (a pose, or the full state with phi = 0)."""
     if isinstance(value, (str, bytes, dict)) or value is None:
-        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value)
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError, OverflowError):
-        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value) from None
-    if arr.shape == (model.n,) and model.n != 3:
-        arr = arr[pose_columns(model)]
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise InputError(name, "a pose of three finite numbers (x, y, theta)",
-                         value if arr.size < 10 else f"shape {arr.shape}")
+        raise InputError(name, robot.start_goal_text(), value)
+    arr = robot.configuration(value, name)
     check_headings(name, arr)
     return arr
 
