@@ -43,13 +43,12 @@ def real_sigint():
 @pytest.mark.parametrize("where", ["csv", "figure", "result"])
 def test_ctrl_c_after_the_run_keeps_its_files(tmp_path, monkeypatch, real_sigint, where):
     from nhstab.execution import outputs, runner
-    from nhstab.report import runs
 
     calls: dict = {}
     if where == "csv":            # writing trajectory.csv
         monkeypatch.setattr(outputs, "trajectory_csv", _interrupting(outputs.trajectory_csv, calls))
     elif where == "figure":       # drawing run_tracking.png, after run_map.png was staged
-        monkeypatch.setattr(runs, "run_tracking_figure", _interrupting(runs.run_tracking_figure, calls))
+        monkeypatch.setattr(outputs, "run_tracking_figure", _interrupting(outputs.run_tracking_figure, calls))
     else:                         # assembling the result, after the simulation loop
         monkeypatch.setattr(runner.RunLog, "arrays", _interrupting(runner.RunLog.arrays, calls))
     out = tmp_path / "out"
@@ -66,10 +65,10 @@ def test_ctrl_c_after_the_run_keeps_its_files(tmp_path, monkeypatch, real_sigint
 
 
 def test_ctrl_c_while_a_plan_is_written_keeps_its_files(tmp_path, monkeypatch, real_sigint):
-    import nhstab.trajectory_io as tio
+    from nhstab.execution import outputs
 
     calls: dict = {}
-    monkeypatch.setattr(tio, "write_trajectory", _interrupting(tio.write_trajectory, calls))
+    monkeypatch.setattr(outputs, "write_trajectory", _interrupting(outputs.write_trajectory, calls))
     out = tmp_path / "p"
     res = CliRunner().invoke(cli, ["plan", ROOM, "--out", str(out), "--tube", "linear", "--no-figure"])
     assert calls["n"] == 2
