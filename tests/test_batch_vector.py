@@ -23,7 +23,7 @@ from nhstab.maps.base import Map, Pose, box_polygon
 from nhstab.models import make_model
 from nhstab.nominal import Nominal
 from nhstab.paper import CASES
-from nhstab.robot import default_footprint
+from nhstab.robot import default_footprint, make_robot
 
 SEEDS = [0, 1, 7, 123, 2026]
 
@@ -265,7 +265,7 @@ def test_bit_identical_to_the_composite_run_on_its_own_plan():
     m = Map("open", (0.0, 0.0, 20.0, 10.0), obstacles=(box_polygon(10.0, 8.5, 4.0, 1.0),),
             start=Pose(2.0, 5.0, 0.0), goal=Pose(17.0, 5.0, 0.0))
     seed = 4
-    r = execute(m, make_model("unicycle"), default_footprint("unicycle"), m.start.as_array(), m.goal.as_array(),
+    r = execute(m, make_robot(make_model("unicycle"), footprint=default_footprint("unicycle")), m.start.as_array(), m.goal.as_array(),
                 RunOptions(seed=seed))
     assert r.status in ("reached", "missed_goal") and len(r.plans) == 1
     o = r.options

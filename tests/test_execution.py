@@ -25,7 +25,7 @@ from nhstab.execution.seeds import planner_seed
 from nhstab.maps.base import Map, Pose, box_polygon
 from nhstab.models import make_model
 from nhstab.nominal import Nominal
-from nhstab.robot import default_footprint
+from nhstab.robot import default_footprint, make_robot
 from scipy.integrate import solve_ivp
 from scipy.linalg import solve_continuous_are
 
@@ -194,7 +194,7 @@ def _open_map(unknown=()):
 
 def _run(m, **kw):
     model, fp = make_model("unicycle"), default_footprint("unicycle")
-    return execute(m, model, fp, m.start.as_array(), m.goal.as_array(), RunOptions(**kw))
+    return execute(m, make_robot(model, footprint=fp), m.start.as_array(), m.goal.as_array(), RunOptions(**kw))
 
 
 def test_noiseless_run_tracks_the_nominal_to_integration_accuracy():
@@ -250,10 +250,10 @@ def test_same_seed_same_run_json_except_timing(tmp_path):
 def test_a_start_in_collision_is_bad_input_and_an_unreachable_goal_is_a_status():
     m = _open_map()
     with pytest.raises(InputError, match="start"):
-        execute(m, make_model("unicycle"), default_footprint("unicycle"), np.array([10.0, 8.5, 0.0]),
+        execute(m, make_robot(make_model("unicycle"), footprint=default_footprint("unicycle")), np.array([10.0, 8.5, 0.0]),
                 m.goal.as_array(), RunOptions())
     walled = replace(m, obstacles=m.obstacles + (box_polygon(12.0, 5.0, 0.5, 10.0),))
-    r = execute(walled, make_model("unicycle"), default_footprint("unicycle"), m.start.as_array(),
+    r = execute(walled, make_robot(make_model("unicycle"), footprint=default_footprint("unicycle")), m.start.as_array(),
                 np.array([17.0, 5.0, 0.0]), RunOptions(planning=replace(RunOptions().planning, time_limit_s=0.3)))
     assert r.status == "no_plan" and "no collision-free path" in r.message
 

@@ -12,7 +12,7 @@ import pytest
 from nhstab.collision import CollisionWorld, interpolate_poses
 from nhstab.examples import data_root
 from nhstab.geometry import Footprint
-from nhstab.robot import default_footprint
+from nhstab.robot import default_footprint, make_robot
 from nhstab.maps import load_map
 from nhstab.maps.base import Map, box_polygon
 from nhstab.models import make_model
@@ -35,7 +35,7 @@ def _fresh_min_clearance(m, fp, poses):
 def _check(m, robot, start, goal, seed, world):
     model, fp = make_model(robot), default_footprint(robot)
     opts = PathOptions(turning_radius=default_turning_radius(model), time_limit_s=10.0, seed=seed, margin=MARGIN)
-    r = plan(m, model, fp, start, goal, opts, world=world)
+    r = plan(m, make_robot(model, footprint=fp), start, goal, opts, world=world)
     assert r.ok, r.message
     assert r.path.status == "exact"
     assert r.schedule is not None and r.metrics["h_min_eigenvalue"] > 0        # stabilizable

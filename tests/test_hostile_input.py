@@ -292,9 +292,9 @@ def room():
 def test_library_calls_with_bad_poses_raise_input_error(room, bad):
     model, fp = nhstab.make_model("unicycle"), nhstab.default_footprint("unicycle")
     goal = room.goal.as_array()
-    calls = [lambda: nhstab.plan(room, model, fp, bad, goal), lambda: nhstab.plan(room, model, fp, goal, bad)]
+    calls = [lambda: nhstab.plan(room, nhstab.make_robot(model, footprint=fp), bad, goal), lambda: nhstab.plan(room, nhstab.make_robot(model, footprint=fp), goal, bad)]
     if bad is not None:                  # execute takes None as "the map's start"
-        calls.append(lambda: nhstab.execute(room, model, fp, bad, goal, nhstab.RunOptions()))
+        calls.append(lambda: nhstab.execute(room, nhstab.make_robot(model, footprint=fp), bad, goal, nhstab.RunOptions()))
     for call in calls:
         with pytest.raises(InputError, match="pose of three"):
             call()
@@ -309,9 +309,9 @@ def test_library_calls_with_wrong_types_raise_input_error(room):
     bad_t = np.array([0.0, 1.0, 1.0, 2.0])
     calls = [
         lambda: nhstab.load_map(12345), lambda: nhstab.load_map(None),
-        lambda: nhstab.plan("room", model, fp, s, g), lambda: nhstab.plan(room, "unicycle", fp, s, g),
-        lambda: nhstab.plan(room, model, "disc", s, g), lambda: nhstab.plan(room, model, fp, s, g, path_opts={}),
-        lambda: nhstab.execute(room, model, fp, s, g, "fast"), lambda: nhstab.execute("room", model, fp, s, g),
+        lambda: nhstab.plan("room", nhstab.make_robot(model, footprint=fp), s, g), lambda: nhstab.plan(room, "unicycle", fp, s, g),
+        lambda: nhstab.plan(room, model, "disc", s, g), lambda: nhstab.plan(room, nhstab.make_robot(model, footprint=fp), s, g, path_opts={}),
+        lambda: nhstab.execute(room, nhstab.make_robot(model, footprint=fp), s, g, "fast"), lambda: nhstab.execute("room", nhstab.make_robot(model, footprint=fp), s, g),
         lambda: nhstab.compute_schedule("nominal"),
         lambda: Nominal(model, bad_t, np.zeros((4, 3)), np.ones((4, 2))),
         lambda: Nominal.from_samples(model, bad_t[::-1], np.zeros((4, 3)), np.ones((4, 2))),

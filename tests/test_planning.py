@@ -12,7 +12,7 @@ from shapely.geometry import Polygon as SPolygon
 
 from nhstab.cli.main import cli
 from nhstab.collision import CollisionWorld
-from nhstab.robot import default_footprint
+from nhstab.robot import default_footprint, make_robot
 from nhstab.maps import load_map
 from nhstab.maps.base import Circle, Polygon
 from nhstab.models import make_model
@@ -74,7 +74,7 @@ def test_unicycle_plans_on_real_maps(rel, opts, poses):
         s, g = np.array(poses[0]), np.array(poses[1])
     model, fp = make_model("unicycle"), default_footprint("unicycle")
     margin = 0.1
-    r = plan(m, model, fp, s, g, PathOptions(turning_radius=0.5, time_limit_s=5.0, seed=2, margin=margin))
+    r = plan(m, make_robot(model, footprint=fp), s, g, PathOptions(turning_radius=0.5, time_limit_s=5.0, seed=2, margin=margin))
     assert r.ok, r.message
     poses_x = r.nominal.x[:, pose_columns(model)]
     # collision-free by the margin, re-checked independently of FCL (shapely), every 5th grid point
@@ -91,7 +91,7 @@ def test_plan_stabilize_simulate_through_cusps():
     error converges and the executed path keeps its clearance (re-checked with shapely)."""
     m = load_map(MAPS / "ours/cluttered_room.yaml")
     model, fp = make_model("unicycle"), default_footprint("unicycle")
-    r = plan(m, model, fp, m.start.as_array(), m.goal.as_array(),
+    r = plan(m, make_robot(model, footprint=fp), m.start.as_array(), m.goal.as_array(),
              PathOptions(turning_radius=0.5, time_limit_s=5.0, seed=1, margin=0.1))
     assert r.ok and r.metrics["cusps"] >= 2
     e0 = np.array([0.05, -0.04, 0.05])
@@ -206,7 +206,7 @@ def test_car_plans_on_real_maps(robot, where):
         m = load_map(MAPS / ("ours/parking_lot.yaml" if where == "ours_parking_lot" else "ours/warehouse_corridor.yaml"))
         s, g = m.start.as_array(), m.goal.as_array()
     margin = 0.1
-    r = plan(m, model, fp, s, g, PathOptions(turning_radius=default_turning_radius(model), time_limit_s=5.0, seed=2,
+    r = plan(m, make_robot(model, footprint=fp), s, g, PathOptions(turning_radius=default_turning_radius(model), time_limit_s=5.0, seed=2,
                                               margin=margin))
     assert r.ok, r.message
     x = r.nominal.x

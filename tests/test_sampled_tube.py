@@ -14,7 +14,7 @@ from nhstab.geometry import Footprint
 from nhstab.maps.base import Map, Pose, box_polygon
 from nhstab.models import make_model
 from nhstab.nominal import Nominal
-from nhstab.robot import default_footprint
+from nhstab.robot import default_footprint, make_robot
 from nhstab.tubes.base import displacement, hull_vertices, rollouts_needed
 from nhstab.tubes.predict import predict_tube
 from nhstab.tubes.sampled import interior_stops, linear_validity, sampled_tube
@@ -166,7 +166,7 @@ def test_rollouts_are_the_run_loop_bit_for_bit():
     same true states at every control sample, bit for bit, and so the same displacements."""
     m = _open_map()
     seed = 4
-    r = execute(m, make_model("unicycle"), default_footprint("unicycle"), m.start.as_array(), m.goal.as_array(),
+    r = execute(m, make_robot(make_model("unicycle"), footprint=default_footprint("unicycle")), m.start.as_array(), m.goal.as_array(),
                 RunOptions(seed=seed))
     assert r.status in ("reached", "missed_goal") and len(r.plans) == 1
     o = r.options

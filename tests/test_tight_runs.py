@@ -18,7 +18,7 @@ from nhstab.execution.config import TubeOptions, options_from_mapping
 from nhstab.maps import load_map
 from nhstab.maps.base import Map, Pose, box_polygon
 from nhstab.models import make_model
-from nhstab.robot import default_footprint
+from nhstab.robot import default_footprint, make_robot
 from nhstab.tubes.sampled import remaining_law, sampled_tube
 
 
@@ -49,7 +49,7 @@ def _open_map():
 def test_require_certified_lets_a_certified_plan_run():
     m = _open_map()
     lines = []
-    r = execute(m, make_model("unicycle"), default_footprint("unicycle"), m.start.as_array(), m.goal.as_array(),
+    r = execute(m, make_robot(make_model("unicycle"), footprint=default_footprint("unicycle")), m.start.as_array(), m.goal.as_array(),
                 RunOptions(seed=2, tube=TubeOptions(require_certified=True)), notify=lines.append)
     assert r.status == "reached" and r.plans[0].tube.certified
     assert len(lines) == 1 and "certified clear by" in lines[0]

@@ -64,7 +64,7 @@ from ..planning import (
     plan,
     pose_columns,
 )
-from ..robot import Robot, make_robot, resolve_robot
+from ..robot import Robot, resolve_robot
 from ..sensing import RangeSensor
 from ..tubes.base import tube_line, verdict
 from ..tubes.fit import (
@@ -756,36 +756,44 @@ def final_errors(robot: Robot, x, goal) -> dict:
     return out
 
 
-def execute(m: Map, *args, **kwargs) -> RunResult:
-    """Run the composite controller once: ``execute(m, robot=None, start=None, goal=None, opts=None)``.
+def execute(m: Map, robot: Robot | None = None, start=None, goal=None, opts: RunOptions | None = None, *,
+            notify=None) -> RunResult:
+    """Run the composite controller once: plan, track under noise, monitor, replan.
 
-    ``robot``: a :class:`~nhstab.robot.Robot`; None takes ``opts.robot`` (a model name or a robot
-    spec), else the map's ``robot:`` block, else the unicycle. ``start``/``goal``: poses x, y, theta (a
-    car_trailer may add its trailer headings) or the model's full state with phi = 0
-    (:meth:`~nhstab.robot.Robot.configuration`); None takes the map's. ``opts``: :class:`RunOptions` (default: all defaults). ``notify`` (keyword only): a
-    function called with one line of text each time a plan becomes active: its error tube's verdict
-    (certified or not, where it is tightest, what would certify it), before the robot follows it. The older form
-    ``execute(m, model, footprint, start, goal, opts)`` is still accepted.
+    Parameters
+    ----------
+    m : Map
+        The map (:func:`nhstab.load_map`), with its known and unknown obstacles.
+    robot : Robot, optional
+        The robot (:func:`nhstab.make_robot`); None takes ``opts.robot`` (a model name or a robot
+        spec), else the map's ``robot:`` block, else the unicycle.
+    start, goal : array_like, optional
+        Poses x, y, theta (a car_trailer may add its trailer headings) or the model's full state with
+        phi = 0 (:meth:`nhstab.robot.Robot.configuration`); None takes the run options', else the
+        map's.
+    opts : RunOptions, optional
+        Controller, noise, sensing, replanning and tube options (default: all defaults).
+    notify : callable, optional
+        Called with one line of text each time a plan becomes active: its error tube's verdict
+        (certified or not, where it is tightest, what would certify it), before the robot follows it.
 
-    Never raises for what happens during the run (the status says it); bad input raises
-    :class:`InputError` before anything runs (a first plan that cannot be requested, e.g. a start in
-    collision, is bad input)."""
-    if args and isinstance(args[0], Model):
-        if len(args) < 2:
-            raise InputError("footprint", "a Footprint after the model (or pass a Robot)", None)
-        model, fp, *args = args
-        args = [make_robot(model, footprint=fp), *args]
-    names = ("robot", "start", "goal", "opts")
-    if len(args) > len(names):
-        raise InputError("execute", f"at most {len(names) + 1} positional arguments", len(args) + 1)
-    given = dict(zip(names, args))
-    notify = kwargs.pop("notify", None)
+    Returns
+    -------
+    RunResult
+        The run's status, log, plans and metrics. What happens during the run (a collision, a missed
+        goal, an interruption) is in its status, never raised.
+
+    Raises
+    ------
+    InputError
+        Bad input, before anything runs (a first plan that cannot be requested, e.g. a start in
+        collision, is bad input).
+    """
+    if robot is not None and not isinstance(robot, Robot):
+        raise InputError("robot", "a Robot (nhstab.make_robot(model, footprint=...)) or None", type(robot).__name__)
     if notify is not None and not callable(notify):
         raise InputError("notify", "a function of one line of text, or None", type(notify).__name__)
-    for key, v in kwargs.items():
-        if key not in names or key in given:
-            raise InputError(f"execute {key}", "one of robot, start, goal, opts, given once", key)
-        given[key] = v
+    given = {"robot": robot, "start": start, "goal": goal, "opts": opts}
     opts = given.get("opts") or RunOptions()
     if not isinstance(opts, RunOptions):
         raise InputError("opts", "a RunOptions", type(opts).__name__)

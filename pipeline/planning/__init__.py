@@ -24,7 +24,7 @@ from ..limits import FCL_CHECK_S, check_headings
 from ..maps.base import Map
 from ..models import Model
 from ..nominal import Nominal
-from ..robot import Robot, default_robot, make_robot
+from ..robot import Robot, default_robot
 from .cars import CarPlanningError, car_nominal, exact_nominal
 from .geometric import (
     PLANNERS,
@@ -99,32 +99,53 @@ def default_turning_radius(model: Model) -> float:
     return default_robot(model.name, **model.params()).turning_radius
 
 
-def plan(m: Map, robot: Robot, *args, **kwargs) -> PlanResult:
-    """Plan a nominal trajectory of ``robot`` from start to goal on the map's known obstacles:
-    ``plan(m, robot, start, goal, path_opts=None, timing_opts=None, stab_opts=None,
-    check_resolution=0.05, world=None, car_opts=None)``; ``car_opts``: the car planner's
-    :class:`CarOptions` (:mod:`nhstab.planning.parking`). ``start`` and ``goal``: poses x, y, theta (a
-    car_trailer may add its trailer headings) or the model's full state with phi = 0, the rule of
-    :meth:`~nhstab.robot.Robot.configuration` (the nominal starts and ends with phi = 0).
+def plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = None,
+         timing_opts: TimingOptions | None = None, stab_opts: StabilizerOptions | None = None,
+         check_resolution: float = 0.05, world: CollisionWorld | None = None,
+         car_opts: CarOptions | None = None) -> PlanResult:
+    """Plan a nominal trajectory of ``robot`` from ``start`` to ``goal`` on the map's known obstacles.
 
-    ``robot`` is a :class:`~nhstab.robot.Robot` (footprint, turning radius, margin and stabilizer
-    defaults come from it where the options leave them None). The older form
-    ``plan(m, model, footprint, start, goal, ...)`` is still accepted: the model's built-in robot
-    with that footprint.
+    Parameters
+    ----------
+    m : Map
+        The map (:func:`nhstab.load_map`); only its known obstacles are planned around.
+    robot : Robot
+        The robot (:func:`nhstab.make_robot`, :func:`nhstab.load_robot`): its model, footprint,
+        margin, turning radius and stabilizer defaults apply where the options leave them None.
+    start, goal : array_like
+        Poses x, y, theta (a car_trailer may add its trailer headings), or the model's full state with
+        phi = 0 (the rule of :meth:`nhstab.robot.Robot.configuration`); the nominal starts and ends
+        with phi = 0.
+    path_opts : PathOptions, optional
+        The search: planner, time budget, seed, margin, turning radius.
+    timing_opts : TimingOptions, optional
+        The time parameterisation: speed and acceleration limits.
+    stab_opts : StabilizerOptions, optional
+        The gramian stabilizer whose gain schedule is computed along the nominal (default: the
+        robot's).
+    check_resolution : float
+        Spacing [m] at which the nominal's poses are checked against the obstacles.
+    world : CollisionWorld, optional
+        The collision world of the map's known obstacles, if already built (it is built otherwise).
+    car_opts : CarOptions, optional
+        The car planner's options (:mod:`nhstab.planning.parking`).
 
-    Bad requests (start or goal outside the bounds or in collision, bad options, a model this planner
-    does not handle) raise :class:`InputError`; a request the planner cannot satisfy returns a result
-    whose ``status`` says why.
+    Returns
+    -------
+    PlanResult
+        ``status`` "ok" with the nominal, its path, gain schedule and metrics, or why there is no
+        usable plan ("no_path", "infeasible", "not_clear", "not_stabilizable").
+
+    Raises
+    ------
+    InputError
+        For a bad request: start or goal outside the bounds or in collision, bad options, a model
+        this planner does not handle.
     """
-    if isinstance(robot, Model):
-        if not args:
-            raise InputError("footprint", "a Footprint after the model (or pass a Robot)", None)
-        fp, *args = args
-        robot = make_robot(robot, footprint=fp)
     if not isinstance(robot, Robot):
-        raise InputError("robot", "a Robot (nhstab.robot.make_robot) or a Model and a Footprint",
+        raise InputError("robot", "a Robot (nhstab.make_robot(model, footprint=...) or nhstab.load_robot(path))",
                          type(robot).__name__)
-    return _plan(m, robot, *args, **kwargs)
+    return _plan(m, robot, start, goal, path_opts, timing_opts, stab_opts, check_resolution, world, car_opts)
 
 
 def search_margin(world: CollisionWorld, fp, margin: float, pad: float, poses, clearances: dict | None = None) -> float:
