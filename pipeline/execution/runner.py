@@ -772,8 +772,8 @@ def execute(m: Map, *args, **kwargs) -> RunResult:
     spec), else the map's ``robot:`` block, else the unicycle. ``start``/``goal``: poses; None takes
     the map's. ``opts``: :class:`RunOptions` (default: all defaults). ``notify`` (keyword only): a
     function called with one line of text each time a plan becomes active: its error tube's verdict
-    (certified or not, where it is tightest, what would certify it), before the robot follows it. The older form
-    ``execute(m, model, footprint, start, goal, opts)`` is still accepted.
+    (certified or not, where it is tightest, what would certify it), before the robot follows it. The form
+    ``execute(m, model, footprint, start, goal, opts)`` is also accepted.
 
     Never raises for what happens during the run (the status says it); bad input raises
     :class:`InputError` before anything runs (a first plan that cannot be requested, e.g. a start in

@@ -117,8 +117,8 @@ def plan(m: Map, robot: Robot, *args, **kwargs) -> PlanResult:
     :class:`CarOptions` (:mod:`nhstab.planning.parking`).
 
     ``robot`` is a :class:`~nhstab.robot.Robot` (footprint, turning radius, margin and stabilizer
-    defaults come from it where the options leave them None). The older form
-    ``plan(m, model, footprint, start, goal, ...)`` is still accepted: the model's built-in robot
+    defaults come from it where the options leave them None). The form
+    ``plan(m, model, footprint, start, goal, ...)`` is also accepted: the model's built-in robot
     with that footprint.
 
     Bad requests (start or goal outside the bounds or in collision, bad options, a model this planner
