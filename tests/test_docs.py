@@ -61,3 +61,35 @@ def test_relative_links_point_into_the_repository(page):
             bad.append(target)
     assert not bad, bad
     assert "shared/" not in text and "NOTES.md" not in text
+
+
+def _keys_documented(page: str, keys) -> list[str]:
+    text = (DOCS / "reference" / page).read_text()
+    return [k for k in keys if f"`{k}`" not in text]
+
+
+def test_the_format_references_name_every_key_the_loaders_accept():
+    """Every key a loader accepts has its row in the reference page of its format."""
+    from dataclasses import fields
+
+    from nhstab.batch import config as batch_config
+    from nhstab.execution import config as run_config
+    from nhstab.execution.controllers import ControllerOptions
+    from nhstab.maps import ros, yaml_format
+    from nhstab.models import MODELS, make_model
+    from nhstab.robot import ROBOT_KEYS, STABILIZER_KEYS
+
+    missing = _keys_documented("map-yaml.md", [*yaml_format._TOP_KEYS, *{k for keys in yaml_format._BASE_KEYS.values()
+                                                                       for k in keys}, *ros.ALLOWED_KEYS])
+    params = {p for name in MODELS for p in make_model(name).params()}
+    missing += _keys_documented("robot-yaml.md", [*ROBOT_KEYS, *STABILIZER_KEYS, *params, *MODELS])
+    sections = {name: [f.name for f in fields(cls)] for name, cls in run_config._SECTIONS.items()}
+    sections["controller"] = [f.name for f in fields(ControllerOptions)]
+    sections["sensor"] = ["range_m", "fov_deg", "rate_hz", "resolution_deg", "mount"]   # degrees in files
+    sections["noise"] = ["scale", "initial", "sensor", "process", "impulses", "distribution"]
+    missing += _keys_documented("run-config.md", [*run_config._TOP, *(k for name, keys in sections.items()
+                                                                      if name != "tube" for k in keys)])
+    missing += _keys_documented("tube-options.md", sections["tube"])
+    missing += _keys_documented("batch-config.md", [*batch_config._TOP, *batch_config._MAP_KEYS,
+                                                    *batch_config._GRID_KEYS])
+    assert not missing, missing
