@@ -35,8 +35,8 @@ def gains(trajectory, model_name, params, alpha, delta, gamma, window, end_strat
     """Compute the gramian gain schedule along the nominal in TRAJECTORY (CSV or NPZ).
 
     Writes gains.npz (t, P, K, H eigenvalues, gamma, x0, u0) and gains.json (options and diagnostics:
-    p_m, p_M, the guaranteed rate rate_bound = 3 alpha of the future window (NOTES.md item 8) beside the
-    paper's printed 2 alpha p_m / p_M (rate_bound_printed), the certified Lyapunov rates, the smallest
+    p_m, p_M, the guaranteed rate rate_bound = 3 alpha of the future window (docs/theory/control-law.md)
+    beside the paper's printed 2 alpha p_m / p_M (rate_bound_printed), the certified Lyapunov rates, the smallest
     eigenvalue of H and where). The past window has no guarantee (it is not stabilizing in general).
     """
     from nhstab.control import StabilizerOptions, compute_schedule

@@ -25,7 +25,7 @@ def stabilizer_options(defaults: bool = True):
                          help="What P is where the window runs off the trajectory: frozen, the last whole "
                               "window carried along the flow; extend, the window slides on along the nominal's "
                               "continuation under its last input, or its last real move where it ends at rest "
-                              "(the cars' default; see README; 'switch' was removed).")(f)
+                              "(the cars' default; see docs/theory/control-law.md).")(f)
         f = click.option("--window", type=click.Choice(windows), default="future" if defaults else None,
                          help="future: P_c = H_c(t, t+delta)^-1 (Proposition 1); frozen-time: the causal law "
                               "(Proposition 1 on A(t), B(t) frozen); past: P_r (Remark 2), NOT stabilizing in "

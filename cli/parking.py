@@ -9,7 +9,7 @@ import click
 
 @click.group("parking")
 def parking():
-    """The parking suite of issue 11: maps made from the cars' geometry (see maps/parking/SOURCE.md)."""
+    """The parking suite: maps made from the cars' geometry (see maps/parking/SOURCE.md)."""
 
 
 @parking.command("suite")

@@ -7,7 +7,7 @@ senses what the map missed.
 
 The names a user needs for the common jobs are here, at the top (each is documented where it lives):
 
-=======================  ==========================================================================
+======================== ==========================================================================
 ``load_map(path)``       any supported map file, or ``"example:NAME"`` (a bundled one) -> ``Map``
 ``list_examples()``      the bundled maps and scenarios (``nhstab examples``)
 ``make_robot(model)``    a robot: model, parameters, footprint, margin, stabilizer defaults (``Robot``)
@@ -24,7 +24,7 @@ The names a user needs for the common jobs are here, at the top (each is documen
 ``RunOptions``           options of a run (controller, noise, sensing, replanning); ``load_run_config``
 ``write_run``            a run's files (run.json, trajectory.csv, figures)
 ``load_batch_config``    a Monte Carlo batch config; ``run_batch`` runs it into a store
-=======================  ==========================================================================
+======================== ==========================================================================
 
 Submodules: ``nhstab.models``, ``nhstab.maps``, ``nhstab.collision``, ``nhstab.planning``,
 ``nhstab.control``, ``nhstab.execution``, ``nhstab.batch``, ``nhstab.report``.

@@ -3,7 +3,7 @@
 Every entry point (command line, run and batch configs, map files, library calls) checks its input
 against these before it allocates or computes anything that grows with them, and refuses what is
 beyond them with one :class:`~nhstab.errors.InputError` naming the key, the limit and the value.
-The README's "Limits" section lists them.
+docs/reference/limits.md lists them (tests/test_hostile_input.py holds the two equal).
 """
 
 from __future__ import annotations

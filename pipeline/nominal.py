@@ -179,14 +179,14 @@ class Nominal:
         return out
 
     def feasibility_residual(self, rtol: float = 1e-10, atol: float = 1e-12) -> float:
-        """max |x(t_k) - x0(t_k)| over the grid when the model is integrated from x0(t0) under u0,
+        """max ``|x(t_k) - x0(t_k)|`` over the grid when the model is integrated from x0(t0) under u0,
         independently of how x0 was made.
 
         Computed by multiple shooting, vectorised over the grid: every interval [t_k, t_k+1] is
         integrated from x0(t_k) under u0 by one step of the 8th-order Dormand-Prince tableau (scipy's
         DOP853 coefficients), all intervals at once, u0 evaluated at every stage time in one call. An
         interval whose embedded error estimate (DOP853's, as scipy's adaptive solver uses it) exceeds
-        atol + rtol |x| (u0 jumps inside it, e.g. where a path's curvature does) is split into pieces,
+        ``atol + rtol |x|`` (u0 jumps inside it, e.g. where a path's curvature does) is split into pieces,
         recursively, as an adaptive integrator would refine its step there; where the nominal's maker
         knows the times u0 jumps or kinks (``u_breaks``, e.g. a unicycle nominal's curvature changes),
         the intervals are cut there first, so that each piece is smooth (the end stages are taken a

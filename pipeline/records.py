@@ -136,7 +136,7 @@ _STAGING = ".nhstab-staging-"
 class OutputFolder:
     """Write one command's files into a folder so that the folder never mixes two runs.
 
-    The protocol (documented in the README, "Output folders"):
+    The protocol (documented in docs/reference/behaviour.md, "Output folders never mix two runs"):
 
     1. every file is written into a fresh staging folder inside the output folder
        (``.nhstab-staging-<pid>-<random>``), so nothing the command writes is visible before it

@@ -34,7 +34,7 @@ gain schedule, :data:`nhstab.control.gramian.END_STRATEGIES`) and the turning-ra
 schedules end with ``extend``: a car nominal that drives a straight run into its goal keeps its window
 sliding along that run's continuation, where the last whole window carried along the flow
 (``frozen``) let the largest gain grow to 55-80 on the parking suite's tight bays and ended the runs
-farther from the goal (README, Parking). The
+farther from the goal (docs/theory/control-law.md, "Ends of a trajectory"). The
 rule: the unicycle plans with a 0.5 m radius (it could turn in place; a radius keeps the path smooth
 and the gramian well conditioned); a car plans with 1.25 times its minimum turning radius
 R_min = L / tan(max_steer), so that the feedback keeps steering authority: on an arc of radius

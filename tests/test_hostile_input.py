@@ -556,7 +556,7 @@ def test_a_report_leaves_no_figure_of_an_earlier_report(tmp_path):
                                       if p.is_file() and p.name != MANIFEST}
 
 
-# ---- one loader, and the README's limits are the code's ---------------------------------------
+# ---- one loader, and the documented limits are the code's ---------------------------------------
 
 def test_every_yaml_read_goes_through_the_safe_loader():
     """No module but nhstab.safe_io parses YAML (writing it, yaml.safe_dump, is fine)."""
@@ -572,15 +572,15 @@ def test_every_yaml_read_goes_through_the_safe_loader():
     assert not offenders, offenders
 
 
-def test_the_readme_limits_are_the_code_limits():
+def test_the_documented_limits_are_the_code_limits():
+    """docs/reference/limits.md (the Limits table) states every bound of nhstab.limits."""
     from nhstab import limits
     from nhstab.clearance_field import ClearanceField
     from nhstab.control import StabilizerOptions
     from nhstab.planning import guide
 
-    readme = (ROOT / "README.md").read_text()
-    start = readme.index("### Limits")
-    section = readme[start:readme.index("\n### ", start + 1)]
+    section = (ROOT / "docs" / "reference" / "limits.md").read_text()
+    assert section.startswith("# Limits\n") and "| what | largest accepted | why |" in section
     assert limits.MAX_YAML_BYTES == 2**20 and "1 MiB, nested 64 levels, 2,000,000 values" in section
     assert limits.MAX_YAML_DEPTH == 64 and limits.MAX_YAML_NODES == 2_000_000
     assert limits.MAX_FILE_BYTES == 256 * 2**20 and "256 MiB" in section

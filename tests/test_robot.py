@@ -75,8 +75,8 @@ def test_builtin_robots_keep_the_old_defaults():
     u, c, f = default_robot("unicycle"), default_robot("rwd_car"), default_robot("fwd_car")
     assert (u.margin, c.margin, f.margin) == (0.1, 0.3, 0.2)
     assert u.stabilizer == {"alpha": 0.2, "delta": 2.0, "gamma": 1.0, "end_strategy": "frozen"}
-    # the cars' schedules keep sliding along a final straight run's continuation (README, Parking), and
-    # are split at cusps (README, The control law: no window looks across a cusp)
+    # the cars' schedules keep sliding along a final straight run's continuation (docs/theory/control-law.md, Ends of a trajectory), and
+    # are split at cusps (docs/theory/control-law.md, Cusps: no window looks across a cusp)
     assert c.stabilizer == {"alpha": 0.1, "delta": 6.0, "gamma": 1.0, "end_strategy": "extend", "cusps": "split"}
     assert f.stabilizer == {"alpha": 0.2, "delta": 3.0, "gamma": 1.0, "end_strategy": "extend", "cusps": "split"}
     assert u.turning_radius == 0.5 and c.turning_radius == pytest.approx(1.25 * 2.5 / math.tan(0.6))

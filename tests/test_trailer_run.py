@@ -84,7 +84,7 @@ def _check_rig(m, out: Path):
 
 @pytest.mark.slow
 def test_dock_scenario_reaches_the_dock_and_no_body_collides(tmp_path):
-    """Seed 2 (the README's example run; the batch report in results/trailer/ gives the success rate
+    """Seed 2 (the example run of docs/guide/run.md and the README's tour; the batch report in results/trailer/ gives the success rate
     over seeds)."""
     res, out = _run(tmp_path, DOCK, "--seed", "2")
     assert res.exit_code == 0, res.output

@@ -164,7 +164,7 @@ def test_run_with_margin_and_gains_auto_records_what_it_chose(auto_run):
     obs = s["tube"]["observed"]
     # one run's coverage is not a property of the tube (the study measures coverage over 200 trials per
     # cell); this seed draws an initial error near the tail whose correction saturates the inputs, the
-    # regime where the linear prediction is known to be optimistic (README, Error tubes). It must be a
+    # regime where the linear prediction is known to be optimistic (docs/guide/tubes.md). It must be a
     # fraction, recomputed exactly from the log below.
     assert 0.0 <= obs["inside_tube"] <= 1.0 and obs["samples"] > 100
     for rec, entry in zip(auto_run.plans, s["plans"]):

@@ -153,8 +153,8 @@ class StabilizerOptions:
         if self.window not in WINDOWS:
             raise InputError("window", "one of " + ", ".join(WINDOWS), self.window)
         if self.end_strategy == "switch":
-            raise InputError("end_strategy", "frozen or extend ('switch' was removed: it used the past window P_r, which is "
-                             "not stabilizing in general; see the README)", self.end_strategy)
+            raise InputError("end_strategy", "frozen or extend (there is no 'switch': it would use the past window P_r, "
+                             "which is not stabilizing in general; see docs/theory/control-law.md)", self.end_strategy)
         if self.end_strategy not in END_STRATEGIES:
             raise InputError("end_strategy", "one of " + ", ".join(END_STRATEGIES), self.end_strategy)
         if self.cusps not in CUSP_HANDLING:

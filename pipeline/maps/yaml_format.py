@@ -62,8 +62,8 @@
 # ---------------------------------------------------------------------------------------------
 """nhstab's own YAML map format: :func:`load_yaml_map` (strict; every error names the file and key).
 
-The format is documented in the comment block above (kept as comments so that it can be copied
-verbatim into the README).
+The format is documented in the comment block above, and with every key's type and default in
+docs/reference/map-yaml.md.
 """
 
 from __future__ import annotations
