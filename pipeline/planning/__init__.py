@@ -35,7 +35,7 @@ from .geometric import (
     plan_path,
 )
 from .parking import CarOptions, car_paths, failed_path
-from .result import PlanResult
+from .result import PlanResult, schedule_metrics
 from .timing import TimingOptions, unicycle_nominal
 from .trailer import plan_trailer
 
@@ -332,13 +332,8 @@ def _from_path(path: GeometricPath, robot: Robot, world: CollisionWorld, path_op
     except SingularGramianError as exc:
         metrics["time_to_nominal_s"] = time.perf_counter() - started
         return PlanResult("not_stabilizable", str(exc), path, nominal, metrics=metrics)
-    d = schedule.diagnostics
-    metrics.update({"robot": robot.name, "stabilizer": stab_opts.describe(), "h_min_eigenvalue": d["h_min_eigenvalue"],
-                    "h_min_eigenvalue_time_s": d["h_min_eigenvalue_time_s"], "max_gain_norm": d["max_gain_norm"],
-                    "p_m": d["p_m"], "p_M": d["p_M"], "rate_bound": d["rate_bound"],
-                    "rate_bound_printed": d["rate_bound_printed"],
-                    "time_to_nominal_s": time.perf_counter() - started})
-    metrics["tracking"] = tracking_metrics(model, path, nominal, d["max_gain_norm"], timing_opts.max_speed)
+    metrics.update(schedule_metrics(robot, stab_opts, schedule, started))
+    metrics["tracking"] = tracking_metrics(model, path, nominal, metrics["max_gain_norm"], timing_opts.max_speed)
     return PlanResult("ok", "exact path, feasible nominal, clear by the margin, gain schedule computed",
                       path, nominal, schedule, metrics)
 

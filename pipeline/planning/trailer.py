@@ -86,7 +86,7 @@ from ..nominal import Nominal
 from . import local_paths
 from .cars import direction_reversals
 from .geometric import GeometricPath, PathOptions, densify, path_directions, plan_path
-from .result import PlanResult
+from .result import PlanResult, schedule_metrics
 from .timing import TimingOptions
 from .trailer_charts import steer_trailer
 
@@ -648,10 +648,6 @@ def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts
     except SingularGramianError as exc:
         metrics["time_to_nominal_s"] = time.perf_counter() - started
         return PlanResult("not_stabilizable", str(exc), path, nominal, metrics=metrics)
-    dg = schedule.diagnostics
-    metrics.update({"robot": robot.name, "stabilizer": stab_opts.describe(), "h_min_eigenvalue": dg["h_min_eigenvalue"],
-                    "h_min_eigenvalue_time_s": dg["h_min_eigenvalue_time_s"], "max_gain_norm": dg["max_gain_norm"],
-                    "p_m": dg["p_m"], "p_M": dg["p_M"], "rate_bound": dg["rate_bound"],
-                    "time_to_nominal_s": time.perf_counter() - started})
+    metrics.update(schedule_metrics(robot, stab_opts, schedule, started))
     return PlanResult("ok", "exact path of the trailer, feasible nominal of the rig, every body clear by the margin, "
                       "gain schedule computed", path, nominal, schedule, metrics)
