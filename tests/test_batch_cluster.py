@@ -398,9 +398,9 @@ def test_hostile_map_bundles_are_refused_in_one_line_and_write_nothing(tmp_path,
     bad(repack(h), "another version")
     bad(repack(head, raw[4 + n:] + b"extra"), "no bytes after the files")
     # a bomb: refused while decompressing, at the limit, not after
-    import nhstab.limits
+    import nhstab.batch.bundle
 
-    monkeypatch.setattr(nhstab.limits, "MAX_BUNDLE_BYTES", 1 << 20)
+    monkeypatch.setattr(nhstab.batch.bundle, "MAX_BUNDLE_BYTES", 1 << 20)     # where the bundle reads it
     bad(zlib.compress(b"\0" * (8 << 20)), "at most")
     # random damage (seeded): a BundleError or, rarely, an intact bundle, never anything else
     rng = np.random.default_rng(1616)
@@ -492,14 +492,14 @@ def test_a_stored_map_that_is_not_intact_is_refused_in_one_line(small_batch, tmp
 # ---- errors, said at the end ------------------------------------------------------------------------
 
 def test_a_batch_whose_trials_all_error_exits_non_zero_with_one_line(tmp_path, monkeypatch):
-    import nhstab.execution
+    import nhstab.batch.trial
 
     cfg = make_batch(tmp_path, trials=2, controllers=("open-loop",))
 
     def broken(m, robot, start, goal, opts):
         raise RuntimeError(f"the solver gave up (seed {opts.seed})")
 
-    monkeypatch.setattr(nhstab.execution, "execute", broken)
+    monkeypatch.setattr(nhstab.batch.trial, "execute", broken)     # where a trial calls it
     res = invoke("batch", cfg, "--out", tmp_path / "b", "--workers", "1", "--no-progress")
     line = one_line(res, 1, "all 2 trials failed by error", "RuntimeError: the solver gave up",
                     "map=room-detour|problem=0|robot=default|controller=open-loop|noise=1#0")
@@ -520,7 +520,7 @@ def test_a_batch_whose_trials_all_error_exits_non_zero_with_one_line(tmp_path, m
             raise RuntimeError("only the first seed fails")
         return real_execute(m, robot, start, goal, opts)
 
-    monkeypatch.setattr(nhstab.execution, "execute", sometimes)
+    monkeypatch.setattr(nhstab.batch.trial, "execute", sometimes)
     res = invoke("batch", cfg, "--out", tmp_path / "c", "--workers", "1", "--no-progress")
     one_line(res, 0, "warning: 1 of 2 trials failed by error", "only the first seed fails", "--retry-errors")
     md = (tmp_path / "c" / "report.md").read_text()
@@ -581,7 +581,7 @@ def test_a_worker_with_another_nhstab_is_refused_naming_the_scheduler(tmp_path, 
         assert not (tmp_path / "b").exists()            # refused before the store is made
         # a worker the start-up check did not see: this machine says 9.9.9, the worker its own
         monkeypatch.setattr(runner, "check_workers", lambda client, scheduler: {})
-        monkeypatch.setattr(nhstab, "__version__", "9.9.9")
+        monkeypatch.setattr(runner, "__version__", "9.9.9")       # the version the batch compares
         with pytest.raises(InputError) as err:
             run_batch(config, tmp_path / "c", scheduler=cluster.scheduler_address, progress=False)
     assert "--scheduler" in str(err.value) and "nhstab 9.9.9" in str(err.value)
