@@ -260,7 +260,7 @@ class TubeOptions:
         try:
             rollouts_needed(self.probability, self.confidence)
         except InputError as exc:
-            raise InputError("tube.confidence", exc.expected, exc.got) from None
+            raise exc.renamed("tube.confidence") from None
         if not isinstance(self.require_certified, bool):
             raise InputError("tube.require_certified", "true or false", self.require_certified)
         return self
@@ -454,7 +454,7 @@ def options_from_mapping(data: dict, allowed=None, prefix: str = "") -> RunOptio
         if not prefix:
             raise
         name = prefix.rstrip(".") if not exc.argument else prefix + exc.argument
-        raise InputError(name, exc.expected, exc.got) from None
+        raise exc.renamed(name) from None
 
 
 def read_yaml_mapping(path: Path, argument: str, what: str) -> dict:
@@ -485,7 +485,10 @@ def load_run_config(path) -> tuple[dict, RunOptions]:
             raise InputError("map", "a path to a map file", data["map"])
         from ..examples import resolve_map_path
 
-        m = resolve_map_path(data["map"])            # example:NAME, or relative to the config
+        from ..errors import user_keys
+
+        with user_keys({"example": ("map", data["map"])}):
+            m = resolve_map_path(data["map"])            # example:NAME, or relative to the config
         extra["map"] = m if m.is_absolute() else (path.parent / m)
     return extra, options_from_mapping({k: v for k, v in data.items() if k != "map"})
 

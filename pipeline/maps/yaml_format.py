@@ -321,7 +321,7 @@ class _Reader:
             robot = robot_from_spec(spec, where="robot")
         except PipelineError as exc:
             raise self.err(getattr(exc, "argument", "robot"), getattr(exc, "expected", str(exc)),
-                           getattr(exc, "got", None)) from None
+                           getattr(exc, "got", None), detail=getattr(exc, "detail", "")) from None
         self.notes.extend(robot.notes)
         return _deep_copy(spec)
 
