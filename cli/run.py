@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from .map import load, map_options, parse_pose
+from .map import load, map_options, parse_pose, pose_keys
 from .options import cli_robot, robot_options
 
 #: exit codes: the run ended but did not reach the goal (collision, replan failed, ...); no first plan; a
@@ -102,7 +102,7 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     tube; the robot did not follow it), 3 when there was no first plan, 2 for bad input, 130 when
     interrupted (the files then describe the interrupted run).
     """
-    from nhstab.errors import InputError
+    from nhstab.errors import InputError, user_keys
     from nhstab.execution.config import RunOptions, load_run_config, merge
     from nhstab.limits import MAX_RATE_HZ, MAX_SEED, MIN_RATE_HZ, check_int, check_range
 
@@ -152,12 +152,27 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     from nhstab.maps import resolve_poses
 
     m = load(map_path, cell_size, unknown)
-    rob = cli_robot(robot, robot_config, opts.robot, m.robot)
+    rob = cli_robot(robot, robot_config, opts.robot, m.robot, m)
     s, g = resolve_poses(m, parse_pose("--start", start) or opts.start, parse_pose("--goal", goal) or opts.goal,
                          problem, names=("--start", "--goal", "--problem"))
     robot_key = ("--robot" if robot else "--robot-config" if robot_config else
                  f"robot (in {config_file})" if opts.robot is not None else f"robot.model (in {map_path})")
-    return execute_and_write(m, str(map_path), opts, rob, s, g, out_dir, animate, robot_key=robot_key)
+    # the options given on the command line name the errors about their values (the config's keys
+    # name the rest)
+    flags = {"seed": ("--seed", seed), "rate_hz": ("--rate", rate_hz), "max_time_s": ("--max-time", max_time),
+             "noise.scale": ("--noise", noise_scale), "controller": ("--controller", controller),
+             "controller.window": ("--window", window), "controller.alpha": ("--alpha", alpha),
+             "controller.delta": ("--delta", delta), "controller.gamma": ("--gamma", gamma),
+             "controller.gains": ("--gains", gains), "planning.planner": ("--planner", planner),
+             "planning.time_limit_s": ("--time-limit", time_limit), "planning.margin": ("--margin", margin),
+             "tube.kind": ("--tube", tube_kind), "tube.probability": ("--probability", probability),
+             "tube.confidence": ("--confidence", confidence)}
+    names = {key: flag for key, (flag, value) in flags.items() if value is not None}
+    names.update(pose_keys(m, start, goal, problem, opts.start, opts.goal))
+    for kind, flag in (("initial", "--initial-error"), ("sensor", "--sensor-std"), ("process", "--process-std")):
+        names.update({f"noise.{kind}.{state}": f"{flag} {state}" for state in levels[kind] or {}})
+    with user_keys(names):
+        return execute_and_write(m, str(map_path), opts, rob, s, g, out_dir, animate, robot_key=robot_key)
 
 
 def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path, animate: bool,
@@ -170,10 +185,9 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
     if robot.model.name not in PLANNABLE:
         raise InputError(robot_key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)",
                          robot.model.name)
-    opts.validated(robot.model.state_names, robot.model.m)      # every option checked before anything runs
-    from nhstab.planning import check_map_budget
+    from nhstab.execution.runner import check_run
 
-    check_map_budget(m, opts.planning.time_limit_s)
+    check_run(m, robot, opts)                # every option checked before anything runs
     click.echo(f"running {opts.controller.kind} control of {robot.name} on {m.name} (seed {opts.seed}) ...", err=True)
     result = execute(m, robot, start, goal, opts, notify=lambda line: click.echo(line, err=True))
     files = write_run(result, out_dir, map_path, animate=animate, extra_files=extra_files)

@@ -55,7 +55,7 @@ from ..models import Model
 from ..planning import (PathOptions, PlanResult, TimingOptions, plan,
                         pose_columns)
 from ..sensing import RangeSensor
-from ..robot import Robot, make_robot, resolve_robot
+from ..robot import Robot, make_robot, map_robot_where, resolve_robot
 from .config import RunOptions
 from .controllers import FeedbackLaw, build_law
 from .plant import Plant
@@ -165,6 +165,49 @@ def _bounding_circle(shape) -> tuple[np.ndarray, float]:
     return c, float(np.max(np.hypot(*(v - c).T)))
 
 
+def check_run(m: Map, robot: Robot, opts: RunOptions) -> RunOptions:
+    """Everything a run of ``robot`` on ``m`` with ``opts`` checks before it plans: the options, the
+    map against the planning budget, the planner's options for the robot (its turning radius), the
+    gain schedule of the planner (the robot's stabilizer) and of the law (the controller's values over
+    the robot's) against the nominal's time step 1 / rate_hz, and ``planning.margin: auto`` only for a
+    robot of one body. Errors name the run option (``controller.delta``, ``planning.margin``) or the
+    robot's key (``robot.stabilizer.delta``) the value comes from. Returns the validated options."""
+    from ..control import StabilizerOptions
+    from ..errors import user_keys
+    from ..planning import check_map_budget
+
+    model = robot.model
+    opts = opts.validated(model.state_names, model.m)
+    check_map_budget(m, opts.planning.time_limit_s)
+    if len(robot.footprints) > 1 and opts.planning.margin == "auto":
+        from ..tubes import SEVERAL_BODIES
+
+        raise InputError("planning.margin", SEVERAL_BODIES, "auto")
+    p = opts.planning
+    radius_key = "planning.turning_radius" if p.turning_radius is not None else robot.key("turning_radius")
+    with user_keys({"turning_radius": radius_key, "space": "planning.space", "planner": "planning.planner",
+                    "time_limit_s": "planning.time_limit_s", "margin": "planning.margin"}):
+        path = PathOptions(space=p.space, turning_radius=p.turning_radius, planner=p.planner,
+                           time_limit_s=p.time_limit_s, margin=0.0 if not isinstance(p.margin, (int, float)) else
+                           p.margin, guide=p.guide).for_robot(robot).validated()
+        if model.name != "unicycle" and path.turning_radius < robot.min_turning_radius - 1e-9:
+            raise InputError("turning_radius", f"at least the {model.name}'s minimum turning radius "
+                             f"{robot.min_turning_radius:.4g} m", path.turning_radius)
+        if robot.trailers and path.space != "reeds_shepp":
+            raise InputError("space", "reeds_shepp (a car with a trailer reverses)", path.space)
+    if robot.trailers > 1:
+        raise InputError(robot.key("hitch_lengths"), "one hitch length (nhstab plans a car with one trailer)",
+                         list(model.hitch_lengths))
+    step = 1.0 / opts.rate_hz                 # the nominal's grid step (at most this)
+    with user_keys(robot.stabilizer_keys()):
+        StabilizerOptions(**robot.stabilizer).validated().check_step(step)
+    ctrl = opts.controller
+    if ctrl.kind == "gramian" and ctrl.gains != "auto":
+        with user_keys(ctrl.stabilizer_keys(robot)):
+            ctrl.stabilizer(robot.stabilizer).validated().check_step(step)
+    return opts
+
+
 def seed_for(root: int, stream: str, index: int = 0) -> np.random.SeedSequence:
     """The SeedSequence of one random stream of a run ("initial", "sensor", "process", "planner")."""
     return np.random.SeedSequence([int(root), _SEED_STREAMS[stream], int(index)])
@@ -185,13 +228,12 @@ class CompositeRun:
     """State of one run; :func:`execute` drives it."""
 
     def __init__(self, m: Map, robot: Robot, start, goal, opts: RunOptions):
-        from ..planning import check_map_budget, check_start_goal
+        from ..planning import check_start_goal
 
         model, fp = robot.model, robot.footprint
         check_start_goal(np.asarray(start, dtype=float), np.asarray(goal, dtype=float))
         self.m, self.robot, self.model, self.fp = m, robot, model, fp
-        opts = opts.validated(model.state_names, model.m)
-        check_map_budget(m, opts.planning.time_limit_s)
+        opts = check_run(m, robot, opts)
         if opts.planning.margin is None:
             opts = dataclasses.replace(opts, planning=dataclasses.replace(opts.planning, margin=robot.margin))
         self.opts = opts
@@ -208,10 +250,6 @@ class CompositeRun:
         self.pose_idx = pose_columns(model)
         #: a robot of several bodies (a car with trailers): every body is checked, the hitch angles too
         self.multibody = len(robot.footprints) > 1
-        if self.multibody and opts.planning.margin == "auto":
-            from ..tubes import SEVERAL_BODIES
-
-            raise InputError("planning.margin", SEVERAL_BODIES, "auto")
         self.known = CollisionWorld.from_map(m, "known")
         self.truth = CollisionWorld.from_map(m, "all")
         self.robot_world = self.known
@@ -316,11 +354,17 @@ class CompositeRun:
     def _plan_at(self, start_pose, seed: int, margin: float, attempt: dict, budget_factor: float = 1.0):
         """plan() at ``margin`` and the feedback law along the nominal (``controller.gains: auto``: chosen
         by the tube, recorded in the attempt)."""
+        from ..errors import user_keys
         from ..tubes import choose_gains
 
         self._margin_now, self._start_now = margin, start_pose
-        result = plan(self.m, self.plan_robot, start_pose, self.goal, self._path_options(seed, margin, budget_factor),
-                      TimingOptions(dt=self.T), world=self.robot_world)
+        p = self.opts.planning
+        with user_keys({"max_speed": self.robot.key("max_speed"),
+                        "turning_radius": "planning.turning_radius" if p.turning_radius is not None
+                        else self.robot.key("turning_radius")}):
+            result = plan(self.m, self.plan_robot, start_pose, self.goal,
+                          self._path_options(seed, margin, budget_factor), TimingOptions(dt=self.T),
+                          world=self.robot_world)
         if not result.ok:
             return result, None
         if self.opts.controller.gains == "auto":
@@ -328,7 +372,8 @@ class CompositeRun:
                                        self.opts.controller.window)
             attempt["gains_auto"] = record
         else:
-            law = build_law(result.nominal, self.opts.controller, self.stab_defaults, result.schedule)
+            with user_keys(self.opts.controller.stabilizer_keys(self.robot)):
+                law = build_law(result.nominal, self.opts.controller, self.stab_defaults, result.schedule)
         return result, law
 
     def _tube_of(self, law: FeedbackLaw, world=True, margin: float | None = None):
@@ -800,7 +845,8 @@ def execute(m: Map, *args, **kwargs) -> RunResult:
     if not isinstance(m, Map):
         raise InputError("map", "a Map (nhstab.load_map(path))", type(m).__name__)
     robot = resolve_robot(given.get("robot") if given.get("robot") is not None else opts.robot, m.robot,
-                          source="run options" if given.get("robot") is None and opts.robot is not None else "")
+                          source="run options" if given.get("robot") is None and opts.robot is not None else "",
+                          map_where=map_robot_where(m))
     from ..maps import resolve_poses
 
     start, goal = resolve_poses(m, given.get("start") if given.get("start") is not None else opts.start,
