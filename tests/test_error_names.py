@@ -128,6 +128,14 @@ def test_gains_names_model_parameters_as_the_param_option(tmp_path):
     _one_line(_invoke(*base, "--gamma", "2.0e4"), "'--gamma'", "10000")
 
 
+def test_a_robot_too_slow_for_the_map_is_named_by_its_files_key_and_value(tmp_path):
+    rfile = _write(tmp_path / "slow.yaml", {"model": "unicycle", "max_speed": 3.0e-9})
+    for cmd in (("plan", ROOM, "--no-figure"), ("run", ROOM)):
+        _one_line(_invoke(*cmd, "--robot-config", rfile, "--out", tmp_path / "o"), "'slow.yaml: robot.max_speed'",
+                  "got 3e-09", "2,000,000 samples")
+    assert not (tmp_path / "o").exists()
+
+
 # ---- the robot's stabilizer: its window named where it was written --------------------------------------
 @pytest.mark.parametrize("delta", [1e-9, 2e-5])
 def test_a_robot_files_window_too_short_for_the_time_step_names_that_key(tmp_path, delta):
@@ -274,6 +282,8 @@ def test_command_line_errors_name_the_option(tmp_path, args, key):
      "within the map's"),
     ("run", {"map": "example:nowhere"}, "'map'", "'example'"),
     ("run", {"map": ROOM, "start": [4.0, 4.5, 0]}, "'start'", "cluttered_room.yaml: start'"),
+    ("run", {"map": ROOM, "headroom": 1.0e-9}, "'headroom'", "max_speed'"),
+    ("run", {"map": ROOM, "robot": {"model": "unicycle", "max_speed": 2.0e-9}}, "'robot.max_speed'", "got 1.6e-09"),
 ])
 def test_config_errors_name_the_key_path(tmp_path, kind, doc, key, absent):
     if kind == "batch":

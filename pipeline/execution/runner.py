@@ -359,7 +359,11 @@ class CompositeRun:
 
         self._margin_now, self._start_now = margin, start_pose
         p = self.opts.planning
-        with user_keys({"max_speed": self.robot.key("max_speed"),
+        # the nominal's speed is the robot's limit scaled by headroom: a headroom other than the
+        # default is named for it, else the robot's limit
+        speed_key = ("headroom", self.opts.headroom) if self.opts.headroom != RunOptions().headroom \
+            else (self.robot.key("max_speed"), getattr(self.model, "max_speed", None))
+        with user_keys({"max_speed": speed_key,
                         "turning_radius": "planning.turning_radius" if p.turning_radius is not None
                         else self.robot.key("turning_radius")}):
             result = plan(self.m, self.plan_robot, start_pose, self.goal,
