@@ -40,14 +40,25 @@ def gains(trajectory, model_name, params, alpha, delta, gamma, window, end_strat
     eigenvalue of H and where). The past window has no guarantee (it is not stabilizing in general).
     """
     from nhstab.control import StabilizerOptions, compute_schedule
+    from nhstab.errors import user_keys
     from nhstab.models import make_model
     from nhstab.records import OutputFolder
     from nhstab.trajectory_io import read_trajectory
 
-    model = make_model(model_name, **_parse_params(params))
-    opts = StabilizerOptions(alpha=alpha, delta=delta, gamma=gamma, window=window, end_strategy=end_strategy).validated()
+    given = _parse_params(params)
+    # the options the user wrote name the errors: the model's parameters are --param KEY
+    names = {"model": "--model", f"{model_name} parameter": "--param",
+             **{f"{model_name}.{k}": f"--param {k}" for k in given}}
+    with user_keys(names):
+        model = make_model(model_name, **given)
+    stab = {"alpha": "--alpha", "delta": "--delta", "gamma": "--gamma", "window": "--window",
+            "end_strategy": "--end-strategy"}
+    with user_keys(stab):
+        opts = StabilizerOptions(alpha=alpha, delta=delta, gamma=gamma, window=window,
+                                 end_strategy=end_strategy).validated()
     nominal = read_trajectory(trajectory, model)
-    schedule = compute_schedule(nominal, opts)
+    with user_keys(stab):
+        schedule = compute_schedule(nominal, opts)
     d = {**schedule.diagnostics, **schedule.diagnose()}             # with the certified Lyapunov rates
     with OutputFolder(out_dir, "gains", owned=("gains.npz", "gains.json")) as out:
         out.write_npz("gains.npz", t=schedule.t, P=schedule.P, K=schedule.K, H_eigenvalues=schedule.H_eigenvalues,

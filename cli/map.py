@@ -50,6 +50,7 @@ def map_options(f):
 
 
 def load(path, cell_size, unknown):
+    from nhstab.errors import user_keys
     from nhstab.maps import load_map
 
     options = {}
@@ -57,7 +58,19 @@ def load(path, cell_size, unknown):
         options["cell_size"] = cell_size
     if unknown is not None:
         options["unknown"] = unknown
-    return load_map(path, **options)
+    with user_keys({"example": ("MAP", str(path)), "cell_size": "--cell-size", "unknown": "--unknown"}):
+        return load_map(path, **options)
+
+
+def pose_keys(m, start, goal, problem=None, config_start=None, config_goal=None) -> dict:
+    """For :func:`nhstab.errors.user_keys`: how errors name a command's start and goal: the option that
+    gave them (--start, --goal, --problem), else the run config's key, else the map file's."""
+    if problem is not None:
+        return {"start": "--problem", "goal": "--problem"}
+    source = m.source or m.name
+    return {key: flag if given is not None else key if config is not None else f"{source}: {key}"
+            for key, flag, given, config in (("start", "--start", start, config_start),
+                                             ("goal", "--goal", goal, config_goal))}
 
 
 def _arr(p):
@@ -67,7 +80,7 @@ def _arr(p):
 def _footprint(m, robot, robot_config=None):
     from .options import cli_robot
 
-    return cli_robot(robot, robot_config, None, m.robot).footprint
+    return cli_robot(robot, robot_config, None, m.robot, m).footprint
 
 
 @click.group("map")
@@ -143,7 +156,10 @@ def show(map_file, out, start, goal, robot, robot_config, problems, cell_size, u
     if "x" in rob.model.state_names and "theta" in rob.model.state_names:
         s = None if s is None else rob.configuration(s, "--start" if start is not None else "start")
         g = None if g is None else rob.configuration(g, "--goal" if goal is not None else "goal")
-    clear = check_poses(m, fp, {"start": None if s is None else s[:3], "goal": None if g is None else g[:3]})
+    from nhstab.errors import user_keys
+
+    with user_keys(pose_keys(m, start, goal)):
+        clear = check_poses(m, fp, {"start": None if s is None else s[:3], "goal": None if g is None else g[:3]})
     out = out or Path(safe_file_name(m.name, fallback=Path(str(map_file)).stem) + ".png")
     fig = map_figure(m, start=s, goal=g, footprint=fp, problems=problems, robot=rob,
                      title=f"{m.name}: {fp.label}" + "".join(f", {k} clearance {v:.2f} m" for k, v in clear.items()))

@@ -53,10 +53,11 @@ def robot_options(f):
     return f
 
 
-def cli_robot(robot_name, robot_config, config_robot=None, map_robot=None):
-    """The robot of a command: --robot-config, else --robot, else the run config's, else the map's."""
+def cli_robot(robot_name, robot_config, config_robot=None, map_robot=None, m=None):
+    """The robot of a command: --robot-config, else --robot, else the run config's, else the map's
+    (``m``, the map, names its file in errors)."""
     from nhstab.errors import InputError
-    from nhstab.robot import load_robot, resolve_robot, robot_from_spec
+    from nhstab.robot import load_robot, map_robot_where, resolve_robot, robot_from_spec
 
     if robot_config is not None:
         return load_robot(robot_config)
@@ -64,7 +65,7 @@ def cli_robot(robot_name, robot_config, config_robot=None, map_robot=None):
         try:
             return robot_from_spec(robot_name, where="--robot", source="--robot")
         except InputError as exc:
-            raise InputError("--robot", exc.expected, robot_name) from None
+            raise exc.renamed("--robot", got=robot_name) from None
     if config_robot is not None:
         return robot_from_spec(config_robot, where="robot", source="run config")
-    return resolve_robot(None, map_robot)
+    return resolve_robot(None, map_robot, map_where=map_robot_where(m) if m is not None else "robot")

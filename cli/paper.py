@@ -22,6 +22,7 @@ def paper(out_dir, cases, list_cases, alpha, delta, gamma, window, end_strategy)
 
     Stabilizer options given here override every selected case's own values (recorded in the summary).
     """
+    from nhstab.errors import user_keys
     from nhstab.paper import CASES, run_paper
 
     if list_cases:
@@ -29,8 +30,10 @@ def paper(out_dir, cases, list_cases, alpha, delta, gamma, window, end_strategy)
             click.echo(f"{case.name:24s} {case.title}")
         return 0
     overrides = collect(alpha=alpha, delta=delta, gamma=gamma, window=window, end_strategy=end_strategy)
-    summaries = run_paper(out_dir, list(cases) or None, overrides,
-                          progress=lambda name: click.echo(f"running {name} ...", err=True))
+    # the options given name the errors about their values
+    with user_keys({"case": "--case", **{key: "--" + key.replace("_", "-") for key in overrides}}):
+        summaries = run_paper(out_dir, list(cases) or None, overrides,
+                              progress=lambda name: click.echo(f"running {name} ...", err=True))
     for s in summaries:
         ratio = s.get("final_to_initial_ratio")
         extra = f"||e(T)||/||e(0)|| = {ratio:.3g}" if ratio is not None else s.get("message", "")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .map import load, map_options, parse_pose
+from .map import load, map_options, parse_pose, pose_keys
 from .options import cli_robot, robot_options
 
 #: exit code when the request is valid but no plan was found within the budget
@@ -97,30 +97,42 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     if not (0.0 < headroom <= 1.0):
         raise InputError("--headroom", "a number in (0, 1]", headroom)
 
-    from nhstab.errors import InputError
+    from nhstab.errors import InputError, user_keys
     from nhstab.limits import MAX_PLANNER_SEED, check_int
     from nhstab.planning import PLANNABLE
 
     check_int("--seed", seed, 0, MAX_PLANNER_SEED, "an integer (OMPL's seed)")
     m = load(map_file, cell_size, unknown)
-    rob = cli_robot(robot, robot_config, None, m.robot)
+    rob = cli_robot(robot, robot_config, None, m.robot, m)
     if rob.model.name not in PLANNABLE:
         key = "--robot" if robot else ("--robot-config" if robot_config else f"robot.model (in {map_file})")
         raise InputError(key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)", rob.model.name)
     s, g = resolve_poses(m, parse_pose("--start", start), parse_pose("--goal", goal), problem,
                          names=("--start", "--goal", "--problem"))
-    s = rob.configuration(s, "--start" if start is not None and problem is None else "start")
-    g = rob.configuration(g, "--goal" if goal is not None and problem is None else "goal")
-    path_opts = PathOptions(space=space, turning_radius=turning_radius, planner=planner, time_limit_s=time_limit,
-                            seed=seed, margin=None if margin in (None, "auto") else margin, guide=guide)
-    if margin is None:
-        margin = rob.margin
-    plan_robot = rob.with_model(derated(rob.model, headroom)) if headroom < 1.0 else rob
-    path_opts = path_opts.for_robot(plan_robot)
-    result, law, tube, extra = plan_and_tube(m, rob, s, g, path_opts, TimingOptions(max_speed=max_speed),
-                                             margin=margin, gains=gains, noise=NoiseOptions(scale=noise_scale),
-                                             probability=probability, plan_robot=plan_robot, tube_kind=tube_kind,
-                                             confidence=confidence, fit=fit)
+    # the options name the errors about their values (the robot's keys name the robot's): the nominal's
+    # speed is --max-speed's, else the robot's limit scaled by --headroom
+    names = {**pose_keys(m, start, goal, problem), "space": "--space", "planner": "--planner", "time_limit_s": "--time-limit", "seed": "--seed",
+             "margin": "--margin" if margin is not None else rob.key("margin"),
+             "turning_radius": "--turning-radius" if turning_radius is not None else rob.key("turning_radius"),
+             "max_speed": "--max-speed" if max_speed is not None else ("--headroom", headroom) if headroom < 1.0
+             else rob.key("max_speed")}
+    from nhstab.control import StabilizerOptions
+
+    with user_keys(rob.stabilizer_keys()):        # the gain schedule's window against the nominal's time step
+        StabilizerOptions(**rob.stabilizer).validated().check_step(TimingOptions().dt)
+    with user_keys(names):
+        s = rob.configuration(s, "--start" if start is not None and problem is None else "start")
+        g = rob.configuration(g, "--goal" if goal is not None and problem is None else "goal")
+        path_opts = PathOptions(space=space, turning_radius=turning_radius, planner=planner, time_limit_s=time_limit,
+                                seed=seed, margin=None if margin in (None, "auto") else margin, guide=guide)
+        if margin is None:
+            margin = rob.margin
+        plan_robot = rob.with_model(derated(rob.model, headroom)) if headroom < 1.0 else rob
+        path_opts = path_opts.for_robot(plan_robot)
+        result, law, tube, extra = plan_and_tube(m, rob, s, g, path_opts, TimingOptions(max_speed=max_speed),
+                                                 margin=margin, gains=gains, noise=NoiseOptions(scale=noise_scale),
+                                                 probability=probability, plan_robot=plan_robot, tube_kind=tube_kind,
+                                                 confidence=confidence, fit=fit)
     for key in ("margin_auto", "gains_auto", "fit"):
         if key in extra:
             click.echo(extra[key]["message"])

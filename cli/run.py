@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from .map import load, map_options, parse_pose
+from .map import load, map_options, parse_pose, pose_keys
 from .options import cli_robot, robot_options
 
 #: exit codes: the run ended but did not reach the goal (collision, replan failed, ...); no first plan; a
@@ -103,7 +103,7 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     interrupted (the files then describe the interrupted run; a Ctrl-C once the simulation has ended
     does not stop the writing: the files describe the run as it ended).
     """
-    from nhstab.errors import InputError
+    from nhstab.errors import InputError, user_keys
     from nhstab.execution.config import RunOptions, load_run_config, merge
     from nhstab.limits import MAX_RATE_HZ, MAX_SEED, MIN_RATE_HZ, check_int, check_range
 
@@ -153,7 +153,7 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     from nhstab.maps import resolve_poses
 
     m = load(map_path, cell_size, unknown)
-    rob = cli_robot(robot, robot_config, opts.robot, m.robot)
+    rob = cli_robot(robot, robot_config, opts.robot, m.robot, m)
     s, g = resolve_poses(m, parse_pose("--start", start) or opts.start, parse_pose("--goal", goal) or opts.goal,
                          problem, names=("--start", "--goal", "--problem"))
     s_key = "--start" if start is not None else f"start (in {config_file})" if opts.start is not None else "start"
@@ -162,13 +162,28 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
         s_key, g_key = "start", "goal"
     robot_key = ("--robot" if robot else "--robot-config" if robot_config else
                  f"robot (in {config_file})" if opts.robot is not None else f"robot.model (in {map_path})")
-    return execute_and_write(m, str(map_path), opts, rob, s, g, out_dir, animate, robot_key=robot_key,
-                             pose_keys=(s_key, g_key))
+    # the options given on the command line name the errors about their values (the config's keys
+    # name the rest)
+    flags = {"seed": ("--seed", seed), "rate_hz": ("--rate", rate_hz), "max_time_s": ("--max-time", max_time),
+             "noise.scale": ("--noise", noise_scale), "controller": ("--controller", controller),
+             "controller.window": ("--window", window), "controller.alpha": ("--alpha", alpha),
+             "controller.delta": ("--delta", delta), "controller.gamma": ("--gamma", gamma),
+             "controller.gains": ("--gains", gains), "planning.planner": ("--planner", planner),
+             "planning.time_limit_s": ("--time-limit", time_limit), "planning.margin": ("--margin", margin),
+             "tube.kind": ("--tube", tube_kind), "tube.probability": ("--probability", probability),
+             "tube.confidence": ("--confidence", confidence)}
+    names = {key: flag for key, (flag, value) in flags.items() if value is not None}
+    names.update(pose_keys(m, start, goal, problem, opts.start, opts.goal))
+    for kind, flag in (("initial", "--initial-error"), ("sensor", "--sensor-std"), ("process", "--process-std")):
+        names.update({f"noise.{kind}.{state}": f"{flag} {state}" for state in levels[kind] or {}})
+    with user_keys(names):
+        return execute_and_write(m, str(map_path), opts, rob, s, g, out_dir, animate, robot_key=robot_key,
+                                 pose_names=(s_key, g_key))
 
 
 def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path, animate: bool,
                       robot_key: str = "robot", extra_files: dict | None = None,
-                      pose_keys: tuple[str, str] = ("start", "goal")) -> int:
+                      pose_names: tuple[str, str] = ("start", "goal")) -> int:
     from nhstab.errors import InputError
     from nhstab.execution import execute, write_run
     from nhstab.interrupts import holding_interrupts, interrupt_held
@@ -179,11 +194,10 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
         raise InputError(robot_key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)",
                          robot.model.name)
     # a pose, or the full state with phi = 0 (Robot.configuration): refused here, under the name it was given by
-    start, goal = robot.configuration(start, pose_keys[0]), robot.configuration(goal, pose_keys[1])
-    opts.validated(robot.model.state_names, robot.model.m)      # every option checked before anything runs
-    from nhstab.planning import check_map_budget
+    start, goal = robot.configuration(start, pose_names[0]), robot.configuration(goal, pose_names[1])
+    from nhstab.execution.runner import check_run
 
-    check_map_budget(m, opts.planning.time_limit_s)
+    check_run(m, robot, opts)                # every option checked before anything runs
     click.echo(f"running {opts.controller.kind} control of {robot.name} on {m.name} (seed {opts.seed}) ...", err=True)
     result = execute(m, robot, start, goal, opts, notify=lambda line: click.echo(line, err=True))
     with holding_interrupts():      # a Ctrl-C now does not lose the finished run: its files are completed

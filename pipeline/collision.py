@@ -1163,7 +1163,8 @@ def interpolate_poses(poses: np.ndarray, resolution: float, angular_resolution: 
 
 def check_poses(m: Map, fp: Footprint, poses: dict, obstacles: str = "all", world: CollisionWorld | None = None) -> dict:
     """Signed clearance of named poses (e.g. {"start": ..., "goal": ...}); raises a MapError naming
-    the map and the pose if one lies outside the bounds or its footprint overlaps an obstacle."""
+    the pose (by its name in ``poses``: the caller's key for it) and saying which map, if one lies
+    outside the bounds or its footprint overlaps an obstacle."""
     world = world or CollisionWorld.from_map(m, obstacles)
     out = {}
     for name, pose in poses.items():
@@ -1171,10 +1172,10 @@ def check_poses(m: Map, fp: Footprint, poses: dict, obstacles: str = "all", worl
             continue
         p = _pose(pose, name)
         if not m.contains(p[0], p[1]):
-            raise MapError(f"{m.source or m.name}: {name}", f"inside the bounds {list(m.bounds)}", p.tolist())
+            raise MapError(name, f"inside the bounds {list(m.bounds)} of {m.source or m.name}", p.tolist())
         c = world.clearance(p, fp)
         if c < 0:
-            raise MapError(f"{m.source or m.name}: {name}", f"a pose where the {fp.label or 'robot'} footprint is free",
-                           p.tolist(), detail=f"it overlaps an obstacle by {-c:.3g} m")
+            raise MapError(name, f"a pose where the {fp.label or 'robot'} footprint is free of the obstacles of "
+                           f"{m.source or m.name}", p.tolist(), detail=f"it overlaps an obstacle by {-c:.3g} m")
         out[name] = c
     return out

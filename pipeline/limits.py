@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from .errors import InputError
+from .errors import InputError, number_hint
 
 # ---- files ------------------------------------------------------------------------------------
 #: largest YAML document (map, run config, batch config, ROS map metadata) [bytes]: the bundled ones
@@ -164,22 +164,6 @@ def check_range(key: str, value, lo: float, hi: float, unit: str = "") -> float:
         u = f" {unit}" if unit else ""
         raise InputError(key, f"a number in [{lo:g}, {hi:g}]{u}", _short_int(value), detail=number_hint(value))
     return v
-
-
-def number_hint(value) -> str:
-    """For text that YAML 1.1 leaves as a string although it looks like a number in exponent form
-    (``1e9``, ``5E-3``): a hint on how to write it; else ""."""
-    import re
-
-    if isinstance(value, str) and re.fullmatch(r"\s*[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+\s*", value):
-        mant, _, exp = value.strip().lower().partition("e")
-        # YAML 1.1's float needs a dot in the mantissa, a digit before it when signed, and a sign in the
-        # exponent
-        sign, digits = (mant[0], mant[1:]) if mant[0] in "+-" else ("", mant)
-        digits = ("0" + digits if digits.startswith(".") else digits) if "." in digits else digits + ".0"
-        fixed = sign + digits + "e" + (exp if exp[0] in "+-" else "+" + exp)
-        return f"YAML 1.1 reads {value.strip()} as text: write {fixed}"
-    return ""
 
 
 def _fmt_int(v: int) -> str:

@@ -51,9 +51,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, number_hint, user_keys
 from .geometry import Footprint, polygon_area
-from .limits import number_hint
 from .models import MODELS, Model, make_model
 from .safe_io import read_yaml_mapping
 
@@ -110,6 +109,10 @@ class Robot:
     notes: tuple = ()
     #: the trailers' footprints (a car_trailer's, one per trailer, each in its trailer's frame)
     trailer_footprints: tuple = ()
+    #: how errors name this robot's keys: the block's key path as the user wrote it (``robot``,
+    #: ``robots[1]``, ``car.yaml: robot``, ``maps/yard.yaml: robot``), and the keys the description gave
+    where: str = field(default="robot", compare=False)
+    given: frozenset = field(default=frozenset(), compare=False)
 
     # ---- layout -----------------------------------------------------------------------------
     @property
@@ -191,6 +194,18 @@ class Robot:
         if self.model.n == len(self.configuration_columns):
             return pose
         return f"{pose}, or the {self.model.name}'s full state {','.join(self.model.state_names)} with phi = 0"
+
+    def key(self, name: str) -> str:
+        """The key the user writes to set ``name`` of this robot (a model parameter, ``margin``,
+        ``turning_radius``, ``stabilizer.delta``, ...), for errors about its value; a value the
+        description did not give is named as the model's default."""
+        own = name if self.where.startswith("--") else f"{self.where}.{name}"
+        return own if name in self.given else f"{own} (the {self.model.name}'s default)"
+
+    def stabilizer_keys(self) -> dict:
+        """For :func:`nhstab.errors.user_keys`: the gain schedule's parameters (alpha, delta, gamma, ...)
+        named as this robot's stabilizer keys."""
+        return {k: self.key(f"stabilizer.{k}") for k in STABILIZER_KEYS}
 
     @property
     def min_turning_radius(self) -> float:
@@ -313,11 +328,8 @@ def robot_from_spec(spec, where: str = "robot", source: str = "default") -> Robo
     lists = {f.name for f in dataclasses.fields(model_cls) if f.init and isinstance(f.default, tuple)}
     params = {k: (_numbers(f"{where}.{k}", spec[k]) if k in lists else _number(f"{where}.{k}", spec[k], 0.0, lo_open=True))
               for k in param_names if k in spec}
-    try:
+    with user_keys({f"{name}.{k}": f"{where}.{k}" for k in param_names}):
         model = make_model(name, **params)
-    except InputError as exc:
-        arg = exc.argument if exc.argument.startswith(f"{where}.") else f"{where}.{exc.argument.split('.')[-1]}"
-        raise InputError(arg, exc.expected, exc.got) from None
     defaults = MODEL_DEFAULTS[name]
     notes: list[str] = []
     fp = parse_footprint(spec.get("footprint", defaults["footprint"]), f"{where}.footprint", notes)
@@ -327,13 +339,14 @@ def robot_from_spec(spec, where: str = "robot", source: str = "default") -> Robo
         given = spec["stabilizer"]
         if not isinstance(given, dict):
             raise InputError(f"{where}.stabilizer", "a mapping with alpha, delta, gamma, end_strategy", _kind(given))
+        # deferred: control.gramian imports scipy.integrate (heavy); a robot without a stabilizer block
+        # is read without it
+        from .control.gramian import CUSP_HANDLING, END_STRATEGIES, StabilizerOptions
+
         for k, v in given.items():
             if k not in STABILIZER_KEYS:
                 raise InputError(f"{where}.stabilizer.{k}", "one of " + ", ".join(STABILIZER_KEYS), k)
             if k in ("end_strategy", "cusps"):
-                # deferred: control.gramian imports scipy.integrate (heavy); a robot is read without it
-                from .control.gramian import CUSP_HANDLING, END_STRATEGIES
-
                 allowed = END_STRATEGIES if k == "end_strategy" else CUSP_HANDLING
                 if v not in allowed:
                     raise InputError(f"{where}.stabilizer.{k}", "one of " + ", ".join(allowed), v)
@@ -341,6 +354,9 @@ def robot_from_spec(spec, where: str = "robot", source: str = "default") -> Robo
                 continue
             lo, lo_open = (0.5, False) if k == "gamma" else (0.0, True)
             stab[k] = _number(f"{where}.stabilizer.{k}", v, lo, lo_open=lo_open)
+        # the gain schedule's own checks (gamma's bound, ...), under the keys of this block
+        with user_keys({k: f"{where}.stabilizer.{k}" for k in STABILIZER_KEYS}):
+            StabilizerOptions(**stab).validated()
     trailer_fps: tuple = ()
     n_trailers = int(getattr(model, "trailers", 0))
     if "trailer_footprint" in spec and not n_trailers:
@@ -369,8 +385,10 @@ def robot_from_spec(spec, where: str = "robot", source: str = "default") -> Robo
     label = spec.get("name", name)
     if not isinstance(label, str) or not label.strip():
         raise InputError(f"{where}.name", "a non-empty string", label)
+    given = frozenset(spec) | frozenset(f"stabilizer.{k}" for k in spec.get("stabilizer") or ())
     return Robot(model=model, footprint=fp, margin=margin, stabilizer=stab, turning_radius=float(radius),
-                 name=label, source=source, notes=tuple(notes), trailer_footprints=trailer_fps)
+                 name=label, source=source, notes=tuple(notes), trailer_footprints=trailer_fps, where=where,
+                 given=given)
 
 
 def parse_footprint(spec, where: str = "footprint", notes: list | None = None) -> Footprint:
@@ -476,22 +494,27 @@ def load_robot(path) -> Robot:
     data = read_yaml_mapping(path, "--robot-config", "robot description (YAML)")
     if set(data) == {"robot"}:
         data = data["robot"]
-    try:
-        return robot_from_spec(data, where="robot", source=str(path))
-    except InputError as exc:
-        raise InputError(f"{path.name}: {exc.argument}", exc.expected, exc.got) from None
+    return robot_from_spec(data, where=f"{path.name}: robot", source=str(path))
 
 
-def resolve_robot(robot=None, map_robot=None, default: str = "unicycle", source: str = "") -> Robot:
+def resolve_robot(robot=None, map_robot=None, default: str = "unicycle", source: str = "", *,
+                  where: str = "robot", map_where: str = "robot") -> Robot:
     """The robot a command uses: ``robot`` (a :class:`Robot`, a model name or a spec mapping) if
-    given, else the map's ``robot:`` block, else the default model's built-in robot."""
+    given, else the map's ``robot:`` block, else the default model's built-in robot. ``where`` and
+    ``map_where`` are how errors name the two blocks (e.g. ``robots[1]``, ``yard.yaml: robot``)."""
     if isinstance(robot, Robot):
         return robot
     if robot is not None:
-        return robot_from_spec(robot, source=source or "argument")
+        return robot_from_spec(robot, where=where, source=source or "argument")
     if map_robot is not None:
-        return robot_from_spec(map_robot, source="map")
+        return robot_from_spec(map_robot, where=map_where, source="map")
     return default_robot(default)
+
+
+def map_robot_where(m) -> str:
+    """How errors name a map's ``robot:`` block: the map file's key (as the map's own errors do)."""
+    source = getattr(m, "source", "")
+    return f"{source}: robot" if source else "robot"
 
 
 def _number(key: str, v, lo: float = -math.inf, lo_open: bool = False) -> float:
@@ -521,5 +544,7 @@ def _numbers(key: str, v) -> list[float]:
 def _kind(value) -> str:
     if value is None:
         return "nothing (null)"
-    return {dict: "a mapping", list: "a list", str: f"the string {value!r}", bool: "a boolean"}.get(
+    if isinstance(value, str):
+        return value                 # shown quoted; text like 1e9 gets the YAML hint (InputError)
+    return {dict: "a mapping", list: "a list", bool: "a boolean"}.get(
         type(value), repr(value))

@@ -45,12 +45,12 @@ def test_paper_override_is_recorded(runner, tmp_path):
 
 
 @pytest.mark.parametrize("args,needles", [
-    (["--gamma", "0.4"], ["'gamma'", "1/2", "0.4"]),
-    (["--alpha", "0"], ["'alpha'", "positive"]),
-    (["--alpha", "-1"], ["'alpha'"]),
-    (["--delta", "0"], ["'delta'", "positive"]),
-    (["--delta", "-3"], ["'delta'"]),
-    (["--case", "moon-landing"], ["'case'", "moon-landing"]),
+    (["--gamma", "0.4"], ["'--gamma'", "1/2", "0.4"]),
+    (["--alpha", "0"], ["'--alpha'", "positive"]),
+    (["--alpha", "-1"], ["'--alpha'"]),
+    (["--delta", "0"], ["'--delta'", "positive"]),
+    (["--delta", "-3"], ["'--delta'"]),
+    (["--case", "moon-landing"], ["'--case'", "moon-landing"]),
     (["--window", "sideways"], ["--window", "sideways"]),
     (["--gamma", "lots"], ["--gamma", "lots"]),
 ])
@@ -100,15 +100,15 @@ def test_gains_reports_the_3_alpha_bound_and_warns_once_for_the_past_window(runn
 
 def test_gains_bad_inputs(runner, tmp_path, traj):
     base = ["gains", str(traj), "--out", str(tmp_path / "o")]
-    _one_line_error(runner.invoke(cli, [*base, "--model", "hovercraft"]), "'model'", "hovercraft")
-    _one_line_error(runner.invoke(cli, [*base, "--model", "unicycle", "--gamma", "0.1"]), "'gamma'")
+    _one_line_error(runner.invoke(cli, [*base, "--model", "hovercraft"]), "'--model'", "hovercraft")
+    _one_line_error(runner.invoke(cli, [*base, "--model", "unicycle", "--gamma", "0.1"]), "'--gamma'")
     _one_line_error(runner.invoke(cli, [*base, "--model", "fwd_car"]), "header", "fwd_car")
-    _one_line_error(runner.invoke(cli, [*base, "--model", "unicycle", "--delta", "50"]), "'delta'", "duration")
+    _one_line_error(runner.invoke(cli, [*base, "--model", "unicycle", "--delta", "50"]), "'--delta'", "duration")
     # a window far shorter than the time step (0.01 s here): 1e10 substeps per step were allocated (a
     # MemoryError traceback); the shortest is 0.01 / (1/16 x 1024) s
-    _one_line_error(runner.invoke(cli, [*base, "--model", "unicycle", "--delta", "1e-12"]), "'delta'",
+    _one_line_error(runner.invoke(cli, [*base, "--model", "unicycle", "--delta", "1e-12"]), "'--delta'",
                     "at least 0.000156 s")
-    _one_line_error(runner.invoke(cli, [*base, "--model", "unicycle", "--param", "wheelbase=2"]), "wheelbase")
+    _one_line_error(runner.invoke(cli, [*base, "--model", "unicycle", "--param", "wheelbase=2"]), "'--param'", "wheelbase")
     lines = traj.read_text().splitlines()
     lines[5] = lines[5].replace(lines[5].split(",")[2], "nan", 1)
     bad = tmp_path / "nan.csv"

@@ -20,19 +20,19 @@ def _invoke(*args):
 
 
 @pytest.mark.parametrize("args,needle", [
-    (["--noise", "-1"], "noise.scale"),
-    (["--rate", "0"], "--rate"),
-    (["--controller", "pid"], "controller"),
-    (["--sensor-std", "x=-0.1"], "noise.sensor.x"),
-    (["--sensor-std", "x:0.1"], "--sensor-std"),
-    (["--process-std", "w=0.1"], "noise.process.w"),
-    (["--planner", "astar"], "planning.planner"),
-    (["--time-limit", "0"], "planning.time_limit_s"),
-    (["--start", "4.0,4.5,0"], "start"),             # on the dining table
-    (["--goal", "100,100,0"], "goal"),                # out of bounds
-    (["--gamma", "0.2"], "controller.gamma"),
-    (["--window", "sideways"], "controller.window"),
-    (["--robot", "tank"], "robot"),
+    (["--noise", "-1"], "'--noise'"),
+    (["--rate", "0"], "'--rate'"),
+    (["--controller", "pid"], "'--controller'"),
+    (["--sensor-std", "x=-0.1"], "'--sensor-std x'"),
+    (["--sensor-std", "x:0.1"], "'--sensor-std'"),
+    (["--process-std", "w=0.1"], "'--process-std w'"),
+    (["--planner", "astar"], "'--planner'"),
+    (["--time-limit", "0"], "'--time-limit'"),
+    (["--start", "4.0,4.5,0"], "'--start'"),             # on the dining table
+    (["--goal", "100,100,0"], "'--goal'"),                # out of bounds
+    (["--gamma", "0.2"], "'--gamma'"),
+    (["--window", "sideways"], "'--window'"),
+    (["--robot", "tank"], "'--robot'"),
 ])
 def test_bad_input_is_one_line_with_exit_code_2_and_writes_nothing(tmp_path, args, needle):
     out = tmp_path / "out"

@@ -153,10 +153,10 @@ def _one_line(res, code, *needles):
 @pytest.mark.parametrize("args,needles", [
     (["--start", "100,2,0"], ["start", "bounds"]),
     (["--goal", "4.0,4.5,0"], ["goal", "overlaps"]),
-    (["--planner", "astar"], ["'planner'", "astar"]),
-    (["--time-limit", "0"], ["'time_limit_s'"]),
-    (["--turning-radius", "0"], ["'turning_radius'"]),
-    (["--turning-radius", "-1"], ["'turning_radius'"]),
+    (["--planner", "astar"], ["'--planner'", "astar"]),
+    (["--time-limit", "0"], ["'--time-limit'"]),
+    (["--turning-radius", "0"], ["'--turning-radius'"]),
+    (["--turning-radius", "-1"], ["'--turning-radius'"]),
     (["--robot", "hovercraft"], ["'--robot'", "hovercraft"]),
 ])
 def test_plan_cli_bad_requests(tmp_path, args, needles):

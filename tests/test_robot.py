@@ -131,7 +131,7 @@ def test_the_hints_advice_is_a_number_to_yaml(text):
     same number (it needs a dot in the mantissa and a sign in the exponent)."""
     import yaml
 
-    from nhstab.limits import number_hint
+    from nhstab.errors import number_hint
 
     assert isinstance(yaml.safe_load(f"x: {text}")["x"], str)
     fixed = number_hint(text).rpartition("write ")[2]

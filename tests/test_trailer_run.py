@@ -131,8 +131,8 @@ def test_bad_trailer_parameters_are_one_line_with_exit_code_2(tmp_path):
     for args, needle in (
             (["--robot-config", str(bad)], "hitch_lengths[0]"),
             (["--start", "12,5,0,1.3"], "jackknife"),               # a hitch angle of 1.3 rad
-            (["--start", "12,5,0,0.1,0.2,0.3"], "start"),           # not a pose, configuration or state
-            (["--margin", "auto"], "planning.margin"),              # the error tube certifies one body only
+            (["--start", "12,5,0,0.1,0.2,0.3"], "'--start'"),       # not a pose, configuration or state
+            (["--margin", "auto"], "'--margin'"),                   # the error tube certifies one body only
     ):
         out = tmp_path / "out"
         res = CliRunner().invoke(cli, ["run", str(ROOT / DOCK), "--out", str(out), *args])

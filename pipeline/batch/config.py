@@ -37,16 +37,18 @@ controllers and noise levels are compared on the same seeds. Trial ids are ``<ce
 from __future__ import annotations
 
 import hashlib
+import dataclasses
 import itertools
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
 
+from .. import bodies
 from ..collision import CollisionWorld
 from ..control import WINDOWS
-from ..errors import InputError
+from ..errors import InputError, user_keys
 from ..examples import resolve_map_path
 from ..execution.config import (
     RunOptions,
@@ -55,9 +57,10 @@ from ..execution.config import (
     options_from_mapping,
 )
 from ..execution.controllers import CONTROLLERS
+from ..execution.runner import check_run
 from ..limits import MAX_BATCH_TRIALS, MAX_GAMMA, MAX_SEED, check_int
 from ..planning import PLANNABLE
-from ..robot import robot_from_spec
+from ..robot import map_robot_where, resolve_robot, robot_from_spec
 from ..safe_io import read_yaml_mapping
 from ..tubes.fit import AUTO_MARGIN_START
 from .bundle import MapBundle
@@ -200,8 +203,8 @@ def _list(key, v, minimum=1):
 
 
 def load_batch_config(path) -> BatchConfig:
-    """Read and check a batch config; every map is loaded (and its poses checked) here, before any
-    trial runs. Raises InputError naming the key.
+    """Read and check a batch config; every map is loaded, and every value checked as each trial would
+    check it (:func:`_check_trials`), here, before any trial runs. Raises InputError naming the key.
 
     Each map is read into a bundle (its files' bytes, :mod:`nhstab.batch.bundle`) and loaded from
     that bundle, exactly as every trial will load it, wherever it runs: a map that cannot travel
@@ -230,7 +233,8 @@ def load_batch_config(path) -> BatchConfig:
                 raise InputError(f"{where}.{key}", "one of " + ", ".join(_MAP_KEYS), key)
         if not isinstance(entry["path"], str):
             raise InputError(f"{where}.path", "a path to a map file", entry["path"])
-        mpath = resolve_map_path(entry["path"])      # example:NAME, or relative to the config
+        with user_keys({"example": (f"{where}.path", entry["path"])}):
+            mpath = resolve_map_path(entry["path"])      # example:NAME, or relative to the config
         mpath = mpath if mpath.is_absolute() else path.parent / mpath
         cell = check_number(f"{where}.cell_size", entry["cell_size"], 0, lo_open=True) if "cell_size" in entry else None
         try:
@@ -293,24 +297,56 @@ def load_batch_config(path) -> BatchConfig:
             if key in _RUN_EXCLUDED:
                 raise InputError(f"run.{key}", "set by the batch (maps, robots, trials), not in run", key)
     base = options_from_mapping(run, allowed, prefix="run.")
-    for i, (m, spec) in enumerate(zip(loaded, maps)):
-        for r in robots or [m.robot or "unicycle"]:
-            rob = robot_from_spec(r)
-            model = rob.model
-            if model.name not in PLANNABLE:
-                raise InputError(f"maps[{i}].path", f"a map whose robot nhstab plans for ({', '.join(PLANNABLE)})",
-                                 model.name, detail="or give robots")
-            try:
-                opts = base.validated(model.state_names, model.m)
-            except InputError as exc:
-                raise InputError("run." + exc.argument, exc.expected, exc.got) from None
-            _check_problems(f"maps[{i}].problems", m, spec.problems, rob, opts)
     config = BatchConfig(name, root_seed, trials, maps, robots, controllers, grid, run, str(path), base)
     n = len(config.cells()) * trials
     if n > MAX_BATCH_TRIALS:
         raise InputError("trials", f"at most {MAX_BATCH_TRIALS:,} trials in the batch (cells x trials)",
                          f"{len(config.cells())} cells x {trials} = {n:,}")
+    _check_trials(config, loaded, single)
     return config
+
+
+def trial_options(spec: dict):
+    """The RunOptions of a trial: the batch's base options with the cell's controller, gains, noise
+    level, robot and the trial's seed."""
+    cell = spec["cell_spec"]
+    base = options_from_mapping(spec["run"], prefix="run.")
+    ctrl = dataclasses.replace(base.controller, kind=cell["controller"],
+                               **{k: cell[k] for k in ("alpha", "delta", "gamma", "window") if cell.get(k) is not None})
+    noise = dataclasses.replace(base.noise, scale=base.noise.scale * cell["noise"])
+    return dataclasses.replace(base, controller=ctrl, noise=noise, seed=int(spec["seed"]),
+                               robot=cell["robot"], start=tuple(cell["start"]), goal=tuple(cell["goal"]))
+
+
+def _check_trials(config: BatchConfig, loaded: list, single: bool) -> None:
+    """What every trial checks before it plans, once per map, robot, controller and combination of the
+    grid's gains, before any trial runs: the trial's options as the trial builds them
+    (:func:`trial_options`) checked as its run checks them
+    (:func:`nhstab.execution.runner.check_run`), and every start and goal (:func:`_check_problems`).
+    Errors name the batch config's key: ``grid.delta[0]``, ``run.planning.margin``, ``robots[1].stabilizer.gamma``
+    (or the map file's robot key, for a map's own robot)."""
+    gain_keys = ("window", "alpha", "delta", "gamma")
+    indexed = [list(enumerate(config.grid.get(k) or [None])) for k in gain_keys]
+    run_keys = {k: f"run.{k}" for k in (f.name for f in fields(RunOptions)) if k not in _RUN_EXCLUDED}
+    for i, (m, spec) in enumerate(zip(loaded, config.maps)):
+        for j, r in enumerate(config.robots or [None]):
+            where = "robot" if single else f"robots[{j}]"
+            rob = resolve_robot(r, m.robot, where=where, map_where=map_robot_where(m))
+            if rob.model.name not in PLANNABLE:
+                raise InputError(f"maps[{i}].path", f"a map whose robot nhstab plans for ({', '.join(PLANNABLE)})",
+                                 rob.model.name, detail="or give robots")
+            opts = None
+            for controller in config.controllers:
+                combos = itertools.product(*indexed) if controller == "gramian" else [[(0, None)] * len(gain_keys)]
+                for combo in combos:
+                    cell = {"controller": controller, "robot": r, "noise": (config.grid.get("noise") or [1.0])[0],
+                            "start": list(spec.problems[0][0]), "goal": list(spec.problems[0][1]),
+                            **{k: v for k, (_, v) in zip(gain_keys, combo)}}
+                    grid_names = {f"controller.{k}": f"grid.{k}[{jk}]" for k, (jk, v) in zip(gain_keys, combo)
+                                  if v is not None}
+                    with user_keys(run_keys), user_keys(grid_names):
+                        opts = check_run(m, rob, trial_options({"run": config.run, "cell_spec": cell, "seed": 0}))
+            _check_problems(f"maps[{i}].problems", m, spec.problems, rob, opts)
 
 
 def _check_problems(key: str, m, problems, robot, opts) -> None:
@@ -328,13 +364,18 @@ def _check_problems(key: str, m, problems, robot, opts) -> None:
             where = f"{key}[{j}].{which}"
             rob_name = robot.name or robot.model.name
             try:                    # the rule every start and goal follows (nhstab.robot.Robot.configuration)
-                pose = robot.configuration(pose, where)
+                config = robot.configuration(pose, where)       # the pose or configuration the run plans from
             except InputError as exc:
                 raise InputError(where, f"for the {rob_name}: {exc.expected}", exc.got, detail=exc.detail) from None
             if not m.contains(pose[0], pose[1]):
                 raise InputError(where, f"a pose inside the bounds of {m.name} {list(m.bounds)}", [float(v) for v in pose])
             world = world or CollisionWorld.from_map(m, "known")
-            c = world.clearance(pose[:3], fp)
+            if robot.trailers:                              # every body of the rig
+                x = np.zeros(robot.model.n)
+                x[robot.configuration_columns] = config
+                c = bodies.clearance(world, robot, x)[0]
+            else:
+                c = world.clearance(config[:3], fp)
             if c <= margin:
                 raise InputError(where, f"a pose more than the planning margin {margin:g} m from the known "
                                  f"obstacles of {m.name} for the {rob_name}", [round(float(v), 4) for v in pose],
@@ -353,7 +394,10 @@ def _problems(key: str, value, m) -> tuple:
         first = check_number(f"{key}.first", value.get("first", 0), 0, integer=True)
         count = check_number(f"{key}.count", value.get("count", 1), 1, integer=True)
         if first + count > len(m.problems):
-            raise InputError(key, f"problems within the map's {len(m.problems)}", value)
+            have = (f"{m.name} has no start/goal problems" if not m.problems else
+                    f"{m.name} has {len(m.problems)}, numbered from 0")
+            raise InputError(key, f"first + count at most the number of the map's problems ({len(m.problems)})",
+                             value, detail=have)
         return tuple((tuple(p.start.as_array()), tuple(p.goal.as_array())) for p in m.problems[first:first + count])
     items = _list(key, value)
     out = []

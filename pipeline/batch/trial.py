@@ -22,11 +22,10 @@ import numpy as np
 
 from ..errors import NotStabilizingWarning
 from ..execution import execute, summary
-from ..execution.config import options_from_mapping
 from ..records import to_jsonable
 from ..robot import resolve_robot
 from .bundle import MapBundle, MapChangedError, loaded
-from .config import robot_label
+from .config import robot_label, trial_options
 from .store import versions
 
 #: the error-norm series of a trial is sampled every this many seconds (for the envelopes)
@@ -68,18 +67,6 @@ def trial_map(spec: dict, bundle=None):
                               detail=f"the batch's is {(digest or '?')[:12]}; the stored trials used that one: "
                                      "restore the map or start a new batch")
     return bundle.load(size)
-
-
-def trial_options(spec: dict):
-    """The RunOptions of a trial: the batch's base options with the cell's controller, gains, noise
-    level, robot and the trial's seed."""
-    cell = spec["cell_spec"]
-    base = options_from_mapping(spec["run"], prefix="run.")
-    ctrl = dataclasses.replace(base.controller, kind=cell["controller"],
-                               **{k: cell[k] for k in ("alpha", "delta", "gamma", "window") if cell.get(k) is not None})
-    noise = dataclasses.replace(base.noise, scale=base.noise.scale * cell["noise"])
-    return dataclasses.replace(base, controller=ctrl, noise=noise, seed=int(spec["seed"]),
-                               robot=cell["robot"], start=tuple(cell["start"]), goal=tuple(cell["goal"]))
 
 
 def run_trial(spec: dict, bundle=None) -> dict:

@@ -75,7 +75,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -167,6 +167,17 @@ class StabilizerOptions:
             if not math.isfinite(g) or not 0.5 <= g <= MAX_GAMMA:
                 raise InputError("gamma", f"a number in [1/2 (Proposition 1), {MAX_GAMMA:g}]", self.gamma)
         return self
+
+    def check_step(self, h: float) -> None:
+        """The window against a nominal's time step ``h`` [s]: a window of delta is integrated in steps
+        of at most delta x max_substep_fraction, and at most MAX_WINDOW_SUBSTEPS of them per time step,
+        so delta must be at least h / (max_substep_fraction x MAX_WINDOW_SUBSTEPS)."""
+        delta = float(self.delta)
+        if h / (self.max_substep_fraction * delta) > MAX_WINDOW_SUBSTEPS:
+            shortest = h / (self.max_substep_fraction * MAX_WINDOW_SUBSTEPS)
+            raise InputError("delta", f"at least {shortest:.3g} s for this nominal's time step {h:.3g} s", self.delta,
+                             detail=f"a window of delta is integrated in steps of at most delta x "
+                                    f"{self.max_substep_fraction:g}, and at most {MAX_WINDOW_SUBSTEPS} per time step")
 
     def gamma_on(self, t: np.ndarray) -> np.ndarray:
         if callable(self.gamma):
@@ -435,11 +446,7 @@ def compute_schedule(nominal: Nominal, options: StabilizerOptions | None = None,
         phi = 0.0
     n_full = min(N, int(math.floor((T - delta) / h + 1e-9)) + 1)   # points with t + delta <= T
     i_min = N - n_full                                              # first point with t - delta >= t0
-    if h / (opts.max_substep_fraction * delta) > MAX_WINDOW_SUBSTEPS:
-        shortest = h / (opts.max_substep_fraction * MAX_WINDOW_SUBSTEPS)
-        raise InputError("delta", f"at least {shortest:.3g} s for this nominal's time step {h:.3g} s", delta,
-                         detail=f"a window of delta is integrated in steps of at most delta x "
-                                f"{opts.max_substep_fraction:g}, and at most {MAX_WINDOW_SUBSTEPS} per time step")
+    replace(opts, delta=delta).check_step(h)
     substeps = max(1, int(math.ceil(h / (opts.max_substep_fraction * delta) - 1e-9)))
 
     gamma = opts.gamma_on(t)

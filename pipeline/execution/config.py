@@ -55,7 +55,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, user_keys
 from ..examples import resolve_map_path
 from ..limits import (
     MAX_CONTROL_PERIODS,
@@ -269,7 +269,7 @@ class TubeOptions:
         try:
             rollouts_needed(self.probability, self.confidence)
         except InputError as exc:
-            raise InputError("tube.confidence", exc.expected, exc.got) from None
+            raise exc.renamed("tube.confidence") from None
         if not isinstance(self.require_certified, bool):
             raise InputError("tube.require_certified", "true or false", self.require_certified)
         return self
@@ -456,7 +456,7 @@ def options_from_mapping(data: dict, allowed=None, prefix: str = "") -> RunOptio
         if not prefix:
             raise
         name = prefix.rstrip(".") if not exc.argument else prefix + exc.argument
-        raise InputError(name, exc.expected, exc.got) from None
+        raise exc.renamed(name) from None
 
 
 def load_run_config(path) -> tuple[dict, RunOptions]:
@@ -470,8 +470,8 @@ def load_run_config(path) -> tuple[dict, RunOptions]:
     if "map" in data:
         if not isinstance(data["map"], str):
             raise InputError("map", "a path to a map file", data["map"])
-
-        m = resolve_map_path(data["map"])            # example:NAME, or relative to the config
+        with user_keys({"example": ("map", data["map"])}):
+            m = resolve_map_path(data["map"])            # example:NAME, or relative to the config
         extra["map"] = m if m.is_absolute() else (path.parent / m)
     return extra, options_from_mapping({k: v for k, v in data.items() if k != "map"})
 

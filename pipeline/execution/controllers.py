@@ -24,6 +24,7 @@ from ..control import WINDOWS, GainSchedule, StabilizerOptions, compute_schedule
 from ..control.interpolant import GridInterpolant
 from ..errors import InputError, NumericalError
 from ..geometry import wrap_angle
+from ..limits import MAX_GAMMA
 from ..nominal import Nominal
 
 CONTROLLERS = ("gramian", "tvlqr", "open-loop")
@@ -59,9 +60,9 @@ class ControllerOptions:
             v = getattr(self, key)
             if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputError(f"controller.{key}", "a positive finite number", v)
-        if self.gamma is not None and not (isinstance(self.gamma, (int, float)) and math.isfinite(self.gamma)
-                                           and self.gamma >= 0.5):
-            raise InputError("controller.gamma", "a finite number >= 1/2", self.gamma)
+        if self.gamma is not None and not (isinstance(self.gamma, (int, float)) and not isinstance(self.gamma, bool)
+                                           and 0.5 <= self.gamma <= MAX_GAMMA):
+            raise InputError("controller.gamma", f"a number in [1/2 (Proposition 1), {MAX_GAMMA:g}]", self.gamma)
         if self.gains not in GAINS:
             raise InputError("controller.gains", "one of " + ", ".join(GAINS), self.gains)
         if self.gains == "auto" and self.kind != "gramian":
@@ -75,6 +76,15 @@ class ControllerOptions:
             if arr is None or arr.shape != (size,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
                 raise InputError(f"controller.{key}", f"{size} positive finite numbers (a diagonal)", v)
         return self
+
+    def stabilizer_keys(self, robot) -> dict:
+        """For :func:`nhstab.errors.user_keys`: each parameter of the gramian law named where its value
+        comes from, ``controller.<key>`` where this sets it, else the robot's stabilizer key."""
+        keys = robot.stabilizer_keys()
+        for key in ("alpha", "delta", "gamma", "max_gain", "window"):
+            if getattr(self, key) is not None:
+                keys[key] = f"controller.{key}"
+        return keys
 
     def stabilizer(self, defaults: dict) -> StabilizerOptions:
         params = dict(defaults)

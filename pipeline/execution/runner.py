@@ -48,7 +48,8 @@ import numpy as np
 
 from .. import bodies
 from ..collision import CollisionWorld, interpolate_poses
-from ..errors import InputError, NumericalError, PipelineError
+from ..control import StabilizerOptions
+from ..errors import InputError, NumericalError, PipelineError, user_keys
 from ..geometry import Footprint, wrap_angle
 from ..interrupts import holding_interrupts
 from ..limits import MAX_CONTROL_PERIODS
@@ -64,7 +65,7 @@ from ..planning import (
     plan,
     pose_columns,
 )
-from ..robot import Robot, resolve_robot
+from ..robot import Robot, map_robot_where, resolve_robot
 from ..sensing import RangeSensor
 from ..tubes.base import tube_line, verdict
 from ..tubes.fit import (
@@ -185,6 +186,44 @@ def _bounding_circle(shape) -> tuple[np.ndarray, float]:
     return c, float(np.max(np.hypot(*(v - c).T)))
 
 
+def check_run(m: Map, robot: Robot, opts: RunOptions) -> RunOptions:
+    """Everything a run of ``robot`` on ``m`` with ``opts`` checks before it plans: the options, the
+    map against the planning budget, the planner's options for the robot (its turning radius), the
+    gain schedule of the planner (the robot's stabilizer) and of the law (the controller's values over
+    the robot's) against the nominal's time step 1 / rate_hz, and ``planning.margin: auto`` only for a
+    robot of one body. Errors name the run option (``controller.delta``, ``planning.margin``) or the
+    robot's key (``robot.stabilizer.delta``) the value comes from. Returns the validated options."""
+    model = robot.model
+    opts = opts.validated(model.state_names, model.m)
+    check_map_budget(m, opts.planning.time_limit_s)
+    if len(robot.footprints) > 1 and opts.planning.margin == "auto":
+        raise InputError("planning.margin", SEVERAL_BODIES, "auto")
+    p = opts.planning
+    radius_key = "planning.turning_radius" if p.turning_radius is not None else robot.key("turning_radius")
+    with user_keys({"turning_radius": radius_key, "space": "planning.space", "planner": "planning.planner",
+                    "time_limit_s": "planning.time_limit_s", "margin": "planning.margin"}):
+        path = PathOptions(space=p.space, turning_radius=p.turning_radius, planner=p.planner,
+                           time_limit_s=p.time_limit_s, margin=0.0 if not isinstance(p.margin, (int, float)) else
+                           p.margin, guide=p.guide).for_robot(robot).validated()
+        if model.name != "unicycle" and path.turning_radius < robot.min_turning_radius - 1e-9:
+            raise InputError("turning_radius", f"at least the {model.name}'s minimum turning radius "
+                             f"{robot.min_turning_radius:.4g} m", path.turning_radius)
+        if robot.trailers and path.space != "reeds_shepp":
+            raise InputError("space", "reeds_shepp (a car with a trailer reverses)", path.space)
+    if robot.trailers > 1:
+        raise InputError(robot.key("hitch_lengths"), "one hitch length (nhstab plans a car with one trailer)",
+                         list(model.hitch_lengths))
+    step = 1.0 / opts.rate_hz                 # the nominal's grid step (at most this)
+    with user_keys(robot.stabilizer_keys()):
+        StabilizerOptions(**robot.stabilizer).validated().check_step(step)
+    ctrl = opts.controller
+    if ctrl.kind == "gramian" and ctrl.gains != "auto":
+        with user_keys(ctrl.stabilizer_keys(robot)):
+            ctrl.stabilizer(robot.stabilizer).validated().check_step(step)
+    return opts
+
+
+
 class _Stop(Exception):
     def __init__(self, status: str, message: str):
         super().__init__(message)
@@ -201,8 +240,7 @@ class CompositeRun:
         start, goal = robot.configuration(start, "start"), robot.configuration(goal, "goal")
         check_start_goal(start, goal)
         self.m, self.robot, self.model, self.fp = m, robot, model, fp
-        opts = opts.validated(model.state_names, model.m)
-        check_map_budget(m, opts.planning.time_limit_s)
+        opts = check_run(m, robot, opts)
         if opts.planning.margin is None:
             opts = dataclasses.replace(opts, planning=dataclasses.replace(opts.planning, margin=robot.margin))
         self.opts = opts
@@ -216,8 +254,6 @@ class CompositeRun:
         self.pose_idx = pose_columns(model)
         #: a robot of several bodies (a car with trailers): every body is checked, the hitch angles too
         self.multibody = len(robot.footprints) > 1
-        if self.multibody and opts.planning.margin == "auto":
-            raise InputError("planning.margin", SEVERAL_BODIES, "auto")
         self.known = CollisionWorld.from_map(m, "known")
         self.truth = CollisionWorld.from_map(m, "all")
         self.robot_world = self.known
@@ -321,8 +357,17 @@ class CompositeRun:
         """plan() at ``margin`` and the feedback law along the nominal (``controller.gains: auto``: chosen
         by the tube, recorded in the attempt)."""
         self._margin_now, self._start_now = margin, start_pose
-        result = plan(self.m, self.plan_robot, start_pose, self.goal, self._path_options(seed, margin, budget_factor),
-                      TimingOptions(dt=self.T), world=self.robot_world)
+        p = self.opts.planning
+        # the nominal's speed is the robot's limit scaled by headroom: a headroom other than the
+        # default is named for it, else the robot's limit
+        speed_key = ("headroom", self.opts.headroom) if self.opts.headroom != RunOptions().headroom \
+            else (self.robot.key("max_speed"), getattr(self.model, "max_speed", None))
+        with user_keys({"max_speed": speed_key,
+                        "turning_radius": "planning.turning_radius" if p.turning_radius is not None
+                        else self.robot.key("turning_radius")}):
+            result = plan(self.m, self.plan_robot, start_pose, self.goal,
+                          self._path_options(seed, margin, budget_factor), TimingOptions(dt=self.T),
+                          world=self.robot_world)
         if not result.ok:
             return result, None
         if self.opts.controller.gains == "auto":
@@ -330,7 +375,8 @@ class CompositeRun:
                                        self.opts.controller.window)
             attempt["gains_auto"] = record
         else:
-            law = build_law(result.nominal, self.opts.controller, self.stab_defaults, result.schedule)
+            with user_keys(self.opts.controller.stabilizer_keys(self.robot)):
+                law = build_law(result.nominal, self.opts.controller, self.stab_defaults, result.schedule)
         return result, law
 
     def _tube_of(self, law: FeedbackLaw, world=True, margin: float | None = None):
@@ -800,7 +846,8 @@ def execute(m: Map, robot: Robot | None = None, start=None, goal=None, opts: Run
     if not isinstance(m, Map):
         raise InputError("map", "a Map (nhstab.load_map(path))", type(m).__name__)
     robot = resolve_robot(given.get("robot") if given.get("robot") is not None else opts.robot, m.robot,
-                          source="run options" if given.get("robot") is None and opts.robot is not None else "")
+                          source="run options" if given.get("robot") is None and opts.robot is not None else "",
+                          map_where=map_robot_where(m))
 
     start, goal = resolve_poses(m, given.get("start") if given.get("start") is not None else opts.start,
                                 given.get("goal") if given.get("goal") is not None else opts.goal)

@@ -79,7 +79,7 @@ def load_map(path: str | Path, **options: Any) -> Map:
         except InputError as exc:       # a shape or grid beyond nhstab.limits: name the file too
             if exc.argument.startswith("load_map option") or exc.argument in _OPTION_NAMES:
                 raise
-            raise MapError(f"{path}: {exc.argument}", exc.expected, exc.got) from None
+            raise MapError(f"{path}: {exc.argument}", exc.expected, exc.got, detail=exc.detail) from None
     files = [dict(f) for f in files]
     return replace(m, meta={**m.meta, "files": files, "content_hash": content_digest(files)})
 

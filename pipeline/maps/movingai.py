@@ -207,7 +207,7 @@ def _map_limits(path: Path, height: int, width: int, cell_size: float) -> None:
     try:
         check_grid_size("grid", height, width)
     except InputError as exc:
-        raise MapError(str(path), exc.expected, exc.got) from None
+        raise MapError(str(path), exc.expected, exc.got, detail=exc.detail) from None
     if max(height, width) * cell_size > MAX_COORD_M:
         raise MapError(f"{path}", f"a map within {MAX_COORD_M:g} m", f"{width} x {height} cells of {cell_size:g} m",
                        detail="reduce cell_size")

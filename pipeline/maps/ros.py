@@ -147,7 +147,7 @@ def load_ros_map(path, unknown: str = "occupied") -> Map:
     except MapError:
         raise
     except InputError as exc:               # the grid's extent beyond nhstab.limits
-        raise MapError(f"{path}: {exc.argument}", exc.expected, exc.got) from None
+        raise MapError(f"{path}: {exc.argument}", exc.expected, exc.got, detail=exc.detail) from None
     height, width = values.shape
     meta = {
         "format": "ros_map_server",

@@ -75,9 +75,9 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import PipelineError
+from ..errors import PipelineError, number_hint
 from ..geometry import is_simple_polygon, point_in_polygon, polygon_area
-from ..limits import MAX_COORD_M, MAX_YAML_BYTES, number_hint
+from ..limits import MAX_COORD_M, MAX_YAML_BYTES
 from ..robot import robot_from_spec
 from ..safe_io import load_yaml, read_text
 from .base import (
@@ -300,7 +300,7 @@ class _Reader:
             robot = robot_from_spec(spec, where="robot")
         except PipelineError as exc:
             raise self.err(getattr(exc, "argument", "robot"), getattr(exc, "expected", str(exc)),
-                           getattr(exc, "got", None)) from None
+                           getattr(exc, "got", None), detail=getattr(exc, "detail", "")) from None
         self.notes.extend(robot.notes)
         return _deep_copy(spec)
 

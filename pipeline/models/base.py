@@ -12,7 +12,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import require_positive
+import math
+
+from ..errors import InputError, require_positive
 from ..geometry import wrap_angle
 
 
@@ -96,3 +98,12 @@ class Model:
 def positive_param(name: str, value, model: str) -> float:
     """Validate a strictly positive finite model parameter (named ``model.name`` in errors)."""
     return require_positive(f"{model}.{name}", value)
+
+
+def angle_limit(name: str, value, model: str, what: str = "") -> float:
+    """Validate an angle limit of a model (a steering angle's, a hitch angle's): a positive angle below
+    pi/2 rad, where its tangent is positive and finite (named ``model.name`` in errors)."""
+    v = positive_param(name, value, model)
+    if v >= math.pi / 2:
+        raise InputError(f"{model}.{name}", f"a positive angle below pi/2 = {math.pi / 2:.4f} rad{what}", value)
+    return v

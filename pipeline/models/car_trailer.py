@@ -32,7 +32,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import wrap_angle
-from .base import Model, positive_param
+from .base import Model, angle_limit, positive_param
 
 #: the most trailers a model may tow (a bound on the state's size, not a physical limit)
 MAX_TRAILERS = 8
@@ -67,13 +67,10 @@ class CarTrailer(Model):
     jackknife_limit: float = 1.0        # rad, |theta_(i-1) - theta_i| (< pi/2)
 
     def __post_init__(self):
-        for key in ("wheelbase", "max_speed", "max_steer", "max_steer_rate", "jackknife_limit"):
+        for key in ("wheelbase", "max_speed", "max_steer_rate"):
             positive_param(key, getattr(self, key), "car_trailer")
-        if self.max_steer >= np.pi / 2:
-            raise InputError("car_trailer.max_steer", "below pi/2 rad", self.max_steer)
-        if self.jackknife_limit >= np.pi / 2:
-            raise InputError("car_trailer.jackknife_limit", "below pi/2 rad (a hitch angle the chained chart covers)",
-                             self.jackknife_limit)
+        angle_limit("max_steer", self.max_steer, "car_trailer")
+        angle_limit("jackknife_limit", self.jackknife_limit, "car_trailer", " (a hitch angle the chained chart covers)")
         d = _hitch_lengths(self.hitch_lengths)
         object.__setattr__(self, "hitch_lengths", d)
         N = len(d)

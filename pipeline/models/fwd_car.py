@@ -12,19 +12,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Model, positive_param
+from .base import Model, angle_limit, positive_param
 
 
 @dataclass(frozen=True)
 class FwdCar(Model):
     wheelbase: float = 1.0          # m, L
     max_speed: float = 1.0          # m/s, |u1|
-    max_steer: float = 0.6          # rad, |x3|
+    max_steer: float = 0.6          # rad, |x3| (< pi/2)
     max_steer_rate: float = 1.0     # rad/s, |u2|
 
     def __post_init__(self):
-        for key in ("wheelbase", "max_speed", "max_steer", "max_steer_rate"):
+        for key in ("wheelbase", "max_speed", "max_steer_rate"):
             positive_param(key, getattr(self, key), "fwd_car")
+        angle_limit("max_steer", self.max_steer, "fwd_car")
         object.__setattr__(self, "name", "fwd_car")
         object.__setattr__(self, "state_names", ("x", "y", "phi", "theta"))
         object.__setattr__(self, "input_names", ("v", "omega_s"))

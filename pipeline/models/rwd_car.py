@@ -10,8 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError
-from .base import Model, positive_param
+from .base import Model, angle_limit, positive_param
 
 
 @dataclass(frozen=True)
@@ -22,10 +21,9 @@ class RwdCar(Model):
     max_steer_rate: float = 1.0     # rad/s, |omega_s|
 
     def __post_init__(self):
-        for key in ("wheelbase", "max_speed", "max_steer", "max_steer_rate"):
+        for key in ("wheelbase", "max_speed", "max_steer_rate"):
             positive_param(key, getattr(self, key), "rwd_car")
-        if self.max_steer >= np.pi / 2:
-            raise InputError("rwd_car.max_steer", "below pi/2 rad", self.max_steer)
+        angle_limit("max_steer", self.max_steer, "rwd_car")
         object.__setattr__(self, "name", "rwd_car")
         object.__setattr__(self, "state_names", ("x", "y", "theta", "phi"))
         object.__setattr__(self, "input_names", ("v", "omega_s"))

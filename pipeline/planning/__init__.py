@@ -18,7 +18,7 @@ import numpy as np
 
 from ..collision import CollisionWorld, check_poses
 from ..control import GAIN_BOUND, StabilizerOptions, compute_schedule
-from ..errors import InputError, SingularGramianError
+from ..errors import InputError, SingularGramianError, user_keys
 from ..geometry import wrap_angle
 from ..limits import FCL_CHECK_S, check_headings
 from ..maps.base import Map
@@ -171,7 +171,7 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
           timing_opts: TimingOptions | None = None, stab_opts: StabilizerOptions | None = None,
           check_resolution: float = 0.05, world: CollisionWorld | None = None,
           car_opts: CarOptions | None = None) -> PlanResult:
-    model, fp = robot.model, robot.footprint
+    model = robot.model
     if not isinstance(m, Map):
         raise InputError("map", "a Map (nhstab.load_map(path))", type(m).__name__)
     if model.name not in PLANNABLE:
@@ -182,7 +182,21 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
             raise InputError(name, f"a {cls.__name__} or None", type(opts).__name__)
     path_opts = (path_opts or PathOptions()).for_robot(robot).validated()
     timing_opts = (timing_opts or TimingOptions()).validated()
-    stab_opts = (stab_opts or StabilizerOptions(**robot.stabilizer)).validated()
+    if stab_opts is None:
+        # the gain schedule's parameters are the robot's: errors about them name its keys
+        with user_keys(robot.stabilizer_keys()):
+            return _plan_with(m, robot, start, goal, path_opts, timing_opts,
+                              StabilizerOptions(**robot.stabilizer).validated(), check_resolution, world, car_opts,
+                              robot.key("stabilizer.delta"))
+    return _plan_with(m, robot, start, goal, path_opts, timing_opts, stab_opts.validated(), check_resolution, world,
+                      car_opts, "delta")
+
+
+def _plan_with(m: Map, robot: Robot, start, goal, path_opts: PathOptions, timing_opts: TimingOptions,
+               stab_opts: StabilizerOptions, check_resolution: float, world: CollisionWorld | None,
+               car_opts: CarOptions | None, delta_key: str) -> PlanResult:
+    """:func:`_plan` with its options checked; ``delta_key`` is how errors name the window length."""
+    model, fp = robot.model, robot.footprint
     check_map_budget(m, path_opts.time_limit_s, path_opts.resolution)
     if model.name == "car_trailer":       # the trailer's path, the rig checked (nhstab.planning.trailer)
         return plan_trailer(m, robot, start, goal, path_opts, timing_opts, stab_opts, check_resolution, world)
@@ -210,7 +224,7 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
         if path.status != "exact":
             return _no_path(path, path_opts, base, f"OMPL: {path.planner_status}")
         return _from_path(path, robot, world, path_opts, timing_opts, stab_opts, car_opts, check_resolution,
-                          base, started)
+                          base, started, delta_key)
     # cars: the paths the car planner offers, best guess first, until a nominal worth tracking (item 4
     # of issue 11: duration, steering, gains within their bounds) or the budget is spent; the best
     # usable one otherwise
@@ -221,7 +235,7 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
         attempts += 1
         t0 = time.perf_counter()
         result = _from_path(path, robot, world, path_opts, timing_opts, stab_opts, car_opts, check_resolution,
-                            base, started)
+                            base, started, delta_key)
         # what a nominal costs: the searches for another path leave this much of the budget
         info["reserve_s"] = max(info.get("reserve_s", 0.0), 1.2 * (time.perf_counter() - t0))
         result.metrics["attempts"] = attempts
@@ -279,8 +293,10 @@ def _path_metrics(path: GeometricPath) -> dict:
 
 def _from_path(path: GeometricPath, robot: Robot, world: CollisionWorld, path_opts: PathOptions,
                timing_opts: TimingOptions, stab_opts: StabilizerOptions, car_opts: CarOptions,
-               check_resolution: float, base: dict, started: float) -> PlanResult:
-    """The nominal along an exact path, its clearance check and its gain schedule."""
+               check_resolution: float, base: dict, started: float, delta_key: str = "delta") -> PlanResult:
+    """The nominal along an exact path, its clearance check and its gain schedule. A window longer than
+    the nominal is the goal's fault (too near the start for the window ``delta_key`` names); any other
+    error about delta (e.g. a window too short for the nominal's time step) names delta itself."""
     model, fp = robot.model, robot.footprint
     metrics = {**base, **_path_metrics(path)}
     if model.name == "unicycle":
@@ -321,14 +337,14 @@ def _from_path(path: GeometricPath, robot: Robot, world: CollisionWorld, path_op
     try:
         schedule = compute_schedule(nominal, stab_opts)
     except InputError as exc:
-        if exc.argument != "delta":
+        if exc.argument != "delta" or not stab_opts.delta > nominal.duration:
             raise
         start, goal = path.samples[0], path.samples[-1]
         apart = float(math.hypot(*(goal[:2] - start[:2])))
         raise InputError("goal", f"far enough from the start for the stabilizer: the nominal to it lasts "
                          f"{nominal.duration:.3g} s, shorter than the gain schedule's window delta = "
                          f"{stab_opts.delta:g} s", np.round(goal, 4).tolist(),
-                         detail=f"start and goal are {apart:.3g} m apart; a smaller delta would fit") from None
+                         detail=f"start and goal are {apart:.3g} m apart; a smaller {delta_key} would fit") from None
     except SingularGramianError as exc:
         metrics["time_to_nominal_s"] = time.perf_counter() - started
         return PlanResult("not_stabilizable", str(exc), path, nominal, metrics=metrics)

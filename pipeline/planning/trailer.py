@@ -299,13 +299,15 @@ def check_configuration(m: Map, robot, config, name: str, world: CollisionWorld)
     names = ("car", "trailer")
     out = math.inf
     for b, (pose, fp) in enumerate(zip(robot.body_poses(x), robot.footprints)):
-        where = f"{m.source or m.name}: {name} ({names[b]})"
+        where = m.source or m.name
         if not m.contains(pose[0], pose[1]):
-            raise MapError(where, f"inside the bounds {list(m.bounds)}", np.round(pose, 4).tolist())
+            raise MapError(name, f"a configuration whose {names[b]} lies inside the bounds {list(m.bounds)} of {where}",
+                           np.round(config, 4).tolist(), detail=f"the {names[b]} at {np.round(pose, 4).tolist()}")
         c = world.clearance(pose, fp)
         if c < 0:
-            raise MapError(where, f"a pose where the {names[b]}'s footprint is free", np.round(pose, 4).tolist(),
-                           detail=f"it overlaps an obstacle by {-c:.3g} m")
+            raise MapError(name, f"a configuration where the {names[b]}'s footprint is free of the obstacles of "
+                           f"{where}", np.round(config, 4).tolist(),
+                           detail=f"the {names[b]} at {np.round(pose, 4).tolist()} overlaps an obstacle by {-c:.3g} m")
         out = min(out, c)
     return out
 
