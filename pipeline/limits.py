@@ -97,9 +97,8 @@ MAX_ROLLOUTS = 100_000
 #: allocating stage arrays of the nominal's length times 12 stages times 1e10 substeps (--delta 1e-12)
 MAX_WINDOW_SUBSTEPS = 1024
 #: largest gain factor gamma (Proposition 1 needs gamma >= 1/2; the paper uses 1/2 and 1). The gains
-#: grow with it and the closed loop stiffens: ``nhstab paper --case hilare-circle`` took 6.5 s at
-#: gamma 1, 26 s at 1e3 and 32 s at 1e4, and had not finished after 3 minutes at 1e10; at 1e300 the
-#: gains overflowed (a traceback)
+#: grow with it and the closed loop stiffens, so its simulation slows down (far beyond this bound, a
+#: paper case runs for many minutes), and at 1e300 the gains overflow
 MAX_GAMMA = 1e4
 
 # ---- planning ---------------------------------------------------------------------------------

@@ -540,7 +540,7 @@ def read_suite_csv(path) -> list[dict]:
 def source_md(cases: list[Case]) -> str:
     """SOURCE.md of the suite folder: where the maps come from, the formulas, the table."""
     specs = cars()
-    lines = ["# parking — the parking suite (issue 11)", "",
+    lines = ["# parking — the parking suite", "",
              "Generated, with `suite.csv` and this file, by `nhstab parking suite --out maps/parking` from the",
              "geometry in `pipeline/parking.py` (`nhstab.parking`); do not edit by hand. Original to nhstab,",
              "same licence as nhstab (BSD-3-Clause). nhstab YAML maps: metres, radians, x right, y up.", "",

@@ -39,7 +39,7 @@ rule: the unicycle plans with a 0.5 m radius (it could turn in place; a radius k
 and the gramian well conditioned); a car plans with 1.25 times its minimum turning radius
 R_min = L / tan(max_steer), so that the feedback keeps steering authority: on an arc of radius
 1.25 R_min the nominal steers at atan(tan(max_steer) / 1.25), 0.11 rad inside the default rwd_car's
-limit. Where a problem needs tighter turns the planner may go down to R_min (issue 11's parking);
+limit. Where a problem needs tighter turns (parking) the planner may go down to R_min;
 ``turning_radius`` overrides the rule.
 """
 
@@ -521,7 +521,7 @@ def _number(key: str, v, lo: float = -math.inf, lo_open: bool = False) -> float:
     ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
     try:
         ok = ok and math.isfinite(v)
-    except OverflowError:            # an integer too large for a float (issue 12)
+    except OverflowError:            # an integer too large for a float
         ok, v = False, f"an integer of {v.bit_length()} bits"
     if ok:
         ok = v > lo if lo_open else v >= lo

@@ -212,7 +212,7 @@ def _make_loader():
     """PyYAML's safe loader with a composer that refuses to nest deeper than the limit. PyYAML
     composes recursively (and libyaml's own composer recurses in C, unbounded), so composition
     always runs in Python here; libyaml's parser, a state machine with explicit stacks, supplies the
-    events when it is installed (about 5 times faster than the pure-Python scanner)."""
+    events when it is installed (faster than the pure-Python scanner)."""
     import yaml
     from yaml.composer import Composer
 

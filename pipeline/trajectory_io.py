@@ -101,7 +101,7 @@ def float_rows(a: np.ndarray) -> str:
     """CSV lines of a 2-D float array, every number as Python's shortest round-trip ``repr`` (the
     same text as ``",".join(repr(float(v)) for v in row)`` per row, each line ending in a newline),
     formatted in C: the repr of the nested list, whose only separators are ``", "`` and ``"], ["``,
-    rewritten into commas and newlines (a Python loop per row took 50 ms for a 9,000-row nominal)."""
+    rewritten into commas and newlines (a Python loop per row is many times slower)."""
     a = np.asarray(a, dtype=float)
     if a.ndim != 2:
         raise ValueError(f"float_rows needs a 2-D array, got {a.ndim}-D")

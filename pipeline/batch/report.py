@@ -5,10 +5,10 @@ Rates come with Wilson score 95% intervals. The tracking-error envelopes are per
 trials of ||e(t)|| while each trial follows its first plan, with the guaranteed bound of the noiseless
 linearised loop drawn from each trial's own plan and true initial error (median over trials): for the
 future window Proposition 1's 3 alpha bound sqrt(e0^T P(0) e0 / lambda_min(P(t))) exp(-3 alpha t)
-(NOTES.md item 8), for the frozen-time law its certified bound; none for the past window. Stores
-written before the trials recorded that curve (their metrics have ``rate_bound`` = the printed
-2 alpha p_m / p_M and no ``rate_bound_printed``) get the 3 alpha bound with its uniform constant,
-||e(0)|| sqrt(p_M / p_m) exp(-3 alpha t), alpha recovered as rate_bound p_M / (2 p_m).
+(docs/theory/control-law.md, The guarantee), for the frozen-time law its certified bound; none for the
+past window. Stores written before the trials recorded that curve (their metrics have ``rate_bound`` =
+the printed 2 alpha p_m / p_M and no ``rate_bound_printed``) get the 3 alpha bound with its uniform
+constant, ||e(0)|| sqrt(p_M / p_m) exp(-3 alpha t), alpha recovered as rate_bound p_M / (2 p_m).
 
 The error tubes (:mod:`nhstab.tubes`) held to reality: per cell, the coverage of each trial's first
 plan's p-tube, the fraction of its tracking samples inside it (the pose region the spatial tube is
@@ -591,11 +591,11 @@ def _write_report(out, db, trials, config, vers, rows, figs, runs=()) -> None:
         "envelopes": "Tracking error ||x - x0|| while following the first plan: median, 90th and 99th percentile "
                      "over trials; blue: the guaranteed bound of the noiseless linearised loop from each trial's own "
                      "plan and initial error (median over trials): for the future window Proposition 1's 3 alpha "
-                     "bound sqrt(e0^T P(0) e0 / lambda_min(P(t))) exp(-3 alpha t) (NOTES.md item 8; stores from "
-                     "before nhstab recorded it per trial: ||e(0)|| sqrt(p_M/p_m) exp(-3 alpha t)), for the "
-                     "frozen-time law its certified bound; none for the past window, which has no guarantee. "
-                     "Sensor noise, disturbances and the 50 Hz hold are outside the bound: the envelopes may "
-                     "cross it." + drawn_note,
+                     "bound sqrt(e0^T P(0) e0 / lambda_min(P(t))) exp(-3 alpha t) (docs/theory/control-law.md, The "
+                     "guarantee; stores from before nhstab recorded it per trial: ||e(0)|| sqrt(p_M/p_m) "
+                     "exp(-3 alpha t)), for the frozen-time law its certified bound; none for the past window, "
+                     "which has no guarantee. Sensor noise, disturbances and the 50 Hz hold are outside the bound: "
+                     "the envelopes may cross it." + drawn_note,
         "distributions": "Minimum executed clearance (orange: the margin, red: contact), final position error, "
                          "replans and replan latency per cell.",
         "tubes": "Predicted error tube against the observed error, per state: RMS over trials of e(t) while following "

@@ -24,16 +24,8 @@ What is left is what exactness fixes: one libm cosine and sine per heading and s
 float64 sin and cos are the C library's, element by element), the normal draws of every trial's
 own generators (numpy's ziggurat) and one BLAS call per trial and step.
 
-Measured (one core of a shared 2-core AVX-512 machine, OMP/MKL/OpenBLAS threads 1, record=False,
-default noise, best of 2-5, against the previous engine (per-trial columns of a (K, n) stack, the
-noise of all samples drawn up front) in the same process): on the rwd_car parallel-parking nominal
-(29 s, 1447 steps at 50 Hz, 4 RK4 substeps) 0.18 s for K = 200 (previously 0.37), 0.64 s for
-K = 1,000 (0.97) and 2.3 s for K = 4,000 (3.9); on the Hilare sinusoid (315 steps) 67 trials/s
-for K = 1 (35), 4,500 for K = 100 (2,400), 11,000 for K = 1,000 (7,000), 12,000 for K = 10,000
-(7,900). For the car at K = 1,000, 55 % of the time is the plant step (mostly its 32 libm cosines
-and sines per trial and step, about 0.2 s), 20 % the normal draws (8 per trial and step), 20 % the
-rest of the loop (a third of it the per-trial BLAS calls). The noise is drawn in blocks of about
-8 MB per stream, not for all samples up front (370 MB for K = 4,000 on the car).
+The noise is drawn in blocks of about 8 MB per stream, not for all samples up front (370 MB for
+K = 4,000 on the rwd_car parallel-parking nominal). ``nhstab bench batch`` measures the speed.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``nhstab bench parking``: planning on the parking suite (issue 11).
+"""``nhstab bench parking``: planning on the parking suite.
 
 For every case of the bundled parking suite (``maps/parking/``, see its SOURCE.md) and seeds
 0 .. seeds-1: plan with the map's own car (its ``robot:`` block: footprint, limits, margin 0.1 m)
@@ -10,7 +10,7 @@ record
   schedule);
 - **time** to that nominal (median over the successes);
 - **cusps**: the nominal's direction reversals;
-- **duration** against the bound of issue 11 item 4,
+- **duration** against the bound of a nominal worth tracking (:func:`nhstab.planning.tracking_metrics`),
   ``T_bound = 1.5 (length / max_speed + (2 cusps + 2) max_steer / max_steer_rate)``: the path's
   length at the speed limit, plus steering at the rate limit from straight to full lock at the
   start, across the whole range (full lock to full lock) at every cusp, and back to straight at the
@@ -20,10 +20,10 @@ record
   (nhstab.planning.sweep): at 50 Hz with zero-order hold, dt ||B K|| < 2;
 - the steering's largest |phi| against the car's limit.
 
-Targets (issue 11): parallel slots >= 1.1 x L1 and every perpendicular and angled bay: 100 %
+Targets: parallel slots >= 1.1 x L1 and every perpendicular and angled bay: 100 %
 success with a median under 1 s; slots of 1.0-1.05 x L1: >= 90 %; 0.9 x L1: >= 50 % (``success_met``);
-and every successful nominal within the duration, gain and steering bounds of item 4
-(``bounds_met``). A case is ``met`` when both are.
+and every successful nominal within the duration, gain and steering bounds of a nominal worth
+tracking (``bounds_met``). A case is ``met`` when both are.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ MEDIAN_TARGET_S = 1.0
 
 
 def target_rate(kind: str, factor: float) -> float:
-    """The success-rate target of a case (issue 11's Must show)."""
+    """The success-rate target of a case."""
     if kind != "parallel" or factor >= 1.1 - 1e-9:
         return 1.0
     if factor >= 1.0 - 1e-9:

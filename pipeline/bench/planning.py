@@ -35,7 +35,7 @@ SCALE_TARGETS = {"unicycle": (0.99, 1.0), "rwd_car": (0.95, 3.0)}
 EXPONENT_MAX = 1.2
 LENGTH_RATIO_MAX = 1.15
 VALIDITY_US_MAX = 2.0
-#: issue 13 item 3: the outputs after the nominal (residual, figure, files) within this share of a plan
+#: the outputs after the nominal (residual, figure, files) within this share of a plan
 DIAGNOSTICS_SHARE_MAX = 0.10
 DIAGNOSTICS_PROBLEMS = 3
 #: the planning margin of the scale series [m] (the built-in robots' own margins are for noisy runs)
@@ -238,7 +238,7 @@ def _diagnostics_cost(m, rob, world, ok_rows: list[dict], count: int) -> dict | 
 
 
 def _command_share(rob, problems: list[int]) -> list[dict]:
-    """The issue's own measure: ``nhstab plan`` on each problem as a user runs it (a new process: imports,
+    """The share as a user meets it: ``nhstab plan`` on each problem as a user runs it (a new process: imports,
     map, plan, error tube, outputs), its wall time, and the time it spent writing its outputs (plan.json's
     ``timing.outputs_s``: the residual, the files, plan.png and tube.npz)."""
     import json

@@ -11,7 +11,7 @@ from ..robot import default_footprint, default_robot
 from ..sensing import RangeSensor
 from .common import _best, machine, maps_dir
 
-#: target of the replan latency's 95th percentile [s] (Nav2 replans at 1 Hz by default; issue 13 asks for
+#: target of the replan latency's 95th percentile [s] (Nav2 replans at 1 Hz by default; the target is
 #: half of that)
 REPLAN_P95_MAX_S = 0.5
 

@@ -21,8 +21,8 @@ tube timed right after its plan runs at nearly the same speed):
   same poses is timed beside); it is run on a subset of the rollouts of the first sampled plan of the
   bundled scenarios and of the parking cases and extrapolated to N (linear in the rollouts), and its
   reach and certified clearance are checked equal to the sampled tube's on the same rollouts. No target
-  here: the sampled tube's target is on ``nhstab plan``'s whole process on the parking suite (at most
-  2x the code before it), which is measured outside, process against process.
+  here: the sampled tube's target is on ``nhstab plan``'s whole process on the parking suite, which is
+  measured outside, process against process.
 """
 
 from __future__ import annotations

@@ -27,9 +27,8 @@ _STAGES = DOP853.n_stages
 _A_LOWER = np.concatenate([_A[i, :i] for i in range(_STAGES)])
 _PAIR_START = np.concatenate([[0], np.cumsum(np.arange(_STAGES))]).astype(int)
 #: intervals integrated at once: bounds the memory of the stage arrays, and keeps them in the CPU's
-#: cache (the twelve stages reuse them; 512 intervals of a 4-state model are about 1 MB, and run 2.5x
-#: faster per interval than 8192 on our machine). Every interval is integrated on its own, so the
-#: result does not depend on the chunk.
+#: cache (the twelve stages reuse them; 512 intervals of a 4-state model are about 1 MB). Every
+#: interval is integrated on its own, so the result does not depend on the chunk.
 CHUNK = 512
 
 

@@ -11,7 +11,8 @@ past one either. For a time-invariant pair it *is* Proposition 1 (the future win
 system does not depend on t), so on the straight line at constant speed it has the future window's
 closed-loop eigenvalues, and on any LTI system the 3 alpha guarantee.
 
-Why it works, and when. For every fixed t the identity of NOTES.md item 1 holds with dP/dt = 0:
+Why it works, and when. For every fixed t the corrected dP_c/dt identity (docs/theory/control-law.md,
+Weighting) holds with dP/dt = 0:
 
     0 = -w alpha P - P A - A^T P + P [B B^T - exp(-w alpha delta) e^{-A delta} B B^T e^{-A^T delta}] P,
 
@@ -39,18 +40,15 @@ Leaving a stop. The frozen pair assumes the current speed for a whole window; wh
 up out of a stop or a cusp, P_f falls fast (the same logarithmic derivative below -w alpha) and that
 assumption fails the other way: the frozen lateral gain (~ 1/v) of the low speed turns the robot hard
 to remove, within a window of motion at that low speed, a lateral error that the coming motion
-removes anyway or that a short move cannot remove at all, and the heading error stays. (A depot trial
-of the first committed results/causal, seed 4115170653 at twice the noise, ended so 0.25 rad off in
-heading at its goal: the law resumed 0.13 s after a cusp at
-0.08 m/s with a lateral gain of 42, saturated the turn rate and turned 0.47 rad on a 0.2 m move; on
-a straight line through a cusp, from 0.1 m of lateral error, the heading error peaks at 0.39 rad
-there, ``tests/test_frozen_time.py``.) So a hold ends only where the law is admissible *and* P_f no
+removes anyway or that a short move cannot remove at all, and the heading error stays. (On a
+straight line through a cusp, from 0.1 m of lateral error, the heading error peaks at 0.39 rad there,
+``tests/test_frozen_time.py``.) So a hold ends only where the law is admissible *and* P_f no
 longer falls faster than exp(-w alpha t): once the robot is up to speed. Every stop is then treated
 like the start of a plan: up to the stop (the hold's least controllable point) the last admissible
 gramian is carried forward; from the stop on, the first admissible gramian after the hold is carried
 back, H(t) = Phi(t, s) H_f(s) Phi(t, s)^T with s after t. The gains leaving a stop are those of the
 motion it leads into, in its direction (after a cusp the carried-forward gramian belongs to the other
-direction of travel: carried into the new one, it turned a depot run into a collision). The cost is
+direction of travel, and carried into the new one it turns the robot the wrong way). The cost is
 a look-ahead at each stop, by the time the nominal takes to get up to speed (about 1.4 s for the
 unicycle's default 0.5 m/s^2 to 0.8 m/s; ``lookahead_s`` in the diagnostics for the start): the law
 is causal except that, at a stop, it needs the motion it is about to start, as any reference
@@ -64,19 +62,15 @@ rate shows as a short, strongly negative stretch; at a cusp the jump can be tens
 of travel is a good Lyapunov matrix for the other), so the certificate does not carry across cusps
 even where the closed loop converges.
 
-Tried and set aside for leaving a stop: holding on through the acceleration with the gramian from
-before the stop (across a cusp it turns the robot the wrong way: one collision in 20 depot trials at
-twice the noise); and at the final stop, the frozen pair's pseudo-inverse on the directions it still
-controls (P = sum f(lambda_i) v_i v_i^T with f faded below the gain bound): it reached the goal with
-smaller along-track but larger heading errors (largest 0.068 rad against 0.039, median 0.020 against
-0.012, on the same 20 depot trials at twice the noise), since a run ends when its nominal does and the
-robot is never at rest long enough for it to act.
+Not used for leaving a stop: holding on through the acceleration with the gramian from before the
+stop (across a cusp it turns the robot the wrong way); and at the final stop, the frozen pair's
+pseudo-inverse on the directions it still controls (P = sum f(lambda_i) v_i v_i^T with f faded below
+the gain bound), which trades smaller along-track errors for larger heading errors at the goal, since
+a run ends when its nominal does and the robot is never at rest long enough for it to act.
 
-Tried and set aside: instead of holding, regularizing, P = (H_f + eps I)^-1 with the smallest eps that
-keeps the gain within ``max_gain`` (fully causal, continuous, no look-ahead; at rest B^T ignores the
-null direction). On 12 trials at twice the default noise (depot and warehouse scenarios, seeds of root
-4242, not those of results/causal) it reached the goal in 10 with max_gain 50 and 10 with max_gain 10 (one
-collision), the hold in 12 (and the future window in 10).
+Not used instead of holding: regularizing, P = (H_f + eps I)^-1 with the smallest eps that keeps the
+gain within ``max_gain`` (fully causal, continuous, no look-ahead; at rest B^T ignores the null
+direction). Under twice the default noise it reaches the goal less often than the hold.
 """
 
 from __future__ import annotations

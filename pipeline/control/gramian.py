@@ -1,13 +1,14 @@
 """The gain schedule of Proposition 1 (future window), Remark 2 (past window, for study) and the
 frozen-time law (a causal alternative).
 
-Convention (NOTES.md item 1, the 6-alpha weighting; the constant ``weight`` = w = 6 is a parameter):
+Convention (the 6-alpha weighting: docs/theory/control-law.md, Weighting; the constant ``weight`` = w = 6
+is a parameter):
 
     H_c(t, t + delta) = int_t^{t+delta} exp(w alpha (t - tau)) Phi(t, tau) B B^T Phi(t, tau)^T dtau
     P_c(t) = H_c(t, t + delta)^-1,        u = u0 - gamma(t) B(t)^T P_c(t) (x - x0)
 
-The guarantee (NOTES.md item 8). With the corrected identity for dP_c/dt, V = e^T P_c e along the
-linearised closed loop e' = (A - gamma B B^T P_c) e satisfies
+The guarantee (docs/theory/control-law.md, The guarantee). With the corrected identity for dP_c/dt,
+V = e^T P_c e along the linearised closed loop e' = (A - gamma B B^T P_c) e satisfies
 
     dV/dt = -w alpha V + (1 - 2 gamma) |B^T P_c e|^2 - exp(-w alpha delta) |B(t+delta)^T Phi(t,t+delta)^T P_c e|^2
           <= -w alpha V          (gamma >= 1/2),
@@ -21,11 +22,11 @@ region V is non-increasing only.
 ``window="past"`` (Remark 2, kept for study) uses [t - delta, t] with the same weighting:
 P_r(t) = [int_{t-delta}^t exp(w alpha (t - tau)) Phi(t, tau) B B^T Phi(t, tau)^T dtau]^-1. (The paper
 writes H_c(t, t - delta); read literally, with the limits reversed, that integral is negative definite.)
-The law with P_r is **not stabilizing in general** (NOTES.md item 7): on the unicycle's straight line
-the past window flips the sign of the lateral position gain and the closed loop has an eigenvalue with
-positive real part for every alpha, delta and gamma (``nhstab paper --case remark2-line-past``). The 3
-alpha argument does not apply to it, and no rate bound is reported for it; computing it issues a
-:class:`NotStabilizingWarning`.
+The law with P_r is **not stabilizing in general** (docs/theory/control-law.md, Remark 2): on the
+unicycle's straight line the past window flips the sign of the lateral position gain and the closed
+loop has an eigenvalue with positive real part for every alpha, delta and gamma (``nhstab paper
+--case remark2-line-past``). The 3 alpha argument does not apply to it, and no rate bound is reported
+for it; computing it issues a :class:`NotStabilizingWarning`.
 
 ``window="frozen-time"`` is the causal alternative (:mod:`nhstab.control.frozen`): Proposition 1 on
 the pair (A(t), B(t)) frozen at the current time, with a hold where that pair is not (or barely)
@@ -42,9 +43,9 @@ carries that last whole window's gramian along the nominal's linearised flow:
 P is continuous at s, as far from singular as the last whole window (Phi spans at most delta), and
 along the linearised closed loop V = e^T P e obeys dV/dt = -2 gamma |B^T P e|^2 <= 0: the error keeps
 being driven down wherever the remaining motion can act on it. (Carrying the exponential weighting on
-past s would make P, and with it the gains, shrink by up to exp(w alpha delta) by the end.) The former
-``"switch"`` strategy (P_r for the last delta seconds of a future-window schedule) was removed: it
-used the past window, which is not stabilizing, and made the gains jump.
+past s would make P, and with it the gains, shrink by up to exp(w alpha delta) by the end.) There is no
+``"switch"`` strategy (P_r for the last delta seconds of a future-window schedule): it would use the
+past window, which is not stabilizing, and make the gains jump.
 
 ``end_strategy="extend"`` keeps the window sliding: past the end it runs along the nominal's
 continuation under its last input held (before the start, under its first input held, for a past
@@ -59,8 +60,8 @@ carries the window [s, s + delta] to t > s, H(t) = Phi(t, s) H(s) Phi(t, s)^T, w
 control spent in [s, t] as if it were to come; over the last window the gains fall (on the parking
 suite's last reverse arc into a slot to a tenth of the sliding part's), the tracking error grows
 under the process noise while the car reverses towards the curb, and the car touched it or missed
-the goal (3-4 of 28 runs of ``tests/test_parking_runs.py``). Along the continuation the window sees
-the motion the car is in, and the gains stay those of the sliding part. Where no continuation is
+the goal (``tests/test_parking_runs.py`` fails with the frozen end). Along the continuation the window
+sees the motion the car is in, and the gains stay those of the sliding part. Where no continuation is
 usable (the robot never moves, the continuation leaves the model's state limits within delta, or its
 window gramian is singular), the end falls back to "frozen"; ``diagnostics["end"]`` says which end
 was used, under which input, and why.
@@ -97,8 +98,8 @@ CUSP_HANDLING = ("across", "split")
 PAST_WINDOW_WARNING = (
     "the past window (Remark 2) is not stabilizing in general: it flips the sign of the lateral position "
     "gain, so on a straight line at constant speed the closed loop has an eigenvalue with positive real part "
-    "for every alpha, delta and gamma (NOTES.md item 7, `nhstab paper --case remark2-line-past`); use it for "
-    "study only, and --window frozen-time for a causal law that works")
+    "for every alpha, delta and gamma (see docs/theory/control-law.md, Remark 2, and `nhstab paper --case "
+    "remark2-line-past`); use it for study only, and --window frozen-time for a causal law that works")
 #: the largest gain norm max ||K|| the stabilizer defaults are chosen for (``nhstab sweep`` picks, per
 #: robot, the gains within it); a plan whose schedule exceeds it is flagged in its metrics
 GAIN_BOUND = 50.0
@@ -106,9 +107,9 @@ GAIN_BOUND = 50.0
 #: what the reported rate_bound means, per window
 GUARANTEES = {
     "future": "3 alpha (w alpha / 2): V = e^T P_c e decays at least as exp(-w alpha t) along the linearised closed "
-              "loop while the window slides (NOTES.md item 8); ||e(t)|| <= sqrt(e0^T P_c(0) e0 / lambda_min(P_c(t))) "
-              "exp(-3 alpha t)",
-    "past": "none: the past-window law is not stabilizing in general (NOTES.md item 7)",
+              "loop while the window slides; ||e(t)|| <= sqrt(e0^T P_c(0) e0 / lambda_min(P_c(t))) exp(-3 alpha t) "
+              "(see docs/theory/control-law.md, The guarantee)",
+    "past": "none: the past-window law is not stabilizing in general (see docs/theory/control-law.md, Remark 2)",
     "frozen-time": "none uniform: V = e^T P e decays at the certified rate w alpha - mu(t) where A, B vary slowly "
                    "(GainSchedule.lyapunov_rates; nhstab gains reports their min and mean); exactly 3 alpha on "
                    "time-invariant nominals",
@@ -253,8 +254,9 @@ class GainSchedule:
         control reads them; ``nhstab gains`` and ``nhstab paper`` ask for them).
 
         p_m, p_M: extreme eigenvalues of P. rate_bound: the guaranteed local rate, 3 alpha (w alpha / 2)
-        for the future window (NOTES.md item 8; see :meth:`error_bound` for its time-varying factor),
-        None for the past window (no guarantee) and the frozen-time law (see lyapunov_rate_*).
+        for the future window (docs/theory/control-law.md, The guarantee; see :meth:`error_bound` for its
+        time-varying factor), None for the past window (no guarantee) and the frozen-time law (see
+        lyapunov_rate_*).
         rate_bound_printed: the paper's printed 2 alpha p_m / p_M (future window only), always below
         rate_bound. lyapunov_rate_min / _mean: the certified decay rate of V = e^T P e along the
         linearised closed loop (:meth:`lyapunov_rates`; half of it is the rate of ||e||). Also the
@@ -295,9 +297,10 @@ class GainSchedule:
             r = -lambda_max(P^-1/2 (A^T P + P A + dP/dt - 2 gamma P B B^T P) P^-1/2),
 
         dP/dt the interval's difference quotient, averaged over the interval's two ends (accurate to
-        O(h^2)). For the future window r >= w alpha while the window slides (NOTES.md item 8) and r = 0
-        in the frozen end region; for the frozen-time law r = w alpha - mu(t) (:mod:`.frozen`); for the
-        past window r is negative on a straight line (its V is no Lyapunov function)."""
+        O(h^2)). For the future window r >= w alpha while the window slides (docs/theory/control-law.md,
+        The guarantee) and r = 0 in the frozen end region; for the frozen-time law r = w alpha - mu(t)
+        (:mod:`.frozen`); for the past window r is negative on a straight line (its V is no Lyapunov
+        function)."""
         cached = self.__dict__.get("_lyapunov_rates")
         if cached is not None:
             return cached
@@ -342,13 +345,14 @@ class GainSchedule:
     def guaranteed_decay(self, t, t_start: float | None = None) -> np.ndarray:
         """int_{t_start}^t r: V(t) <= V(t_start) exp(-that) along the linearised closed loop.
 
-        Future window: r = w alpha while the window slides and 0 after it stops (NOTES.md item 8).
-        Frozen-time law: r from :meth:`lyapunov_rates` (a numerical certificate, P linear between grid
-        points). Past window: refused (no guarantee, NOTES.md item 7)."""
+        Future window: r = w alpha while the window slides and 0 after it stops
+        (docs/theory/control-law.md, The guarantee). Frozen-time law: r from :meth:`lyapunov_rates` (a
+        numerical certificate, P linear between grid points). Past window: refused (no guarantee:
+        docs/theory/control-law.md, Remark 2)."""
         window = self.options.window
         if window == "past":
             raise InputError("window", "future or frozen-time (the past window has no guarantee: it is not "
-                             "stabilizing in general, NOTES.md item 7)", window)
+                             "stabilizing in general; see docs/theory/control-law.md, Remark 2)", window)
         t = np.asarray(t, dtype=float)
         t_start = float(self.t[0]) if t_start is None else float(t_start)
         if window == "future":

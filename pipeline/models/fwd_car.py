@@ -3,7 +3,8 @@
 States (x1, x2, x3 = steering angle phi, x4 = heading theta); inputs (u1 = driving speed of the front
 wheels, u2 = steering rate):
     x1' = cos(x3) cos(x4) u1,  x2' = cos(x3) sin(x4) u1,  x3' = u2,  x4' = sin(x3) u1 / L.
-The Jacobian d(g u)/dx is the corrected one of NOTES.md item 3 (the printed A(t) has slips).
+The Jacobian d(g u)/dx is derived from these equations; the A(t) printed in the paper has slips
+(docs/theory/control-law.md, The FWD car).
 """
 
 from __future__ import annotations

@@ -4,8 +4,9 @@ Stages: geometric path in OMPL's Reeds-Shepp / Dubins space (``geometric``, the 
 ompl) with the FCL world as validity checker, for cars with unparking maneuvers where an end is
 confined (``parking``); time-parameterisation into x0(t), u0(t) (``timing`` for the unicycle,
 ``cars`` for the cars, which drive their path exactly); a clearance re-check of the nominal with FCL;
-the gain schedule of the stabilizer along it; for cars, the verdicts of issue 11's item 4 (duration,
-steering, gains within their bounds), with further paths tried while the budget lasts.
+the gain schedule of the stabilizer along it; for cars, whether the nominal is worth tracking
+(:func:`tracking_metrics`: duration, steering, gains within their bounds), with further paths tried
+while the budget lasts.
 """
 
 from __future__ import annotations
@@ -41,9 +42,9 @@ from .trailer import plan_trailer
 
 #: the geometric planner keeps this much more than the requested margin, so that the nominal still
 #: clears the margin: the unicycle's follows the sampled path to a few millimetres. Cars get more room
-#: for their steering pieces: the phased sinusoids wandered 0.1-0.5 m from the path (up to 1.1 m),
-#: the constant-v1 pieces used first now stay within about 0.012 m (measured on the bundled warehouse,
-#: parking lot and 10 Bench-MR parking3 problems), but a piece may still fall back to the phased ones
+#: for their steering pieces: the constant-v1 pieces used first stay within about 0.012 m of the path
+#: (on the bundled warehouse, parking lot and 10 Bench-MR parking3 problems), but a piece may fall back
+#: to the phased sinusoids, which stray 0.1-0.5 m from it (up to 1.1 m)
 MARGIN_PAD = {"unicycle": 0.02, "rwd_car": 0.05, "fwd_car": 0.05}
 #: a car that drives its path exactly (held steering, steering in place where the curvature changes)
 #: needs no room to stray; the search keeps this much more than the margin only so that poses between
@@ -225,8 +226,8 @@ def _plan_with(m: Map, robot: Robot, start, goal, path_opts: PathOptions, timing
             return _no_path(path, path_opts, base, f"OMPL: {path.planner_status}")
         return _from_path(path, robot, world, path_opts, timing_opts, stab_opts, car_opts, check_resolution,
                           base, started, delta_key)
-    # cars: the paths the car planner offers, best guess first, until a nominal worth tracking (item 4
-    # of issue 11: duration, steering, gains within their bounds) or the budget is spent; the best
+    # cars: the paths the car planner offers, best guess first, until a nominal worth tracking
+    # (tracking_metrics: duration, steering, gains within their bounds) or the budget is spent; the best
     # usable one otherwise
     info: dict = {}
     best, attempts = None, 0
@@ -254,7 +255,7 @@ def _plan_with(m: Map, robot: Robot, start, goal, path_opts: PathOptions, timing
 
 def _better(a: PlanResult, b: PlanResult) -> bool:
     """Is plan a preferable to plan b? Usable first, then worth tracking, then the smaller excess over
-    the item 4 bounds (the larger of gain / bound and duration / bound)."""
+    the bounds of :func:`tracking_metrics` (the larger of gain / bound and duration / bound)."""
     if a.ok != b.ok:
         return a.ok
     if not a.ok:
@@ -385,7 +386,7 @@ def path_curvature(path: GeometricPath) -> float:
     return float(np.max(np.abs(np.diff(path.samples[:, 2])[ok] / ds[ok])))
 
 
-#: item 4 of issue 11: a nominal is worth tracking when it lasts at most this times the reference time
+#: a nominal is worth tracking when it lasts at most this times the reference time (:func:`tracking_metrics`)
 DURATION_FACTOR = 1.5
 
 
@@ -406,7 +407,7 @@ def cusp_steering(model: Model, path: GeometricPath) -> list[tuple[float, float]
 
 def tracking_metrics(model: Model, path: GeometricPath, nominal: Nominal, max_gain_norm: float,
                      max_speed: float | None = None) -> dict:
-    """Is the nominal worth tracking (issue 11, item 4)? For cars (steering angle a state):
+    """Is the nominal worth tracking? For cars (steering angle a state):
 
     - duration within ``DURATION_FACTOR`` x (length / max speed + the time to steer through the cusps
       at the steering-rate limit: sum over cusps |phi_after - phi_before| / max_steer_rate);

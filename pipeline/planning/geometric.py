@@ -231,10 +231,9 @@ LOCAL_MIN_BUDGET_S = 0.1
 #: map keeps the rest (where the guide's corridor does not suit the robot, e.g. a car that must turn)
 GUIDED_SHARE = 0.5
 #: OMPL's own motion checks, in its search and its shortcuts, are this many times ``resolution`` apart
-#: (the edges it returns are checked every ``resolution`` as nhstab's local paths). At 2 the warehouse
-#: replans' searches took 0.084 s median against 0.118 s at 1, and the cars' planning medians on the
-#: depot and parking3 0.12 / 0.24 s against 0.22 / 0.40 s, with every problem still solved (one run of
-#: each in the same session)
+#: (the edges it returns are checked every ``resolution`` as nhstab's local paths). At 2 a motion takes
+#: about half the checks it takes at 1, the searches are faster, and the warehouse replans and the cars'
+#: depot and parking3 problems are all still solved
 OMPL_CHECK_SPACING = 2.0
 
 

@@ -3,14 +3,13 @@
 For each robot, plan once on a bundled map (fixed seed), then compute the gain schedule along that
 nominal for a grid of alpha and delta (gamma = 1) and record the smallest gramian eigenvalue, the
 largest gain norm and the rates. Defaults: among the settings whose largest gain norm is within a
-stated bound, the one with the largest printed rate 2 alpha p_m / p_M. (The guaranteed rate is 3 alpha,
-NOTES.md item 8, which alone would simply pick the largest alpha under the gain bound; the printed
-rate also rewards a well-conditioned P, i.e. a small constant sqrt(p_M / p_m) in the bound, and is
-what chose the committed defaults.) The bound is max ||K|| <= 50. It keeps
-a controller sampled at 50 Hz with zero-order hold well inside its stability limit (dt ||B K|| < 2).
+stated bound, the one with the largest printed rate 2 alpha p_m / p_M. (The guaranteed rate is 3 alpha
+(docs/theory/control-law.md, The guarantee), which alone would simply pick the largest alpha under the
+gain bound; the printed rate also rewards a well-conditioned P, i.e. a small constant sqrt(p_M / p_m)
+in the bound, and is what chose the committed defaults.) The bound is max ||K|| <= 50. It keeps a
+controller sampled at 50 Hz with zero-order hold well inside its stability limit (dt ||B K|| < 2).
 It also keeps the feedback from turning the default 2 cm position noise of the sensor into more than
-about 1 m/s or 1 rad/s of input, the robots' own limits. (An earlier bound of 100 let the rwd car's
-schedule reach gains of 95 with the current nominals.)
+about 1 m/s or 1 rad/s of input, the robots' own limits.
 """
 
 from __future__ import annotations

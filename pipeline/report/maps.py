@@ -92,7 +92,7 @@ class GridRaster(Artist):
     """An axis-aligned grid drawn as an image by nearest-cell sampling at every output pixel's centre,
     in numpy (uint8 index lookups), and handed to the renderer as it is. The result is imshow's with
     ``interpolation="nearest"`` (the same cell at each pixel up to pixel-centre rounding), without
-    its float RGBA resampling pass, which took about 50 ms of a plan figure's drawing at 110 dpi."""
+    its float RGBA resampling pass, a large part of a plan figure's drawing time."""
 
     zorder = 0
 
@@ -135,7 +135,7 @@ class GridRaster(Artist):
 
 def _fixed_margins(fig, fig_w: float, fig_h: float, title_lines: int) -> None:
     """Place the map axes with fixed margins in inches instead of a layout engine: constrained layout
-    measured every tick label again at each draw (about a third of a plan figure's drawing time);
+    measures every tick label again at each draw (a large part of a plan figure's drawing time);
     the map figure's contents (axis labels, tick labels of map coordinates, a title of a few lines)
     fit these margins."""
     left, right, bottom, top, per_line = _MARGINS_IN

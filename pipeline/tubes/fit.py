@@ -158,11 +158,10 @@ def fit_plan(plan_at, tube_of, world, fp: Footprint, *, margin: float, cap: floa
        largest margin that found a plan, a different path through the same space (the car planner also
        falls back to its full steering range where its reserved lock finds nothing).
 
-    Each try is judged by its own tube. Two other remedies were measured and are not tried: slowing the
-    nominal near obstacles and before cusps (process noise grows per second while a car corrects a
-    lateral error per metre driven: on twelve parking plans, 0.5 m/s there raised the gramian law's
-    collisions from 2.9 % to 18.3 % of rollouts) and other gain settings (gamma 2, delta 3 s or alpha x 3
-    were worse on the same plans, or singular). ``plan_at(margin, k)`` -> (PlanResult, FeedbackLaw or None);
+    Each try is judged by its own tube. Two other remedies are not tried: slowing the nominal near
+    obstacles and before cusps (process noise grows per second while a car corrects a lateral error
+    per metre driven, so a slower car collides more often) and other gain settings (gamma 2, delta 3 s
+    or alpha x 3 are worse on parking plans, or singular). ``plan_at(margin, k)`` -> (PlanResult, FeedbackLaw or None);
     ``tube_of(law)`` -> a Tube with its verdict, or None; ``first`` = (result, law, tube) at ``margin``.
     Returns (result, law, tube, margin, record); the record lists every try."""
     result, law, tube = first
