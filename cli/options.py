@@ -17,7 +17,7 @@ def stabilizer_options(defaults: bool = True):
     None (meaning: keep the case's own value)."""
 
     # the choices, spelled out here so that ``nhstab --help`` needs no numpy or scipy
-    # (tests/test_cli.py checks them against nhstab.control.WINDOWS and END_STRATEGIES)
+    # (tests/cli/test_cli.py checks them against nhstab.control.WINDOWS and END_STRATEGIES)
     windows, end_strategies = WINDOW_CHOICES, END_STRATEGY_CHOICES
 
     def deco(f):

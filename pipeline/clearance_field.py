@@ -35,7 +35,7 @@ class ClearanceField:
     #: a map without grids (vector shapes only): cells along its larger side
     CELLS_PER_SIDE = 512
     #: mark axis-aligned boxes (a grid's cells) all at once (False: one by one, as other polygons;
-    #: the same cells, tests/test_collision.py compares them)
+    #: the same cells, tests/geometry/test_collision.py compares them)
     VECTORISED_BOXES = True
     #: elements of the (poses x footprint points) arrays of one vectorised block
     BLOCK = 1 << 16

@@ -565,7 +565,7 @@ def source_md(cases: list[Case]) -> str:
               "forward on a left arc about C = (0, R) from its parked pose (rear axle at the origin); its outer",
               "front corner, the body point farthest from C at r = sqrt((R + w/2)^2 + (L + f)^2), crosses the",
               "height w/2 of the car ahead's lane-side rear corner at x = sqrt(r^2 - (R - w/2)^2); b more is needed",
-              "behind the rear axle. For the default rwd_car L1 = 5.804 m for its 4.2 m body. `tests/test_parking.py`",
+              "behind the rear axle. For the default rwd_car L1 = 5.804 m for its 4.2 m body. `tests/parking/test_parking.py`",
               "checks it against a brute-force sweep of the maneuver with shapely.", "",
               "Single-maneuver minima under the conditions the planner works in (the corner circle kept m from the",
               "neighbour's corner, m behind the car; at the planner's turning radius 1.25 R):", "",
@@ -639,7 +639,7 @@ def source_md(cases: list[Case]) -> str:
         lines.append(f"| `{c.name}` | {c.car} | {c.kind} | {what} {c.size_m:.3f} m | {c.factor:g} x {ref} "
                      f"{c.reference_m:.3f} m | ({c.start[0]:.2f}, {c.start[1]:.2f}, {c.start[2]:.2f}) | "
                      f"({c.goal[0]:.2f}, {c.goal[1]:.2f}, {c.goal[2]:.3f}) |")
-    lines += ["", "`suite.csv` lists the same with full precision. `tests/test_parking.py` checks that the committed",
+    lines += ["", "`suite.csv` lists the same with full precision. `tests/parking/test_parking.py` checks that the committed",
               "files equal the generator's output, that every slot is its factor x L1 to 1e-9 m, that start and",
               "goal are clear by the margin (FCL and shapely) and that every goal lies inside its slot or bay.", ""]
     return "\n".join(lines)

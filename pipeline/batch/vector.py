@@ -15,7 +15,7 @@ same arithmetic in the same order (the reference, gains and feedforward of all s
 with the law's own operations, element by element; the error wrapped as
 :meth:`FeedbackLaw.control` wraps it; one BLAS matrix-vector product per trial as ``K @ e`` does
 it; :meth:`Plant.stack_stepper` on the stack, which treats every trial as :meth:`Plant.step`
-treats one state). tests/test_batch_vector.py checks this against a per-trial loop and against
+treats one state). tests/batch/test_batch_vector.py checks this against a per-trial loop and against
 :func:`nhstab.execution.execute` on a planned nominal.
 
 The stack is state-major, (n, K): a sample's reference broadcasts along contiguous rows, and the

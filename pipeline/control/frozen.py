@@ -42,7 +42,7 @@ assumption fails the other way: the frozen lateral gain (~ 1/v) of the low speed
 to remove, within a window of motion at that low speed, a lateral error that the coming motion
 removes anyway or that a short move cannot remove at all, and the heading error stays. (On a
 straight line through a cusp, from 0.1 m of lateral error, the heading error peaks at 0.39 rad there,
-``tests/test_frozen_time.py``.) So a hold ends only where the law is admissible *and* P_f no
+``tests/control/test_frozen_time.py``.) So a hold ends only where the law is admissible *and* P_f no
 longer falls faster than exp(-w alpha t): once the robot is up to speed. Every stop is then treated
 like the start of a plan: up to the stop (the hold's least controllable point) the last admissible
 gramian is carried forward; from the stop on, the first admissible gramian after the hold is carried

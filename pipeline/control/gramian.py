@@ -60,7 +60,7 @@ carries the window [s, s + delta] to t > s, H(t) = Phi(t, s) H(s) Phi(t, s)^T, w
 control spent in [s, t] as if it were to come; over the last window the gains fall (on the parking
 suite's last reverse arc into a slot to a tenth of the sliding part's), the tracking error grows
 under the process noise while the car reverses towards the curb, and the car touched it or missed
-the goal (``tests/test_parking_runs.py`` fails with the frozen end). Along the continuation the window
+the goal (``tests/parking/test_parking_runs.py`` fails with the frozen end). Along the continuation the window
 sees the motion the car is in, and the gains stay those of the sliding part. Where no continuation is
 usable (the robot never moves, the continuation leaves the model's state limits within delta, or its
 window gramian is singular), the end falls back to "frozen"; ``diagnostics["end"]`` says which end

@@ -6,7 +6,7 @@ share is computed once: with u held, the cars' steering angle is the same at sta
 its tangent or cosine and sine, and the heading rate: the same arithmetic as the generic step on the
 model's ``rhs``, bit-identical, tested); the unicycle's heading advances by the same angle at every
 stage, so its cosines and sines follow by rotations (agreeing with the generic step to 1e-14). At 50 Hz with 4 substeps the local error is below 1e-11 m for the built-in robots at
-their speed limits (tests/test_execution.py compares with an adaptive DOP853 solve). States with
+their speed limits (tests/execution/test_execution.py compares with an adaptive DOP853 solve). States with
 limits (the cars' steering angle) stop at them, like a mechanical end stop.
 
 :meth:`Plant.stack_stepper` is the same step for many states stored state-major, (n, K), as the

@@ -276,7 +276,7 @@ class _Joined:
     def _held_table(self, pieces: list) -> None:
         """Per piece, the parameters of the closed forms of :class:`_Arc` and :class:`_SteerInPlace`, so
         that :meth:`_held` evaluates all of them at once with the same operations as their
-        ``states_at`` / ``inputs_at`` (the same values, bit for bit: tests/test_fast_paths.py)."""
+        ``states_at`` / ``inputs_at`` (the same values, bit for bit: tests/control/test_fast_paths.py)."""
         P = len(pieces)
         self.h_arc = np.zeros(P, dtype=bool)        # an arc (else steering in place, or not held)
         self.h_pose = np.zeros((P, 3))

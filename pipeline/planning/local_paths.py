@@ -3,7 +3,7 @@
 The same local paths as OMPL's ``ReedsSheppStateSpace`` and ``DubinsStateSpace`` (the shortest of the
 path families of Reeds and Shepp 1990, and of Dubins 1957), computed here so that a path can be
 sampled at many arc lengths in one vectorised call instead of one ``space.interpolate`` per point
-(tests/test_local_paths.py checks the lengths against OMPL's ``distance`` and the samples against its
+(tests/planning/test_local_paths.py checks the lengths against OMPL's ``distance`` and the samples against its
 ``interpolate``).
 
 A path is a list of segments ``(kind, length)``: kind "L" (turn left), "R" (turn right) or "S"

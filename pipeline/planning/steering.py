@@ -39,7 +39,7 @@ antiderivative int_0^t tau^p e^(lam tau) dtau = e^(lam t) sum_(r<=p) (-1)^r p!/(
 - (-1)^p p! / lam^(p+1) (lam = i q w != 0; t^(p+1)/(p+1) for q = 0). The net motions of such a
 phase are those sums at t = 2 pi / w, where every exp(i q w t) is exactly 1. Constant phases are
 polynomials: z_k(t) = sum_(i=2..k) z_is (v1 t)^(k-i) / (k-i)! + v2 t (v1 t)^(k-2) / (k-1)!.
-(tests/test_trailer_steering.py checks both against DOP853 integration, and the formula above.)
+(tests/planning/test_trailer_steering.py checks both against DOP853 integration, and the formula above.)
 
 Constant-v1 steering (:func:`steer_chained_constant_v1`)
 --------------------------------------------------------

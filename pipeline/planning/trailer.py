@@ -44,14 +44,14 @@ not clear) is replaced by another one (OMPL over the map with the next seed), ``
 at most. The nominal carries a *tail* (:attr:`~nhstab.nominal.Nominal.tail`: the rig driving on past
 the goal) so that the gramian law's future windows are whole up to the goal: the frozen end strategy
 carries the last whole window along the linearised flow, which in reverse is unstable, and the gains
-faded exactly where the trailer backs into the dock (tests/test_trailer_planning.py).
+faded exactly where the trailer backs into the dock (tests/planning/test_trailer_planning.py).
 
 Alternatives considered, and what they did on the loading dock
 ---------------------------------------------------------------
 * A search whose local planner is the polynomial steering between poses where the rig stands straight
   (exact, nothing approximated after the search): between two such poses an 8 m piece along an arc
   keeps within 0.9 of the steering limit only from a radius of about 14 m on
-  (tests/test_trailer_planning.py), so OMPL found almost no feasible motions.
+  (tests/planning/test_trailer_planning.py), so OMPL found almost no feasible motions.
 * Steering pieces between *calm* waypoints of the Reeds-Shepp path (the path's steady states, as the
   cars' planner joins its waypoints): a straight rig cannot enter an arc at once, and the pieces that
   must change the hitch angle across a curvature jump needed steering angles of 0.8-1.3 rad.

@@ -30,7 +30,7 @@ and v2 = z2' = F_phi omega_s + F_D D' + F_theta1 theta1', so the model's inputs 
 The inverse state map: theta1 = arctan z4, D = arctan(d z3 cos^3 theta1),
 tan(phi) = L (d cos^3(D) cos^4(theta1) (z2 - 3 tan^2(D) sin(theta1) / (d^2 cos^5 theta1)) + sin(D) / d),
 theta = theta1 + D, x = z1 + d cos theta1, y = z5 + d sin theta1. The chart needs |theta1| < pi/2,
-|D| < pi/2 and |phi| < pi/2. tests/test_trailer_steering.py checks it numerically: the maps round
+|D| < pi/2 and |phi| < pi/2. tests/planning/test_trailer_steering.py checks it numerically: the maps round
 trip, the chart's Jacobian carries the model's vector fields to the chained ones, and the model
 integrated (DOP853) under the mapped inputs follows the chained plan to its end.
 

@@ -1,0 +1,225 @@
+"""``nhstab parking study`` (nhstab.batch.parking_study): its numbers recomputed independently from the run
+loop and FCL, its tube check against brute-force numpy, its report against its JSON, and its refusals."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from nhstab.cli.main import cli
+from scipy.stats import binom
+
+#: every test reads the study run once by the module fixtures
+pytestmark = pytest.mark.slow
+
+MAP = "parallel_rwd_car_140"
+TRIALS = 20
+MC_FACTOR = 1
+ROOT_SEED = 2026
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    out = tmp_path_factory.mktemp("study")
+    res = CliRunner().invoke(cli, ["parking", "study", "--out", str(out), "--maps", MAP, "--controllers", "gramian",
+                                   "--noise", "1", "--trials", str(TRIALS), "--mc-factor", str(MC_FACTOR),
+                                   "--root-seed", str(ROOT_SEED), "--no-fit", "--figures", MAP])
+    assert res.exit_code == 0, res.output
+    result = json.loads((out / "study.json").read_text())
+    return out, result
+
+
+@pytest.fixture(scope="module")
+def recomputed():
+    """The same cell, recomputed here from the plan, simulate_shared (recording every state) and FCL."""
+    from nhstab.batch.parking_study import first_plan
+    from nhstab.batch.tube_study import trial_seeds
+    from nhstab.batch.vector import simulate_shared
+    from nhstab.execution.config import NoiseOptions
+    from nhstab.execution.runner import final_errors
+    from nhstab.tubes.base import (
+        displacement,
+        hull_vertices,
+        pose_indices,
+        rollouts_needed,
+    )
+    from nhstab.tubes.predict import predict_tube
+
+    run, _, result, law, _, _ = first_plan(MAP)
+    noise = NoiseOptions(scale=1.0)
+    # the tube from scratch (the study takes the plan's own: they must be the same)
+    tube = predict_tube(law, noise, run.fp, run.known, rate_hz=run.opts.rate_hz, substeps=run.opts.substeps,
+                        model=run.model, probability=0.997, kind="auto", confidence=0.95)
+    idx = pose_indices(run.model)
+    sim = simulate_shared(law, trial_seeds(TRIALS, ROOT_SEED), noise, model=run.model)
+    assert sim.completed.all()
+    collided, reached = [], []
+    for i in range(TRIALS):
+        poses = sim.x[i][:, idx]
+        collided.append(any(not run.known.is_free(p, run.fp, 0.0) for p in poses))
+        fe = final_errors(run.robot, sim.x[i, -1], run.goal)
+        reached.append(fe["position_m"] <= 0.3 and fe["heading_rad"] <= 0.2)
+    collided, reached = np.array(collided), np.array(reached)
+    M = MC_FACTOR * rollouts_needed(0.997, 0.95)
+    mc = simulate_shared(law, trial_seeds(M, ROOT_SEED + 1), noise, model=run.model)
+    poses = mc.x[:, :, idx]
+    D = displacement(hull_vertices(run.fp), poses, tube.poses[None])           # (M, S)
+    return {"tube": tube, "collided": collided, "reached": reached, "D": D, "poses": poses, "M": M,
+            "length_m": result.metrics["length_m"]}
+
+
+def _cell(result):
+    (case,) = result["cases"]
+    assert case["map"] == MAP and case["plan"]["found"]
+    (cell,) = case["cells"]
+    return case, cell
+
+
+def test_trials_match_an_independent_recount(study, recomputed):
+    _, result = study
+    case, cell = _cell(result)
+    assert case["plan"]["length_m"] == pytest.approx(recomputed["length_m"], abs=1e-9)   # the same plan
+    tr = cell["trials"]
+    col, hit = recomputed["collided"], recomputed["reached"]
+    assert tr["trials"] == TRIALS
+    assert tr["collisions"] == int(col.sum())
+    assert tr["success"] == int((~col & hit).sum())
+    assert tr["missed_goal"] == int((~col & ~hit).sum())
+    assert tr["per_trial"]["collided"] == col.tolist()
+    rate, lo, hi = tr["success_rate"], tr["wilson_lo"], tr["wilson_hi"]
+    assert lo <= rate <= hi and rate == tr["success"] / TRIALS
+
+
+def test_tube_and_its_check_match_brute_force(study, recomputed):
+    _, result = study
+    _, cell = _cell(result)
+    tube, D, M = recomputed["tube"], recomputed["D"], recomputed["M"]
+    tb, tc = cell["tube"], cell["tube_check"]
+    # the study's tube (the plan's own, reused) is the one predict_tube makes for the cell
+    assert tb["kind"] == tube.kind and tb["certified_clearance_m"] == pytest.approx(tube.certified_clearance, abs=1e-12)
+    assert tb["max_reach_m"] == pytest.approx(float(tube.reach.max()), abs=1e-12)
+    reach, p = tube.reach, 0.997
+    assert tc["mc_runs"] == M
+    inside = D <= reach[None]
+    assert tc["coverage"]["inside"] == int(inside.all(axis=1).sum())
+    assert tc["coverage_min_per_sample"] == pytest.approx(inside.mean(axis=0).min(), abs=1e-12)
+    q = np.quantile(D, p, axis=0, method="inverted_cdf")
+    use = q >= 1e-3
+    ratio = reach[use] / q[use]
+    cons = tc["conservatism"]
+    assert cons["median"] == pytest.approx(np.median(ratio), rel=1e-12)
+    assert cons["p95"] == pytest.approx(np.percentile(ratio, 95), rel=1e-12)
+    assert cons["max"] == pytest.approx(ratio.max(), rel=1e-12)
+    k = tube.certified_index
+    assert cons["at_tightest"] == pytest.approx(reach[k] / q[k], rel=1e-12)
+    # below: under the order statistic X_(l), l the 2.5 % point of Bin(M, p)
+    lower = np.sort(D, axis=0)[int(binom.ppf(0.025, M, p)) - 1]
+    assert tc["below"]["samples"] == int(np.sum(reach < lower))
+    # the certificate's coverage: each run's own smallest FCL clearance against the certified clearance
+    # (measured where the bound c_k - D_k does not already clear it)
+    world, fp = _world()
+    c_nom = world.clearance_many(tube.poses, fp)
+    i, k2 = np.nonzero(c_nom[None] - D < tube.certified_clearance)
+    c = world.clearance_many(recomputed["poses"][i, k2], fp)
+    below = np.unique(i[c < tube.certified_clearance])
+    assert tc["certificate_coverage"]["inside"] == M - len(below)
+    passes = tc["passes"]
+    assert tc["coverage_per_sample"]["inside"] == int(inside.sum())
+    assert passes["certificate_coverage"] == (tc["certificate_coverage"]["wilson_hi"] >= p)
+    assert passes["coverage_per_sample"] == (tc["coverage_per_sample"]["wilson_hi"] >= p)
+    assert passes["conservatism_at_tightest"] == (cons["at_tightest"] <= 1.25)
+    beta = p ** tube.certificate["rollouts"]
+    assert tc["below"]["allowed_fraction"] == pytest.approx(beta)
+    assert passes["below"] == (tc["below"]["samples"] / len(reach) <= beta)
+
+
+def _world():
+    from nhstab.collision import CollisionWorld
+    from nhstab.maps import load_map
+    from nhstab.robot import resolve_robot
+
+    m = load_map(f"example:{MAP}")
+    return CollisionWorld.from_map(m, "known"), resolve_robot(None, m.robot).footprint
+
+
+def test_tube_check_on_synthetic_draws_is_the_brute_force_one():
+    from nhstab.batch.parking_study import tube_check
+
+    rng = np.random.default_rng(3)
+    S, M, p = 40, 3000, 0.997
+    Dt = np.abs(rng.standard_normal((S, M))) * np.linspace(0.05, 0.3, S)[:, None]
+    q = np.quantile(Dt, p, axis=1, method="inverted_cdf")
+    reach = q * np.where(np.arange(S) % 7 == 0, 0.9, 1.1)          # a few samples well below their quantile
+    t = 0.02 * np.arange(S)
+    rec, cur = tube_check(reach, Dt, p, t, tightest=5, rollouts=998)
+    assert np.array_equal(cur["q"], q)
+    lo = np.sort(Dt, axis=1)[:, int(binom.ppf(0.025, M, p)) - 1]
+    hi = np.sort(Dt, axis=1)[:, int(binom.ppf(0.975, M, p))]
+    assert np.array_equal(cur["q_lo"], lo) and np.array_equal(cur["q_hi"], hi)
+    assert np.all(lo <= q) and np.all(q <= hi)
+    assert rec["below"]["samples"] == int(np.sum(reach < lo)) > 0
+    assert rec["coverage"]["inside"] == int(np.all(Dt <= reach[:, None], axis=0).sum())
+    assert rec["coverage_per_sample"]["inside"] == int(np.sum(Dt <= reach[:, None]))
+    assert rec["conservatism"]["at_tightest"] == pytest.approx(1.1)
+    # 6 of 40 samples below, more than beta = 0.997^998 = 5 % of them
+    assert not rec["passes"]["below"] and not rec["passes"]["all"]
+
+
+def test_quantile_interval_covers_at_its_level():
+    """The order-statistic interval [X_(l), X_(u)] holds the true p-quantile in at least 95 % of repeats."""
+    from nhstab.batch.parking_study import quantile_indices
+
+    rng = np.random.default_rng(11)
+    M, p, R = 2000, 0.997, 4000
+    j, l, u = quantile_indices(M, p)
+    assert j == math.ceil(p * M)
+    # uniform draws: the true quantile is p; only the l-th and u-th order statistics matter
+    draws = np.sort(rng.random((R, M)), axis=1)
+    held = (draws[:, l - 1] <= p) & (p <= draws[:, u - 1])
+    assert held.mean() >= 0.95 - 3 * math.sqrt(0.05 * 0.95 / R)
+
+
+def test_report_numbers_are_the_json_numbers(study):
+    out, result = study
+    md = (out / "study.md").read_text()
+    case, cell = _cell(result)
+    tb, tr, tc = cell["tube"], cell["trials"], cell["tube_check"]
+    row = next(ln for ln in md.splitlines() if ln.startswith(f"| {MAP} |") and "| gramian | sampled (" in ln
+               or ln.startswith(f"| {MAP} |") and "| gramian | linear" in ln)
+    assert f"{tr['success']}/{tr['trials']} [{100 * tr['wilson_lo']:.1f}%, {100 * tr['wilson_hi']:.1f}%]" in row
+    assert f"| {tr['collisions']} | {tr['missed_goal']} |" in row
+    assert f"{tb['certified_clearance_m']:+.3f}" in row
+    check = next(ln for ln in md.splitlines() if ln.startswith(f"| {MAP} | gramian | {tb['kind']} | "))
+    cons = tc["conservatism"]
+    assert f"{100 * tc['coverage_per_sample']['rate']:.2f}%" in check
+    assert f"{100 * tc['certificate_coverage']['rate']:.2f}%" in check
+    assert f"{cons['median']:.2f} / {cons['p95']:.2f} / {cons['max']:.2f}" in check
+    assert f"| {tc['below']['samples']} [" in check
+    assert ("| yes |" in check) == tc["passes"]["all"]
+    # the targets section states what the JSON's targets say
+    for key, text in (("success", "success >="), ("tubes_pass", "tube passes")):
+        t = result["targets"][key]
+        line = next(ln for ln in md.splitlines() if ln.startswith("- ") and text in ln)
+        assert ("**met**" in line) == t["met"] and f"{t['checked']} cells checked, {len(t['failing'])} failing" in line
+    assert (out / "success.png").stat().st_size > 0 and (out / f"tube_{MAP}.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--trials", "0"], "--trials"),
+    (["--mc-factor", "0"], "--mc-factor"),
+    (["--noise", "-1"], "--noise"),
+    (["--noise", "1,lots"], "--noise"),
+    (["--maps", "moon_base"], "--maps"),
+    (["--controllers", "gramian,pid"], "--controllers"),
+    (["--root-seed", "-3"], "--root-seed"),
+    (["--workers", "0"], "--workers"),
+])
+def test_bad_options_are_refused_in_one_line(tmp_path, args, needle):
+    out = tmp_path / "out"
+    res = CliRunner().invoke(cli, ["parking", "study", "--out", str(out), *args])
+    assert res.exit_code == 2, res.output
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and needle in lines[0], res.stderr
+    assert "Traceback" not in res.output
+    assert not out.exists()
