@@ -73,8 +73,9 @@ TUBE_KINDS = ("auto", "linear", "sampled")
 def rollouts_needed(probability: float, confidence: float = DEFAULT_CONFIDENCE) -> int:
     """The smallest N with p^N <= 1 - confidence: N rollouts, none outside the reported region, bound
     its p-quantile with that confidence (the scenario bound; see the module docstring)."""
-    if not (isinstance(probability, (int, float)) and 0.0 < probability < 1.0):
-        raise InputError("probability", "a number in (0, 1)", probability)
+    from .limits import check_probability
+
+    check_probability("probability", probability)
     if not (isinstance(confidence, (int, float)) and 0.0 < confidence < 1.0):
         raise InputError("confidence", "a number in (0, 1)", confidence)
     n = math.log1p(-confidence) / math.log(probability)

@@ -48,6 +48,7 @@ from scipy.special import ndtri
 from .control.interpolant import hermite_weights
 from .control.tube import CovariancePropagation, propagate, saturation
 from .errors import InputError, NumericalError
+from .limits import check_probability
 from .geometry import Footprint
 
 #: the default probability of the tube
@@ -299,8 +300,7 @@ def predict_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
     world the tube carries its :func:`verdict` (without the plan's margin; call it again with it)."""
     from .sampled_tube import DEFAULT_CONFIDENCE, TUBE_KINDS, linear_validity, sampled_tube
 
-    if not (isinstance(probability, (int, float)) and 0.0 < probability < 1.0):
-        raise InputError("probability", "a number in (0, 1)", probability)
+    check_probability("probability", probability)
     if kind not in TUBE_KINDS:
         raise InputError("tube", "one of " + ", ".join(TUBE_KINDS), kind)
     confidence = DEFAULT_CONFIDENCE if confidence is None else confidence

@@ -20,7 +20,7 @@ def _invoke(*args):
 
 
 @pytest.mark.parametrize("args,needle", [
-    (["--noise", "-1"], "noise.scale"),
+    (["--noise", "-1"], "--noise"),
     (["--rate", "0"], "--rate"),
     (["--controller", "pid"], "controller"),
     (["--sensor-std", "x=-0.1"], "noise.sensor.x"),

@@ -68,6 +68,7 @@ verbatim into the README).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import replace
 from pathlib import Path
@@ -91,6 +92,10 @@ _MAX_BASE_NESTING = 4
 _nesting = [0]
 _MAX_DEPTH = 64
 from ..limits import MAX_COORD_M as MAX_ABS  # noqa: E402
+from ..limits import MAX_POLYGON_VERTICES  # noqa: E402
+
+#: a line of n points is a ring of 2 (n - 1) vertices
+MAX_LINE_POINTS = MAX_POLYGON_VERTICES // 2 + 1
 """Largest magnitude accepted for any number in a YAML map (keeps products of coordinates finite)."""
 
 
@@ -155,15 +160,25 @@ def point_in_grid(x: float, y: float, grid: OccupancyGrid) -> bool:
 
 def is_simple_polygon(v: np.ndarray) -> bool:
     """True if the closed ring ``v`` (k, 2) has no self-intersection, touching or folded-back edges, and
-    no edge of zero length. GEOS's ring simplicity test (shapely), O(k log k): a 40,000-vertex ring in
-    milliseconds, where the pairwise test it replaced allocated k x k arrays."""
-    import shapely
-
-    v = np.asarray(v, dtype=float)
+    no edge of zero length. GEOS's ring simplicity test (shapely): it compares the edges whose bounding
+    boxes overlap, near-linear on an outline of short edges, quadratic at worst (long parallel edges),
+    hence :data:`~nhstab.limits.MAX_POLYGON_VERTICES`."""
+    v = np.ascontiguousarray(v, dtype=float)
     k = len(v)
     if k < 3 or np.any(np.all(np.roll(v, -1, axis=0) == v, axis=1)):
         return False
-    return bool(shapely.is_simple(shapely.linearrings(v)))
+    if signed_area(v) < 0:
+        v = np.ascontiguousarray(v[::-1])         # one key for both orientations (Polygon stores it ccw)
+    return _is_simple_ring(v.tobytes())
+
+
+@functools.lru_cache(maxsize=16)
+def _is_simple_ring(ring: bytes) -> bool:
+    """GEOS's test of the ring of float64 (x, y) pairs ``ring``, remembered: a map's reader, its
+    :attr:`~nhstab.maps.base.Polygon.parts` and the triangulation each ask about the same rings."""
+    import shapely
+
+    return bool(shapely.is_simple(shapely.linearrings(np.frombuffer(ring, dtype=float).reshape(-1, 2))))
 
 
 class _Reader:
@@ -261,6 +276,8 @@ class _Reader:
             got = f"{len(spec)} points" if isinstance(spec, list) else _type_name(spec)
             raise self.err(key, "a list of at least 3 [x, y] points", got,
                            detail="a line of zero thickness is drawn as line: [[x, y], [x, y], ...]")
+        if len(spec) > MAX_POLYGON_VERTICES:
+            raise self.err(key, f"at most {MAX_POLYGON_VERTICES:,} [x, y] points", len(spec))
         v = np.array([self.numbers(p, f"{key}[{i}]", 2, "[x, y]") for i, p in enumerate(spec)], dtype=float)
         cleaned = _drop_repeats(v)
         if len(cleaned) < len(v) - (1 if np.array_equal(v[0], v[-1]) else 0):
@@ -287,6 +304,9 @@ class _Reader:
         if not isinstance(spec, list) or len(spec) < 2:
             got = f"{len(spec)} points" if isinstance(spec, list) else _type_name(spec)
             raise self.err(key, "a list of at least 2 [x, y] points", got)
+        if len(spec) > MAX_LINE_POINTS:
+            raise self.err(key, f"at most {MAX_LINE_POINTS:,} [x, y] points (its ring runs there and back)",
+                           len(spec))
         v = np.array([self.numbers(p, f"{key}[{i}]", 2, "[x, y]") for i, p in enumerate(spec)], dtype=float)
         keep = np.ones(len(v), dtype=bool)
         keep[1:] = np.any(v[1:] != v[:-1], axis=1)

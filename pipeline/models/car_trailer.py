@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from .base import Model, positive_param
+from .base import Model, check_max_steer, positive_param
 
 #: the most trailers a model may tow (a bound on the state's size, not a physical limit)
 MAX_TRAILERS = 8
@@ -68,8 +68,7 @@ class CarTrailer(Model):
     def __post_init__(self):
         for key in ("wheelbase", "max_speed", "max_steer", "max_steer_rate", "jackknife_limit"):
             positive_param(key, getattr(self, key), "car_trailer")
-        if self.max_steer >= np.pi / 2:
-            raise InputError("car_trailer.max_steer", "below pi/2 rad", self.max_steer)
+        check_max_steer("car_trailer", self.wheelbase, self.max_steer)
         if self.jackknife_limit >= np.pi / 2:
             raise InputError("car_trailer.jackknife_limit", "below pi/2 rad (a hitch angle the chained chart covers)",
                              self.jackknife_limit)

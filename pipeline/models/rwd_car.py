@@ -10,8 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError
-from .base import Model, positive_param
+from .base import Model, check_max_steer, positive_param
 
 
 @dataclass(frozen=True)
@@ -24,8 +23,7 @@ class RwdCar(Model):
     def __post_init__(self):
         for key in ("wheelbase", "max_speed", "max_steer", "max_steer_rate"):
             positive_param(key, getattr(self, key), "rwd_car")
-        if self.max_steer >= np.pi / 2:
-            raise InputError("rwd_car.max_steer", "below pi/2 rad", self.max_steer)
+        check_max_steer("rwd_car", self.wheelbase, self.max_steer)
         object.__setattr__(self, "name", "rwd_car")
         object.__setattr__(self, "state_names", ("x", "y", "theta", "phi"))
         object.__setattr__(self, "input_names", ("v", "omega_s"))

@@ -19,7 +19,7 @@ import numpy as np
 from ..collision import CollisionWorld, check_poses
 from ..control import GainSchedule, StabilizerOptions, compute_schedule
 from ..errors import InputError, SingularGramianError
-from ..limits import check_headings
+from ..limits import check_headings, check_turning_radius
 from ..maps.base import Map
 from ..models import Model
 from ..nominal import Nominal
@@ -172,6 +172,7 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
     timing_opts = (timing_opts or TimingOptions()).validated()
     stab_opts = (stab_opts or StabilizerOptions(**robot.stabilizer)).validated()
     check_map_budget(m, path_opts.time_limit_s, path_opts.resolution)
+    check_turning_radius("turning_radius", path_opts.turning_radius, m.bounds)
     if model.name == "car_trailer":       # the trailer's path, the rig checked (nhstab.planning.trailer)
         from .trailer import plan_trailer
 
