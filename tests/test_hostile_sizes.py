@@ -285,6 +285,18 @@ def test_a_robot_files_turning_radius_is_bounded(tmp_path):
         plan(m, default_robot("fwd_car"), m.start.as_array(), m.goal.as_array(), PathOptions(turning_radius=1e7))
 
 
+def test_a_batch_refuses_a_turning_radius_beyond_a_maps_diagonal_before_any_trial(tmp_path):
+    """Every trial's plan would refuse it: the batch refuses it once, at load, naming the key."""
+    b = tmp_path / "batch.yaml"
+    b.write_text(f"root_seed: 1\ntrials: 1\nmaps: [{{path: {M}}}]\n"
+                 "robots: [unicycle, {model: unicycle, name: wide, turning_radius: 100.0}]\n")
+    one_line(invoke("batch", b, "--out", tmp_path / "o"), 2, "'robots[1].turning_radius'", "diagonal, 15 m",
+             "cluttered-room")
+    b.write_text(f"root_seed: 1\ntrials: 1\nmaps: [{{path: {M}}}]\nrun: {{planning: {{turning_radius: 20.0}}}}\n")
+    one_line(invoke("batch", b, "--out", tmp_path / "o"), 2, "'run.planning.turning_radius'", "diagonal")
+    assert not (tmp_path / "o").exists()
+
+
 @pytest.mark.parametrize("model,steer", [("fwd_car", 1.5707963267948966), ("rwd_car", 1.5707963267948963),
                                          ("car_trailer", math.pi / 2 - 1e-6), ("fwd_car", 2.0)])
 def test_a_steering_limit_at_pi_over_2_is_refused(tmp_path, model, steer):

@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..limits import MAX_GAMMA, MAX_NOISE_SCALE
+from ..limits import MAX_GAMMA, MAX_NOISE_SCALE, check_turning_radius
 from ..execution.config import RunOptions, check_number, check_pose, options_from_mapping, read_yaml_mapping
 from ..control import WINDOWS
 from ..execution.controllers import CONTROLLERS
@@ -302,7 +302,7 @@ def load_batch_config(path) -> BatchConfig:
                 raise InputError(f"run.{key}", "set by the batch (maps, robots, trials), not in run", key)
     base = options_from_mapping(run, allowed, prefix="run.")
     for i, (m, spec) in enumerate(zip(loaded, maps)):
-        for r in robots or [m.robot or "unicycle"]:
+        for j, r in enumerate(robots or [m.robot or "unicycle"]):
             rob = robot_from_spec(r)
             model = rob.model
             if model.name not in PLANNABLE:
@@ -313,6 +313,15 @@ def load_batch_config(path) -> BatchConfig:
             except InputError as exc:
                 raise InputError("run." + exc.argument, exc.expected, exc.got) from None
             _check_problems(f"maps[{i}].problems", m, spec.problems, rob, opts)
+            # the planning radius every trial's plan checks (nhstab.limits.check_turning_radius), once here
+            given = opts.planning.turning_radius
+            key = ("run.planning" if given is not None else "robot" if single else f"robots[{j}]" if robots
+                   else f"maps[{i}].path: robot")
+            try:
+                check_turning_radius(f"{key}.turning_radius", given if given is not None else rob.turning_radius,
+                                     m.bounds)
+            except InputError as exc:
+                raise InputError(exc.argument, exc.expected, exc.got, detail=f"on maps[{i}] ({m.name})") from None
     return BatchConfig(name, root_seed, trials, maps, robots, controllers, grid, run, str(path), base)
 
 
