@@ -78,14 +78,14 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     from nhstab.execution import write_plan
     from nhstab.execution.config import NoiseOptions
     from nhstab.execution.runner import derated
+    from nhstab.limits import MAX_NOISE_SCALE, check_probability, check_range
     from nhstab.maps import resolve_poses
     from nhstab.planning import PathOptions, TimingOptions
     from nhstab.tubes.base import tube_line
     from nhstab.tubes.fit import plan_and_tube
 
     margin = None if margin is None else parse_margin("--margin", margin)
-    if not (0.0 < probability < 1.0):
-        raise InputError("--probability", "a number in (0, 1)", probability)
+    check_probability("--probability", probability)
     if not (0.0 < confidence < 1.0):
         raise InputError("--confidence", "a number in (0, 1)", confidence)
     from nhstab.tubes.base import rollouts_needed
@@ -94,6 +94,7 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
         rollouts_needed(probability, confidence)
     except InputError as exc:
         raise InputError("--confidence", exc.expected, confidence, detail=exc.detail) from None
+    check_range("--noise", noise_scale, 0.0, MAX_NOISE_SCALE)
     if not (0.0 < headroom <= 1.0):
         raise InputError("--headroom", "a number in (0, 1]", headroom)
 
@@ -180,8 +181,10 @@ def parse_margin(name: str, text):
         value = float(text)
     except (TypeError, ValueError):
         raise InputError(name, "a number >= 0 [m] or auto", text) from None
-    if not (value >= 0.0 and value < float("inf")):
-        raise InputError(name, "a number >= 0 [m] or auto", text)
+    from nhstab.limits import MAX_COORD_M
+
+    if not (0.0 <= value <= MAX_COORD_M):
+        raise InputError(name, f"a number in [0, {MAX_COORD_M:g}] m or auto", text)
     return value
 
 

@@ -105,7 +105,7 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     """
     from nhstab.errors import InputError, user_keys
     from nhstab.execution.config import RunOptions, load_run_config, merge
-    from nhstab.limits import MAX_RATE_HZ, MAX_SEED, MIN_RATE_HZ, check_int, check_range
+    from nhstab.limits import MAX_NOISE_SCALE, MAX_RATE_HZ, MAX_SEED, MIN_RATE_HZ, check_int, check_probability, check_range
 
     from .plan import parse_margin
 
@@ -115,9 +115,12 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     if rate_hz is not None:
         check_range("--rate", rate_hz, MIN_RATE_HZ, MAX_RATE_HZ, "Hz")
     margin = parse_margin("--margin", margin)
-    for flag, v in (("--probability", probability), ("--confidence", confidence)):
-        if v is not None and not (0.0 < v < 1.0):
-            raise InputError(flag, "a number in (0, 1)", v)
+    if probability is not None:
+        check_probability("--probability", probability)
+    if confidence is not None and not (0.0 < confidence < 1.0):
+        raise InputError("--confidence", "a number in (0, 1)", confidence)
+    if noise_scale is not None:
+        check_range("--noise", noise_scale, 0.0, MAX_NOISE_SCALE)
     if probability is not None or confidence is not None:
         from nhstab.tubes.base import DEFAULT_CONFIDENCE, rollouts_needed
 

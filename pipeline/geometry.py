@@ -7,6 +7,7 @@ unicycle.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from functools import cached_property
@@ -81,12 +82,23 @@ def point_in_polygon(x: float, y: float, v: np.ndarray) -> bool:
 
 def is_simple_polygon(v: np.ndarray) -> bool:
     """True if the closed ring ``v`` (k, 2) has no self-intersection, touching or folded-back edges, and
-    no edge of zero length. GEOS's ring simplicity test (shapely), O(k log k)."""
-    v = np.asarray(v, dtype=float)
+    no edge of zero length. GEOS's ring simplicity test (shapely): it compares the edges whose bounding
+    boxes overlap, near-linear on an outline of short edges, quadratic at worst (long parallel edges),
+    hence :data:`~nhstab.limits.MAX_POLYGON_VERTICES`."""
+    v = np.ascontiguousarray(v, dtype=float)
     k = len(v)
     if k < 3 or np.any(np.all(np.roll(v, -1, axis=0) == v, axis=1)):
         return False
-    return bool(shapely.is_simple(shapely.linearrings(v)))
+    if polygon_area(v) < 0:
+        v = np.ascontiguousarray(v[::-1])         # one key for both orientations (Polygon stores it ccw)
+    return _is_simple_ring(v.tobytes())
+
+
+@functools.lru_cache(maxsize=16)
+def _is_simple_ring(ring: bytes) -> bool:
+    """GEOS's test of the ring of float64 (x, y) pairs ``ring``, remembered: a map's reader, its
+    polygon parts and the triangulation each ask about the same rings."""
+    return bool(shapely.is_simple(shapely.linearrings(np.frombuffer(ring, dtype=float).reshape(-1, 2))))
 
 
 def is_convex(v: np.ndarray, tol: float = 1e-12) -> bool:
@@ -98,39 +110,24 @@ def is_convex(v: np.ndarray, tol: float = 1e-12) -> bool:
 
 
 def triangulate(v: np.ndarray) -> list[np.ndarray]:
-    """Ear-clipping triangulation of a simple counter-clockwise polygon into (3, 2) triangles."""
-    pts = [np.asarray(p, dtype=float) for p in v]
-    idx = list(range(len(pts)))
-    tris: list[np.ndarray] = []
+    """A triangulation of the simple polygon ``v`` (k, 2) into counter-clockwise (3, 2) triangles: GEOS's
+    constrained Delaunay triangulation (shapely), O(k log k) in practice, without the triangles of zero
+    area that collinear vertices make (they cover nothing the others do not). A ring that is not simple
+    (it crosses or touches itself) is refused."""
+    import shapely
 
-    def cross(o, a, b):
-        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+    from .maps.yaml_format import is_simple_polygon
 
-    guard = 0
-    while len(idx) > 3 and guard < 10 * len(pts) ** 2:
-        guard += 1
-        for k in range(len(idx)):
-            i0, i1, i2 = idx[k - 1], idx[k], idx[(k + 1) % len(idx)]
-            a, b, c = pts[i0], pts[i1], pts[i2]
-            if cross(a, b, c) <= 1e-15:
-                continue        # reflex or degenerate corner
-            inside = False
-            for j in idx:
-                if j in (i0, i1, i2):
-                    continue
-                p = pts[j]
-                if cross(a, b, p) >= 0 and cross(b, c, p) >= 0 and cross(c, a, p) >= 0:
-                    inside = True
-                    break
-            if not inside:
-                tris.append(np.array([a, b, c]))
-                idx.pop(k)
-                break
-        else:
-            raise InputError("polygon", "a simple (non-self-intersecting) polygon", f"{len(pts)} vertices")
-    if len(idx) == 3:
-        tris.append(np.array([pts[i] for i in idx]))
-    return tris
+    v = np.asarray(v, dtype=float)
+    if not is_simple_polygon(v):
+        raise InputError("polygon", "a simple (non-self-intersecting) polygon", f"{len(v)} vertices")
+    tris = shapely.get_coordinates(shapely.get_parts(shapely.constrained_delaunay_triangles(shapely.Polygon(v))))
+    tris = tris.reshape(-1, 4, 2)[:, :3]            # each triangle's closed ring: its 3 corners and the first again
+    a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+    cross = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    scale = max(1.0, float(np.abs(v).max())) ** 2
+    tris = np.where((cross < 0)[:, None, None], tris[:, ::-1], tris)
+    return list(tris[np.abs(cross) > 1e-15 * scale])
 
 
 def convex_parts(v: np.ndarray) -> list[np.ndarray]:
@@ -166,12 +163,19 @@ class Footprint:
     def __post_init__(self):
         if (self.radius is None) == (self.vertices is None):
             raise InputError("footprint", "either a radius or polygon vertices", (self.radius, self.vertices))
-        if self.radius is not None and not (math.isfinite(self.radius) and self.radius > 0):
-            raise InputError("footprint.radius", "a positive finite number", self.radius)
+        from .limits import MAX_COORD_M, MAX_POLYGON_VERTICES
+
+        if self.radius is not None and not (math.isfinite(self.radius) and 0 < self.radius <= MAX_COORD_M):
+            raise InputError("footprint.radius", f"a number in (0, {MAX_COORD_M:g}] m", self.radius)
         if self.vertices is not None:
             v = np.asarray(self.vertices, dtype=float)
             if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3 or not np.all(np.isfinite(v)):
                 raise InputError("footprint.vertices", "at least 3 finite (x, y) points", f"shape {v.shape}")
+            if len(v) > MAX_POLYGON_VERTICES:
+                raise InputError("footprint.vertices", f"at most {MAX_POLYGON_VERTICES:,} points", len(v))
+            if float(np.abs(v).max()) > MAX_COORD_M:
+                raise InputError("footprint.vertices", f"coordinates within +-{MAX_COORD_M:g} m",
+                                 f"{float(np.abs(v).max()):.6g} m")
             if polygon_area(v) < 0:
                 v = v[::-1]
             object.__setattr__(self, "vertices", v)
@@ -186,6 +190,10 @@ class Footprint:
         axle) lies that far ahead of the rear edge (cars); without, the rectangle is centred."""
         if not (length > 0 and width > 0):
             raise InputError("footprint", "positive length and width", (length, width))
+        from .limits import MAX_COORD_M
+
+        if not (length <= MAX_COORD_M and width <= MAX_COORD_M):
+            raise InputError("footprint", f"a length and width of at most {MAX_COORD_M:g} m", (length, width))
         back = length / 2 if rear_overhang is None else float(rear_overhang)
         if not (0 <= back <= length):
             raise InputError("footprint.rear_overhang", f"in [0, length = {length:g}]", rear_overhang)

@@ -14,7 +14,7 @@ from .errors import InputError, number_hint
 
 # ---- files ------------------------------------------------------------------------------------
 #: largest YAML document (map, run config, batch config, ROS map metadata) [bytes]: the bundled ones
-#: are a few kB, and 1 MiB holds polygons of about 50,000 vertices (parsed in a few seconds);
+#: are a few kB, and 1 MiB holds about 50,000 polygon vertices (parsed in a few seconds);
 #: geometry beyond this belongs in an occupancy image or a Moving AI file
 MAX_YAML_BYTES = 1024 * 1024
 #: deepest nesting of YAML collections: the formats need at most 6 levels; this stays far below
@@ -44,6 +44,13 @@ MAX_GRID_CELLS = 4096 * 4096
 #: drawn from them, so this bounds a world's construction to a few seconds. A grid that exceeds it
 #: is mostly isolated noise cells: clean or coarsen it
 MAX_WORLD_OBJECTS = 100_000
+
+#: most vertices of one polygon: a map's polygon obstacle (a line of n points is a ring of 2 (n - 1)
+#: vertices, so at most 5,001 points) or a robot's footprint. GEOS's simplicity test and its
+#: triangulation compare the edges whose bounding boxes overlap: near-linear on a traced outline of
+#: short edges, but quadratic on a ring of long parallel edges (a comb of diagonal teeth), about 1 s
+#: each at 10,000 vertices and 20 s at 40,000
+MAX_POLYGON_VERTICES = 10_000
 
 #: largest heading magnitude in a pose given as input (start, goal, a trailer's heading) [rad]: headings
 #: are taken modulo 2 pi, and beyond this a float's spacing (1e-10 rad at 1e6) starts to blur them; a
@@ -89,6 +96,19 @@ MAX_STUDY_TRIALS = 5_000
 #: 69,075
 MAX_ROLLOUTS = 100_000
 
+#: largest probability p of an error tube: the linear tube's radius is the chi-square quantile at
+#: q = 1 - (1 - p) / 2, which rounds to 1 (an infinite radius) when 1 - p is near float precision
+#: (p = 1 - 1e-16); at 1 - 1e-9 it is 6.2 standard deviations, where the linear-Gaussian model's tails
+#: are already beyond anything measured, and a sampled tube would need 3e9 rollouts (MAX_ROLLOUTS)
+MAX_PROBABILITY = 1 - 1e-9
+#: largest noise scale (``--noise``, ``noise.scale``, a batch grid's ``noise``) and noise level (a
+#: standard deviation or impulse in ``noise:``, in its state's unit): the default levels are centimetres
+#: and hundredths of a radian, so 1,000 times them are tens of metres, beyond the maps a robot plans on;
+#: a level of 1e6 (the coordinate bound) at that scale keeps every squared error far from overflow,
+#: where 1e300 made the errors infinite and the runs NaN
+MAX_NOISE_SCALE = 1e3
+MAX_NOISE_LEVEL = MAX_COORD_M
+
 # ---- gain schedules ---------------------------------------------------------------------------
 #: most integration substeps per nominal time step for the gramian's windows: a window of length delta
 #: is integrated in steps of at most delta / 16 (StabilizerOptions.max_substep_fraction), so this
@@ -101,6 +121,11 @@ MAX_WINDOW_SUBSTEPS = 1024
 #: paper case runs for many minutes), and at 1e300 the gains overflow
 MAX_GAMMA = 1e4
 
+#: longest gramian window of ``nhstab paper`` (``--delta``) [s]: the paper's windows are 1 s and Remark 2's
+#: grid reaches 4 s; a case keeps about 3.5 kB per sample of its 500 Hz nominal over [0, T + delta]
+#: (schedule, dense run, bound checks), so about 0.2 GB at this window (0.7 GB and 40 s at 400 s)
+MAX_PAPER_DELTA_S = 100.0
+
 # ---- planning ---------------------------------------------------------------------------------
 #: most samples of a nominal's grid (its duration / dt): the run follows it at its control rate, so a
 #: longer one could not be run (MAX_CONTROL_PERIODS), and the grid, its gain schedule and its error
@@ -108,6 +133,14 @@ MAX_GAMMA = 1e4
 #: --max-speed, or a unicycle's tiny turning radius, which caps its speed at the turn-rate limit
 #: times the radius), before anything of that size is allocated
 MAX_NOMINAL_SAMPLES = 2_000_000
+#: smallest turning radius of a car (wheelbase / tan(max_steer), so max_steer <= atan(wheelbase / this)) [m]:
+#: the local paths (Reeds-Shepp, Dubins) are solved in units of the radius and their joins checked to
+#: 1e-6 m, which a radius near float precision (max_steer within 1e-16 of pi/2) cannot meet; at 1 mm a
+#: crossing of the largest map (2,800 km) is 3e9 radii
+MIN_TURNING_RADIUS_M = 1e-3
+#: the largest planning turning radius is the map's diagonal (:func:`check_turning_radius`): a larger turn
+#: does not fit in the map, and the local paths sample their arcs, whose length grows with the radius
+
 #: the assumed cost of one validity check that reaches FCL [s] (the slow case: measured at about 64 us,
 #: see `nhstab bench planning`). A planning budget must afford one crossing of the map at the
 #: checking resolution at this cost, or the map is refused before anything is built
@@ -122,6 +155,24 @@ def nominal_grid(duration: float, dt: float, key: str, value, speed: float, why:
         raise InputError(key, f"large enough that the nominal fits {MAX_NOMINAL_SAMPLES:,} samples of {dt:g} s",
                          value, detail=f"at {speed:.3g} m/s{why} the nominal would last {duration:.3g} s")
     return max(2, int(math.ceil(duration / dt)) + 1)
+
+
+def check_probability(key: str, value) -> float:
+    """A tube's probability p in (0, MAX_PROBABILITY], or an InputError naming ``key``."""
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and 0.0 < value <= MAX_PROBABILITY
+    if not ok:
+        raise InputError(key, f"a number in (0, {MAX_PROBABILITY!r}] (1 - 1e-9)", value, detail=number_hint(value))
+    return float(value)
+
+
+def check_turning_radius(key: str, radius: float, bounds) -> float:
+    """A planning turning radius of at most the diagonal of the map's ``bounds`` (xmin, ymin, xmax, ymax)."""
+    xmin, ymin, xmax, ymax = bounds
+    diagonal = math.hypot(xmax - xmin, ymax - ymin)
+    if not radius <= diagonal:
+        raise InputError(key, f"at most the map's diagonal, {diagonal:.4g} m (a larger turn does not fit in the map)",
+                         radius)
+    return float(radius)
 
 
 def check_headings(key: str, values) -> None:

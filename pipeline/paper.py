@@ -36,6 +36,7 @@ from .errors import (
     PipelineError,
     SingularGramianError,
 )
+from .limits import MAX_NOMINAL_SAMPLES, MAX_PAPER_DELTA_S
 from .models import make_model
 from .nominal import Nominal
 from .records import save_figure, write_json, write_text
@@ -141,11 +142,27 @@ def _t_start(case: PaperCase, delta: float) -> float:
     return float(delta) if case.start_after_window else 0.0
 
 
+def nominal_samples(case: PaperCase, grid_hz: float = GRID_HZ, delta: float | None = None) -> int:
+    """The samples of the case's nominal over [t_start, t_start + T + delta] at ``grid_hz``, or an
+    InputError naming ``delta`` when it is longer than :data:`nhstab.limits.MAX_PAPER_DELTA_S` or the
+    samples are more than :data:`nhstab.limits.MAX_NOMINAL_SAMPLES` (a finer grid)."""
+    delta = case.delta if delta is None else float(delta)
+    if not delta <= MAX_PAPER_DELTA_S:
+        raise InputError("delta", f"at most {MAX_PAPER_DELTA_S:g} s (the window of nhstab paper's cases)", delta)
+    span = _t_start(case, delta) + case.duration_s + delta
+    n = span * grid_hz + 1.0
+    if not (math.isfinite(n) and n <= MAX_NOMINAL_SAMPLES):
+        longest = ((MAX_NOMINAL_SAMPLES - 1) / grid_hz - case.duration_s) / (2.0 if case.start_after_window else 1.0)
+        raise InputError("delta", f"at most {longest:.6g} s for {case.name} (its nominal over [0, T + delta] at "
+                         f"{grid_hz:g} Hz fits {MAX_NOMINAL_SAMPLES:,} samples)", delta)
+    return int(round(span * grid_hz)) + 1
+
+
 def build_nominal(case: PaperCase, grid_hz: float = GRID_HZ, delta: float | None = None) -> Nominal:
     model = make_model(case.model, **case.model_params)
     delta = case.delta if delta is None else float(delta)
     span = _t_start(case, delta) + case.duration_s + delta
-    t = np.linspace(0.0, span, int(round(span * grid_hz)) + 1)
+    t = np.linspace(0.0, span, nominal_samples(case, grid_hz, delta))
     if case.x0_closed_form is not None:
         return Nominal.from_functions(model, case.x0_closed_form, case.u0, t)
     return Nominal.from_inputs(model, case.u0, np.zeros(model.n), t)
@@ -594,6 +611,9 @@ def run_paper(out_dir, case_names: list[str] | None = None, overrides: dict | No
     # validate overrides once, before any work
     if overrides:
         StabilizerOptions(**{"alpha": 1.0, "delta": 1.0, "gamma": 1.0, **overrides}).validated()
+        if "delta" in overrides:
+            for name in names:
+                nominal_samples(CASES[name], GRID_HZ, overrides["delta"])
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     summaries = []

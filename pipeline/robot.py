@@ -52,7 +52,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import InputError, number_hint, user_keys
-from .geometry import Footprint, polygon_area
+from .geometry import Footprint, is_simple_polygon, polygon_area
+from .limits import MAX_COORD_M, MAX_POLYGON_VERTICES
 from .models import MODELS, Model, make_model
 from .safe_io import read_yaml_mapping
 
@@ -89,6 +90,8 @@ STABILIZER_KEYS = ("alpha", "delta", "gamma", "end_strategy", "cusps")
 #: the stabilizer keys that are numbers (end_strategy is one of the gain schedule's END_STRATEGIES, cusps
 #: one of its CUSP_HANDLING)
 STABILIZER_NUMBERS = ("alpha", "delta", "gamma")
+#: the model parameters that are lengths [m] (bounded like a map's coordinates)
+LENGTH_PARAMS = ("wheelbase", "hitch_lengths")
 #: how close consecutive polygon vertices may be and still count as distinct [m]
 _SAME_POINT = 1e-9
 
@@ -326,14 +329,15 @@ def robot_from_spec(spec, where: str = "robot", source: str = "default") -> Robo
             allowed = ", ".join([*ROBOT_KEYS, *param_names])
             raise InputError(f"{where}.{key}", f"a {name} robot key: one of {allowed}", key)
     lists = {f.name for f in dataclasses.fields(model_cls) if f.init and isinstance(f.default, tuple)}
-    params = {k: (_numbers(f"{where}.{k}", spec[k]) if k in lists else _number(f"{where}.{k}", spec[k], 0.0, lo_open=True))
+    params = {k: (_numbers(f"{where}.{k}", spec[k]) if k in lists else
+                  _length(f"{where}.{k}", spec[k]) if k in LENGTH_PARAMS else _number(f"{where}.{k}", spec[k], 0.0, lo_open=True))
               for k in param_names if k in spec}
     with user_keys({f"{name}.{k}": f"{where}.{k}" for k in param_names}):
         model = make_model(name, **params)
     defaults = MODEL_DEFAULTS[name]
     notes: list[str] = []
     fp = parse_footprint(spec.get("footprint", defaults["footprint"]), f"{where}.footprint", notes)
-    margin = _number(f"{where}.margin", spec.get("margin", defaults["margin"]), 0.0)
+    margin = _length(f"{where}.margin", spec.get("margin", defaults["margin"]), lo_open=False)
     stab = dict(defaults["stabilizer"])
     if "stabilizer" in spec:
         given = spec["stabilizer"]
@@ -374,7 +378,7 @@ def robot_from_spec(spec, where: str = "robot", source: str = "default") -> Robo
             trailer_fps = (one,) * n_trailers
     r_min = _min_radius(model)
     if "turning_radius" in spec:
-        radius = _number(f"{where}.turning_radius", spec["turning_radius"], 0.0, lo_open=True)
+        radius = _length(f"{where}.turning_radius", spec["turning_radius"])
         if radius < r_min - 1e-9:
             what = ("the last trailer's smallest steady turning radius" if n_trailers else
                     "the car's minimum turning radius L / tan(max_steer)")
@@ -403,7 +407,7 @@ def parse_footprint(spec, where: str = "footprint", notes: list | None = None) -
                          _kind(spec))
     (kind, value), = spec.items()
     if kind == "radius":
-        return Footprint.disc(_number(f"{where}.radius", value, 0.0, lo_open=True))
+        return Footprint.disc(_length(f"{where}.radius", value))
     if kind == "rectangle":
         if not isinstance(value, dict):
             raise InputError(f"{where}.rectangle", "a mapping with length, width and optionally rear_overhang",
@@ -414,32 +418,38 @@ def parse_footprint(spec, where: str = "footprint", notes: list | None = None) -
         for k in ("length", "width"):
             if k not in value:
                 raise InputError(f"{where}.rectangle.{k}", "present", "missing")
-        length = _number(f"{where}.rectangle.length", value["length"], 0.0, lo_open=True)
-        width = _number(f"{where}.rectangle.width", value["width"], 0.0, lo_open=True)
+        length = _length(f"{where}.rectangle.length", value["length"])
+        width = _length(f"{where}.rectangle.width", value["width"])
         back = None
         if "rear_overhang" in value:
-            back = _number(f"{where}.rectangle.rear_overhang", value["rear_overhang"], 0.0)
+            back = _length(f"{where}.rectangle.rear_overhang", value["rear_overhang"], lo_open=False)
             if back > length:
                 raise InputError(f"{where}.rectangle.rear_overhang", f"at most the length {length:g} m", back)
         return Footprint.rectangle(length, width, rear_overhang=back)
     if kind == "polygon":
-        if not isinstance(value, list) or len(value) > 10_000:
-            raise InputError(f"{where}.polygon", "a list of [x, y] points (at most 10000)", _kind(value))
+        if not isinstance(value, list):
+            raise InputError(f"{where}.polygon", "a list of [x, y] points", _kind(value))
+        if len(value) > MAX_POLYGON_VERTICES:
+            raise InputError(f"{where}.polygon", f"at most {MAX_POLYGON_VERTICES:,} [x, y] points", len(value))
         pts = []
         for i, p in enumerate(value):
             if not (isinstance(p, (list, tuple)) and len(p) == 2):
                 raise InputError(f"{where}.polygon[{i}]", "[x, y] (two numbers)", p)
-            pts.append([_number(f"{where}.polygon[{i}][{j}]", c) for j, c in enumerate(p)])
+            pts.append([_length(f"{where}.polygon[{i}][{j}]", c, lo_open=False, lo=-math.inf) for j, c in enumerate(p)])
         v = np.array(pts, dtype=float).reshape(-1, 2)
         cleaned = clean_ring(v)
         if notes is not None and len(cleaned) != len(v):
             notes.append(f"{where}: dropped {len(v) - len(cleaned)} repeated vertex(es)")
         if len(cleaned) < 3:
             raise InputError(f"{where}.polygon", "at least 3 distinct points", f"{len(cleaned)} distinct")
+        shown = pts if len(pts) <= 12 else f"{len(pts)} points"
+        if _on_a_line(cleaned):
+            raise InputError(f"{where}.polygon", "a polygon with area (not all points on a line)", shown)
+        if not is_simple_polygon(cleaned):
+            raise InputError(f"{where}.polygon", "a simple polygon (its edges must not cross or touch each other)",
+                             shown, detail="it intersects itself")
         if abs(polygon_area(cleaned)) < 1e-12:
-            raise InputError(f"{where}.polygon", "a polygon with area (not all points on a line)", pts)
-        if not _simple(cleaned):
-            raise InputError(f"{where}.polygon", "a simple polygon (edges must not cross)", pts)
+            raise InputError(f"{where}.polygon", "a polygon with area", shown)
         fp = Footprint.polygon(cleaned)
         return dataclasses.replace(fp, label=f"polygon {len(cleaned)} vertices")
     raise InputError(where, "one of the keys radius, rectangle, polygon", kind)
@@ -459,29 +469,14 @@ def clean_ring(v: np.ndarray, tol: float = _SAME_POINT) -> np.ndarray:
     return out
 
 
-def _simple(v: np.ndarray) -> bool:
-    """No two non-adjacent edges intersect (O(k^2); footprints are small)."""
-    k = len(v)
-    a, b = v, np.roll(v, -1, axis=0)
-
-    def orient(p, q, r):
-        return (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0])
-
-    for i in range(k):
-        for j in range(i + 1, k):
-            if j == i or (j + 1) % k == i or (i + 1) % k == j:
-                continue
-            p1, p2, q1, q2 = a[i], b[i], a[j], b[j]
-            d1, d2 = orient(q1, q2, p1), orient(q1, q2, p2)
-            d3, d4 = orient(p1, p2, q1), orient(p1, p2, q2)
-            if ((d1 > 0) != (d2 > 0)) and ((d3 > 0) != (d4 > 0)) and d1 * d2 < 0 and d3 * d4 < 0:
-                return False
-            if d1 == 0 and d2 == 0 and d3 == 0 and d4 == 0:      # collinear overlap
-                lo_p, hi_p = np.minimum(p1, p2), np.maximum(p1, p2)
-                lo_q, hi_q = np.minimum(q1, q2), np.maximum(q1, q2)
-                if np.all(lo_p <= hi_q) and np.all(lo_q <= hi_p):
-                    return False
-    return True
+def _on_a_line(v: np.ndarray) -> bool:
+    """Every point within 1e-12 of the coordinates' scale of the line through the first point and the
+    point farthest from it (or all points the same)."""
+    d = v - v[0]
+    far = d[int(np.argmax(np.hypot(d[:, 0], d[:, 1])))]
+    n = math.hypot(*far)
+    scale = max(1.0, float(np.abs(v).max()))
+    return n <= 1e-12 * scale or bool(np.all(np.abs(d[:, 0] * far[1] - d[:, 1] * far[0]) / n <= 1e-12 * scale))
 
 
 def load_robot(path) -> Robot:
@@ -517,18 +512,31 @@ def map_robot_where(m) -> str:
     return f"{source}: robot" if source else "robot"
 
 
-def _number(key: str, v, lo: float = -math.inf, lo_open: bool = False) -> float:
+def _number(key: str, v, lo: float = -math.inf, lo_open: bool = False, hi: float = math.inf,
+            unit: str = "") -> float:
+    """A finite number > lo (``lo_open``) or >= lo, and at most ``hi``, or an InputError naming ``key``."""
     ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
     try:
         ok = ok and math.isfinite(v)
     except OverflowError:            # an integer too large for a float
         ok, v = False, f"an integer of {v.bit_length()} bits"
     if ok:
-        ok = v > lo if lo_open else v >= lo
+        ok = (v > lo if lo_open else v >= lo) and v <= hi
     if not ok:
-        bound = "" if lo == -math.inf else f" {'>' if lo_open else '>='} {lo:g}"
-        raise InputError(key, f"a finite number{bound}", v, detail=number_hint(v))
+        u = f" {unit}" if unit else ""
+        if hi < math.inf:
+            low = "-" if lo == -math.inf else f"{lo:g}"
+            expected = f"a number in {'(' if lo_open else '['}{low}, {hi:g}]{u}"
+        else:
+            expected = "a finite number" + ("" if lo == -math.inf else f" {'>' if lo_open else '>='} {lo:g}")
+        raise InputError(key, expected, v, detail=number_hint(v))
     return float(v)
+
+
+def _length(key: str, v, lo_open: bool = True, lo: float = 0.0) -> float:
+    """A robot's length (a footprint's size or coordinate, a wheelbase, a hitch, a margin): finite, and
+    within MAX_COORD_M, the bound on every coordinate of a map (see :mod:`nhstab.limits`)."""
+    return _number(key, v, -MAX_COORD_M if lo == -math.inf else lo, lo_open=lo_open, hi=MAX_COORD_M, unit="m")
 
 
 def _numbers(key: str, v) -> list[float]:
@@ -538,7 +546,7 @@ def _numbers(key: str, v) -> list[float]:
         v = [v]
     if not isinstance(v, list) or not v or len(v) > 64:
         raise InputError(key, "a non-empty list of positive numbers, e.g. [3.0]", _kind(v))
-    return [_number(f"{key}[{i}]", a, 0.0, lo_open=True) for i, a in enumerate(v)]
+    return [_length(f"{key}[{i}]", a) for i, a in enumerate(v)]
 
 
 def _kind(value) -> str:

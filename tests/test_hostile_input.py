@@ -603,6 +603,17 @@ def test_the_documented_limits_are_the_code_limits():
     assert limits.MAX_ROLLOUTS == 100_000 and "| 100,000 rollouts (N >= ln(1 - confidence) / ln(p)) |" in section
     assert limits.MAX_WINDOW_SUBSTEPS == 1024 and StabilizerOptions().max_substep_fraction == 1 / 16
     assert limits.MAX_GAMMA == 1e4 and "| 1/2 to 10,000 |" in section
+    assert limits.MAX_POLYGON_VERTICES == 10_000 and "| 10,000 vertices (a `line:` 5,001 points) |" in section
+    from nhstab.maps.yaml_format import MAX_LINE_POINTS
+
+    assert MAX_LINE_POINTS == 5_001 and "a robot's lengths (footprint, wheelbase, hitches, margin) | +-1,000 km" in section
+    assert limits.MIN_TURNING_RADIUS_M == 1e-3 and "the map's diagonal; a car's smallest (wheelbase / tan(max_steer)) " \
+        "at least 1 mm |" in section
+    assert limits.MAX_PROBABILITY == 1 - 1e-9 and "| 1 - 1e-9 |" in section
+    assert (limits.MAX_NOISE_SCALE, limits.MAX_NOISE_LEVEL) == (1e3, 1e6) and "| scale 1,000; levels 1,000 km" in section
+    from nhstab.paper import GRID_HZ
+
+    assert GRID_HZ == 500 and limits.MAX_PAPER_DELTA_S == 100 and "| `nhstab paper --delta` | 100 s |" in section
     assert "1/64 of the nominal's time step (0.3 ms at 0.02 s)" in section and "1,024 per time step" in section
     assert ClearanceField.MAX_CELLS == 4_000_000 and "4,000,000 cells" in section
     assert guide.MAX_CELLS == 400_000 and "400,000 guide cells" in section

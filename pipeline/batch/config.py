@@ -36,10 +36,11 @@ controllers and noise levels are compared on the same seeds. Trial ids are ``<ce
 
 from __future__ import annotations
 
-import hashlib
 import dataclasses
+import hashlib
 import itertools
 import json
+import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
@@ -58,7 +59,14 @@ from ..execution.config import (
 )
 from ..execution.controllers import CONTROLLERS
 from ..execution.runner import check_run
-from ..limits import MAX_BATCH_TRIALS, MAX_GAMMA, MAX_SEED, check_int
+from ..limits import (
+    MAX_BATCH_TRIALS,
+    MAX_GAMMA,
+    MAX_NOISE_SCALE,
+    MAX_SEED,
+    check_int,
+    check_turning_radius,
+)
 from ..planning import PLANNABLE
 from ..robot import map_robot_where, resolve_robot, robot_from_spec
 from ..safe_io import read_yaml_mapping
@@ -104,6 +112,11 @@ class BatchConfig:
         spawned."""
         children = np.random.SeedSequence(self.root_seed).spawn(self.trials)
         return [int(c.generate_state(1)[0]) for c in children]
+
+    def cell_count(self) -> int:
+        """len(self.cells()), from the sizes alone: what the trial bound is checked against before
+        any cell is made."""
+        return cell_count(self.maps, self.robots, self.controllers, self.grid)
 
     def cells(self) -> list[dict]:
         """Every combination: map, problem, robot, controller, grid values."""
@@ -157,7 +170,7 @@ class BatchConfig:
         return {m.bundle.id: m.bundle for m in self.maps if m.bundle is not None}
 
     def n_trials(self) -> int:
-        return len(self.cells()) * self.trials
+        return self.cell_count() * self.trials
 
     def fingerprint(self) -> str:
         """A hash of everything that decides the trials (not the name, nor where the map files are):
@@ -285,10 +298,18 @@ def load_batch_config(path) -> BatchConfig:
             continue
         lo, lo_open = {"noise": (0.0, False), "alpha": (0.0, True), "delta": (0.0, True), "gamma": (0.5, False)}[key]
         grid[key] = [check_number(f"grid.{key}[{j}]", v, lo, lo_open=lo_open) for j, v in enumerate(values)]
+        if key == "noise":                 # the scale's bound (nhstab.limits.MAX_NOISE_SCALE)
+            for j, v in enumerate(grid[key]):
+                if v > MAX_NOISE_SCALE:
+                    raise InputError(f"grid.noise[{j}]", f"a number in [0, {MAX_NOISE_SCALE:g}]", v)
         if key == "gamma":                 # the law's own bound, at load (not once per trial, as an error)
             for j, v in enumerate(grid[key]):
                 if v > MAX_GAMMA:
                     raise InputError(f"grid.gamma[{j}]", f"a number in [1/2, {MAX_GAMMA:g}]", v)
+    cells = cell_count(maps, robots, controllers, grid)        # before any cell is made
+    if cells * trials > MAX_BATCH_TRIALS:
+        raise InputError("trials", f"at most {MAX_BATCH_TRIALS:,} trials in the batch (cells x trials)",
+                         f"{cells:,} cells x {trials} = {cells * trials:,}")
     run = data.get("run", {}) or {}
     allowed = {"rate_hz", "substeps", "saturate", "headroom", "max_time_s", "controller", "noise", "sensor",
                "monitor", "planning", "replan", "tolerance", "tube"}
@@ -298,12 +319,16 @@ def load_batch_config(path) -> BatchConfig:
                 raise InputError(f"run.{key}", "set by the batch (maps, robots, trials), not in run", key)
     base = options_from_mapping(run, allowed, prefix="run.")
     config = BatchConfig(name, root_seed, trials, maps, robots, controllers, grid, run, str(path), base)
-    n = len(config.cells()) * trials
-    if n > MAX_BATCH_TRIALS:
-        raise InputError("trials", f"at most {MAX_BATCH_TRIALS:,} trials in the batch (cells x trials)",
-                         f"{len(config.cells())} cells x {trials} = {n:,}")
     _check_trials(config, loaded, single)
     return config
+
+
+def cell_count(maps, robots, controllers, grid: dict) -> int:
+    """The number of cells of a batch (:meth:`BatchConfig.cells`): problems x robots x (for each controller,
+    the gramian's grid of windows, alphas, deltas and gammas, one cell for the others) x noise levels."""
+    gains = math.prod(len(grid.get(k, [None])) for k in ("window", "alpha", "delta", "gamma"))
+    per_problem = sum(gains if c == "gramian" else 1 for c in controllers) * len(grid.get("noise", [1.0]))
+    return sum(len(ms.problems) for ms in maps) * len(robots or [None]) * per_problem
 
 
 def trial_options(spec: dict):
@@ -347,6 +372,13 @@ def _check_trials(config: BatchConfig, loaded: list, single: bool) -> None:
                     with user_keys(run_keys), user_keys(grid_names):
                         opts = check_run(m, rob, trial_options({"run": config.run, "cell_spec": cell, "seed": 0}))
             _check_problems(f"maps[{i}].problems", m, spec.problems, rob, opts)
+            # the planning radius every trial's plan checks (nhstab.limits.check_turning_radius), once here
+            given = opts.planning.turning_radius
+            key = "run.planning.turning_radius" if given is not None else rob.key("turning_radius")
+            try:
+                check_turning_radius(key, given if given is not None else rob.turning_radius, m.bounds)
+            except InputError as exc:
+                raise InputError(exc.argument, exc.expected, exc.got, detail=f"on maps[{i}] ({m.name})") from None
 
 
 def _check_problems(key: str, m, problems, robot, opts) -> None:

@@ -59,6 +59,8 @@ from ..errors import InputError, user_keys
 from ..examples import resolve_map_path
 from ..limits import (
     MAX_CONTROL_PERIODS,
+    MAX_NOISE_LEVEL,
+    MAX_NOISE_SCALE,
     MAX_RATE_HZ,
     MAX_SEED,
     MAX_SUBSTEPS,
@@ -66,6 +68,7 @@ from ..limits import (
     _short_int,
     check_headings,
     check_int,
+    check_probability,
     check_range,
     number_hint,
 )
@@ -110,6 +113,15 @@ def check_number(key: str, v, lo: float = -math.inf, lo_open: bool = False, inte
             from None
 
 
+def _noise_number(key: str, value, most: float) -> float:
+    """A noise scale or level: a finite number in [0, most] (:data:`nhstab.limits.MAX_NOISE_SCALE`,
+    :data:`~nhstab.limits.MAX_NOISE_LEVEL`), or an InputError naming ``key``."""
+    v = check_number(key, value, 0.0)
+    if v > most:
+        raise InputError(key, f"a number in [0, {most:g}]", value)
+    return v
+
+
 @dataclass(frozen=True)
 class NoiseOptions:
     """Noise levels by state name (see :data:`DEFAULT_NOISE`); ``scale`` multiplies all of them;
@@ -123,7 +135,7 @@ class NoiseOptions:
     impulses: tuple = ()
 
     def validated(self, state_names) -> "NoiseOptions":
-        check_number("noise.scale", self.scale, 0.0)
+        _noise_number("noise.scale", self.scale, MAX_NOISE_SCALE)
         if self.distribution not in DISTRIBUTIONS:
             raise InputError("noise.initial.distribution", "one of " + ", ".join(DISTRIBUTIONS), self.distribution)
         for kind in ("initial", "sensor", "process"):
@@ -131,14 +143,16 @@ class NoiseOptions:
                 if name not in state_names:
                     raise InputError(f"noise.{kind}.{name}", "a state of the robot (" + ", ".join(state_names) + ")",
                                      name)
-                check_number(f"noise.{kind}.{name}", v, 0.0)
+                _noise_number(f"noise.{kind}.{name}", v, MAX_NOISE_LEVEL)
         for i, (time_s, jump) in enumerate(self.impulses):
             check_number(f"noise.impulses[{i}].time", time_s, 0.0)
             for name, v in jump.items():
                 if name not in state_names:
                     raise InputError(f"noise.impulses[{i}].{name}", "time or a state of the robot ("
                                      + ", ".join(state_names) + ")", name)
-                check_number(f"noise.impulses[{i}].{name}", v)
+                if abs(check_number(f"noise.impulses[{i}].{name}", v)) > MAX_NOISE_LEVEL:
+                    raise InputError(f"noise.impulses[{i}].{name}", f"a number in [-{MAX_NOISE_LEVEL:g}, "
+                                     f"{MAX_NOISE_LEVEL:g}]", v)
         return self
 
     def vector(self, kind: str, state_names) -> np.ndarray:
@@ -262,10 +276,10 @@ class TubeOptions:
     def validated(self) -> "TubeOptions":
         if self.kind not in TUBE_KINDS:
             raise InputError("tube.kind", "one of " + ", ".join(TUBE_KINDS), self.kind)
-        for key in ("probability", "confidence"):
-            v = check_number(f"tube.{key}", getattr(self, key), 0.0, lo_open=True)
-            if v >= 1.0:
-                raise InputError(f"tube.{key}", "a number in (0, 1)", v)
+        check_probability("tube.probability", check_number("tube.probability", self.probability, 0.0, lo_open=True))
+        v = check_number("tube.confidence", self.confidence, 0.0, lo_open=True)
+        if v >= 1.0:
+            raise InputError("tube.confidence", "a number in (0, 1)", v)
         try:
             rollouts_needed(self.probability, self.confidence)
         except InputError as exc:
@@ -362,7 +376,7 @@ def _noise(data: dict) -> NoiseOptions:
             raise InputError(f"noise.{key}", "one of " + ", ".join(sorted(allowed)), key)
     kw = {}
     if "scale" in data:
-        kw["scale"] = check_number("noise.scale", data["scale"], 0.0)
+        kw["scale"] = _noise_number("noise.scale", data["scale"], MAX_NOISE_SCALE)
     for kind in ("initial", "sensor", "process"):
         if kind in data:
             section = data[kind]

@@ -20,7 +20,14 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import is_simple_polygon, polygon_area
-from ..limits import MAX_CELL_M, MAX_COORD_M, MAX_GRID_CELLS, MIN_CELL_M, check_range
+from ..limits import (
+    MAX_CELL_M,
+    MAX_COORD_M,
+    MAX_GRID_CELLS,
+    MAX_POLYGON_VERTICES,
+    MIN_CELL_M,
+    check_range,
+)
 
 
 def check_extent(what: str, values) -> None:
@@ -28,6 +35,13 @@ def check_extent(what: str, values) -> None:
     arr = np.asarray(values, dtype=float)
     if arr.size and float(np.max(np.abs(arr))) > MAX_COORD_M:
         raise InputError(what, f"coordinates within +-{MAX_COORD_M:g} m", f"{float(np.max(np.abs(arr))):.6g} m")
+
+
+def check_vertex_count(what: str, k: int, per: str = "vertices", most: int = MAX_POLYGON_VERTICES) -> None:
+    """Refuse a polygon of more than MAX_POLYGON_VERTICES vertices (see :mod:`nhstab.limits`) before its
+    geometry is checked, naming ``what``."""
+    if k > most:
+        raise InputError(what, f"at most {most:,} {per}", k)
 
 
 def check_grid_size(what: str, rows: int, cols: int) -> None:
@@ -68,6 +82,7 @@ class Polygon:
         v = np.asarray(self.vertices, dtype=float)
         if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 2:
             raise InputError("polygon", "at least 2 (x, y) vertices", f"shape {v.shape}")
+        check_vertex_count("polygon", len(v))
         if not np.all(np.isfinite(v)):
             raise InputError("polygon", "finite vertex coordinates", "NaN or inf")
         check_extent("polygon", v)

@@ -77,7 +77,7 @@ import numpy as np
 
 from ..errors import PipelineError, number_hint
 from ..geometry import is_simple_polygon, point_in_polygon, polygon_area
-from ..limits import MAX_COORD_M, MAX_YAML_BYTES
+from ..limits import MAX_COORD_M, MAX_POLYGON_VERTICES, MAX_YAML_BYTES
 from ..robot import robot_from_spec
 from ..safe_io import load_yaml, read_text
 from .base import (
@@ -110,6 +110,8 @@ _nesting = [0]
 _MAX_DEPTH = 64
 #: largest magnitude accepted for any number in a YAML map (keeps products of coordinates finite)
 MAX_ABS = MAX_COORD_M
+#: a line of n points is a ring of 2 (n - 1) vertices
+MAX_LINE_POINTS = MAX_POLYGON_VERTICES // 2 + 1
 
 
 def load_yaml_map(path: str | Path) -> Map:
@@ -242,6 +244,8 @@ class _Reader:
             got = f"{len(spec)} points" if isinstance(spec, list) else _type_name(spec)
             raise self.err(key, "a list of at least 3 [x, y] points", got,
                            detail="a line of zero thickness is drawn as line: [[x, y], [x, y], ...]")
+        if len(spec) > MAX_POLYGON_VERTICES:
+            raise self.err(key, f"at most {MAX_POLYGON_VERTICES:,} [x, y] points", len(spec))
         v = np.array([self.numbers(p, f"{key}[{i}]", 2, "[x, y]") for i, p in enumerate(spec)], dtype=float)
         cleaned = _drop_repeats(v)
         if len(cleaned) < len(v) - (1 if np.array_equal(v[0], v[-1]) else 0):
@@ -268,6 +272,9 @@ class _Reader:
         if not isinstance(spec, list) or len(spec) < 2:
             got = f"{len(spec)} points" if isinstance(spec, list) else _type_name(spec)
             raise self.err(key, "a list of at least 2 [x, y] points", got)
+        if len(spec) > MAX_LINE_POINTS:
+            raise self.err(key, f"at most {MAX_LINE_POINTS:,} [x, y] points (its ring runs there and back)",
+                           len(spec))
         v = np.array([self.numbers(p, f"{key}[{i}]", 2, "[x, y]") for i, p in enumerate(spec)], dtype=float)
         keep = np.ones(len(v), dtype=bool)
         keep[1:] = np.any(v[1:] != v[:-1], axis=1)

@@ -8,14 +8,14 @@ Every method is vectorised over leading axes: ``x`` has shape (..., n), ``u`` (.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-import math
-
 from ..errors import InputError, require_positive
 from ..geometry import wrap_angle
+from ..limits import MIN_TURNING_RADIUS_M
 
 
 @dataclass(frozen=True)
@@ -93,6 +93,15 @@ class Model:
     def describe(self) -> dict:
         return {"model": self.name, "state_names": list(self.state_names),
                 "input_names": list(self.input_names), **self.params()}
+
+
+def check_max_steer(model: str, wheelbase: float, max_steer: float) -> None:
+    """A car's steering limit: at most atan(wheelbase / MIN_TURNING_RADIUS_M), so that its smallest
+    turning radius wheelbase / tan(max_steer) is at least MIN_TURNING_RADIUS_M (:mod:`nhstab.limits`)."""
+    top = math.atan(wheelbase / MIN_TURNING_RADIUS_M)
+    if not max_steer <= top:
+        raise InputError(f"{model}.max_steer", f"at most atan(wheelbase / {MIN_TURNING_RADIUS_M:g} m) = {top:.6g} rad "
+                         f"(a turning radius wheelbase / tan(max_steer) of at least {MIN_TURNING_RADIUS_M:g} m)", max_steer)
 
 
 def positive_param(name: str, value, model: str) -> float:

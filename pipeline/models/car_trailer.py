@@ -32,7 +32,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import wrap_angle
-from .base import Model, angle_limit, positive_param
+from .base import Model, angle_limit, check_max_steer, positive_param
 
 #: the most trailers a model may tow (a bound on the state's size, not a physical limit)
 MAX_TRAILERS = 8
@@ -70,6 +70,7 @@ class CarTrailer(Model):
         for key in ("wheelbase", "max_speed", "max_steer_rate"):
             positive_param(key, getattr(self, key), "car_trailer")
         angle_limit("max_steer", self.max_steer, "car_trailer")
+        check_max_steer("car_trailer", self.wheelbase, self.max_steer)
         angle_limit("jackknife_limit", self.jackknife_limit, "car_trailer", " (a hitch angle the chained chart covers)")
         d = _hitch_lengths(self.hitch_lengths)
         object.__setattr__(self, "hitch_lengths", d)

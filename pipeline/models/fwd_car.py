@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Model, angle_limit, positive_param
+from .base import Model, angle_limit, check_max_steer, positive_param
 
 
 @dataclass(frozen=True)
@@ -27,6 +27,7 @@ class FwdCar(Model):
         for key in ("wheelbase", "max_speed", "max_steer_rate"):
             positive_param(key, getattr(self, key), "fwd_car")
         angle_limit("max_steer", self.max_steer, "fwd_car")
+        check_max_steer("fwd_car", self.wheelbase, self.max_steer)
         object.__setattr__(self, "name", "fwd_car")
         object.__setattr__(self, "state_names", ("x", "y", "phi", "theta"))
         object.__setattr__(self, "input_names", ("v", "omega_s"))

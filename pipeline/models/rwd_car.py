@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Model, angle_limit, positive_param
+from .base import Model, angle_limit, check_max_steer, positive_param
 
 
 @dataclass(frozen=True)
@@ -24,6 +24,7 @@ class RwdCar(Model):
         for key in ("wheelbase", "max_speed", "max_steer_rate"):
             positive_param(key, getattr(self, key), "rwd_car")
         angle_limit("max_steer", self.max_steer, "rwd_car")
+        check_max_steer("rwd_car", self.wheelbase, self.max_steer)
         object.__setattr__(self, "name", "rwd_car")
         object.__setattr__(self, "state_names", ("x", "y", "theta", "phi"))
         object.__setattr__(self, "input_names", ("v", "omega_s"))

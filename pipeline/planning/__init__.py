@@ -21,7 +21,7 @@ from ..collision import CollisionWorld, check_poses
 from ..control import GAIN_BOUND, StabilizerOptions, compute_schedule
 from ..errors import InputError, SingularGramianError, user_keys
 from ..geometry import wrap_angle
-from ..limits import FCL_CHECK_S, check_headings
+from ..limits import FCL_CHECK_S, check_headings, check_turning_radius
 from ..maps.base import Map
 from ..models import Model
 from ..nominal import Nominal
@@ -199,6 +199,7 @@ def _plan_with(m: Map, robot: Robot, start, goal, path_opts: PathOptions, timing
     """:func:`_plan` with its options checked; ``delta_key`` is how errors name the window length."""
     model, fp = robot.model, robot.footprint
     check_map_budget(m, path_opts.time_limit_s, path_opts.resolution)
+    check_turning_radius("turning_radius", path_opts.turning_radius, m.bounds)
     if model.name == "car_trailer":       # the trailer's path, the rig checked (nhstab.planning.trailer)
         return plan_trailer(m, robot, start, goal, path_opts, timing_opts, stab_opts, check_resolution, world)
     start, goal = _pose(start, "start", robot), _pose(goal, "goal", robot)

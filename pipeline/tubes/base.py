@@ -13,7 +13,7 @@ from ..clearance_field import disc_cover
 from ..control.interpolant import hermite_weights
 from ..errors import InputError
 from ..geometry import Footprint
-from ..limits import MAX_ROLLOUTS
+from ..limits import MAX_ROLLOUTS, check_probability
 
 #: the default probability of the tube
 DEFAULT_PROBABILITY = 0.997
@@ -411,8 +411,7 @@ TUBE_KINDS = ("auto", "linear", "sampled")
 def rollouts_needed(probability: float, confidence: float = DEFAULT_CONFIDENCE) -> int:
     """The smallest N with p^N <= 1 - confidence: N rollouts, none outside the reported region, bound
     its p-quantile with that confidence (the scenario bound; see the module docstring)."""
-    if not (isinstance(probability, (int, float)) and 0.0 < probability < 1.0):
-        raise InputError("probability", "a number in (0, 1)", probability)
+    check_probability("probability", probability)
     if not (isinstance(confidence, (int, float)) and 0.0 < confidence < 1.0):
         raise InputError("confidence", "a number in (0, 1)", confidence)
     n = math.log1p(-confidence) / math.log(probability)

@@ -8,7 +8,15 @@ import numpy as np
 
 from ..errors import InputError, NumericalError
 from ..geometry import Footprint
-from .base import DEFAULT_CONFIDENCE, DEFAULT_PROBABILITY, TUBE_KINDS, Tube, certified_clearance, verdict
+from ..limits import check_probability
+from .base import (
+    DEFAULT_CONFIDENCE,
+    DEFAULT_PROBABILITY,
+    TUBE_KINDS,
+    Tube,
+    certified_clearance,
+    verdict,
+)
 from .linear import _linear_tube
 from .sampled import linear_validity, sampled_tube
 
@@ -29,8 +37,7 @@ def predict_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
     where it holds (:func:`nhstab.tubes.linear_validity`: no input saturation to speak of and no
     interior stop), the sampled one elsewhere; the tube's ``certificate`` says which and why. With a
     world the tube carries its :func:`verdict` (without the plan's margin; call it again with it)."""
-    if not (isinstance(probability, (int, float)) and 0.0 < probability < 1.0):
-        raise InputError("probability", "a number in (0, 1)", probability)
+    check_probability("probability", probability)
     if kind not in TUBE_KINDS:
         raise InputError("tube", "one of " + ", ".join(TUBE_KINDS), kind)
     confidence = DEFAULT_CONFIDENCE if confidence is None else confidence

@@ -333,10 +333,17 @@ def test_results_do_not_depend_on_the_noise_block(hilare, monkeypatch):
             assert np.array_equal(getattr(res, key), getattr(ref, key)), (floats, key)
 
 
-def test_on_states_sees_every_sample_of_every_chunk(hilare):
+def _unchecked_noise(monkeypatch):
+    """Noise levels beyond nhstab.limits.MAX_NOISE_LEVEL are refused before anything runs; the
+    per-trial failure handling behind that bound is exercised with the check switched off."""
+    monkeypatch.setattr(NoiseOptions, "validated", lambda self, state_names: self)
+
+
+def test_on_states_sees_every_sample_of_every_chunk(hilare, monkeypatch):
     """The hook sees sample k = 0 .. S - 1 of each chunk in order: the true states the records hold
     (x at t_k) and the inputs applied from t_k (None at the end sample), read-only; with a failing
     trial, what its stack holds (the records show NaN from its lost sample on)."""
+    _unchecked_noise(monkeypatch)
     noise = NoiseOptions(initial={"x": 1e308})
     draws = {s: np.random.default_rng(seed_for(s, "initial")).standard_normal(3)[0] for s in range(40)}
     bad = next(s for s, d in draws.items() if abs(d) > 1.9)
@@ -405,10 +412,11 @@ def test_measurements_have_the_configured_spread(hilare):
     assert np.allclose(rms, [0.05, 0.01, 0.02], rtol=0.01)
 
 
-def test_a_trial_that_blows_up_leaves_the_others_alone(hilare):
+def test_a_trial_that_blows_up_leaves_the_others_alone(hilare, monkeypatch):
     """An initial-error level of 1e308 overflows the trials whose draw exceeds 1.79 in size: they
     fail ("numerical_failure", frozen, NaN from the lost sample on) exactly when the loop does;
     the others are bit-identical to a batch without them."""
+    _unchecked_noise(monkeypatch)
     noise = NoiseOptions(initial={"x": 1e308})
     draws = {s: np.random.default_rng(seed_for(s, "initial")).standard_normal(3)[0] for s in range(40)}
     bad = next(s for s, d in draws.items() if abs(d) > 1.9)
