@@ -16,6 +16,7 @@ import numpy as np
 import shapely
 
 from .errors import InputError
+from .limits import MAX_COORD_M, MAX_POLYGON_VERTICES
 
 
 def wrap_angle(angle):
@@ -114,10 +115,6 @@ def triangulate(v: np.ndarray) -> list[np.ndarray]:
     constrained Delaunay triangulation (shapely), O(k log k) in practice, without the triangles of zero
     area that collinear vertices make (they cover nothing the others do not). A ring that is not simple
     (it crosses or touches itself) is refused."""
-    import shapely
-
-    from .maps.yaml_format import is_simple_polygon
-
     v = np.asarray(v, dtype=float)
     if not is_simple_polygon(v):
         raise InputError("polygon", "a simple (non-self-intersecting) polygon", f"{len(v)} vertices")
@@ -163,8 +160,6 @@ class Footprint:
     def __post_init__(self):
         if (self.radius is None) == (self.vertices is None):
             raise InputError("footprint", "either a radius or polygon vertices", (self.radius, self.vertices))
-        from .limits import MAX_COORD_M, MAX_POLYGON_VERTICES
-
         if self.radius is not None and not (math.isfinite(self.radius) and 0 < self.radius <= MAX_COORD_M):
             raise InputError("footprint.radius", f"a number in (0, {MAX_COORD_M:g}] m", self.radius)
         if self.vertices is not None:
@@ -190,8 +185,6 @@ class Footprint:
         axle) lies that far ahead of the rear edge (cars); without, the rectangle is centred."""
         if not (length > 0 and width > 0):
             raise InputError("footprint", "positive length and width", (length, width))
-        from .limits import MAX_COORD_M
-
         if not (length <= MAX_COORD_M and width <= MAX_COORD_M):
             raise InputError("footprint", f"a length and width of at most {MAX_COORD_M:g} m", (length, width))
         back = length / 2 if rear_overhang is None else float(rear_overhang)

@@ -267,7 +267,7 @@ def test_a_turning_radius_beyond_the_maps_diagonal_is_refused(tmp_path, args):
     """1e9 allocated a 234 GiB array of arc samples, 1e300 asked numpy for more than it can index, and
     1e6 took several times the planning budget; the room is 15 m across."""
     out = tmp_path / "o"
-    one_line(invoke("plan", M, *args, "--out", out), 2, "'turning_radius'", "the map's diagonal, 15 m")
+    one_line(invoke("plan", M, *args, "--out", out), 2, "'--turning-radius'", "the map's diagonal, 15 m")
     assert not out.exists()
 
 
@@ -275,7 +275,7 @@ def test_a_robot_files_turning_radius_is_bounded(tmp_path):
     r = footprint_file(tmp_path / "r.yaml", "turning_radius: 1.0e+300", "rwd_car")
     one_line(invoke("plan", M, "--robot-config", r, "--out", tmp_path / "o"), 2, "robot.turning_radius", "1e+06")
     r = footprint_file(tmp_path / "r.yaml", "turning_radius: 100.0", "rwd_car")
-    one_line(invoke("plan", M, "--robot-config", r, "--out", tmp_path / "o"), 2, "'turning_radius'", "diagonal")
+    one_line(invoke("plan", M, "--robot-config", r, "--out", tmp_path / "o"), 2, "robot.turning_radius'", "diagonal")
     from nhstab.maps import load_map
     from nhstab.planning import PathOptions, plan
     from nhstab.robot import default_robot
@@ -303,8 +303,10 @@ def test_a_steering_limit_at_pi_over_2_is_refused(tmp_path, model, steer):
     """max_steer at pi/2 makes the turning radius wheelbase / tan(max_steer) about 1e-16 m: the local
     paths' legs did not meet (a RuntimeError traceback). fwd_car took any angle, even beyond pi/2."""
     r = footprint_file(tmp_path / "r.yaml", f"max_steer: {steer!r}", model)
+    # at or beyond pi/2: not an angle below pi/2; just below it: a turning radius under 1 mm
+    why = "below pi/2" if steer >= math.pi / 2 else "atan(wheelbase / 0.001 m)"
     one_line(invoke("plan", "example:parking_lot", "--robot-config", r, "--out", tmp_path / "o"), 2,
-             "robot.max_steer", "atan(wheelbase / 0.001 m)")
+             "robot.max_steer", why)
     from nhstab.models import make_model
 
     assert make_model(model, max_steer=1.5).max_steer == 1.5            # steep, still a car
@@ -373,7 +375,7 @@ def test_the_papers_window_is_bounded_before_its_nominal_is_sampled(tmp_path, de
     """--delta 1e6 asked for 5e8 samples (a 3.7 GiB MemoryError), 1e300 for more than numpy can index."""
     out = tmp_path / "p"
     one_line(invoke("paper", "--case", "heisenberg-line", "--case", "hilare-circle", "--delta", delta, "--out", out),
-             2, "'delta'", "at most 100 s")
+             2, "'--delta'", "at most 100 s")
     assert not out.exists()
 
 
