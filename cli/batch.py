@@ -116,7 +116,6 @@ def replay(store_path, trial_id, out_dir, animate):
     import tempfile
 
     import yaml
-
     from nhstab.batch.store import Store
     from nhstab.batch.trial import replay_config
     from nhstab.errors import InputError

@@ -9,7 +9,6 @@ import threading
 import warnings
 
 import click
-
 from nhstab._version import __version__
 from nhstab.errors import InputError, PipelineError, SingularGramianError
 
@@ -118,12 +117,12 @@ def cli():
 
 def _register():
     from . import bench, gains, paper
+    from .batch import batch
     from .examples import examples
     from .map import map_group
     from .parking import parking
     from .plan import plan, sweep
     from .run import run
-    from .batch import batch
     from .tubes import tubes
 
     cli.add_command(examples)

@@ -138,10 +138,9 @@ def info(map_file, as_json, robot, robot_config, cell_size, unknown):
 def show(map_file, out, start, goal, robot, robot_config, problems, cell_size, unknown):
     """Draw MAP: known obstacles solid, unknown dashed, bounds, start and goal with the footprint."""
     from nhstab.collision import check_poses
+    from nhstab.errors import InputError
     from nhstab.records import save_figure
     from nhstab.report.maps import map_figure
-
-    from nhstab.errors import InputError
 
     if out is not None and (not str(out).strip() or str(out) in (".", "..") or str(out).endswith(("/", "\\"))):
         raise InputError("--out", "the path of a PNG file to write", str(out))

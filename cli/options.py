@@ -6,8 +6,6 @@ from pathlib import Path
 
 import click
 
-
-
 WINDOW_CHOICES = ("future", "past", "frozen-time")
 END_STRATEGY_CHOICES = ("frozen", "extend")
 

@@ -128,11 +128,18 @@ def study(out_dir, trials, mc_factor, maps, noise, controllers, root_seed, plan_
     per controller and noise level its error tube and verdict, trials of the run loop (collisions,
     goal reached) and the tube held to an independent Monte Carlo (coverage, conservatism). Writes
     study.json, study.md and figures into OUT (see nhstab.batch.parking_study)."""
-    from nhstab.batch.parking_study import (check_controllers, check_levels, check_maps, run_parking_study,
-                                            study_markdown, success_figure, tube_figure)
-    from nhstab.limits import MAX_SEED, MAX_STUDY_TRIALS, check_int
     import json
 
+    from nhstab.batch.parking_study import (
+        check_controllers,
+        check_levels,
+        check_maps,
+        run_parking_study,
+        study_markdown,
+        success_figure,
+        tube_figure,
+    )
+    from nhstab.limits import MAX_SEED, MAX_STUDY_TRIALS, check_int
     from nhstab.records import save_figure, to_jsonable, write_text
 
     check_int("--trials", trials, 1, MAX_STUDY_TRIALS, "a number of trials per cell")

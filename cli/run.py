@@ -105,7 +105,15 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     """
     from nhstab.errors import InputError, user_keys
     from nhstab.execution.config import RunOptions, load_run_config, merge
-    from nhstab.limits import MAX_NOISE_SCALE, MAX_RATE_HZ, MAX_SEED, MIN_RATE_HZ, check_int, check_probability, check_range
+    from nhstab.limits import (
+        MAX_NOISE_SCALE,
+        MAX_RATE_HZ,
+        MAX_SEED,
+        MIN_RATE_HZ,
+        check_int,
+        check_probability,
+        check_range,
+    )
 
     from .plan import parse_margin
 

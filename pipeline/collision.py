@@ -32,20 +32,9 @@ from dataclasses import dataclass, field
 import fcl
 import numpy as np
 
-from .clearance_field import (
-    FINE_DISCS_PER_WIDTH,
-    ClearanceField,
-    disc_cover,
-    footprint_points,
-)
+from .clearance_field import FINE_DISCS_PER_WIDTH, ClearanceField, disc_cover, footprint_points
 from .errors import InputError
-from .geometry import (
-    Footprint,
-    convex_parts,
-    point_polygon_distance,
-    transform_points,
-    wrap_angle,
-)
+from .geometry import Footprint, convex_parts, point_polygon_distance, transform_points, wrap_angle
 from .limits import MAX_WORLD_OBJECTS
 from .maps.base import Circle, Map, MapError, OccupancyGrid, Polygon
 

@@ -19,15 +19,7 @@ from pathlib import Path
 
 from .errors import PipelineError
 from .maps import load_map
-from .maps.bundled import (  # noqa: F401 - the names a user resolves examples by, kept here too
-    EXAMPLE_PREFIX,
-    _benchmr_rows,
-    _catalog,
-    data_root,
-    example_path,
-    is_example,
-    resolve_map_path,
-)
+from .maps.bundled import EXAMPLE_PREFIX, _benchmr_rows, _catalog, data_root, example_path, is_example, resolve_map_path  # noqa: F401 - the names a user resolves examples by, kept here too
 from .safe_io import load_yaml_file
 
 

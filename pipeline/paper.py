@@ -30,24 +30,13 @@ from pathlib import Path
 import numpy as np
 
 from .control import StabilizerOptions, compute_schedule
-from .errors import (
-    InputError,
-    NotStabilizingWarning,
-    PipelineError,
-    SingularGramianError,
-)
+from .errors import InputError, NotStabilizingWarning, PipelineError, SingularGramianError
 from .limits import MAX_NOMINAL_SAMPLES, MAX_PAPER_DELTA_S
 from .models import make_model
 from .nominal import Nominal
 from .records import save_figure, write_json, write_text
 from .report import subplots
-from .report.tracking import (
-    error_norm_comparison_figure,
-    errors_figure,
-    gramian_figure,
-    inputs_figure,
-    phase_figure,
-)
+from .report.tracking import error_norm_comparison_figure, errors_figure, gramian_figure, inputs_figure, phase_figure
 from .simulation import fit_decay_rate, simulate_tracking
 
 

@@ -1,6 +1,5 @@
 """Nominal trajectories the tests share: closed-form inputs on the paper's models."""
 import numpy as np
-
 from nhstab.models import make_model
 from nhstab.nominal import Nominal
 

@@ -73,3 +73,13 @@ def reference_H(nominal, times, opts):
             Phi = transition(nominal, t, s)
             out.append(Phi @ Hs @ Phi.T)
     return np.array(out)
+
+
+def central_jacobian(fun, x, eps=1e-6):
+    """The Jacobian of ``fun`` at ``x`` by central differences (step ``eps``), columns stacked last."""
+    cols = []
+    for j in range(x.size):
+        d = np.zeros_like(x)
+        d[j] = eps
+        cols.append((fun(x + d) - fun(x - d)) / (2 * eps))
+    return np.stack(cols, axis=-1)

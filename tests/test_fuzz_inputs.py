@@ -19,7 +19,6 @@ import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
 from nhstab.batch.config import load_batch_config
 from nhstab.batch.report import write_report
 from nhstab.errors import InputError, PipelineError

@@ -18,8 +18,7 @@ from pathlib import Path
 import nhstab
 import numpy as np
 import pytest
-from click.testing import CliRunner
-from nhstab.cli.main import cli
+from clitools import invoke, one_line
 from nhstab.errors import InputError
 from nhstab.records import MANIFEST
 
@@ -31,27 +30,8 @@ STORE = ROOT / "results/robustness/trials.sqlite"
 HUGE = str(10**400)
 
 
-def invoke(*args, cwd=None):
-    runner = CliRunner()
-    if cwd is None:
-        return runner.invoke(cli, [str(a) for a in args])
-    old = os.getcwd()
-    os.chdir(cwd)
-    try:
-        return runner.invoke(cli, [str(a) for a in args])
-    finally:
-        os.chdir(old)
 
 
-def one_line(res, code: int, *needles: str) -> str:
-    """The command exited with ``code``, printed one error line (no traceback) holding the needles."""
-    assert res.exit_code == code, (res.exit_code, res.output, res.exception)
-    assert "Traceback" not in res.output and not isinstance(res.exception, (AttributeError, TypeError, IndexError))
-    lines = [ln for ln in res.stderr.splitlines() if ln.startswith("nhstab:")]
-    assert len(lines) == 1, res.stderr
-    for n in needles:
-        assert n in lines[0], lines[0]
-    return lines[0]
 
 
 def digest(path: Path) -> str:

@@ -12,28 +12,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
-
-from nhstab.cli.main import cli
+from clitools import invoke, one_line
 from nhstab.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
 M = ROOT / "maps/ours/cluttered_room.yaml"
 
 
-def invoke(*args):
-    return CliRunner().invoke(cli, [str(a) for a in args])
 
 
-def one_line(res, code: int, *needles: str) -> str:
-    """The command exited with ``code``, printed one error line (no traceback) holding the needles."""
-    assert res.exit_code == code, (res.exit_code, res.output, res.exception)
-    assert "Traceback" not in res.output
-    lines = [ln for ln in res.stderr.splitlines() if ln.startswith("nhstab:")]
-    assert len(lines) == 1, res.stderr
-    for n in needles:
-        assert n in lines[0], lines[0]
-    return lines[0]
 
 
 def comb(teeth: int, x0: float = 2.0, y0: float = 2.0, width: float = 2.0, reach: float = 4.0,
@@ -121,7 +108,6 @@ def test_the_raster_fill_agrees_with_point_in_polygon_and_its_work_is_the_crossi
     """A point-in-polygon test per cell costs cells x vertices at worst (the comb's edges span every
     row); the scanline fill toggles cells per crossing, at most vertices x rows."""
     from matplotlib.path import Path as MplPath
-
     from nhstab.maps import raster
 
     rng = np.random.default_rng(3)
@@ -332,8 +318,7 @@ def test_a_tube_probability_near_1_is_refused_everywhere(tmp_path, p):
 
 def test_the_linear_tube_refuses_a_probability_its_quantile_cannot_honour():
     from nhstab import limits
-    from nhstab.tubes import rollouts_needed
-    from nhstab.tubes import predict_tube
+    from nhstab.tubes import predict_tube, rollouts_needed
 
     with pytest.raises(InputError, match="'probability' must be a number in"):
         predict_tube(None, None, None, probability=1 - 1e-16, kind="linear")

@@ -18,13 +18,12 @@ import sysconfig
 import tomllib
 from pathlib import Path
 
+import nhstab
 import pytest
 from click.testing import CliRunner
-
-import nhstab
 from nhstab.cli.main import cli
-from nhstab.examples import data_root, example_path, list_examples, resolve_map_path
 from nhstab.errors import InputError
+from nhstab.examples import data_root, example_path, list_examples, resolve_map_path
 from nhstab.maps import load_map
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -51,22 +51,10 @@ from ..collision import CollisionWorld
 from ..control import WINDOWS
 from ..errors import InputError, user_keys
 from ..examples import resolve_map_path
-from ..execution.config import (
-    RunOptions,
-    check_number,
-    check_pose,
-    options_from_mapping,
-)
+from ..execution.config import RunOptions, check_number, check_pose, options_from_mapping
 from ..execution.controllers import CONTROLLERS
 from ..execution.runner import check_run
-from ..limits import (
-    MAX_BATCH_TRIALS,
-    MAX_GAMMA,
-    MAX_NOISE_SCALE,
-    MAX_SEED,
-    check_int,
-    check_turning_radius,
-)
+from ..limits import MAX_BATCH_TRIALS, MAX_GAMMA, MAX_NOISE_SCALE, MAX_SEED, check_int, check_turning_radius
 from ..planning import PLANNABLE
 from ..robot import map_robot_where, resolve_robot, robot_from_spec
 from ..safe_io import read_yaml_mapping

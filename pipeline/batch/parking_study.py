@@ -86,13 +86,7 @@ from ..maps import load_map, resolve_poses
 from ..parking import read_suite_csv
 from ..report import subplots
 from ..robot import resolve_robot
-from ..tubes.base import (
-    displacement,
-    hull_vertices,
-    pose_indices,
-    rollouts_needed,
-    verdict,
-)
+from ..tubes.base import displacement, hull_vertices, pose_indices, rollouts_needed, verdict
 from ..tubes.predict import predict_tube
 from .report import wilson
 from .tube_study import trial_seeds

@@ -46,13 +46,7 @@ from ..robot import resolve_robot
 from ..tubes import linear as linear_module
 from ..tubes import predict as predict_module
 from ..tubes import sampled as st
-from ..tubes.base import (
-    certified_clearance,
-    initial_covariance,
-    pose_indices,
-    rollouts_needed,
-    run_schedule,
-)
+from ..tubes.base import certified_clearance, initial_covariance, pose_indices, rollouts_needed, run_schedule
 from ..tubes.covariance import plant_derivatives, propagate, propagate_loop, saturation
 from ..tubes.linear import _spatial
 from ..tubes.predict import predict_tube

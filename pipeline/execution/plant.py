@@ -25,9 +25,7 @@ from ..models.rwd_car import RwdCar
 from ..models.unicycle import Unicycle
 
 try:
-    from numpy._core.umath import (
-        clip as _clip,  # np.clip's ufunc, without its Python wrapper
-    )
+    from numpy._core.umath import clip as _clip  # np.clip's ufunc, without its Python wrapper
 except ImportError:                                       # numpy 1.x
     from numpy.core.umath import clip as _clip
 

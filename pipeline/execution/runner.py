@@ -56,25 +56,11 @@ from ..limits import MAX_CONTROL_PERIODS
 from ..maps import resolve_poses
 from ..maps.base import Circle, Map
 from ..models import Model
-from ..planning import (
-    PathOptions,
-    PlanResult,
-    TimingOptions,
-    check_map_budget,
-    check_start_goal,
-    plan,
-    pose_columns,
-)
+from ..planning import PathOptions, PlanResult, TimingOptions, check_map_budget, check_start_goal, plan, pose_columns
 from ..robot import Robot, map_robot_where, resolve_robot
 from ..sensing import RangeSensor
 from ..tubes.base import tube_line, verdict
-from ..tubes.fit import (
-    AUTO_MARGIN_START,
-    SEVERAL_BODIES,
-    choose_gains,
-    fit_plan,
-    plan_with_auto_margin,
-)
+from ..tubes.fit import AUTO_MARGIN_START, SEVERAL_BODIES, choose_gains, fit_plan, plan_with_auto_margin
 from ..tubes.predict import predict_tube
 from ..tubes.sampled import cusp_stops, remaining_law, sampled_tube
 from .config import RunOptions

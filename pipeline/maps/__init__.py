@@ -17,16 +17,7 @@ from typing import Any
 
 from ..errors import InputError
 from ..safe_io import content_digest, load_yaml_file, not_recorded, recording
-from .base import (
-    Circle,
-    Map,
-    MapError,
-    OccupancyGrid,
-    Polygon,
-    Pose,
-    Problem,
-    box_polygon,
-)
+from .base import Circle, Map, MapError, OccupancyGrid, Polygon, Pose, Problem, box_polygon
 from .bundled import resolve_map_path
 from .movingai import load_movingai_map, load_movingai_scenarios
 from .ros import load_ros_map

@@ -20,14 +20,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import is_simple_polygon, polygon_area
-from ..limits import (
-    MAX_CELL_M,
-    MAX_COORD_M,
-    MAX_GRID_CELLS,
-    MAX_POLYGON_VERTICES,
-    MIN_CELL_M,
-    check_range,
-)
+from ..limits import MAX_CELL_M, MAX_COORD_M, MAX_GRID_CELLS, MAX_POLYGON_VERTICES, MIN_CELL_M, check_range
 
 
 def check_extent(what: str, values) -> None:

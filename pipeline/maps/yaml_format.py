@@ -80,19 +80,7 @@ from ..geometry import is_simple_polygon, point_in_polygon, polygon_area
 from ..limits import MAX_COORD_M, MAX_POLYGON_VERTICES, MAX_YAML_BYTES
 from ..robot import robot_from_spec
 from ..safe_io import load_yaml, read_text
-from .base import (
-    Circle,
-    Map,
-    MapError,
-    OccupancyGrid,
-    Polygon,
-    Pose,
-    Problem,
-    Shape,
-    box_polygon,
-    polyline,
-    ring_parts,
-)
+from .base import Circle, Map, MapError, OccupancyGrid, Polygon, Pose, Problem, Shape, box_polygon, polyline, ring_parts
 from .movingai import load_movingai_map, load_movingai_scenarios
 from .ros import load_ros_map
 from .svg import load_benchmr_scenarios, load_benchmr_svg

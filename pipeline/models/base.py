@@ -116,3 +116,28 @@ def angle_limit(name: str, value, model: str, what: str = "") -> float:
     if v >= math.pi / 2:
         raise InputError(f"{model}.{name}", f"a positive angle below pi/2 = {math.pi / 2:.4f} rad{what}", value)
     return v
+
+
+class SteeredCar(Model):
+    """What the cars with the steering angle ``phi`` as a state share (the subclasses declare the
+    fields ``wheelbase``, ``max_speed``, ``max_steer``, ``max_steer_rate`` and their state order): the
+    checks of those parameters, ``params``, the input limits (speed and steering rate) and the state
+    limits (|phi| <= max_steer)."""
+
+    def _check_car(self, name: str) -> None:
+        for key in ("wheelbase", "max_speed", "max_steer_rate"):
+            positive_param(key, getattr(self, key), name)
+        angle_limit("max_steer", self.max_steer, name)
+        check_max_steer(name, self.wheelbase, self.max_steer)
+
+    def params(self) -> dict:
+        return {"wheelbase": self.wheelbase, "max_speed": self.max_speed,
+                "max_steer": self.max_steer, "max_steer_rate": self.max_steer_rate}
+
+    def input_limits(self) -> np.ndarray:
+        return np.array([[-self.max_speed, self.max_speed], [-self.max_steer_rate, self.max_steer_rate]])
+
+    def state_limits(self) -> np.ndarray:
+        lim = np.tile([-np.inf, np.inf], (len(self.state_names), 1))
+        lim[self.state_names.index("phi")] = [-self.max_steer, self.max_steer]
+        return lim

@@ -13,21 +13,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Model, angle_limit, check_max_steer, positive_param
+from .base import SteeredCar
 
 
 @dataclass(frozen=True)
-class FwdCar(Model):
+class FwdCar(SteeredCar):
     wheelbase: float = 1.0          # m, L
     max_speed: float = 1.0          # m/s, |u1|
     max_steer: float = 0.6          # rad, |x3| (< pi/2)
     max_steer_rate: float = 1.0     # rad/s, |u2|
 
     def __post_init__(self):
-        for key in ("wheelbase", "max_speed", "max_steer_rate"):
-            positive_param(key, getattr(self, key), "fwd_car")
-        angle_limit("max_steer", self.max_steer, "fwd_car")
-        check_max_steer("fwd_car", self.wheelbase, self.max_steer)
+        self._check_car("fwd_car")
         object.__setattr__(self, "name", "fwd_car")
         object.__setattr__(self, "state_names", ("x", "y", "phi", "theta"))
         object.__setattr__(self, "input_names", ("v", "omega_s"))
@@ -70,15 +67,3 @@ class FwdCar(Model):
         out[..., 1, 3] = np.cos(phi) * np.cos(th) * u1
         out[..., 3, 2] = np.cos(phi) * u1 / self.wheelbase
         return out
-
-    def params(self) -> dict:
-        return {"wheelbase": self.wheelbase, "max_speed": self.max_speed,
-                "max_steer": self.max_steer, "max_steer_rate": self.max_steer_rate}
-
-    def input_limits(self) -> np.ndarray:
-        return np.array([[-self.max_speed, self.max_speed], [-self.max_steer_rate, self.max_steer_rate]])
-
-    def state_limits(self) -> np.ndarray:
-        lim = np.tile([-np.inf, np.inf], (4, 1))
-        lim[2] = [-self.max_steer, self.max_steer]
-        return lim

@@ -10,21 +10,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Model, angle_limit, check_max_steer, positive_param
+from .base import SteeredCar
 
 
 @dataclass(frozen=True)
-class RwdCar(Model):
+class RwdCar(SteeredCar):
     wheelbase: float = 2.5          # m, L
     max_speed: float = 1.5          # m/s, |v|
     max_steer: float = 0.6          # rad, |phi| (< pi/2)
     max_steer_rate: float = 1.0     # rad/s, |omega_s|
 
     def __post_init__(self):
-        for key in ("wheelbase", "max_speed", "max_steer_rate"):
-            positive_param(key, getattr(self, key), "rwd_car")
-        angle_limit("max_steer", self.max_steer, "rwd_car")
-        check_max_steer("rwd_car", self.wheelbase, self.max_steer)
+        self._check_car("rwd_car")
         object.__setattr__(self, "name", "rwd_car")
         object.__setattr__(self, "state_names", ("x", "y", "theta", "phi"))
         object.__setattr__(self, "input_names", ("v", "omega_s"))
@@ -68,15 +65,3 @@ class RwdCar(Model):
         out[..., 1, 2] = np.cos(th) * v
         out[..., 2, 3] = v / (self.wheelbase * np.cos(phi) ** 2)
         return out
-
-    def params(self) -> dict:
-        return {"wheelbase": self.wheelbase, "max_speed": self.max_speed,
-                "max_steer": self.max_steer, "max_steer_rate": self.max_steer_rate}
-
-    def input_limits(self) -> np.ndarray:
-        return np.array([[-self.max_speed, self.max_speed], [-self.max_steer_rate, self.max_steer_rate]])
-
-    def state_limits(self) -> np.ndarray:
-        lim = np.tile([-np.inf, np.inf], (4, 1))
-        lim[3] = [-self.max_steer, self.max_steer]
-        return lim

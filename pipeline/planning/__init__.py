@@ -27,14 +27,7 @@ from ..models import Model
 from ..nominal import Nominal
 from ..robot import Robot, default_robot
 from .cars import CarPlanningError, car_nominal, exact_nominal
-from .geometric import (
-    PLANNERS,
-    SPACES,
-    GeometricPath,
-    PathOptions,
-    path_length,
-    plan_path,
-)
+from .geometric import PLANNERS, SPACES, GeometricPath, PathOptions, path_length, plan_path
 from .parking import CarOptions, car_paths, failed_path
 from .result import PlanResult, schedule_metrics
 from .timing import TimingOptions, unicycle_nominal

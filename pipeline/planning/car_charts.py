@@ -35,15 +35,7 @@ import numpy as np
 
 from ..errors import InputError, require_finite, require_positive
 from ..geometry import wrap_angle
-from .steering import (
-    STEERING_MODES,
-    SteeringPlan,
-    _array,
-    _count,
-    _vector,
-    steer_chained,
-    steer_chained_constant_v1,
-)
+from .steering import STEERING_MODES, SteeringPlan, _array, _count, _vector, steer_chained, steer_chained_constant_v1
 
 __all__ = ["CarSteering", "to_chained", "from_chained", "car_inputs_from_chained", "chained_inputs_from_car", "steer_car"]
 

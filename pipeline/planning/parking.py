@@ -66,15 +66,7 @@ from ..collision import CollisionWorld
 from ..errors import InputError
 from ..geometry import Footprint, wrap_angle
 from ..models import Model
-from .geometric import (
-    GeometricPath,
-    PathOptions,
-    local_length,
-    local_path,
-    local_segments,
-    path_directions,
-    plan_path,
-)
+from .geometric import GeometricPath, PathOptions, local_length, local_path, local_segments, path_directions, plan_path
 
 #: samples of the exact maneuvers and of the joined path [m] (as the geometric paths are sampled)
 SAMPLE_STEP = 0.005

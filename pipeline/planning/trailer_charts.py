@@ -49,14 +49,7 @@ import numpy as np
 
 from ..errors import InputError, require_finite, require_positive
 from ..geometry import wrap_angle
-from .steering import (
-    SteeringPlan,
-    _array,
-    _count,
-    _vector,
-    steer_chained,
-    steer_chained_polynomial,
-)
+from .steering import SteeringPlan, _array, _count, _vector, steer_chained, steer_chained_polynomial
 
 __all__ = ["TrailerSteering", "to_chained", "from_chained", "inputs_from_chained", "chained_inputs", "steer_trailer",
            "TRAILER_MODES"]

@@ -5,7 +5,6 @@ from __future__ import annotations
 from . import subplots
 
 
-
 def _title(ax, title: str | None):
     if title:
         ax.set_title(title, fontsize=9)

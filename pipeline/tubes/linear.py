@@ -45,14 +45,7 @@ import numpy as np
 from scipy.special import ndtri
 
 from ..geometry import Footprint
-from .base import (
-    SampleSchedule,
-    Tube,
-    certified_clearance,
-    initial_covariance,
-    pose_indices,
-    run_schedule,
-)
+from .base import SampleSchedule, Tube, certified_clearance, initial_covariance, pose_indices, run_schedule
 from .covariance import CovariancePropagation, propagate, saturation
 
 

@@ -9,14 +9,7 @@ import numpy as np
 from ..errors import InputError, NumericalError
 from ..geometry import Footprint
 from ..limits import check_probability
-from .base import (
-    DEFAULT_CONFIDENCE,
-    DEFAULT_PROBABILITY,
-    TUBE_KINDS,
-    Tube,
-    certified_clearance,
-    verdict,
-)
+from .base import DEFAULT_CONFIDENCE, DEFAULT_PROBABILITY, TUBE_KINDS, Tube, certified_clearance, verdict
 from .linear import _linear_tube
 from .sampled import linear_validity, sampled_tube
 

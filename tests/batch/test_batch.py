@@ -12,12 +12,12 @@ import time
 from pathlib import Path
 
 import pytest
-
 from nhstab.batch.config import load_batch_config
 from nhstab.batch.report import wilson
 from nhstab.batch.runner import run_batch
 from nhstab.batch.store import Store
 from nhstab.errors import InputError
+from storetools import records
 
 ROOT = Path(__file__).resolve().parents[2]
 ROOM = ROOT / "maps/ours/cluttered_room.yaml"
@@ -30,11 +30,6 @@ def _config(tmp_path, trials=3, controllers=("gramian", "open-loop"), extra=""):
     return f
 
 
-def _records(path) -> dict:
-    """Everything a trial decides (status, metrics, series), by id; wall-clock timings left out."""
-    with Store(path) as s:
-        return {t["id"]: json.dumps([t["status"], t["metrics"], t["series"], t["seed"]], sort_keys=True)
-                for t in s.trials()}
 
 
 @pytest.mark.parametrize("text,key", [
@@ -134,9 +129,9 @@ def test_one_worker_two_workers_and_dask_give_identical_trials(tmp_path):
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                       dashboard_address=None) as cluster:
         run_batch(cfg, tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False)
-    one = _records(tmp_path / "one" / "trials.sqlite")
+    one = records(tmp_path / "one" / "trials.sqlite")
     assert len(one) == 6
-    assert one == _records(tmp_path / "two" / "trials.sqlite") == _records(tmp_path / "dask" / "trials.sqlite")
+    assert one == records(tmp_path / "two" / "trials.sqlite") == records(tmp_path / "dask" / "trials.sqlite")
 
 
 @pytest.mark.slow
@@ -171,7 +166,7 @@ def test_a_batch_killed_with_sigkill_and_resumed_runs_each_trial_once(tmp_path):
     counts = run_batch(load_batch_config(cfg_file), out, workers=2, resume=True, progress=False)
     assert counts["ran"] == 12 - part and counts["stored"] == 12
     run_batch(load_batch_config(cfg_file), tmp_path / "whole", workers=2, progress=False)
-    assert _records(db) == _records(tmp_path / "whole" / "trials.sqlite")
+    assert records(db) == records(tmp_path / "whole" / "trials.sqlite")
 
 
 @pytest.fixture(scope="module")
@@ -179,7 +174,7 @@ def uninterrupted(tmp_path_factory):
     """The reference: the 4-trial batch of the Ctrl-C tests, run without interruption."""
     d = tmp_path_factory.mktemp("whole")
     run_batch(load_batch_config(_config(d, trials=CTRL_C_TRIALS)), d / "b", workers=2, progress=False)
-    return _records(d / "b" / "trials.sqlite")
+    return records(d / "b" / "trials.sqlite")
 
 
 #: trials per cell of the Ctrl-C tests (two cells)
@@ -242,7 +237,7 @@ def test_ctrl_c_stops_the_batch_stores_no_interrupted_trial_and_resume_completes
     res = subprocess.run(cmd + ["--resume"], cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr
     assert f"ran {n - len(part)} trials" in res.stdout
-    assert _records(db) == uninterrupted
+    assert records(db) == uninterrupted
 
 
 HALF_SENT = """
@@ -282,7 +277,6 @@ def test_ending_the_workers_while_one_sends_a_record_does_not_hang_the_exit(tmp_
 def test_replay_reproduces_a_stored_trial(tmp_path, monkeypatch):
     """Also with the map given relative to the config and the batch run from another folder."""
     from click.testing import CliRunner
-
     from nhstab.cli.main import cli
 
     f = tmp_path / "cfg" / "batch.yaml"

@@ -23,17 +23,16 @@ import time
 import zlib
 from pathlib import Path
 
+import nhstab
 import numpy as np
 import pytest
-from click.testing import CliRunner
-
-import nhstab
+from clitools import invoke, one_line
 from nhstab.batch.bundle import BundleError, MapBundle
 from nhstab.batch.config import load_batch_config
 from nhstab.batch.runner import run_batch
 from nhstab.batch.store import Store
-from nhstab.cli.main import cli
 from nhstab.errors import InputError
+from storetools import records
 
 ROOT = Path(__file__).resolve().parents[2]
 OLD_STORE = ROOT / "results/robustness/trials.sqlite"      # made before stores kept maps (schema 1)
@@ -73,31 +72,10 @@ def make_batch(folder: Path, trials: int = 2, controllers=("gramian", "open-loop
     return cfg
 
 
-def records(db) -> dict:
-    """Everything a trial decides (status, metrics, series, seed), by id; wall-clock timings left out."""
-    with Store(db) as s:
-        return {t["id"]: json.dumps([t["status"], t["metrics"], t["series"], t["seed"]], sort_keys=True)
-                for t in s.trials()}
 
 
-def invoke(*args, cwd=None):
-    old = os.getcwd()
-    if cwd is not None:
-        os.chdir(cwd)
-    try:
-        return CliRunner().invoke(cli, [str(a) for a in args])
-    finally:
-        os.chdir(old)
 
 
-def one_line(res, code: int, *needles: str) -> str:
-    assert res.exit_code == code, (res.exit_code, res.output, res.exception)
-    assert "Traceback" not in res.output
-    lines = [ln for ln in res.stderr.splitlines() if ln.startswith("nhstab:")]
-    assert len(lines) == 1, res.stderr
-    for n in needles:
-        assert n in lines[0], lines[0]
-    return lines[0]
 
 
 # ---- a real cluster: scheduler and workers as processes of their own --------------------------------
@@ -542,7 +520,6 @@ def test_a_trial_that_kills_its_dask_worker_is_stored_as_an_error(tmp_path, monk
     pytest.importorskip("distributed")
     import dask
     from distributed import LocalCluster
-
     from nhstab.batch import runner
 
     cfg = make_batch(tmp_path, trials=1, controllers=("open-loop",))
@@ -567,7 +544,6 @@ def test_a_worker_with_another_nhstab_is_refused_naming_the_scheduler(tmp_path, 
     for a worker that joins later (the batch stops, its trial not stored)."""
     pytest.importorskip("distributed")
     from distributed import LocalCluster
-
     from nhstab.batch import runner
 
     cfg = make_batch(tmp_path, trials=1, controllers=("open-loop",))

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-
 from nhstab.batch.config import load_batch_config
 from nhstab.batch.runner import STORE_NAME, _only_batch_in, run_batch
 from nhstab.batch.store import StoreError

@@ -9,14 +9,7 @@ import pytest
 from nhstab.batch.vector import simulate_shared
 from nhstab.bench import hilare_sinusoid
 from nhstab.errors import InputError
-from nhstab.execution import (
-    ControllerOptions,
-    Plant,
-    RunOptions,
-    build_law,
-    execute,
-    summary,
-)
+from nhstab.execution import ControllerOptions, Plant, RunOptions, build_law, execute, summary
 from nhstab.execution.config import NoiseOptions
 from nhstab.execution.seeds import seed_for
 from nhstab.maps.base import Map, Pose, box_polygon

@@ -5,12 +5,11 @@ import json
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from nominals import hilare_sinusoid
-
 from nhstab.cli.main import cli
 from nhstab.control import StabilizerOptions, compute_schedule
 from nhstab.nominal import Nominal
 from nhstab.trajectory_io import write_trajectory
+from nominals import hilare_sinusoid
 
 
 @pytest.fixture
@@ -138,8 +137,8 @@ def test_version_and_help(runner):
 
 
 def test_every_benchmark_has_a_subcommand():
-    from nhstab.cli.bench import SUBCOMMANDS
     from nhstab.bench import BENCHMARKS
+    from nhstab.cli.bench import SUBCOMMANDS
 
     assert set(SUBCOMMANDS) == set(BENCHMARKS)
 

@@ -5,7 +5,6 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-
 from nhstab.cli.main import cli
 
 MAPS = Path(__file__).parents[2] / "maps"

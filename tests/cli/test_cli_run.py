@@ -7,7 +7,6 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-
 from nhstab.cli.main import cli
 from nhstab.execution import read_run_csv
 
@@ -56,10 +55,9 @@ def test_windows_on_a_real_map_frozen_time_reaches_the_goal_past_warns(tmp_path)
     from trajectory.csv: the last pose within the goal tolerance, every pose clear of every real
     obstacle, FCL); the past window's run prints exactly one warning line."""
     import numpy as np
-
     from nhstab.collision import CollisionWorld
-    from nhstab.robot import default_footprint
     from nhstab.maps import load_map
+    from nhstab.robot import default_footprint
 
     out = tmp_path / "frozen"
     res = _invoke(ROOM, "--window", "frozen-time", "--seed", "1", "--out", str(out))

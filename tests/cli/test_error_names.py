@@ -11,7 +11,6 @@ from pathlib import Path
 import pytest
 import yaml
 from click.testing import CliRunner
-
 from nhstab.cli.main import cli
 from nhstab.errors import InputError, user_keys
 from nhstab.maps.base import MapError

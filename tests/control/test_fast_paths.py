@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
 from nhstab.control import elements
 from nhstab.control.gramian import StabilizerOptions, _largest_norm, compute_schedule
 from nhstab.models import make_model

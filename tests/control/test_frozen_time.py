@@ -4,9 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from nominals import heisenberg_line, hilare_sinusoid
-from scipy.linalg import expm
-
 from nhstab.control import StabilizerOptions, compute_schedule
 from nhstab.control.frozen import frozen_gramians
 from nhstab.errors import InputError, SingularGramianError
@@ -14,6 +11,8 @@ from nhstab.models import make_model
 from nhstab.nominal import Nominal
 from nhstab.paper import remark2_eigenvalues
 from nhstab.simulation import simulate_tracking
+from nominals import heisenberg_line, hilare_sinusoid
+from scipy.linalg import expm
 
 
 def _van_loan(A, B, c, delta):
@@ -212,12 +211,11 @@ def test_where_it_fails_it_says_so():
 def test_a_frozen_time_law_runs_in_the_vectorised_engine_like_in_the_loop():
     """The law is K on the nominal's grid, so the shared-nominal engine takes it unchanged: its
     trials are bit-identical to the run loop's (the loop of tests/batch/test_batch_vector.py)."""
-    from test_batch_vector import _assert_trial_is, reference_loop
-
     from nhstab.batch.vector import simulate_shared
     from nhstab.bench import hilare_sinusoid as bench_sinusoid
     from nhstab.execution import ControllerOptions, build_law
     from nhstab.execution.config import NoiseOptions
+    from test_batch_vector import _assert_trial_is, reference_loop
 
     law = build_law(bench_sinusoid(315), ControllerOptions(kind="gramian", window="frozen-time", alpha=0.1,
                                                            delta=1.0, gamma=1.0), {})

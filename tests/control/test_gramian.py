@@ -2,14 +2,12 @@
 
 import numpy as np
 import pytest
-from nominals import fwd_car_parking, heisenberg_line, hilare_sinusoid
-from reference import reference_H, transition, window_gramian
-
 from nhstab.control import StabilizerOptions, compute_schedule
-from nhstab.errors import (InputError, NotStabilizingWarning, PipelineError, SingularGramianError,
-                           TrajectoryError)
+from nhstab.errors import InputError, NotStabilizingWarning, PipelineError, SingularGramianError, TrajectoryError
 from nhstab.models import make_model
 from nhstab.nominal import Nominal
+from nominals import fwd_car_parking, heisenberg_line, hilare_sinusoid
+from reference import reference_H, transition, window_gramian
 
 
 def heisenberg_line_H(t, alpha, delta, weight=6.0):

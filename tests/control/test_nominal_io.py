@@ -2,12 +2,11 @@
 
 import numpy as np
 import pytest
-from nominals import hilare_sinusoid
-
 from nhstab.errors import InputError, TrajectoryError
 from nhstab.models import make_model
 from nhstab.nominal import Nominal
 from nhstab.trajectory_io import column_names, read_trajectory, write_trajectory
+from nominals import hilare_sinusoid
 
 
 def test_integrated_nominal_is_feasible():

@@ -4,12 +4,10 @@ import json
 
 import numpy as np
 import pytest
-from nominals import hilare_sinusoid
-
 from nhstab.control import StabilizerOptions, compute_schedule
-from nhstab.paper import (CASES, eigenvalue_distance, remark2_eigenvalues, remark2_library_eigenvalues,
-                          run_paper)
+from nhstab.paper import CASES, eigenvalue_distance, remark2_eigenvalues, remark2_library_eigenvalues, run_paper
 from nhstab.simulation import fit_decay_rate, simulate_tracking
+from nominals import hilare_sinusoid
 
 
 @pytest.fixture(scope="module")

@@ -10,15 +10,7 @@ import numpy as np
 import pytest
 from nhstab.control import StabilizerOptions, compute_schedule
 from nhstab.errors import InputError
-from nhstab.execution import (
-    ControllerOptions,
-    Plant,
-    RunOptions,
-    build_law,
-    execute,
-    summary,
-    tvlqr_gains,
-)
+from nhstab.execution import ControllerOptions, Plant, RunOptions, build_law, execute, summary, tvlqr_gains
 from nhstab.execution.config import NoiseOptions, load_run_config, merge
 from nhstab.execution.outputs import nominal_cusps
 from nhstab.execution.seeds import planner_seed

@@ -12,7 +12,6 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-
 from nhstab.cli.main import cli
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -8,14 +8,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from PIL import Image
-from scipy.integrate import solve_ivp
-
 from nhstab.maps import load_map
 from nhstab.nominal import Nominal, affine_scan
 from nhstab.planning import PathOptions, plan
 from nhstab.robot import default_robot
 from nhstab.trajectory_io import column_names, float_rows, read_trajectory, write_trajectory
+from PIL import Image
+from scipy.integrate import solve_ivp
 
 MAPS = Path(__file__).parents[2] / "maps"
 

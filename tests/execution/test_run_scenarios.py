@@ -9,14 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-
 from nhstab.cli.main import cli
 from nhstab.collision import CollisionWorld
 from nhstab.execution import read_run_csv
 from nhstab.geometry import wrap_angle
-from nhstab.robot import default_footprint
 from nhstab.maps import load_map
 from nhstab.maps.base import Circle
+from nhstab.robot import default_footprint
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIOS = {
@@ -41,7 +40,8 @@ def _poses(csv: dict, robot: str) -> np.ndarray:
 def _shapely_min_distance(m, fp, poses) -> float:
     """Independent of FCL: the footprint polygon against every real obstacle with shapely."""
     shapely = pytest.importorskip("shapely")
-    from shapely.geometry import Point, Polygon as SPolygon
+    from shapely.geometry import Point
+    from shapely.geometry import Polygon as SPolygon
 
     obstacles = [Point(s.center).buffer(s.radius, 256) if isinstance(s, Circle) else SPolygon(s.vertices)
                  for s in (*m.obstacles, *m.unknown_obstacles)]

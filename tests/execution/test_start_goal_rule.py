@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-
 from nhstab.cli.main import cli
 from nhstab.errors import InputError
 from nhstab.robot import default_robot

@@ -14,8 +14,6 @@ import numpy as np
 import pytest
 import shapely
 from click.testing import CliRunner
-from shapely.geometry import Point, Polygon as SPolygon
-
 from nhstab.cli.main import cli
 from nhstab.collision import CollisionWorld
 from nhstab.execution import RunOptions, execute, read_run_csv
@@ -24,6 +22,8 @@ from nhstab.geometry import Footprint, wrap_angle
 from nhstab.maps import load_map
 from nhstab.maps.base import Circle
 from nhstab.robot import default_robot
+from shapely.geometry import Point
+from shapely.geometry import Polygon as SPolygon
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCK = "maps/trailer/loading_dock.yaml"

@@ -5,13 +5,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
-from shapely.geometry import Point, box
-from shapely.geometry import Polygon as SPolygon
-from shapely.ops import unary_union
-
 from nhstab.collision import CollisionWorld, grid_rectangles
 from nhstab.geometry import Footprint
 from nhstab.maps.base import Circle, Map, OccupancyGrid, Polygon, box_polygon
+from shapely.geometry import Point, box
+from shapely.geometry import Polygon as SPolygon
+from shapely.ops import unary_union
 
 L_SHAPE = Polygon(np.array([[2, 2], [6, 2], [6, 3], [3, 3], [3, 6], [2, 6]], float))
 POLY_MAP = Map("poly", (0, 0, 10, 10), obstacles=(L_SHAPE, Circle((7, 7), 1.0), box_polygon(8, 2, 1.5, 0.8, 0.6)))
@@ -162,8 +161,8 @@ def test_batched_checks_equal_single_checks_on_real_maps(path, options, rng):
     """The distance-field prefilter of free_many only ever decides what FCL would."""
     from pathlib import Path
 
-    from nhstab.robot import default_footprint
     from nhstab.maps import load_map
+    from nhstab.robot import default_footprint
 
     m = load_map(Path(__file__).parents[2] / "maps" / path, **options)
     world = CollisionWorld.from_map(m)
@@ -185,8 +184,8 @@ def test_batched_checks_along_paths_equal_single_checks(path, options, rng):
     """Along a path free_many lets a measured clearance vouch for the next poses: same answers."""
     from pathlib import Path
 
-    from nhstab.robot import default_footprint
     from nhstab.maps import load_map
+    from nhstab.robot import default_footprint
 
     m = load_map(Path(__file__).parents[2] / "maps" / path, **options)
     world = CollisionWorld.from_map(m)
@@ -207,8 +206,8 @@ def test_min_clearance_is_the_minimum_over_all_poses(path, options, rng):
     """min_clearance skips poses by distance-field bounds: it returns what measuring every pose gives."""
     from pathlib import Path
 
-    from nhstab.robot import default_footprint
     from nhstab.maps import load_map
+    from nhstab.robot import default_footprint
 
     m = load_map(Path(__file__).parents[2] / "maps" / path, **options)
     world = CollisionWorld.from_map(m)
@@ -351,10 +350,9 @@ def test_a_cars_clearance_on_a_real_grid_map_is_exact_far_from_the_walls_too():
     distances of up to 3 m, and ``is_free`` with a margin agrees with it. FCL's own distance for the
     car's prism was off by up to 0.33 m at 1-2 m here (GJK), so the values are measured in the plane;
     FCL decides contact."""
-    from shapely.strtree import STRtree
-
     from nhstab.maps import load_map
     from nhstab.robot import default_robot
+    from shapely.strtree import STRtree
 
     m = load_map("example:depot_blocked_aisle")
     world = CollisionWorld.from_map(m)

@@ -20,7 +20,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import shapely.geometry as sg
-
 from nhstab.errors import InputError
 from nhstab.maps import Circle, Map, OccupancyGrid, Polygon, box_polygon, load_map
 from nhstab.sensing import HIT_KNOWN, HIT_NOTHING, RangeSensor, Scan, SensorOptions

@@ -21,7 +21,6 @@ import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
 from nhstab.errors import InputError, PipelineError
 from nhstab.maps.base import Map, MapError
 from nhstab.maps.movingai import (

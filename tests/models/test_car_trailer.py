@@ -9,26 +9,19 @@ import pytest
 import shapely.geometry as sg
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scipy.integrate import solve_ivp
-
 from nhstab import bodies
 from nhstab.collision import CollisionWorld
 from nhstab.errors import InputError
 from nhstab.maps import load_map
 from nhstab.models import make_model
 from nhstab.robot import default_robot, robot_from_spec
+from reference import central_jacobian
+from scipy.integrate import solve_ivp
 
 angle = st.floats(-3.0, 3.0, allow_nan=False)
 hitch = st.floats(-1.2, 1.2, allow_nan=False)
 
 
-def _central_jacobian(fun, x, eps=1e-6):
-    cols = []
-    for j in range(x.size):
-        d = np.zeros_like(x)
-        d[j] = eps
-        cols.append((fun(x + d) - fun(x - d)) / (2 * eps))
-    return np.stack(cols, axis=-1)
 
 
 @settings(max_examples=40, deadline=None)
@@ -40,7 +33,7 @@ def test_three_trailers_jacobian_matches_central_differences(th, phi, hitches, v
     heads = th - np.cumsum(hitches)
     x = np.array([1.0, -2.0, th, phi, *heads])
     u = np.array([v, w])
-    np.testing.assert_allclose(m.dgu_dx(x, u), _central_jacobian(lambda z: m.g(z) @ u, x), rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(m.dgu_dx(x, u), central_jacobian(lambda z: m.g(z) @ u, x), rtol=1e-6, atol=1e-7)
     np.testing.assert_allclose(m.rhs(x, u), m.g(x) @ u, rtol=1e-13, atol=1e-14)
 
 

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
 from nhstab.errors import InputError, PipelineError, UnknownModelError
 from nhstab.models import MODELS, make_model
+from reference import central_jacobian
 
 MODEL_NAMES = sorted(MODELS)
 angle = st.floats(-3.0, 3.0, allow_nan=False)
@@ -30,13 +30,6 @@ def _state(name, vals, extra=(0.3,)):
     raise AssertionError(m)
 
 
-def _central_jacobian(fun, x, eps=1e-6):
-    cols = []
-    for j in range(x.size):
-        d = np.zeros_like(x)
-        d[j] = eps
-        cols.append((fun(x + d) - fun(x - d)) / (2 * eps))
-    return np.stack(cols, axis=-1)
 
 
 @pytest.mark.parametrize("name", MODEL_NAMES)
@@ -48,9 +41,9 @@ def test_jacobians_match_central_differences(name, vals, u, extra):
     x = _state(name, vals, extra)
     u = np.array(u)
     # d(g(x) u)/dx and df/dx against central differences; tolerance: eps^2 truncation + roundoff
-    num_gu = _central_jacobian(lambda z: m.g(z) @ u, x)
+    num_gu = central_jacobian(lambda z: m.g(z) @ u, x)
     np.testing.assert_allclose(m.dgu_dx(x, u), num_gu, rtol=1e-6, atol=1e-7)
-    num_f = _central_jacobian(m.f, x)
+    num_f = central_jacobian(m.f, x)
     np.testing.assert_allclose(m.dfdx(x), num_f, atol=1e-9)
     A, B = m.linearize(x, u)
     np.testing.assert_allclose(A, m.dfdx(x) + m.dgu_dx(x, u))

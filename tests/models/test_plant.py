@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-
 from nhstab.execution.plant import Plant
 from nhstab.models import make_model
 from nhstab.models.base import Model

@@ -12,15 +12,13 @@ import yaml
 from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
 from nhstab.cli.main import cli
 from nhstab.collision import CollisionWorld
 from nhstab.errors import InputError, PipelineError
 from nhstab.execution import RunOptions, execute, read_run_csv
 from nhstab.maps import load_map
 from nhstab.planning import PathOptions, plan
-from nhstab.robot import (MODEL_DEFAULTS, default_footprint, default_robot, load_robot, make_robot,
-                          robot_from_spec)
+from nhstab.robot import MODEL_DEFAULTS, default_footprint, default_robot, load_robot, make_robot, robot_from_spec
 
 #: the user's car of the issue's example (a longer, wider car than the default rwd_car)
 USER_CAR = {
@@ -130,7 +128,6 @@ def test_the_hints_advice_is_a_number_to_yaml(text):
     """The text YAML 1.1 leaves a string, and the spelling the hint advises, which it reads as the
     same number (it needs a dot in the mantissa and a sign in the exponent)."""
     import yaml
-
     from nhstab.errors import number_hint
 
     assert isinstance(yaml.safe_load(f"x: {text}")["x"], str)

@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-
 from nhstab import parking as P
 from nhstab.cli.main import cli
 from nhstab.collision import CollisionWorld
@@ -19,7 +18,8 @@ from nhstab.maps import load_map
 from nhstab.robot import robot_from_spec
 
 shapely = pytest.importorskip("shapely")
-from shapely.geometry import Polygon as SPolygon, box as sbox  # noqa: E402
+from shapely.geometry import Polygon as SPolygon  # noqa: E402
+from shapely.geometry import box as sbox
 
 ROOT = Path(__file__).resolve().parents[2]
 FOLDER = ROOT / "maps" / "parking"

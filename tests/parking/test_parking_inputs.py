@@ -9,7 +9,6 @@ import math
 import numpy as np
 import pytest
 from click.testing import CliRunner
-
 from nhstab.cli.main import cli
 from nhstab.collision import CollisionWorld, check_poses
 from nhstab.errors import InputError

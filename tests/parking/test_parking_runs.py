@@ -25,7 +25,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from nhstab.collision import CollisionWorld
 from nhstab.execution import read_run_csv
 from nhstab.geometry import wrap_angle

@@ -38,12 +38,7 @@ def recomputed():
     from nhstab.batch.vector import simulate_shared
     from nhstab.execution.config import NoiseOptions
     from nhstab.execution.runner import final_errors
-    from nhstab.tubes.base import (
-        displacement,
-        hull_vertices,
-        pose_indices,
-        rollouts_needed,
-    )
+    from nhstab.tubes.base import displacement, hull_vertices, pose_indices, rollouts_needed
     from nhstab.tubes.predict import predict_tube
 
     run, _, result, law, _, _ = first_plan(MAP)

@@ -8,11 +8,9 @@ import sys
 
 import numpy as np
 import pytest
-
 from nhstab.collision import CollisionWorld, interpolate_poses
 from nhstab.examples import data_root
 from nhstab.geometry import Footprint
-from nhstab.robot import default_footprint, make_robot
 from nhstab.maps import load_map
 from nhstab.maps.base import Map, box_polygon
 from nhstab.models import make_model
@@ -20,6 +18,7 @@ from nhstab.planning import PathOptions, default_turning_radius, plan, pose_colu
 from nhstab.planning.geometric import plan_path
 from nhstab.planning.guide import Guide, inscribed_disc
 from nhstab.planning.problems import random_problems
+from nhstab.robot import default_footprint, make_robot
 
 MAPS = data_root()
 MARGIN = 0.05

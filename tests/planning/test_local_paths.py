@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
 from nhstab.planning import local_paths
 
 ompl_base = pytest.importorskip("ompl.base")

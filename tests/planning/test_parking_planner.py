@@ -8,13 +8,10 @@ import math
 from pathlib import Path
 
 import numpy as np
+import parking_scenes as scenes
 import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
-from scipy.integrate import solve_ivp
-from shapely.geometry import Polygon as SPolygon
-from shapely.geometry import box as sbox
-
 from nhstab.collision import CollisionWorld
 from nhstab.maps import load_map
 from nhstab.maps.base import Map, Polygon, box_polygon
@@ -22,12 +19,12 @@ from nhstab.models import make_model
 from nhstab.planning import DURATION_FACTOR, CarOptions, PathOptions, TimingOptions, plan, search_margin
 from nhstab.planning.cars import exact_nominal
 from nhstab.planning.geometric import local_path, local_segments
-from nhstab.planning.parking import (Maneuver, Segment, lock_radius, segment_poses, shuffle_search,
-                                     unparking_tree)
+from nhstab.planning.parking import Maneuver, Segment, lock_radius, segment_poses, shuffle_search, unparking_tree
 from nhstab.planning.sweep import GAIN_BOUND
 from nhstab.robot import make_robot, robot_from_spec
-
-import parking_scenes as scenes
+from scipy.integrate import solve_ivp
+from shapely.geometry import Polygon as SPolygon
+from shapely.geometry import box as sbox
 
 MAPS = Path(__file__).parents[2] / "maps"
 #: a second car of other proportions than the default rwd_car: short and narrow, long front overhang

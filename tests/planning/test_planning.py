@@ -6,20 +6,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from shapely import STRtree
-from shapely.geometry import Point, box
-from shapely.geometry import Polygon as SPolygon
-
+from clitools import only_line
 from nhstab.cli.main import cli
 from nhstab.collision import CollisionWorld
-from nhstab.robot import default_footprint, make_robot
 from nhstab.maps import load_map
 from nhstab.maps.base import Circle, Polygon
 from nhstab.models import make_model
 from nhstab.planning import PathOptions, TimingOptions, plan, pose_columns
 from nhstab.planning.cars import car_nominal, direction_reversals
 from nhstab.planning.geometric import GeometricPath, path_directions
+from nhstab.robot import default_footprint, make_robot
 from nhstab.simulation import simulate_tracking
+from shapely import STRtree
+from shapely.geometry import Point, box
+from shapely.geometry import Polygon as SPolygon
 
 MAPS = Path(__file__).parents[2] / "maps"
 
@@ -142,12 +142,6 @@ def test_plan_cli_without_the_figure_skips_matplotlib(tmp_path):
     assert {"plan.json", "trajectory.csv", "trajectory.npz", "tube.npz"} <= {p.name for p in tmp_path.iterdir()}
 
 
-def _one_line(res, code, *needles):
-    assert res.exit_code == code, res.output
-    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1 and "Traceback" not in res.output, res.output
-    for n in needles:
-        assert n in lines[0], lines[0]
 
 
 @pytest.mark.parametrize("args,needles", [
@@ -160,7 +154,7 @@ def _one_line(res, code, *needles):
     (["--robot", "hovercraft"], ["'--robot'", "hovercraft"]),
 ])
 def test_plan_cli_bad_requests(tmp_path, args, needles):
-    _one_line(_cli(["plan", str(MAPS / "ours/cluttered_room.yaml"), "--out", str(tmp_path / "o"), *args]), 2, *needles)
+    only_line(_cli(["plan", str(MAPS / "ours/cluttered_room.yaml"), "--out", str(tmp_path / "o"), *args]), 2, *needles)
     assert not (tmp_path / "o").exists()
 
 
@@ -172,7 +166,7 @@ def test_plan_cli_no_plan_exit_3(tmp_path):
                         "  - box: {center: [12.2, 5], size: [0.4, 5.4]}\n  - box: {center: [17.8, 5], size: [0.4, 5.4]}\n"
                         "start: [3, 5, 0]\ngoal: [15, 5, 0]\nrobot: {model: unicycle}\n")
     res = _cli(["plan", str(enclosed), "--time-limit", "0.3", "--out", str(tmp_path / "o")])
-    _one_line(res, 3, "no plan", "rrtconnect", "0.3 s", "seed 0")
+    only_line(res, 3, "no plan", "rrtconnect", "0.3 s", "seed 0")
     assert not (tmp_path / "o").exists()
 
 

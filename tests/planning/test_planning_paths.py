@@ -5,7 +5,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from nhstab.collision import CollisionWorld
 from nhstab.geometry import Footprint
 from nhstab.maps.base import Map, box_polygon

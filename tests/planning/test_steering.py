@@ -11,14 +11,26 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scipy.integrate import solve_ivp
-
 from nhstab.errors import InputError, PipelineError
 from nhstab.models import make_model
-from nhstab.planning.car_charts import (CarSteering, car_inputs_from_chained, chained_inputs_from_car, from_chained,
-                                        steer_car, to_chained)
-from nhstab.planning.steering import (SteeringPlan, chained_rhs, net_displacement, net_motion, steer_chained,
-                                      steer_chained_constant_v1, steer_heisenberg)
+from nhstab.planning.car_charts import (
+    CarSteering,
+    car_inputs_from_chained,
+    chained_inputs_from_car,
+    from_chained,
+    steer_car,
+    to_chained,
+)
+from nhstab.planning.steering import (
+    SteeringPlan,
+    chained_rhs,
+    net_displacement,
+    net_motion,
+    steer_chained,
+    steer_chained_constant_v1,
+    steer_heisenberg,
+)
+from scipy.integrate import solve_ivp
 
 RTOL, ATOL = 1e-11, 1e-12
 fl = functools.partial(st.floats, allow_nan=False, allow_infinity=False, allow_subnormal=False)

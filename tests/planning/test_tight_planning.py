@@ -11,19 +11,18 @@ import math
 
 import numpy as np
 import pytest
-from shapely.geometry import LineString, Point
-from shapely.geometry import Polygon as SPolygon
-from shapely.ops import unary_union
-
 from nhstab.collision import CollisionWorld
 from nhstab.errors import InputError
 from nhstab.geometry import Footprint
 from nhstab.maps.base import Map, MapError, Polygon, polyline
 from nhstab.maps.svg import load_benchmr_svg
 from nhstab.maps.yaml_format import parse_yaml_map
-from nhstab.parking import _geometry, case_yaml, cars, parallel_case, parallel_min_length
+from nhstab.parking import _geometry, cars, case_yaml, parallel_case, parallel_min_length
 from nhstab.planning import CarOptions, PathOptions, plan
 from nhstab.robot import default_robot, make_robot, robot_from_spec
+from shapely.geometry import LineString, Point
+from shapely.geometry import Polygon as SPolygon
+from shapely.ops import unary_union
 
 CAR = Footprint.rectangle(4.2, 1.8, 0.9)
 DISC = Footprint.disc(0.3)

@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 import shapely.geometry as sg
-
 from nhstab.batch.vector import simulate_shared
 from nhstab.collision import CollisionWorld
 from nhstab.control import StabilizerOptions, compute_schedule

@@ -13,14 +13,11 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
-from scipy.integrate import solve_ivp
-
 from nhstab.errors import InputError
 from nhstab.models import make_model
-from nhstab.planning.steering import (chained_rhs, net_displacement, net_motion, steer_chained,
-                                      steer_chained_polynomial)
-from nhstab.planning.trailer_charts import (chained_inputs, from_chained, inputs_from_chained, steer_trailer,
-                                            to_chained)
+from nhstab.planning.steering import chained_rhs, net_displacement, net_motion, steer_chained, steer_chained_polynomial
+from nhstab.planning.trailer_charts import chained_inputs, from_chained, inputs_from_chained, steer_trailer, to_chained
+from scipy.integrate import solve_ivp
 
 RTOL, ATOL = 1e-12, 1e-12
 fl = functools.partial(st.floats, allow_nan=False, allow_infinity=False, allow_subnormal=False)

@@ -18,13 +18,7 @@ from nhstab.maps.base import Circle, Map, box_polygon
 from nhstab.models import make_model
 from nhstab.nominal import Nominal
 from nhstab.tubes.base import certified_clearance, run_schedule
-from nhstab.tubes.covariance import (
-    bivariate_normal_cdf,
-    plant_derivatives,
-    propagate,
-    propagate_loop,
-    saturation,
-)
+from nhstab.tubes.covariance import bivariate_normal_cdf, plant_derivatives, propagate, propagate_loop, saturation
 from nhstab.tubes.predict import predict_tube as _predict_tube
 from scipy.linalg import expm, solve_discrete_lyapunov
 from scipy.stats import multivariate_normal

@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from clitools import only_line
 from nhstab.batch.report import cell_table, wilson
 from nhstab.cli.main import cli
 from nhstab.collision import CollisionWorld
@@ -19,14 +20,6 @@ from nhstab.maps import load_map
 from nhstab.planning import PathOptions, TimingOptions
 from nhstab.robot import default_robot
 from nhstab.tubes.fit import plan_and_tube
-
-
-def _one_line(res, code, *needles):
-    assert res.exit_code == code, res.output
-    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1 and "Traceback" not in res.output, res.output
-    for n in needles:
-        assert n in lines[0], lines[0]
 
 
 @pytest.fixture(scope="module")
@@ -88,7 +81,7 @@ def test_plan_cli_writes_the_plan_when_its_tube_diverges(tmp_path, margin):
     out = tmp_path / "o"
     res = CliRunner().invoke(cli, ["plan", "example:cluttered_room", "--robot-config", str(robot), "--seed", "1",
                                    "--margin", margin, "--tube", "linear", "--no-figure", "--out", str(out)])
-    _one_line(res, 1, "no tube", "diverges")
+    only_line(res, 1, "no tube", "diverges")
     doc = json.loads((out / "plan.json").read_text())
     assert "tube" not in doc and "diverges" in doc["tube_error"]
     assert (out / "trajectory.csv").exists() and not (out / "tube.npz").exists()
@@ -134,7 +127,7 @@ def test_a_large_noise_is_a_large_tube_not_a_divergent_one(room):
     (["--headroom", "0"], ["'--headroom'"]),
 ])
 def test_plan_cli_refuses_bad_tube_options(tmp_path, args, needles):
-    _one_line(CliRunner().invoke(cli, ["plan", "example:cluttered_room", "--out", str(tmp_path / "o"), *args]), 2,
+    only_line(CliRunner().invoke(cli, ["plan", "example:cluttered_room", "--out", str(tmp_path / "o"), *args]), 2,
               *needles)
     assert not (tmp_path / "o").exists()
 
@@ -195,7 +188,7 @@ def test_run_cli_margin_auto_writes_tube_and_says_so(tmp_path):
     assert "plan 0: margin auto:" in res.output and "plan 0 tube" in res.output
     doc = json.loads((tmp_path / "run.json").read_text())
     assert doc["tube"]["probability"] == 0.997 and doc["inputs"]["options"]["planning"]["margin"] == "auto"
-    _one_line(CliRunner().invoke(cli, ["run", "example:cluttered_room", "--margin", "x", "--out",
+    only_line(CliRunner().invoke(cli, ["run", "example:cluttered_room", "--margin", "x", "--out",
                                        str(tmp_path / "o")]), 2, "'--margin'")
 
 
