@@ -16,10 +16,14 @@ The names a user needs for the common jobs are here, at the top (each is documen
 ``default_footprint``    the footprint of a model's built-in robot
 ``plan(m, robot, s, g)`` map + robot + start/goal -> ``PlanResult`` with a feasible ``Nominal``
 ``PathOptions``          options of the planning search (planner, budget, seed, margin)
+``TimingOptions``        the nominal's time parameterisation (speed and acceleration limits)
+``CollisionWorld``       the FCL world of a map's obstacles (``CollisionWorld.from_map(m, "known")``)
 ``compute_schedule``     the gramian gain schedule along a nominal (``StabilizerOptions``)
 ``predict_tube(...)``    the error tube of a feedback law under a noise model (``nhstab.tubes``): linear where
                          it holds, else ``sampled_tube`` (rollouts of the run loop, ``nhstab.tubes.sampled``)
 ``tube_line(tube)``      the one line that says whether a tube is certified, where and what would certify it
+``build_law``            the feedback law (gramian, TVLQR, open loop) along a plan's nominal, for a tube
+``NoiseOptions``         the noise model of a run (initial error, sensor and process noise, impulses)
 ``execute(m, robot)``    one run of the composite controller -> ``RunResult``
 ``RunOptions``           options of a run (controller, noise, sensing, replanning); ``load_run_config``
 ``write_run``            a run's files (run.json, trajectory.csv, figures)
@@ -51,6 +55,8 @@ _PUBLIC = {
     "default_footprint": "nhstab.robot",
     "plan": "nhstab.planning",
     "PathOptions": "nhstab.planning",
+    "TimingOptions": "nhstab.planning",
+    "CollisionWorld": "nhstab.collision",
     "PlanResult": "nhstab.planning",
     "Nominal": "nhstab.nominal",
     "compute_schedule": "nhstab.control",
@@ -59,6 +65,8 @@ _PUBLIC = {
     "sampled_tube": "nhstab.tubes",
     "tube_line": "nhstab.tubes",
     "execute": "nhstab.execution",
+    "build_law": "nhstab.execution",
+    "NoiseOptions": "nhstab.execution.config",
     "RunOptions": "nhstab.execution",
     "RunResult": "nhstab.execution",
     "load_run_config": "nhstab.execution",
