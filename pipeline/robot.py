@@ -59,31 +59,10 @@ from .safe_io import read_yaml_mapping
 
 #: per-model defaults: footprint (a YAML footprint spec), planning margin [m], stabilizer, turning
 #: radius rule (("fixed", metres) or ("factor", multiple of the minimum turning radius))
-MODEL_DEFAULTS: dict[str, dict] = {
-    "unicycle": {"footprint": {"radius": 0.3}, "margin": 0.1,
-                 "stabilizer": {"alpha": 0.2, "delta": 2.0, "gamma": 1.0, "end_strategy": "frozen"},
-                 "turning_radius": ("fixed", 0.5)},
-    # a car's body reaches 3.3 m ahead of its rear axle, where a heading error of 0.05 rad already
-    # moves it by 0.17 m, so cars keep more room than the unicycle
-    "rwd_car": {"footprint": {"rectangle": {"length": 4.2, "width": 1.8, "rear_overhang": 0.9}}, "margin": 0.3,
-                "stabilizer": {"alpha": 0.1, "delta": 6.0, "gamma": 1.0, "end_strategy": "extend", "cusps": "split"},
-                "turning_radius": ("factor", 1.25)},
-    "fwd_car": {"footprint": {"rectangle": {"length": 1.6, "width": 0.8, "rear_overhang": 0.3}}, "margin": 0.2,
-                "stabilizer": {"alpha": 0.2, "delta": 3.0, "gamma": 1.0, "end_strategy": "extend", "cusps": "split"},
-                "turning_radius": ("factor", 1.25)},
-    "heisenberg": {"footprint": {"radius": 0.1}, "margin": 0.1,
-                   "stabilizer": {"alpha": 1.0, "delta": 1.0, "gamma": 1.0, "end_strategy": "frozen"},
-                   "turning_radius": ("fixed", 0.5)},
-    # the rwd_car towing a 2.5 x 1.8 m trailer whose axle is 3 m behind the hitch; the turning radius
-    # is the trailer's axle path's (the planned point), 3.5 times its smallest steady turn: the hitch
-    # angle changes only gradually, and on those arcs the steady steering angle is half its limit
-    # (nhstab.planning.trailer). Its end strategy stays frozen, with which its defaults were chosen.
-    "car_trailer": {"footprint": {"rectangle": {"length": 4.2, "width": 1.8, "rear_overhang": 0.9}},
-                    "trailer_footprint": {"rectangle": {"length": 2.5, "width": 1.8, "rear_overhang": 1.0}},
-                    "margin": 0.3,
-                    "stabilizer": {"alpha": 0.05, "delta": 10.0, "gamma": 1.0, "end_strategy": "frozen"},
-                    "turning_radius": ("factor", 5.0)},
-}
+#: per model, the built-in robot's description (each model's ``robot_defaults``): footprint (a YAML
+#: footprint spec), planning margin [m], stabilizer, turning radius (("fixed", metres) or ("factor", times
+#: the model's smallest turning radius)), and a car_trailer's trailer footprint
+MODEL_DEFAULTS: dict[str, dict] = {name: cls.robot_defaults for name, cls in MODELS.items()}
 #: the robot keys other than the model's parameters
 ROBOT_KEYS = ("model", "footprint", "margin", "stabilizer", "turning_radius", "name", "trailer_footprint")
 STABILIZER_KEYS = ("alpha", "delta", "gamma", "end_strategy", "cusps")
@@ -275,9 +254,9 @@ def _min_radius(model: Model) -> float:
 
 def default_footprint(model_name: str) -> Footprint:
     """The footprint of a model's built-in robot (:data:`MODEL_DEFAULTS`)."""
-    if model_name not in MODEL_DEFAULTS:
-        raise InputError("model", "one of " + ", ".join(sorted(MODEL_DEFAULTS)), model_name)
-    return parse_footprint(MODEL_DEFAULTS[model_name]["footprint"])
+    if model_name not in MODELS:
+        raise InputError("model", "one of " + ", ".join(sorted(MODELS)), model_name)
+    return parse_footprint(MODELS[model_name].robot_defaults["footprint"])
 
 
 def default_robot(model_name: str = "unicycle", **params) -> Robot:
@@ -334,7 +313,7 @@ def robot_from_spec(spec, where: str = "robot", source: str = "default") -> Robo
               for k in param_names if k in spec}
     with user_keys({f"{name}.{k}": f"{where}.{k}" for k in param_names}):
         model = make_model(name, **params)
-    defaults = MODEL_DEFAULTS[name]
+    defaults = MODELS[name].robot_defaults
     notes: list[str] = []
     fp = parse_footprint(spec.get("footprint", defaults["footprint"]), f"{where}.footprint", notes)
     margin = _length(f"{where}.margin", spec.get("margin", defaults["margin"]), lo_open=False)

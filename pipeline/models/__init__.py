@@ -12,11 +12,13 @@ from .heisenberg import Heisenberg
 from .rwd_car import RwdCar
 from .unicycle import Unicycle
 
+#: the registry: a model's name -> its class (the class holds everything nhstab knows of the model:
+#: its equations, limits, state layout, built-in robot and whether the planner plans for it)
 MODELS: dict[str, type[Model]] = {
-    "heisenberg": Heisenberg,
     "unicycle": Unicycle,
-    "fwd_car": FwdCar,
     "rwd_car": RwdCar,
+    "fwd_car": FwdCar,
+    "heisenberg": Heisenberg,
     "car_trailer": CarTrailer,
 }
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -30,6 +31,19 @@ class Model:
     #: units of states and inputs, for file headers
     state_units: tuple[str, ...] = field(default=(), init=False)
     input_units: tuple[str, ...] = field(default=(), init=False)
+
+    # ---- what nhstab knows of the model beyond its equations (one place per model) ----------------
+    #: the built-in robot's description: footprint (a YAML footprint spec), planning margin [m],
+    #: stabilizer defaults, planning turning radius (("fixed", metres) or ("factor", times the smallest
+    #: turning radius)), and for a model that tows trailers the trailer's footprint
+    robot_defaults: ClassVar[dict] = {
+
+    }
+    #: whether nhstab's planner plans for this model
+    plannable: ClassVar[bool] = False
+    #: the room [m] the geometric search keeps beyond the requested margin, so that the timed nominal
+    #: still clears the margin (None where the model's planner keeps its own)
+    search_pad: ClassVar[float | None] = None
 
     # ---- sizes -----------------------------------------------------------------------------
     @property

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -59,6 +60,18 @@ def _hitch_lengths(value) -> tuple[float, ...]:
 
 @dataclass(frozen=True)
 class CarTrailer(Model):
+    # the rwd_car towing a 2.5 x 1.8 m trailer whose axle is 3 m behind the hitch; the turning radius
+    # is the trailer's axle path's (the planned point), 3.5 times its smallest steady turn: the hitch
+    # angle changes only gradually, and on those arcs the steady steering angle is half its limit
+    # (nhstab.planning.trailer). Its end strategy stays frozen, with which its defaults were chosen.
+    robot_defaults: ClassVar[dict] = {
+        "footprint": {"rectangle": {"length": 4.2, "width": 1.8, "rear_overhang": 0.9}},
+        "trailer_footprint": {"rectangle": {"length": 2.5, "width": 1.8, "rear_overhang": 1.0}},
+        "margin": 0.3,
+        "stabilizer": {"alpha": 0.05, "delta": 10.0, "gamma": 1.0, "end_strategy": "frozen"},
+        "turning_radius": ("factor", 5.0),
+    }
+    plannable: ClassVar[bool] = True
     wheelbase: float = 2.5              # m, L of the car
     hitch_lengths: tuple = (3.0,)       # m, d_i: hitch (previous axle centre) to trailer i's axle
     max_speed: float = 1.5              # m/s, |v|

@@ -10,6 +10,7 @@ The Jacobian d(g u)/dx is derived from these equations; the A(t) printed in the 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -18,6 +19,14 @@ from .base import SteeredCar
 
 @dataclass(frozen=True)
 class FwdCar(SteeredCar):
+    robot_defaults: ClassVar[dict] = {
+        "footprint": {"rectangle": {"length": 1.6, "width": 0.8, "rear_overhang": 0.3}},
+        "margin": 0.2,
+        "stabilizer": {"alpha": 0.2, "delta": 3.0, "gamma": 1.0, "end_strategy": "extend", "cusps": "split"},
+        "turning_radius": ("factor", 1.25),
+    }
+    plannable: ClassVar[bool] = True
+    search_pad: ClassVar[float | None] = 0.05
     wheelbase: float = 1.0          # m, L
     max_speed: float = 1.0          # m/s, |u1|
     max_steer: float = 0.6          # rad, |x3| (< pi/2)

@@ -6,6 +6,7 @@ x1' = u1, x2' = u2, x3' = x2 u1.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -14,6 +15,12 @@ from .base import Model
 
 @dataclass(frozen=True)
 class Heisenberg(Model):
+    robot_defaults: ClassVar[dict] = {
+        "footprint": {"radius": 0.1},
+        "margin": 0.1,
+        "stabilizer": {"alpha": 1.0, "delta": 1.0, "gamma": 1.0, "end_strategy": "frozen"},
+        "turning_radius": ("fixed", 0.5),
+    }
     def __post_init__(self):
         object.__setattr__(self, "name", "heisenberg")
         object.__setattr__(self, "state_names", ("x1", "x2", "x3"))

@@ -7,6 +7,7 @@ States (x, y, theta, phi); inputs (v = rear-axle speed, omega_s = steering rate)
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -15,6 +16,16 @@ from .base import SteeredCar
 
 @dataclass(frozen=True)
 class RwdCar(SteeredCar):
+    # a car's body reaches 3.3 m ahead of its rear axle, where a heading error of 0.05 rad already
+    # moves it by 0.17 m, so cars keep more room than the unicycle
+    robot_defaults: ClassVar[dict] = {
+        "footprint": {"rectangle": {"length": 4.2, "width": 1.8, "rear_overhang": 0.9}},
+        "margin": 0.3,
+        "stabilizer": {"alpha": 0.1, "delta": 6.0, "gamma": 1.0, "end_strategy": "extend", "cusps": "split"},
+        "turning_radius": ("factor", 1.25),
+    }
+    plannable: ClassVar[bool] = True
+    search_pad: ClassVar[float | None] = 0.05
     wheelbase: float = 2.5          # m, L
     max_speed: float = 1.5          # m/s, |v|
     max_steer: float = 0.6          # rad, |phi| (< pi/2)

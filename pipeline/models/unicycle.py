@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -11,6 +12,14 @@ from .base import Model, positive_param
 
 @dataclass(frozen=True)
 class Unicycle(Model):
+    robot_defaults: ClassVar[dict] = {
+        "footprint": {"radius": 0.3},
+        "margin": 0.1,
+        "stabilizer": {"alpha": 0.2, "delta": 2.0, "gamma": 1.0, "end_strategy": "frozen"},
+        "turning_radius": ("fixed", 0.5),
+    }
+    plannable: ClassVar[bool] = True
+    search_pad: ClassVar[float | None] = 0.02
     max_speed: float = 1.0          # m/s, |v|
     max_turn_rate: float = 2.0      # rad/s, |omega|
 

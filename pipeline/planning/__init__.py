@@ -23,7 +23,7 @@ from ..errors import InputError, SingularGramianError, user_keys
 from ..geometry import wrap_angle
 from ..limits import FCL_CHECK_S, check_headings, check_turning_radius
 from ..maps.base import Map
-from ..models import Model
+from ..models import MODELS, Model
 from ..nominal import Nominal
 from ..robot import Robot, default_robot
 from .cars import CarPlanningError, car_nominal, exact_nominal
@@ -38,12 +38,13 @@ from .trailer import plan_trailer
 #: for their steering pieces: the constant-v1 pieces used first stay within about 0.012 m of the path
 #: (on the bundled warehouse, parking lot and 10 Bench-MR parking3 problems), but a piece may fall back
 #: to the phased sinusoids, which stray 0.1-0.5 m from it (up to 1.1 m)
-MARGIN_PAD = {"unicycle": 0.02, "rwd_car": 0.05, "fwd_car": 0.05}
+MARGIN_PAD = {name: cls.search_pad for name, cls in MODELS.items() if cls.search_pad is not None}
 #: a car that drives its path exactly (held steering, steering in place where the curvature changes)
 #: needs no room to stray; the search keeps this much more than the margin only so that poses between
 #: the search's checked samples and the nominal's keep the margin too
 EXACT_PAD = 0.01
-PLANNABLE = ("unicycle", "rwd_car", "fwd_car", "car_trailer")
+#: the models the planner plans for (each model's ``plannable``)
+PLANNABLE = tuple(name for name, cls in MODELS.items() if cls.plannable)
 
 
 def pose_columns(model: Model) -> list[int]:

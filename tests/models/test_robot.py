@@ -290,3 +290,34 @@ def test_make_robot_and_footprints():
     assert default_footprint("rwd_car").label.startswith("rectangle 4.2 x 1.8")
     with pytest.raises(PipelineError):
         default_footprint("hovercraft")
+
+
+def test_the_adding_a_model_guide_example_runs(tmp_path):
+    """docs/guide/robots.md's worked example: a model defined in one class and one registry entry is
+    taken by make_robot (with its robot_defaults) and stabilized along its own nominal."""
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[2] / "docs" / "guide" / "robots.md").read_text()
+    code = re.search(r"## Adding a model.*?```python\n(.*?)```", text, re.S).group(1)
+    res = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    name_line, gain_line = res.stdout.strip().splitlines()
+    assert name_line == "chained disc r=0.2 m 0.1"
+    assert gain_line.startswith("max gain norm ") and 0.0 < float(gain_line.split()[-1]) < 1e3
+
+
+def test_per_model_knowledge_is_read_from_the_model_classes():
+    """The built-in robots, the models the planner plans for and the search's pads are each model
+    class's own (robot_defaults, plannable, search_pad), in the registry's order."""
+    from nhstab.models import MODELS
+    from nhstab.planning import MARGIN_PAD, PLANNABLE
+
+    assert MODEL_DEFAULTS == {name: cls.robot_defaults for name, cls in MODELS.items()}
+    assert PLANNABLE == ("unicycle", "rwd_car", "fwd_car", "car_trailer")
+    assert MARGIN_PAD == {"unicycle": 0.02, "rwd_car": 0.05, "fwd_car": 0.05}
+    for name in MODELS:
+        robot = default_robot(name)
+        assert robot.margin == MODELS[name].robot_defaults["margin"]
