@@ -78,6 +78,9 @@ SUBCOMMANDS = {
     "tube": "Error tube: the linear tube's time against the plan's on the bundled scenarios, and a per-step loop "
             "baseline; the default (auto) tube, linear or sampled, against the plan on those scenarios and on "
             "parking cases, its parts, and the sampled tube against a rollout-by-rollout baseline.",
+    "polygons": "Polygon checks up to the accepted maximum of 10,000 vertices: GEOS simplicity test, footprint "
+                "parser, YAML map load and collision world, raster fill, on a star and a comb of long teeth at "
+                "1,250-10,000 vertices, with scaling exponents and the vectorised pairwise baseline.",
 }
 
 
@@ -96,6 +99,10 @@ EXTRA_OPTIONS = {
         click.option("--auto-repeats", type=int, default=None, help="Plan-and-tube pairs per auto-tube row (default 3)."),
         click.option("--baseline-rollouts", type=int, default=None,
                      help="Rollouts of the sampled tube's baseline, extrapolated to N (default 40)."),
+    ],
+    "polygons": [
+        click.option("--size", "sizes", type=click.IntRange(6, 10_000), multiple=True,
+                     help="Vertices per polygon (repeatable; default 1250, 2500, 5000, 10000)."),
     ],
 }
 
