@@ -33,7 +33,7 @@ from nhstab.trajectory_io import read_trajectory
 
 ROOT = Path(__file__).resolve().parents[1]
 ROOM = ROOT / "maps/ours/cluttered_room.yaml"
-STORE = ROOT / "results/robustness/trials.sqlite"
+STORE = ROOT / "tests/data/store_schema1.sqlite"
 
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow,
                                                                       HealthCheck.function_scoped_fixture])

@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 D = ROOT / "maps/scenarios/depot_blocked_aisle.yaml"
 M = ROOT / "maps/ours/cluttered_room.yaml"
 NAV2 = ROOT / "maps/nav2"
-STORE = ROOT / "results/robustness/trials.sqlite"
+STORE = ROOT / "tests/data/store_schema1.sqlite"
 HUGE = str(10**400)
 
 

@@ -82,15 +82,15 @@ def test_a_window_grid_makes_gramian_cells_only_and_keeps_older_cell_ids(tmp_pat
 
 
 def test_the_committed_older_store_still_reports(tmp_path):
-    """results/robustness/trials.sqlite was written when `rate_bound` held the printed 2 alpha p_m/p_M
-    and cells had no window: the report reads it, labels the cells as before, and gives the 3 alpha
+    """tests/data/store_schema1.sqlite (the robustness batch's store as an early version wrote it) was
+    written when `rate_bound` held the printed 2 alpha p_m/p_M and cells had no window: the report reads it, labels the cells as before, and gives the 3 alpha
     rate recovered from it (alpha = rate_bound p_M / (2 p_m), the depot robot's default 0.2)."""
     import csv as _csv
     import shutil
 
     from nhstab.batch.report import write_report
 
-    src = ROOT / "results" / "robustness" / "trials.sqlite"
+    src = ROOT / "tests" / "data" / "store_schema1.sqlite"
     shutil.copy(src, tmp_path / "trials.sqlite")
     names = {f.name for f in write_report(tmp_path / "trials.sqlite")}
     assert {"envelopes.png", "report.md", "trials.csv"} <= names

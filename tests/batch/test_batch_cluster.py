@@ -35,7 +35,7 @@ from nhstab.errors import InputError
 from storetools import records
 
 ROOT = Path(__file__).resolve().parents[2]
-OLD_STORE = ROOT / "results/robustness/trials.sqlite"      # made before stores kept maps (schema 1)
+OLD_STORE = ROOT / "tests/data/store_schema1.sqlite"      # made before stores kept maps (schema 1)
 
 
 # ---- a map with a base map and an image, and a batch that names it relative to its config --------
@@ -439,9 +439,9 @@ def test_an_old_store_is_reported_replayed_from_the_files_or_refused_in_one_line
 
 
 def test_the_committed_old_store_replay_names_what_is_missing(tmp_path):
-    """results/robustness/trials.sqlite was made before stores kept maps or content hashes (its
-    report: test_hostile_input.py::test_a_read_only_store_is_read_without_writing). Made schema 1
-    here in case it has been regenerated since."""
+    """tests/data/store_schema1.sqlite (the robustness batch's store as an early version wrote it) was
+    made before stores kept maps or content hashes (its report:
+    test_hostile_input.py::test_a_read_only_store_is_read_without_writing). Made schema 1 here as well."""
     old = tmp_path / "old.sqlite"
     shutil.copy(OLD_STORE, old)
     with Store(old) as s:
