@@ -35,7 +35,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import geometry
+from ..collision import CollisionWorld
 from ..limits import MAX_POLYGON_VERTICES
+from ..maps import load_map
+from ..maps.raster import free_fraction
+from ..robot import parse_footprint
 from .common import _best, machine
 
 SIZES = (1_250, 2_500, 5_000, 10_000)
@@ -178,12 +183,6 @@ def _exponent(ks, times) -> float | None:
 
 
 def _measure(shape: str, k: int, seed: int, repeats: int, baseline_repeats: int, folder: Path) -> dict:
-    from .. import geometry
-    from ..collision import CollisionWorld
-    from ..maps import load_map
-    from ..maps.raster import free_fraction
-    from ..robot import parse_footprint
-
     clear = geometry._is_simple_ring.cache_clear
     ring = polygon(shape, k, seed)
     times = {}
