@@ -137,6 +137,8 @@ def _run(spec: dict, bundle=None) -> dict:
             d = first.law.schedule.diagnostics
             metrics.update({"p_m": d["p_m"], "p_M": d["p_M"], "rate_bound": d["rate_bound"],
                             "rate_bound_printed": d["rate_bound_printed"], "window": d["window"]})
+            if d.get("guarantee_until_s") is not None:      # a schedule split at cusps: its first cusp
+                metrics["guarantee_until_s"] = d["guarantee_until_s"]
     # ||e(t)|| while following the first plan (until the first replan stop), every SERIES_DT
     lg = result.log
     series = None
@@ -162,6 +164,9 @@ def _run(spec: dict, bundle=None) -> dict:
                 # (future window: the 3 alpha bound), at the series' samples
                 e0 = model.state_error(lg["x"][0], lg["x0"][0])
                 tau = lg["t"][:last:step] - first.t_start
+                until = schedule.diagnostics.get("guarantee_until_s")
+                if until is not None:           # a schedule split at cusps: the guarantee ends at the first
+                    tau = tau[tau <= until]
                 series["bound"] = schedule.error_bound(e0, np.clip(tau, schedule.t[0], schedule.t[-1])).tolist()
     timings = {"run_wall_s": result.wall_time_s, "replan_latencies_s": s["timing"]["replan_latencies_s"]}
     if rob.trailers:        # a car with trailers: the docked trailer's errors, the hitch, jackknifes
