@@ -80,7 +80,7 @@ def figure(car, seeds, out_dir):
         return 4
     from nhstab.interrupts import holding_interrupts, interrupt_held
 
-    with holding_interrupts():      # a Ctrl-C now does not lose the finished run: its files are completed
+    with holding_interrupts():      # from here a Ctrl-C does not lose the finished run: its files are completed
         files = write_run(result, out_dir, f"example:{row['name']}")
     click.echo(f"{row['name']} ({row['factor']:g} x L1, slot {row['size_m']:.2f} m), seed {seed}: {result.message}")
     click.echo("wrote " + ", ".join(str(f) for f in files) + f", {out_dir / 'tried.json'}")

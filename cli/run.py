@@ -211,7 +211,7 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
     check_run(m, robot, opts)                # every option checked before anything runs
     click.echo(f"running {opts.controller.kind} control of {robot.name} on {m.name} (seed {opts.seed}) ...", err=True)
     result = execute(m, robot, start, goal, opts, notify=lambda line: click.echo(line, err=True))
-    with holding_interrupts():      # a Ctrl-C now does not lose the finished run: its files are completed
+    with holding_interrupts():      # from here a Ctrl-C does not lose the finished run: its files are completed
         files = write_run(result, out_dir, map_path, animate=animate, extra_files=extra_files)
     replans = sum(1 for p in result.plans if p.trigger != "initial")
     click.echo(f"{result.status}: {result.message}")

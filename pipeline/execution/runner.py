@@ -854,7 +854,7 @@ def _execute(m: Map, robot: Robot, start, goal, opts: RunOptions, notify=None) -
         status, message = "interrupted", f"interrupted by the user at t = {run.k * run.T:.2f} s"
     except NumericalError as exc:
         status, message = "numerical_failure", str(exc)
-    with holding_interrupts():          # the run has ended: a Ctrl-C now does not lose it (nhstab.interrupts)
+    with holding_interrupts():          # the run has ended: from here a Ctrl-C does not lose it (nhstab.interrupts)
         return _result(run, robot, status, message, started)
 
 
