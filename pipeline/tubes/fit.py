@@ -3,6 +3,7 @@ until the error tube is certified clear."""
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import replace
 
 import numpy as np
@@ -152,11 +153,15 @@ def fit_plan(plan_at, tube_of, world, fp: Footprint, *, margin: float, cap: floa
 
     1. **The margin the tube needs**, where the room allows: a plan at the tube verdict's needed margin
        (the largest reach among the samples whose grown footprint is not clear) plus ``slack``, if that
-       is below ``cap`` (the start's and goal's own clearance); a margin that finds no plan is halved
-       towards the last that did, once.
-    2. **Another maneuver**: plans with other seeds (``plan_at(margin, k)`` for k = 1, 2, ...) at the
-       largest margin that found a plan, a different path through the same space (the car planner also
-       falls back to its full steering range where its reserved lock finds nothing).
+       is below ``cap`` (the start's and goal's own clearance).
+    2. **Halfway**: when that margin finds no plan, or a plan whose tube is less clear than the best so
+       far (a larger margin can force a different maneuver, with more cusps or slower pieces, whose
+       tube is wider), a plan at the margin halfway between the best plan's and that one.
+    3. **Another maneuver**: plans with other seeds (``plan_at(margin, k)`` for k = 1, 2, ...) at the
+       margin of the best plan so far, a different path through the same space (the car planner also
+       falls back to its full steering range where its reserved lock finds nothing). A seed that
+       gives a plan already tried (the same nominal) is recorded as such and its tube not predicted
+       again.
 
     Each try is judged by its own tube. Two other remedies are not tried: slowing the nominal near
     obstacles and before cusps (process noise grows per second while a car corrects a lateral error
@@ -174,47 +179,64 @@ def fit_plan(plan_at, tube_of, world, fp: Footprint, *, margin: float, cap: floa
                                                        else " (the plan's tube is certified clear)"))
         return result, law, tube, margin, record
     cands = [(tube.certified_clearance, 0, result, law, tube, margin)]
-    ok_margin = margin
+    seen = {_plan_key(result): 0}
+
+    def best():
+        return max(cands, key=lambda c: (c[4].certified is True, c[0]))
 
     def attempt(label, mg, k):
+        """Plan and judge one try: (found a plan, its tube is certified, its tube clearance or None)."""
         r, lw = plan_at(mg, k)
-        tb = tube_of(lw) if lw is not None else None
-        rows.append({"try": label, "margin_m": mg, "seed_offset": k, "status": r.status,
-                     "certified_clearance_m": None if tb is None else tb.certified_clearance})
-        if tb is not None and tb.certified_clearance is not None:
-            cands.append((tb.certified_clearance, len(rows) - 1, r, lw, tb, mg))
-        return lw is not None, tb is not None and tb.certified is True
+        row = {"try": label, "margin_m": mg, "seed_offset": k, "status": r.status, "certified_clearance_m": None}
+        rows.append(row)
+        if lw is None:
+            return False, False, None
+        key = _plan_key(r)
+        if key in seen:
+            j = seen[key]
+            row.update(status=f"the same plan as try {j}", certified_clearance_m=rows[j]["certified_clearance_m"])
+            return True, False, rows[j]["certified_clearance_m"]
+        seen[key] = len(rows) - 1
+        tb = tube_of(lw)
+        if tb is None or tb.certified_clearance is None:
+            return True, False, None
+        row["certified_clearance_m"] = tb.certified_clearance
+        cands.append((tb.certified_clearance, len(rows) - 1, r, lw, tb, mg))
+        return True, tb.certified is True, tb.certified_clearance
 
     v = tube.info.get("verdict") or verdict(tube, world, fp, margin)
     need = v.get("needed_margin_m")
-    left = tries
+    left, done = tries, False
     if need is not None and left > 0:
         want = min(need + slack, cap)
         if want > margin + 1e-9:
-            found, done = attempt(f"margin {want:.3g} m (the tube's need)", want, 0)
+            base = best()[0]
+            found, done, clearance = attempt(f"margin {want:.3g} m (the tube's need)", want, 0)
             left -= 1
-            if found:
-                ok_margin = want
-            elif left > 0 and want - margin > 2 * slack:
-                half = 0.5 * (margin + want)
-                found, done = attempt(f"margin {half:.3g} m (halfway)", half, 0)
+            worse = not found or clearance is None or clearance < base
+            below = best()[5]
+            if not done and worse and left > 0 and want - below > 2 * slack:
+                half = 0.5 * (below + want)
+                _, done, _ = attempt(f"margin {half:.3g} m (halfway)", half, 0)
                 left -= 1
-                ok_margin = half if found else ok_margin
-            if done:
-                left = 0
     k = 1
-    while left > 0 and not any(c[4].certified for c in cands):
-        _, done = attempt(f"another maneuver (seed + {k}) at margin {ok_margin:.3g} m", ok_margin, k)
+    while left > 0 and not done:
+        _, done, _ = attempt(f"another maneuver (seed + {k}) at margin {best()[5]:.3g} m", best()[5], k)
         left -= 1
         k += 1
-    best = max(cands, key=lambda c: (c[4].certified is True, c[0]))
-    clearance, i, result, law, tube, mg = best
+    clearance, i, result, law, tube, mg = best()
     record.update(chosen=i, certified=bool(tube.certified), margin_m=mg)
     trail = "; ".join(f"{r['try']}: " + (f"{r['certified_clearance_m']:+.3f} m" if r["certified_clearance_m"] is not None
                                          else r["status"]) for r in rows)
     record["message"] = (f"fit: {'certified' if tube.certified else 'NOT certified'} after {len(rows)} plan(s), "
                          f"kept {rows[i]['try']} (tube clearance {clearance:+.3f} m); {trail}")
     return result, law, tube, mg, record
+
+
+def _plan_key(result) -> tuple:
+    """A plan's identity for ``--fit``: its nominal's grid and states (two seeds can find the same path)."""
+    nom = result.nominal
+    return (len(nom.t), float(nom.t[-1]), hashlib.sha1(np.ascontiguousarray(nom.x).tobytes()).hexdigest())
 
 
 def choose_gains(nominal, defaults: dict, tube_of, window: str = "future", *,
