@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import click
@@ -29,7 +30,8 @@ def ros2_path(folder, out_file, fmt, frame_id, stamp, stride):
 
     A plan folder (nhstab plan --out) gives its nominal, a run folder (nhstab run --out) the robot's
     simulated trajectory. Publish the YAML with
-    ros2 topic pub --once /plan nav_msgs/msg/Path "$(cat FILE)". Coordinates are the map's: the ROS map
+    ros2 topic pub --once /plan nav_msgs/msg/Path "$(cat FILE)" (up to 128 KiB, one shell argument), or
+    with --yaml-file FILE where ros2 topic pub has that option. Coordinates are the map's: the ROS map
     frame for a map_server map. nav_msgs/Path has no direction of travel: the cusps and the forward and
     reverse segments are listed in the YAML's comments (or FILE.segments.json).
     """
@@ -43,6 +45,7 @@ def ros2_path(folder, out_file, fmt, frame_id, stamp, stride):
                f"{rev} reverse segment(s), {got['bytes'] / 1024:.1f} KiB")
     if fmt == "yaml" and got["bytes"] > SHELL_ARG_MAX:
         click.echo(f"note: {got['bytes'] / 1024:.0f} KiB is more than one shell argument holds on Linux "
-                   f"({SHELL_ARG_MAX // 1024} KiB), so \"$(cat FILE)\" fails: use --stride "
-                   f"{-(-got['bytes'] // SHELL_ARG_MAX) * stride + 1 if stride else 2} or more")
+                   f"({SHELL_ARG_MAX // 1024} KiB), so \"$(cat FILE)\" fails: publish with --yaml-file FILE "
+                   f"where ros2 topic pub has it, or export with --stride "
+                   f"{math.ceil(got['bytes'] * stride / (0.9 * SHELL_ARG_MAX))} or more")
     return 0

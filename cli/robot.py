@@ -33,10 +33,16 @@ def from_nav2(params, out_file, model, wheelbase, margin):
     --robot-config nav2:PARAMS.yaml on plan, run and map.
     """
     import yaml
+    from nhstab.errors import InputError
     from nhstab.nav2 import read_nav2_robot
     from nhstab.records import write_text
 
-    got = read_nav2_robot(params, model=model, wheelbase=wheelbase, margin=margin)
+    try:
+        got = read_nav2_robot(params, model=model, wheelbase=wheelbase, margin=margin)
+    except InputError as exc:
+        if exc.argument in ("wheelbase", "margin"):
+            raise exc.renamed(f"--{exc.argument}") from None
+        raise
     rob = got.robot
     head = [f"nhstab robot read from the Nav2 parameters file {params.name} (nhstab robot from-nav2)"]
     head += got.lines

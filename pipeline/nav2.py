@@ -111,6 +111,10 @@ def read_nav2_robot(path, model: str | None = None, wheelbase: float | None = No
                          "no node with ros__parameters")
     if model is not None and model not in NAV2_MODELS:
         raise InputError("model", "one of " + ", ".join(NAV2_MODELS), model)
+    if margin is not None:
+        margin = _number("margin", margin, lo=0.0)
+    if wheelbase is not None:
+        wheelbase = _number("wheelbase", wheelbase, lo=0.0, lo_open=True)
     lines: list[str] = []
     fp, fp_line = _footprint(data, file)
     lines.append(fp_line)
@@ -133,8 +137,6 @@ def read_nav2_robot(path, model: str | None = None, wheelbase: float | None = No
             lines.append(f"wheelbase {spec['wheelbase']:.4g} m = R tan(max_steer {max_steer:g} rad), so that "
                          f"L / tan(max_steer) = {radius:g} m")
         else:
-            if not (isinstance(wheelbase, (int, float)) and math.isfinite(wheelbase) and wheelbase > 0):
-                raise InputError("wheelbase", "a finite number > 0 [m]", wheelbase)
             spec["wheelbase"] = float(wheelbase)
             spec["max_steer"] = math.atan(wheelbase / radius)
             lines.append(f"max_steer {spec['max_steer']:.4g} rad = atan(L {wheelbase:g} m / R {radius:g} m)")

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .execution.outputs import read_run_csv
+from .execution.outputs import PLAN_FILES, RUN_FILES, read_run_csv
 from .records import write_text
 from .robot import robot_from_spec
 from .safe_io import read_text
@@ -125,8 +125,8 @@ def segments(directions) -> list[tuple[int, int, int]]:
 
 def read_folder(folder) -> dict:
     """The trajectory of a ``nhstab plan`` folder (plan.json, trajectory.npz: the nominal) or a
-    ``nhstab run`` folder (run.json, trajectory.csv: the robot's state as simulated) as
-    {kind, map, model, t, poses (N, 3), directions (N,)}."""
+    ``nhstab run`` folder (run.json, trajectory.csv: the robot's state as simulated, with the direction
+    of travel of the nominal it follows) as {kind, map, model, t, poses (N, 3), directions (N,)}."""
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError("FOLDER", "the output folder of nhstab plan or nhstab run", str(folder))
@@ -148,6 +148,7 @@ def read_folder(folder) -> dict:
     if kind == "plan":
         nom = read_trajectory(folder / "trajectory.npz", robot.model)
         t, x, u = nom.t, nom.x, nom.u
+        x_dir = x
     else:
         csv_file = folder / "trajectory.csv"
         if not csv_file.is_file():
@@ -156,16 +157,21 @@ def read_folder(folder) -> dict:
             data = read_run_csv(csv_file)
             t = data["t"]
             x = np.column_stack([data[n] for n in robot.model.state_names])
-            u = np.column_stack([data[n] for n in robot.model.input_names])
+            # the direction of travel is the plan's being followed: the simulated robot's own speed changes
+            # sign under noise wherever its nominal stops
+            x_dir = np.column_stack([data[f"{n}_nominal"] for n in robot.model.state_names])
+            u = np.column_stack([data[f"{n}_nominal"] for n in robot.model.input_names])
         except (KeyError, ValueError, IndexError):
             raise InputError(str(csv_file), f"nhstab run's trajectory.csv for a {robot.model.name}",
                              "other columns") from None
         if len(t) == 0:
             raise InputError(str(csv_file), "a run with at least one sample", "no samples")
     return {"kind": kind, "map": str(inputs.get("map", "")), "model": robot.model.name, "t": np.asarray(t, float),
-            "poses": np.asarray(x, float)[:, cols], "directions": travel_directions(robot.model, x, u)}
+            "poses": np.asarray(x, float)[:, cols], "directions": travel_directions(robot.model, x_dir, u)}
 
 
+#: the files of a plan or run folder (an export never replaces them)
+_OWNED = tuple(dict.fromkeys((*PLAN_FILES, *RUN_FILES, "nhstab-manifest.json")))
 #: keys of ``Robot.describe()`` that are not part of the robot's YAML form
 _DESCRIBE_ONLY = ("state_names", "input_names", "footprint_label", "trailer_footprint_labels", "min_turning_radius_m",
                   "source", "notes")
@@ -179,6 +185,9 @@ def export_path(folder, out, fmt: str = "yaml", frame_id: str = "map", stamp: fl
         raise InputError("--format", "one of " + ", ".join(FORMATS), fmt)
     if isinstance(stride, bool) or not isinstance(stride, int) or stride < 1:
         raise InputError("--stride", "an integer >= 1", stride)
+    out = Path(out)
+    if out.resolve().parent == Path(folder).resolve() and out.name in _OWNED:
+        raise InputError("--out", f"a file other than the folder's own {', '.join(_OWNED)}", str(out))
     data = read_folder(folder)
     n = len(data["t"])
     segs_all = segments(data["directions"])
@@ -187,7 +196,6 @@ def export_path(folder, out, fmt: str = "yaml", frame_id: str = "map", stamp: fl
     msg = path_message(data["t"][idx], data["poses"][idx], frame_id, stamp)
     segs = segments(data["directions"][idx])
     cusps = [a for a, _, _ in segs[1:]]
-    out = Path(out)
     head = [f"nav_msgs/msg/Path: the {data['kind']} of {data['map'] or 'an nhstab map'} ({data['model']}), "
             f"{len(idx)} poses in frame {frame_id!r}, nhstab's map coordinates",
             f"times: stamp {stamp:g} s + the {data['kind']}'s time; orientation: the robot's heading",
