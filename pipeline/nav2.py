@@ -68,6 +68,11 @@ CONTROLLER_KEYS = {
     "RegulatedPurePursuitController": (("desired_linear_vel",), ()),
     "MPPIController": (("vx_max",), ("wz_max",)),
 }
+#: every Nav2 key the reader reads (docs/reference/nav2.md has a row for each)
+NAV2_KEYS = ("footprint", "robot_radius", "footprint_padding", "planner_plugins", "plugin", "motion_model_for_search",
+             "minimum_turning_radius", "lattice_filepath", "allow_reverse_expansion", "lattice_metadata",
+             "motion_model", "turning_radius", "controller_plugins", "max_velocity",
+             *(k for lin, ang in CONTROLLER_KEYS.values() for k in (*lin, *ang)))
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 _SAME = 1e-9
 
@@ -118,7 +123,7 @@ def read_nav2_robot(path, model: str | None = None, wheelbase: float | None = No
     lines: list[str] = []
     fp, fp_line = _footprint(data, file)
     lines.append(fp_line)
-    kin = _kinematics(data, file, path.parent)
+    kin = _kinematics(data, file, path.parent, model)
     lines.append(kin["line"])
     chosen = model or kin["model"]
     if model is not None and model != kin["model"]:
@@ -342,8 +347,9 @@ def _plugins(params: dict, where: str, list_key: str, default: str) -> list[tupl
     return out
 
 
-def _kinematics(data: dict, file: str, folder: Path) -> dict:
-    """model, radius (0: none), radius_key, space and a line saying where they came from."""
+def _kinematics(data: dict, file: str, folder: Path, model: str | None = None) -> dict:
+    """model, radius (0: none), radius_key, space and a line saying where they came from. With ``model``
+    unicycle given, a Lattice planner's file that cannot be read is not needed."""
     params, where = _node(data, "planner_server", file)
     unicycle = {"model": "unicycle", "radius": 0.0, "radius_key": None, "space": None}
     if params is None:
@@ -355,7 +361,12 @@ def _kinematics(data: dict, file: str, folder: Path) -> dict:
         if cls == "SmacPlannerHybrid":
             found.append(_hybrid(block, key))
         elif cls == "SmacPlannerLattice":
-            found.append(_lattice(block, key, folder))
+            try:
+                found.append(_lattice(block, key, folder))
+            except InputError:
+                if model != "unicycle":
+                    raise
+                others.append(f"{pid} (SmacPlannerLattice, its lattice file not read: the model is given)")
         else:
             others.append(f"{pid} ({cls or 'no plugin'})")
     if not found:

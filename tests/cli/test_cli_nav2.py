@@ -71,3 +71,11 @@ def test_robot_config_reads_a_nav2_file_with_or_without_the_prefix(tmp_path):
     robot_file.write_text("robot: {model: unicycle}\n")
     one_line(invoke("map", "info", "example:tb3_sandbox", "--robot-config", f"nav2:{robot_file}"), 2,
              "ros__parameters")
+
+
+def test_the_model_choices_are_the_readers():
+    from nhstab.cli.robot import from_nav2
+    from nhstab.nav2 import NAV2_MODELS
+
+    option = next(p for p in from_nav2.params if p.name == "model")
+    assert tuple(option.type.choices) == NAV2_MODELS

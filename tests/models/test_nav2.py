@@ -372,3 +372,20 @@ def test_the_robots_spec_round_trips_through_an_nhstab_robot_file(tmp_path):
         assert again.spec() == rob.spec()
         p = _write(tmp_path, {"robot": rob.spec()}, "robot.yaml")
         assert load_robot(p).spec() == rob.spec()
+
+
+def test_a_lattice_file_nhstab_cannot_open_is_not_needed_for_a_given_unicycle(tmp_path):
+    p = _lattice(tmp_path, write=False)
+    p.write_text(p.read_text().replace("lattice_filepath: prims.json",
+                                       "lattice_filepath: $(find-pkg-share nav2_smac_planner)/prims.json"))
+    with pytest.raises(InputError):
+        read_nav2_robot(p)
+    got = read_nav2_robot(p, model="unicycle")
+    assert got.robot.model.name == "unicycle" and any("lattice file not read" in line for line in got.lines)
+
+
+def test_the_reference_page_names_every_key_the_reader_reads():
+    from nhstab.nav2 import NAV2_KEYS
+
+    text = (Path(__file__).resolve().parents[2] / "docs" / "reference" / "nav2.md").read_text()
+    assert [k for k in NAV2_KEYS if f"`{k}`" not in text] == []
