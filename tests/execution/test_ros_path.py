@@ -295,3 +295,66 @@ def test_a_nav2_robot_plans_on_a_ros_map_and_its_plan_goes_back_as_a_path(room, 
     got = export_path(out, tmp_path / "path.yaml")
     xy = np.array([[p["pose"]["position"]["x"], p["pose"]["position"]["y"]] for p in got["message"]["poses"]])
     _free_and_clear(room, xy, radius=0.23)
+
+
+# ---- against ROS 2's own message definitions (rosbags' type stores, no ROS installation) ------------
+_INTS = {"int32": (-2**31, 2**31 - 1), "uint32": (0, 2**32 - 1)}
+
+
+def _build(ts, typename, value):
+    """The rosbags message of ``typename`` from the exported dict: every field of the definition present,
+    no other, each base value of its exact type and range."""
+    from rosbags.interfaces import Nodetype
+
+    fields = ts.get_msgdef(typename).fields
+    assert isinstance(value, dict) and set(value) == {name for name, _ in fields}, (typename, value)
+    kwargs = {}
+    for name, (node, detail) in fields:
+        v = value[name]
+        if node == Nodetype.NAME:
+            kwargs[name] = _build(ts, detail, v)
+        elif node == Nodetype.SEQUENCE:
+            (sub, subtype), _bound = detail
+            assert sub == Nodetype.NAME and isinstance(v, list)
+            kwargs[name] = [_build(ts, subtype, a) for a in v]
+        else:
+            base = detail[0]
+            if base in _INTS:
+                lo, hi = _INTS[base]
+                assert type(v) is int and lo <= v <= hi, (typename, name, v)
+            elif base == "float64":
+                assert type(v) is float, (typename, name, v)
+            else:
+                assert base == "string" and isinstance(v, str), (typename, name, v)
+            kwargs[name] = v
+    return ts.types[typename](**kwargs)
+
+
+def _as_dict(msg, ts, typename):
+    from rosbags.interfaces import Nodetype
+
+    out = {}
+    for name, (node, detail) in ts.get_msgdef(typename).fields:
+        v = getattr(msg, name)
+        if node == Nodetype.NAME:
+            out[name] = _as_dict(v, ts, detail)
+        elif node == Nodetype.SEQUENCE:
+            out[name] = [_as_dict(a, ts, detail[0][1]) for a in v]
+        else:
+            out[name] = v
+    return out
+
+
+@pytest.mark.parametrize("store", ["ROS2_HUMBLE", "ROS2_JAZZY"])
+def test_the_exported_path_is_a_nav_msgs_path_of_ros2(plan_dir, tmp_path, store):
+    """The YAML, read as ros2 topic pub reads it, fills nav_msgs/msg/Path field by field by the
+    distribution's own definitions, serializes to CDR and comes back unchanged."""
+    typesys = pytest.importorskip("rosbags.typesys")
+    ts = typesys.get_typestore(getattr(typesys.Stores, store))
+    export_path(plan_dir, tmp_path / "path.yaml", stamp=1.7e9)
+    value = yaml.safe_load((tmp_path / "path.yaml").read_text())
+    msg = _build(ts, "nav_msgs/msg/Path", value)
+    raw = ts.serialize_cdr(msg, "nav_msgs/msg/Path")
+    back = ts.deserialize_cdr(raw, "nav_msgs/msg/Path")
+    assert _as_dict(back, ts, "nav_msgs/msg/Path") == value
+    assert len(back.poses) == len(read_folder(plan_dir)["t"])
