@@ -50,7 +50,8 @@ def robot_options(f):
                           "model.")(f)
     f = click.option("--robot", default=None,
                      help="Robot model with its built-in description: unicycle, rwd_car, fwd_car, car_trailer "
-                          "(default: the config's, else the map's robot block, else unicycle).")(f)
+                          "(default: the config's, else the map's robot block, else unicycle); or nav2:FILE, the "
+                          "robot of a Nav2 parameters file (as --robot-config nav2:FILE).")(f)
     return f
 
 
@@ -60,6 +61,8 @@ def cli_robot(robot_name, robot_config, config_robot=None, map_robot=None, m=Non
     from nhstab.errors import InputError
     from nhstab.robot import load_robot, map_robot_where, resolve_robot, robot_from_spec
 
+    if robot_config is None and robot_name is not None and robot_name.startswith("nav2:"):
+        robot_config, robot_name = Path(robot_name), None
     if robot_config is not None:
         nav2 = _nav2_file(robot_config)
         if nav2 is None:

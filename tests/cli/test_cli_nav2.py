@@ -79,3 +79,10 @@ def test_the_model_choices_are_the_readers():
 
     option = next(p for p in from_nav2.params if p.name == "model")
     assert tuple(option.type.choices) == NAV2_MODELS
+
+
+def test_robot_takes_a_nav2_file_too():
+    res = invoke("map", "info", "example:tb3_sandbox", "--robot", f"nav2:{CAR}")
+    assert res.exit_code == 0, res.output
+    assert "nav2: model rwd_car" in res.stderr
+    one_line(invoke("map", "info", "example:tb3_sandbox", "--robot", "nav2:missing.yaml"), 2, "missing.yaml")
