@@ -252,5 +252,5 @@ def _check_frame(frame_id) -> None:
 def _check_stamp(name: str, value) -> None:
     ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
     if not ok or not 0.0 <= value <= _MAX_SEC:
-        raise InputError(name if name == "stamp" else "--stamp", f"a time in [0, {_MAX_SEC}] s (builtin_interfaces/Time)",
-                         value)
+        raise InputError("--stamp", f"a time in [0, {_MAX_SEC}] s for every pose (builtin_interfaces/Time)",
+                         value, detail="" if name == "stamp" else "the last pose's stamp + t")
