@@ -119,9 +119,11 @@ def _register():
     from . import bench, gains, paper
     from .batch import batch
     from .examples import examples
+    from .export import export_group
     from .map import map_group
     from .parking import parking
     from .plan import plan, sweep
+    from .robot import robot_group
     from .run import run
     from .tubes import tubes
 
@@ -136,6 +138,8 @@ def _register():
     cli.add_command(bench.bench)
     cli.add_command(parking)
     cli.add_command(tubes)
+    cli.add_command(robot_group)
+    cli.add_command(export_group)
 
 
 _register()

@@ -44,10 +44,14 @@ def collect(**values) -> dict:
 def robot_options(f):
     """--robot NAME and --robot-config FILE (a robot description, see nhstab.robot)."""
     f = click.option("--robot-config", "robot_config", type=click.Path(path_type=Path), default=None,
-                     help="Robot description (YAML: model, parameters, footprint, margin, ...); overrides --robot.")(f)
+                     help="Robot description (YAML: model, parameters, footprint, margin, ...); overrides --robot. "
+                          "A Nav2 parameters file (nav2_params.yaml, or nav2:FILE) gives the footprint, the model "
+                          "and turning radius of its Smac planner and the speed limits; --robot then sets the "
+                          "model.")(f)
     f = click.option("--robot", default=None,
                      help="Robot model with its built-in description: unicycle, rwd_car, fwd_car, car_trailer "
-                          "(default: the config's, else the map's robot block, else unicycle).")(f)
+                          "(default: the config's, else the map's robot block, else unicycle); or nav2:FILE, the "
+                          "robot of a Nav2 parameters file (as --robot-config nav2:FILE).")(f)
     return f
 
 
@@ -57,8 +61,20 @@ def cli_robot(robot_name, robot_config, config_robot=None, map_robot=None, m=Non
     from nhstab.errors import InputError
     from nhstab.robot import load_robot, map_robot_where, resolve_robot, robot_from_spec
 
+    if robot_config is None and robot_name is not None and robot_name.startswith("nav2:"):
+        robot_config, robot_name = Path(robot_name), None
     if robot_config is not None:
-        return load_robot(robot_config)
+        nav2 = _nav2_file(robot_config)
+        if nav2 is None:
+            return load_robot(robot_config)
+        from nhstab.nav2 import NAV2_MODELS, read_nav2_robot
+
+        if robot_name is not None and robot_name not in NAV2_MODELS:
+            raise InputError("--robot", "with a Nav2 parameters file, one of " + ", ".join(NAV2_MODELS), robot_name)
+        got = read_nav2_robot(nav2, model=robot_name)
+        for line in got.lines:
+            click.echo(f"nav2: {line}", err=True)
+        return got.robot
     if robot_name is not None:
         try:
             return robot_from_spec(robot_name, where="--robot", source="--robot")
@@ -67,3 +83,20 @@ def cli_robot(robot_name, robot_config, config_robot=None, map_robot=None, m=Non
     if config_robot is not None:
         return robot_from_spec(config_robot, where="robot", source="run config")
     return resolve_robot(None, map_robot, map_where=map_robot_where(m) if m is not None else "robot")
+
+
+def _nav2_file(robot_config) -> Path | None:
+    """The Nav2 parameters file a --robot-config names (``nav2:FILE``, or a YAML file whose nodes hold
+    ``ros__parameters``), else None (an nhstab robot file)."""
+    from nhstab.errors import InputError
+    from nhstab.nav2 import NAV2_PREFIX, is_nav2_params
+    from nhstab.safe_io import load_yaml_file
+
+    text = str(robot_config)
+    if text.startswith(NAV2_PREFIX):
+        return Path(text[len(NAV2_PREFIX):])
+    try:
+        data = load_yaml_file(Path(text), "--robot-config", "robot description (YAML)")
+    except InputError:
+        return None                  # load_robot reports it
+    return Path(text) if is_nav2_params(data) else None
