@@ -187,7 +187,7 @@ def _with_unit(text: str, unit: str) -> str:
 def run_tracking_figure(result):
     """The tracking error and the inputs against time, one panel per unit: the position error's size on
     a log scale, the state errors by unit (position in m, heading and other angles in rad) and the
-    inputs by unit (applied solid, nominal dotted); replans marked on every panel."""
+    inputs by unit (applied solid, nominal dashed on top); replans marked on every panel."""
     lg, model = result.log, result.model
     t = lg["t"]
     e = model.state_error(lg["x"], lg["x0"])
@@ -213,8 +213,9 @@ def run_tracking_figure(result):
     for unit, idx in input_groups:
         for i in idx:
             s = model.input_names[i]
-            line, = axes[k].plot(t, lg["u"][:, i], lw=0.9, label=s)
-            axes[k].plot(t, lg["u0"][:, i], lw=0.8, ls=":", color=line.get_color(), label=f"{s} nominal")
+            line, = axes[k].plot(t, lg["u"][:, i], lw=0.9, label=f"{s} applied")
+            axes[k].plot(t, lg["u0"][:, i], lw=0.9, ls="--", color="k" if len(idx) == 1 else line.get_color(),
+                         zorder=3, label=f"{s} nominal")
         axes[k].set_ylabel(_with_unit("input " + ", ".join(model.input_names[i] for i in idx), unit))
         k += 1
     axes[-1].set_xlabel("t [s]")
