@@ -71,8 +71,8 @@ def run_map_figure(result, footprints: int = 12):
                         label="executed (trailer axle)" if b == 1 else None)
             for k in np.linspace(0, len(p) - 1, footprints).astype(int):
                 draw_rig(ax, rig, lg["x"][k], color="0.35", fill=False, lw=0.5)
-            ax.add_patch(patches.Polygon(np.zeros((3, 2)), closed=True, fill=False, edgecolor="0.35", lw=0.5,
-                                         visible=False, label="footprint, executed"))
+            ax.add_artist(patches.Rectangle((np.nan, np.nan), 0.0, 0.0, fill=False, edgecolor="0.35", lw=0.5,
+                                            label="footprint, executed"))     # the legend's entry only
         else:
             for j, k in enumerate(np.linspace(0, len(p) - 1, footprints).astype(int)):
                 ax.add_patch(patches.Polygon(result.footprint.outline_at(p[k]), closed=True, fill=False,
@@ -132,6 +132,10 @@ def _draw_collision(ax, result) -> None:
     kind = "jackknife" if col.get("kind") == "jackknife" else "collision"
     ax.plot(*where[:2], marker="*", color="red", mec="k", mew=0.5, ms=12, ls="none", zorder=7,
             label=f"{kind} at t = {col['time_s']:.2f} s")
+    rig = _rig(result)
+    body = rig.footprints[col["body"]] if rig is not None and "body_pose" in col else result.footprint
+    ax.add_patch(patches.Polygon(body.outline_at(where), closed=True, fill=False, edgecolor="red", lw=1.2, zorder=7,
+                                 label="footprint at the collision"))
     hits = col.get("obstacles") or []
     labelled = False
     for hit in hits:

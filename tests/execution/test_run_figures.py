@@ -23,6 +23,8 @@ def _legend_clear_of_the_drawing(fig) -> int:
     legend = ax.get_legend()
     lb = legend.get_window_extent()
     axes_box = ax.get_window_extent()
+    fb = fig.bbox                                        # and the legend is wholly on the figure
+    assert fb.x0 - 1 <= lb.x0 and lb.x1 <= fb.x1 + 1 and fb.y0 - 1 <= lb.y0 and lb.y1 <= fb.y1 + 1, (lb, fb)
     checked = 0
     for line in ax.get_lines():
         label = line.get_label()
