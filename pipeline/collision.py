@@ -138,28 +138,35 @@ class CollisionWorld:
     #: (:func:`_along_a_path`; else, and for fewer, FCL pose by pose)
     BATCH_FROM = 8
 
-    def __init__(self, shapes=(), grids: tuple[OccupancyGrid, ...] = (), bounds=None, walls: bool = True):
+    def __init__(self, shapes=(), grids: tuple[OccupancyGrid, ...] = (), bounds=None, walls: bool = True,
+                 names=None):
         started = time.perf_counter()
         self.shapes = tuple(shapes)
+        #: what each shape is in its map, (list name, index), e.g. ("obstacles", 3): :meth:`hits` names it
+        self.names = tuple(names) if names is not None else tuple(("shapes", k) for k in range(len(self.shapes)))
+        if len(self.names) != len(self.shapes):
+            raise InputError("names", f"one (list, index) per shape ({len(self.shapes)})", len(self.names))
         self.grids = tuple(grids)
         self.bounds = None if bounds is None else tuple(float(b) for b in bounds)
         self.walls = walls
         self._outline: dict[int, tuple] = {}     # id(geometry) -> ("poly", vertices) | ("circle", centre, r)
+        #: id(geometry) -> what it is part of: ("shape", k) | ("grid", g, (i0, j0, i1, j1)) | ("bounds", side)
+        self._source: dict[int, tuple] = {}
         self._geoms: list = []                   # keeps the geometries (and so their ids) alive
         objects: list[fcl.CollisionObject] = []
-        for shape in self.shapes:
+        for k, shape in enumerate(self.shapes):
             if isinstance(shape, Polygon):
                 for part in polygon_pieces(shape):
-                    objects.append(self._add(_prism(part), ("poly", part)))
+                    objects.append(self._add(_prism(part), ("poly", part), source=("shape", k)))
             elif isinstance(shape, Circle):
                 objects.append(self._add(fcl.Cylinder(shape.radius, 2 * _Z), ("circle", shape.center, shape.radius),
-                                         *shape.center))
+                                         *shape.center, source=("shape", k)))
             else:
                 raise InputError("obstacle", "a Polygon or a Circle", type(shape).__name__)
         self.n_grid_boxes = 0
         rectangles = [grid_rectangles(grid.occupied) for grid in self.grids]
         _check_world_size(len(objects) + sum(map(len, rectangles)))       # before any box is built
-        for grid, rects in zip(self.grids, rectangles):
+        for g, (grid, rects) in enumerate(zip(self.grids, rectangles)):
             ox, oy, yaw = grid.origin
             r = grid.resolution
             c, s = math.cos(yaw), math.sin(yaw)
@@ -167,16 +174,18 @@ class CollisionWorld:
                 u, v = (j0 + j1) / 2 * r, (i0 + i1) / 2 * r          # centre in the grid frame
                 lx, ly = (j1 - j0) * r, (i1 - i0) * r
                 cx, cy = ox + c * u - s * v, oy + s * u + c * v
-                objects.append(self._add(fcl.Box(lx, ly, 2 * _Z), ("poly", _box(cx, cy, lx, ly, yaw)), cx, cy, yaw))
+                objects.append(self._add(fcl.Box(lx, ly, 2 * _Z), ("poly", _box(cx, cy, lx, ly, yaw)), cx, cy, yaw,
+                                         source=("grid", g, (i0, j0, i1, j1))))
                 self.n_grid_boxes += 1
         if walls and self.bounds is not None:
             xmin, ymin, xmax, ymax = self.bounds
             w, h = xmax - xmin, ymax - ymin
-            for cx, cy, lx, ly in [((xmin + xmax) / 2, ymin - _WALL / 2, w + 2 * _WALL, _WALL),
-                                   ((xmin + xmax) / 2, ymax + _WALL / 2, w + 2 * _WALL, _WALL),
-                                   (xmin - _WALL / 2, (ymin + ymax) / 2, _WALL, h),
-                                   (xmax + _WALL / 2, (ymin + ymax) / 2, _WALL, h)]:
-                objects.append(self._add(fcl.Box(lx, ly, 2 * _Z), ("poly", _box(cx, cy, lx, ly, 0.0)), cx, cy))
+            for side, cx, cy, lx, ly in [("bottom", (xmin + xmax) / 2, ymin - _WALL / 2, w + 2 * _WALL, _WALL),
+                                         ("top", (xmin + xmax) / 2, ymax + _WALL / 2, w + 2 * _WALL, _WALL),
+                                         ("left", xmin - _WALL / 2, (ymin + ymax) / 2, _WALL, h),
+                                         ("right", xmax + _WALL / 2, (ymin + ymax) / 2, _WALL, h)]:
+                objects.append(self._add(fcl.Box(lx, ly, 2 * _Z), ("poly", _box(cx, cy, lx, ly, 0.0)), cx, cy,
+                                         source=("bounds", side)))
         self._objects = objects
         self.manager = fcl.DynamicAABBTreeCollisionManager()
         if objects:
@@ -188,9 +197,10 @@ class CollisionWorld:
         self.cache: dict = {}
         self.build_time_s = time.perf_counter() - started
 
-    def _add(self, geom, outline, x=0.0, y=0.0, yaw=0.0) -> fcl.CollisionObject:
+    def _add(self, geom, outline, x=0.0, y=0.0, yaw=0.0, source=None) -> fcl.CollisionObject:
         self._geoms.append(geom)
         self._outline[id(geom)] = outline
+        self._source[id(geom)] = source
         return _object(geom, x, y, yaw)
 
     # ---- construction ------------------------------------------------------------------------------
@@ -200,16 +210,19 @@ class CollisionWorld:
         if obstacles not in ("known", "unknown", "all"):
             raise InputError("obstacles", "one of known, unknown, all", obstacles)
         shapes = () if obstacles == "unknown" else tuple(m.obstacles)
+        names = tuple(("obstacles", k) for k in range(len(shapes)))
         if obstacles in ("unknown", "all"):
             shapes = shapes + tuple(m.unknown_obstacles)
+            names = names + tuple(("unknown_obstacles", k) for k in range(len(m.unknown_obstacles)))
         grids = () if obstacles == "unknown" else m.grids
-        return cls(shapes, grids, m.bounds, walls)
+        return cls(shapes, grids, m.bounds, walls, names=names)
 
     def with_obstacles(self, shapes) -> "CollisionWorld":
         """A new world with ``shapes`` (e.g. discovered obstacles) added. If this world's distance field
         exists, the new one is derived from it (only the added shapes are rasterised)."""
         shapes = tuple(shapes)
-        world = CollisionWorld(self.shapes + shapes, self.grids, self.bounds, self.walls)
+        world = CollisionWorld(self.shapes + shapes, self.grids, self.bounds, self.walls,
+                               names=self.names + tuple(("added", k) for k in range(len(shapes))))
         field = getattr(self, "_field", None)
         if field is not None:
             added = []
@@ -564,6 +577,79 @@ class CollisionWorld:
                 else:
                     deepest = max(deepest, float(contact.penetration_depth))
         return -deepest
+
+    def hits(self, pose, fp: Footprint) -> list[dict]:
+        """The obstacles the footprint at ``pose`` overlaps, deepest first, as FCL's contacts name them.
+
+        Each is a dict: ``id`` (text: ``obstacles[3]``, ``unknown_obstacles[0]``, the grid cells
+        ``grid[0] cells (row, col), ...`` or ``map bounds (left)``), ``source`` ("obstacles",
+        "unknown_obstacles", "added", "shapes", "grid" or "bounds") with ``index`` (the shape's index in
+        that list), ``grid`` and ``cells`` (every occupied cell [row, col] the footprint overlaps) or
+        ``side``, and ``clearance_m``: minus the penetration depth (a segment's exactly in the plane, as
+        :meth:`clearance` measures it). Empty when the pose is free."""
+        pose = _pose(pose)
+        deepest: dict = {}                       # source -> depth
+        for o in self._robot(fp, pose):
+            data = fcl.CollisionData(request=fcl.CollisionRequest(num_max_contacts=100_000, enable_contact=True))
+            self.manager.collide(o, data, fcl.defaultCollisionCallback)
+            for contact in data.result.contacts:
+                geom = contact.o1 if id(contact.o1) in self._source else contact.o2
+                source, outline = self._source.get(id(geom)), self._outline.get(id(geom))
+                if source is None:
+                    continue
+                if outline[0] == "poly" and len(outline[1]) == 2:
+                    # a segment: its depth exactly in the plane; FCL's default solver (libccd) also
+                    # reports contacts with flat prisms a few centimetres apart, and those are no hit
+                    depth = segment_depth(fp, pose, outline[1])
+                    if depth <= 0.0:
+                        continue
+                else:
+                    depth = float(contact.penetration_depth)
+                deepest[source] = max(deepest.get(source, 0.0), depth)
+        out: dict = {}
+        for source, depth in deepest.items():
+            if source[0] == "shape":
+                name, k = self.names[source[1]]
+                key = (name, k)
+                hit = {"id": f"{name}[{k}]", "source": name, "index": int(k)}
+            elif source[0] == "grid":
+                key = ("grid", source[1])
+                hit = out.get(key) or {"source": "grid", "grid": int(source[1]), "cells": []}
+                hit["cells"] += self._cells_hit(pose, fp, source[1], source[2])
+            else:
+                key = source
+                hit = {"id": f"map bounds ({source[1]})", "source": "bounds", "side": source[1]}
+            hit["clearance_m"] = min(hit.get("clearance_m", 0.0), -float(depth))
+            out[key] = hit
+        for hit in out.values():
+            if hit["source"] == "grid":
+                hit["cells"] = sorted(hit["cells"])
+                listed = ", ".join(f"({i}, {j})" for i, j in hit["cells"][:4])
+                more = f" and {len(hit['cells']) - 4} more" if len(hit["cells"]) > 4 else ""
+                hit["id"] = f"grid[{hit['grid']}] cell{'s' if len(hit['cells']) != 1 else ''} {listed}{more}"
+        return sorted(out.values(), key=lambda h: h["clearance_m"])
+
+    def _cells_hit(self, pose, fp: Footprint, g: int, rect) -> list[list[int]]:
+        """The cells [row, col] of the merged rectangle ``rect`` = (i0, j0, i1, j1) of grid ``g`` that the
+        footprint at ``pose`` overlaps (FCL, a box per cell near the footprint)."""
+        grid = self.grids[g]
+        i0, j0, i1, j1 = rect
+        ox, oy, yaw = grid.origin
+        r = grid.resolution
+        c, s = math.cos(yaw), math.sin(yaw)
+        reach = fp.bounding_radius
+        u, v = c * (pose[0] - ox) + s * (pose[1] - oy), -s * (pose[0] - ox) + c * (pose[1] - oy)  # grid frame
+        rows = range(max(i0, math.floor((v - reach) / r)), min(i1, math.floor((v + reach) / r) + 1))
+        cols = range(max(j0, math.floor((u - reach) / r)), min(j1, math.floor((u + reach) / r) + 1))
+        robot = self._robot(fp, pose)
+        cells = []
+        for i in rows:
+            for j in cols:
+                cu, cv = (j + 0.5) * r, (i + 0.5) * r
+                cell = _object(fcl.Box(r, r, 2 * _Z), ox + c * cu - s * cv, oy + s * cu + c * cv, yaw)
+                if any(fcl.collide(o, cell, _COLLIDE_REQUEST, fcl.CollisionResult()) for o in robot):
+                    cells.append([int(i), int(j)])
+        return cells
 
     def is_free(self, pose, fp: Footprint, margin: float = 0.0) -> bool:
         """No obstacle within ``margin`` of the footprint (margin 0: no overlap).

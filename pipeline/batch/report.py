@@ -222,17 +222,28 @@ def figure_rows(rows: list[dict]) -> tuple[list[dict], str]:
                    "the tables and trials.csv hold every cell.")
 
 
+#: percentiles over trials are drawn from this many trials on; fewer are drawn one curve per trial
+PERCENTILE_TRIALS = 3
+
+
+def _kept(count: np.ndarray, n: int) -> np.ndarray:
+    """The time samples a curve over ``n`` trials is drawn at: where at least half of them, and at least
+    PERCENTILE_TRIALS (all of them, when fewer trials ran), still follow their first plan."""
+    return count >= max(min(PERCENTILE_TRIALS, n), 0.5 * n)
+
+
 def envelope_figure(trials, rows):
-    """Per gramian cell (and the baselines beside them): percentiles of ||e(t)|| over trials, and the
-    median over trials of each trial's own gramian bound."""
+    """Per gramian cell (and the baselines beside them): percentiles of ||e(t)|| over trials (each trial's
+    own curve in a cell of fewer than PERCENTILE_TRIALS trials), and the median over trials of each
+    trial's own gramian bound. None when no trial recorded its error series."""
     cells = _cells(trials)
+    rows = [r for r in rows if any(t.get("series") for t in cells[r["cell"]])]
+    if not rows:
+        return None
     fig, axes = subplots(len(rows), 1, figsize=(8, 2.2 * len(rows) + 0.6), sharex=True, squeeze=False,
                              layout="constrained")
     for ax, row in zip(axes[:, 0], rows):
         series = [t["series"] for t in cells[row["cell"]] if t.get("series")]
-        if not series:
-            ax.set_visible(False)
-            continue
         dt = series[0]["dt_s"]
         length = max(len(s["error_norm"]) for s in series)
         E = np.full((len(series), length), np.nan)
@@ -240,9 +251,14 @@ def envelope_figure(trials, rows):
             E[i, :len(s["error_norm"])] = s["error_norm"]
         t = dt * np.arange(length)
         count = np.sum(np.isfinite(E), axis=0)
-        keep = count >= max(3, 0.5 * len(series))
-        for q, style in ((50, "-"), (90, "--"), (99, ":")):
-            ax.semilogy(t[keep], np.nanpercentile(E[:, keep], q, axis=0), "k" + style, lw=1.0, label=f"{q}th percentile")
+        keep = _kept(count, len(series))
+        if len(series) >= PERCENTILE_TRIALS:
+            for q, style in ((50, "-"), (90, "--"), (99, ":")):
+                ax.semilogy(t[keep], np.nanpercentile(E[:, keep], q, axis=0), "k" + style, lw=1.0,
+                            label=f"{q}th percentile")
+        else:                                   # too few trials for percentiles: each trial's own curve
+            for i, e in enumerate(E):
+                ax.semilogy(t, e, color="k", lw=0.9, ls=("-", "--")[i % 2], label=f"trial {i + 1}")
         bounds = [b for b in (_bound_curve(tr, t) for tr in cells[row["cell"]]) if b is not None]
         if bounds:
             B = np.array(bounds)
@@ -250,8 +266,9 @@ def envelope_figure(trials, rows):
             label = ("3 alpha bound" if row.get("window") in (None, "future") else "certified bound") + \
                 " (noiseless linearised loop; median over trials)"
             ax.semilogy(t[ok], np.nanmedian(B[:, ok], axis=0), color="tab:blue", lw=1.0, label=label)
-        ax.set_ylabel("||e||")
-        ax.set_title(_label(row) + f"  ({len(series)} trials)", fontsize=8)
+        ax.set_ylabel("||e|| [-]")
+        few = "" if len(series) >= PERCENTILE_TRIALS else f"; fewer than {PERCENTILE_TRIALS}: each trial drawn"
+        ax.set_title(_label(row) + f"  ({len(series)} trial{'s' if len(series) != 1 else ''}{few})", fontsize=8)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=6, loc="upper right")
     axes[-1, 0].set_xlabel("t [s] (while following the first plan)")
@@ -284,7 +301,7 @@ def tube_figure(trials, rows):
         for c in range(n, width):
             axes[i, c].set_visible(False)
         count = np.sum(np.isfinite(E[:, :, 0]), axis=0)
-        keep = count >= max(3, 0.5 * len(series))
+        keep = _kept(count, len(series))
         t = dt * np.arange(length)
         for c, name in enumerate(names):
             ax = axes[i, c]
@@ -294,7 +311,7 @@ def tube_figure(trials, rows):
             ax.set_title(f"e_{name}", fontsize=8)
             ax.grid(alpha=0.3)
             if c == 0:
-                ax.set_ylabel(_label(row), fontsize=6)
+                ax.set_ylabel(_label(row) + f" ({len(series)} trial{'s' if len(series) != 1 else ''})", fontsize=6)
         axes[i, 0].legend(fontsize=6, loc="upper right")
     for ax in axes[-1]:
         ax.set_xlabel("t [s] (first plan)")
@@ -514,6 +531,19 @@ def write_report(store_path, out_dir=None) -> list[Path]:
     return out.written
 
 
+def left_out(trials: list[dict], rows: list[dict], figs: dict) -> dict:
+    """Why each figure that is not drawn (None in ``figs``) is left out: one line per figure."""
+    levels = ", ".join(sorted({f"{r['noise']:g}" for r in rows}))
+    why = {
+        "envelopes": "no trial recorded its tracking-error series (every trial ended before it followed a plan)",
+        "tubes": "no trial's first plan has a recorded error tube to compare with",
+        "paired": "no map and noise level ran the reference controller (the gramian law) and another one on the "
+                  "same seeds",
+        "noise": f"no cell group ran at more than one noise level (levels: {levels})",
+    }
+    return {name: why.get(name, "nothing to draw") for name, fig in figs.items() if fig is None}
+
+
 ERROR_HEADER = ["error", "trials", "cells", "first trial"]
 
 
@@ -595,7 +625,8 @@ def _write_report(out, db, trials, config, vers, rows, figs, runs=()) -> None:
                      "guarantee; stores from before nhstab recorded it per trial: ||e(0)|| sqrt(p_M/p_m) "
                      "exp(-3 alpha t)), for the frozen-time law its certified bound; none for the past window, "
                      "which has no guarantee. Sensor noise, disturbances and the 50 Hz hold are outside the bound: "
-                     "the envelopes may cross it." + drawn_note,
+                     "the envelopes may cross it. A cell of fewer than 3 trials has no percentiles: each trial's own "
+                     "||e(t)|| is drawn." + drawn_note,
         "distributions": "Minimum executed clearance (orange: the margin, red: contact), final position error, "
                          "replans and replan latency per cell.",
         "tubes": "Predicted error tube against the observed error, per state: RMS over trials of e(t) while following "
@@ -651,6 +682,9 @@ def _write_report(out, db, trials, config, vers, rows, figs, runs=()) -> None:
     for name, fig in figs.items():
         if fig is not None:
             md += [f"![{name}](figures/{name}.png)", "", captions[name], ""]
+    missing = left_out(trials, rows, figs)
+    if missing:
+        md += ["**Figures left out.**", "", *(f"- {name}: {why}." for name, why in missing.items()), ""]
     md += ["Every trial, with its seed and metrics, is in `trials.csv`; replay one with "
            "`nhstab batch replay STORE TRIAL_ID --out DIR`.", ""]
     out.write_text("report.md", "\n".join(md))
@@ -679,5 +713,9 @@ def _write_report(out, db, trials, config, vers, rows, figs, runs=()) -> None:
         if fig is not None:
             h.append(f"<figure><img src='figures/{name}.png' alt='{name}'>"
                      f"<figcaption>{html.escape(captions[name])}</figcaption></figure>")
+    if missing:
+        h.append("<p><b>Figures left out.</b></p><ul>"
+                 + "".join(f"<li>{html.escape(name)}: {html.escape(why)}.</li>" for name, why in missing.items())
+                 + "</ul>")
     h.append("<p>Every trial is in <a href='trials.csv'>trials.csv</a>.</p></body></html>")
     out.write_text("report.html", "\n".join(h) + "\n")

@@ -435,7 +435,7 @@ class CompositeRun:
         pose = x[self.pose_idx]
         if not self.multibody:
             if self.truth.in_collision(pose, self.fp):
-                self.collision = {"time_s": t, "pose": pose.tolist()}
+                self.collision = {"time_s": t, "pose": pose.tolist(), "obstacles": self.truth.hits(pose, self.fp)}
                 raise _Stop("collision", f"collision at t = {t:.2f} s at pose {np.round(pose, 3).tolist()}")
             return
         # a jackknife (a hitch angle beyond the limit) is a collision of the rig with itself
@@ -451,7 +451,7 @@ class CompositeRun:
         if b is not None:
             where = self.robot.body_poses(x)[b]
             self.collision = {"time_s": t, "pose": pose.tolist(), "kind": "obstacle", "body": b,
-                              "body_pose": where.tolist()}
+                              "body_pose": where.tolist(), "obstacles": self.truth.hits(where, self.robot.footprints[b])}
             name = "the car" if b == 0 else f"trailer {b}"
             raise _Stop("collision", f"collision of {name} at t = {t:.2f} s at pose {np.round(where, 3).tolist()}")
 

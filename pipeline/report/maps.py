@@ -143,13 +143,54 @@ def _fixed_margins(fig, fig_w: float, fig_h: float, title_lines: int) -> None:
     fig.subplots_adjust(left=left / fig_w, right=1 - right / fig_w, bottom=bottom / fig_h, top=1 - top_in / fig_h)
 
 
-def map_legend(ax, m: Map, fontsize: float = 7, **kw):
-    """The legend of a map axes: the map's obstacle kinds first, then every labelled artist."""
-    handles = [patches.Patch(facecolor=KNOWN, label="known obstacle")]
+def layer_handles(m: Map) -> list:
+    """Legend entries of the layers :func:`map_figure` draws for the map itself: known obstacles (shapes
+    and occupied cells), unknown obstacles (dashed), a grid's unknown area (light grey; darker where it
+    counts as occupied) and the map's bounds."""
+    handles = []
+    if m.obstacles or any(g.occupied.any() for g in m.grids):
+        handles.append(patches.Patch(facecolor=KNOWN, label="known obstacle"))
     if m.unknown_obstacles:
         handles.append(patches.Patch(facecolor="none", edgecolor=UNKNOWN, ls="--", label="unknown obstacle"))
-    h_, _ = ax.get_legend_handles_labels()
-    return ax.legend(handles=handles + h_, fontsize=fontsize, loc="upper right", framealpha=0.85, **kw)
+    grey = lambda key: tuple([_GREY[key] / 255] * 3)  # noqa: E731
+    if any(g.unknown is not None and (g.unknown & ~g.occupied).any() for g in m.grids):
+        handles.append(patches.Patch(facecolor=grey("unknown"), edgecolor="0.6", lw=0.5,
+                                     label="unknown area (free for planning)"))
+    if any(g.unknown is not None and (g.unknown & g.occupied).any() for g in m.grids):
+        handles.append(patches.Patch(facecolor=grey("unknown_occupied"), label="unknown area (an obstacle for planning)"))
+    handles.append(patches.Patch(facecolor="none", edgecolor="k", lw=1.0, label="map bounds"))
+    return handles
+
+
+#: the gap between the map axes and a legend beside them, and the figure's margin right of it [inches]
+_LEGEND_GAP_IN = 0.12
+
+
+def map_legend(ax, m: Map, fontsize: float = 7, **kw):
+    """The legend of a map axes, beside it on the right (never over the map): the map's layers first
+    (:func:`layer_handles`), then every labelled artist. The figure is widened by the legend's width
+    and the axes keep their size in inches; a legend taller than the axes takes more columns."""
+    fig = ax.figure
+    handles = layer_handles(m) + ax.get_legend_handles_labels()[0]
+    pos = ax.get_position()
+    old_w, fig_h = fig.get_figwidth(), fig.get_figheight()
+    renderer = fig.canvas.get_renderer()
+    ncol, legend = 1, None
+    while True:
+        if legend is not None:
+            legend.remove()
+        legend = ax.legend(handles=handles, fontsize=fontsize, loc="upper left", bbox_to_anchor=(1.0, 1.0),
+                           borderaxespad=0.0, framealpha=1.0, ncol=ncol, **kw)
+        box = legend.get_window_extent(renderer)
+        if box.height / fig.dpi <= pos.height * fig_h + 1e-9 or ncol >= 4:
+            break
+        ncol += 1
+    legend.set_bbox_to_anchor((1.0 + _LEGEND_GAP_IN / (pos.width * old_w), 1.0))
+    new_w = old_w + box.width / fig.dpi + 2 * _LEGEND_GAP_IN
+    fig.set_figwidth(new_w)
+    ax.set_anchor("W")          # an equal-aspect map narrower than its box keeps the legend next to it
+    ax.set_position([pos.x0 * old_w / new_w, pos.y0, pos.width * old_w / new_w, pos.height])
+    return legend
 
 
 def map_figure(m: Map, start=None, goal=None, footprint=None, title: str | None = None, problems: int = 0,

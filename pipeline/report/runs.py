@@ -43,11 +43,12 @@ def run_map_figure(result, footprints: int = 12):
     fig = map_figure(result.map, start=result.start, goal=result.goal, footprint=result.footprint, title=title,
                      robot=rig, legend=False)
     ax = fig.axes[0]
-    for d in result.discovered:
+    for k, d in enumerate(result.discovered):
         shape = result.map.unknown_obstacles[d["index"]]
-        _draw_discovered(ax, shape)
-        c = np.asarray(shape.center if isinstance(shape, Circle) else shape.vertices.mean(axis=0))
-        ax.annotate(f"seen {d['time_s']:.1f} s", c, fontsize=6, color="tab:red", ha="center")
+        patch = _draw_discovered(ax, shape)
+        if k == 0:
+            patch.set_label("unknown obstacle, seen at t")
+        _seen_label(ax, shape, d["time_s"])
 
     for rec in result.plans:
         if getattr(rec, "tube", None) is not None:
@@ -70,20 +71,90 @@ def run_map_figure(result, footprints: int = 12):
                         label="executed (trailer axle)" if b == 1 else None)
             for k in np.linspace(0, len(p) - 1, footprints).astype(int):
                 draw_rig(ax, rig, lg["x"][k], color="0.35", fill=False, lw=0.5)
+            ax.add_artist(patches.Rectangle((np.nan, np.nan), 0.0, 0.0, fill=False, edgecolor="0.35", lw=0.5,
+                                            label="footprint, executed"))     # the legend's entry only
         else:
-            for k in np.linspace(0, len(p) - 1, footprints).astype(int):
+            for j, k in enumerate(np.linspace(0, len(p) - 1, footprints).astype(int)):
                 ax.add_patch(patches.Polygon(result.footprint.outline_at(p[k]), closed=True, fill=False,
-                                             edgecolor="0.35", lw=0.5))
+                                             edgecolor="0.35", lw=0.5, label="footprint, executed" if j == 0 else None))
     for rec in result.plans[1:]:
         ax.plot(*rec.start[:2], marker="X", color="tab:red", ms=8, ls="none",
                 label="replan" if rec.id == 1 else None)
-    if result.collision:
-        where = result.collision.get("body_pose", result.collision["pose"])
-        label = "jackknife" if result.collision.get("kind") == "jackknife" else "collision"
-        ax.plot(*where[:2], marker="*", color="red", ms=14, ls="none", label=label)
     _zoom(ax, result)
+    if result.collision:
+        _draw_collision(ax, result)
     map_legend(ax, result.map, fontsize=6)
     return fig
+
+
+def _seen_label(ax, shape, time_s: float) -> None:
+    """'seen at t' beside a discovered obstacle: dark text on a white box just above its outline."""
+    xmin, ymin, xmax, ymax = shape.bounds()
+    ax.annotate(f"seen at {time_s:.1f} s", ((xmin + xmax) / 2, ymax), xytext=(0, 3), textcoords="offset points",
+                fontsize=7, color="darkred", ha="center", va="bottom", zorder=6,
+                bbox=dict(boxstyle="round,pad=0.15", facecolor="white", edgecolor="darkred", lw=0.5, alpha=0.9))
+
+
+#: an obstacle hit whose outline spans less than this many points on the figure is circled too
+_SMALL_HIT_PT = 12.0
+
+
+def _hit_outlines(m, hit) -> list[np.ndarray]:
+    """The outlines (k, 2) of one obstacle named in a collision record (:meth:`CollisionWorld.hits`)."""
+    source = hit.get("source")
+    if source in ("obstacles", "unknown_obstacles"):
+        shape = getattr(m, source)[hit["index"]]
+        if isinstance(shape, Circle):
+            a = np.linspace(0, 2 * np.pi, 48, endpoint=False)
+            return [np.column_stack([shape.center[0] + shape.radius * np.cos(a),
+                                     shape.center[1] + shape.radius * np.sin(a)])]
+        return [shape.vertices]
+    if source == "grid":
+        g = m.grids[hit["grid"]]
+        ox, oy, yaw = g.origin
+        c, s = np.cos(yaw), np.sin(yaw)
+        out = []
+        for i, j in hit["cells"]:
+            uv = (np.array([[0, 0], [1, 0], [1, 1], [0, 1]]) + [j, i]) * g.resolution
+            out.append(np.column_stack([ox + c * uv[:, 0] - s * uv[:, 1], oy + s * uv[:, 0] + c * uv[:, 1]]))
+        return out
+    if source == "bounds":
+        xmin, ymin, xmax, ymax = m.bounds
+        return [np.array([[xmin, ymin], [xmax, ymin], [xmax, ymax], [xmin, ymax]])]
+    return []
+
+
+def _draw_collision(ax, result) -> None:
+    """Where the run collided: the footprint there (star at its reference point), the obstacle hit
+    outlined, circled when it is small on the figure, and named with its signed clearance."""
+    col = result.collision
+    where = np.asarray(col.get("body_pose", col["pose"]), dtype=float)
+    kind = "jackknife" if col.get("kind") == "jackknife" else "collision"
+    ax.plot(*where[:2], marker="*", color="red", mec="k", mew=0.5, ms=12, ls="none", zorder=7,
+            label=f"{kind} at t = {col['time_s']:.2f} s")
+    rig = _rig(result)
+    body = rig.footprints[col["body"]] if rig is not None and "body_pose" in col else result.footprint
+    ax.add_patch(patches.Polygon(body.outline_at(where), closed=True, fill=False, edgecolor="red", lw=1.2, zorder=7,
+                                 label="footprint at the collision"))
+    hits = col.get("obstacles") or []
+    labelled = False
+    for hit in hits:
+        for outline in _hit_outlines(result.map, hit):
+            ax.add_patch(patches.Polygon(outline, closed=True, fill=False, edgecolor="magenta", lw=2.0, zorder=7,
+                                         label=None if labelled else "obstacle hit"))
+            labelled = True
+    if not hits:
+        return
+    pts = np.vstack([o for hit in hits for o in _hit_outlines(result.map, hit)])
+    px = ax.transData.transform(pts)
+    span_pt = float(np.max(px.max(axis=0) - px.min(axis=0))) * 72.0 / ax.figure.dpi
+    centre = pts.mean(axis=0)
+    if span_pt < _SMALL_HIT_PT:                  # a speck: a ring around it that the eye finds
+        ax.plot(*centre, marker="o", mfc="none", mec="magenta", mew=1.5, ms=_SMALL_HIT_PT + 6, ls="none", zorder=7)
+    text = "; ".join(f"hit {h['id']} ({h['clearance_m']:+.3f} m)" for h in hits[:2])
+    ax.annotate(text, centre, xytext=(14, -18), textcoords="offset points", fontsize=7, color="k", zorder=8,
+                arrowprops=dict(arrowstyle="->", color="magenta", lw=1.0),
+                bbox=dict(boxstyle="round,pad=0.2", facecolor="white", edgecolor="magenta", lw=0.6, alpha=0.9))
 
 
 def _zoom(ax, result, pad: float = 6.0):
@@ -101,29 +172,64 @@ def _zoom(ax, result, pad: float = 6.0):
         ax.set_ylim(max(lo[1], ymin), min(hi[1], ymax))
 
 
+#: the quantity a state of each unit is, on the tracking figure's axes
+_UNIT_NAMES = {"m": "position error", "rad": "heading / angle error", "": "error"}
+
+
+def _unit_groups(names, units) -> list[tuple[str, list[int]]]:
+    """Indices of ``names`` grouped by unit, in first-appearance order: [(unit, [i, ...]), ...]."""
+    groups: dict = {}
+    for i, _ in enumerate(names):
+        groups.setdefault(units[i] if i < len(units) else "", []).append(i)
+    return list(groups.items())
+
+
+def _with_unit(text: str, unit: str) -> str:
+    return f"{text} [{unit or '-'}]"
+
+
 def run_tracking_figure(result):
+    """The tracking error and the inputs against time, one panel per unit: the position error's size on
+    a log scale, the state errors by unit (position in m, heading and other angles in rad) and the
+    inputs by unit (applied solid, nominal dashed on top); replans marked on every panel."""
     lg, model = result.log, result.model
     t = lg["t"]
     e = model.state_error(lg["x"], lg["x0"])
-    fig, axes = subplots(3, 1, figsize=(8, 7.5), sharex=True, layout="constrained")
-    norm = np.linalg.norm(e, axis=1)
-    axes[0].semilogy(t, np.where(norm > 0, norm, np.nan), color="k", lw=1.0, label="||x - x0||")
-    axes[0].set_ylabel("error norm")
-    for i, s in enumerate(model.state_names):
-        axes[1].plot(t, e[:, i], lw=0.9, label=f"e_{s}")
-    axes[1].set_ylabel("error e(t)")
-    for i, s in enumerate(model.input_names):
-        line, = axes[2].plot(t, lg["u"][:, i], lw=0.9, label=s)
-        axes[2].plot(t, lg["u0"][:, i], lw=0.8, ls=":", color=line.get_color(), label=f"{s} nominal")
-    axes[2].set_ylabel("inputs")
-    axes[2].set_xlabel("t [s]")
+    state_groups = _unit_groups(model.state_names, model.state_units)
+    input_groups = _unit_groups(model.input_names, model.input_units)
+    n_panels = 1 + len(state_groups) + len(input_groups)
+    fig, axes = subplots(n_panels, 1, figsize=(8.5, 1.75 * n_panels + 0.8), sharex=True, layout="constrained")
+    pos = [i for i, (s, u) in enumerate(zip(model.state_names, model.state_units)) if u == "m" and s in ("x", "y")]
+    if len(pos) == 2:
+        norm, top = np.hypot(e[:, pos[0]], e[:, pos[1]]), ("|(e_x, e_y)|", "position error size [m]")
+    else:
+        norm, top = np.linalg.norm(e, axis=1), ("||x - x0||", "error norm [-]")
+    axes[0].semilogy(t, np.where(norm > 0, norm, np.nan), color="k", lw=1.0, label=top[0])
+    axes[0].set_ylabel(top[1])
+    k = 1
+    for unit, idx in state_groups:
+        for i in idx:
+            axes[k].plot(t, e[:, i], lw=0.9, label=f"e_{model.state_names[i]}")
+        axes[k].axhline(0.0, color="0.6", lw=0.6)
+        what = "heading error" if [model.state_names[i] for i in idx] == ["theta"] else _UNIT_NAMES.get(unit, "error")
+        axes[k].set_ylabel(_with_unit(what, unit))
+        k += 1
+    for unit, idx in input_groups:
+        for i in idx:
+            s = model.input_names[i]
+            line, = axes[k].plot(t, lg["u"][:, i], lw=0.9, label=f"{s} applied")
+            axes[k].plot(t, lg["u0"][:, i], lw=0.9, ls="--", color="k" if len(idx) == 1 else line.get_color(),
+                         zorder=3, label=f"{s} nominal")
+        axes[k].set_ylabel(_with_unit("input " + ", ".join(model.input_names[i] for i in idx), unit))
+        k += 1
+    axes[-1].set_xlabel("t [s]")
     for ax in axes:
         for rec in result.plans[1:]:
             ax.axvline(rec.t_detect, color="tab:red", lw=0.8, ls="--")
             if np.isfinite(rec.t_start):
                 ax.axvspan(rec.t_detect, rec.t_start, color="tab:red", alpha=0.08)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="upper right", ncol=2)
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     axes[0].set_title(f"{result.map.name}: tracking error and inputs (red: replans, shaded: stopped while "
                       f"replanning) -- {result.status}", fontsize=9)
     return fig

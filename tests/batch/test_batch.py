@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from nhstab.batch.config import load_batch_config
 from nhstab.batch.report import wilson
@@ -433,3 +434,35 @@ def test_a_second_batch_on_the_same_folder_is_refused_while_one_runs(tmp_path):
     finally:
         child.kill()
         child.join()
+
+
+def test_a_batch_of_two_trials_draws_its_figures_or_says_why_not(tmp_path):
+    """trials: 2 (fewer than the 3 that percentiles take): the envelopes draw each trial's own ||e(t)||
+    and the tubes the RMS over the two, every drawn axes with data; the figures a single controller
+    at a single noise level cannot give (paired, noise) are not written, and the report says why in one
+    line each."""
+    from nhstab.batch.report import cell_table, envelope_figure, tube_figure, write_report
+
+    cfg = load_batch_config(_config(tmp_path, trials=2, controllers=("gramian",)))
+    run_batch(cfg, tmp_path / "b", progress=False)
+    names = {f.name for f in write_report(tmp_path / "b")}
+    assert {"envelopes.png", "tubes.png"} <= names and not {"paired.png", "noise.png"} & names
+    with Store(tmp_path / "b" / "trials.sqlite") as s:
+        trials = s.trials()
+    assert len(trials) == 2 and all(t.get("series") for t in trials)
+    rows = cell_table(trials)
+    for fig in (envelope_figure(trials, rows), tube_figure(trials, rows)):
+        drawn = [ax for ax in fig.axes if ax.get_visible()]
+        assert drawn
+        for ax in drawn:
+            points = [np.isfinite(np.asarray(ln.get_ydata(), float)).sum() for ln in ax.get_lines()]
+            assert points and min(points) > 10, (ax.get_title(), points)
+    env = envelope_figure(trials, rows)
+    assert [ln.get_label() for ln in env.axes[0].get_lines()][:2] == ["trial 1", "trial 2"]
+    md = (tmp_path / "b" / "report.md").read_text().splitlines()
+    start = md.index("**Figures left out.**")
+    lines = [ln for ln in md[start + 1:] if ln.startswith("- ")]
+    assert [ln.split(":")[0] for ln in lines] == ["- paired", "- noise"]
+    assert "noise level" in lines[1] and "(levels: 1)" in lines[1]
+    html_text = (tmp_path / "b" / "report.html").read_text()
+    assert "Figures left out." in html_text and html_text.count("<li>") == 2
