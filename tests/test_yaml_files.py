@@ -5,7 +5,6 @@ InputError (a MapError for maps), naming the file and, where one applies, the ke
 from __future__ import annotations
 
 import pytest
-
 from nhstab.batch.config import load_batch_config
 from nhstab.errors import InputError
 from nhstab.execution.config import load_run_config

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 
 import pytest
-
 from nhstab.bench import BENCHMARKS
 from nhstab.bench import geometry as bg
 
