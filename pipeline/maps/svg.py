@@ -221,17 +221,25 @@ def _polygon(v: np.ndarray, path: Path, what: str) -> Polygon:
 
 
 def _clean_ring(v: np.ndarray, close_tol: float = CLOSE_TOLERANCE) -> np.ndarray:
-    """Drop consecutive duplicate vertices and closing vertices within ``close_tol`` of the first one."""
+    """Drop consecutive duplicate vertices (each within ``REPEAT_TOLERANCE`` in both coordinates of
+    the last vertex kept) and closing vertices within ``close_tol`` of the first one. Not shapely's
+    repeated-point filter, whose tolerance is a Euclidean distance."""
     if len(v) == 0:
         return v
+    if not np.all(np.any(np.abs(np.diff(v, axis=0)) > REPEAT_TOLERANCE, axis=1)):
+        v = v[_kept(v)]                         # some vertex near the one before it (else all are kept)
+    while len(v) > 1 and np.all(np.abs(v[-1] - v[0]) <= close_tol):
+        v = v[:-1]
+    return v
+
+
+def _kept(v: np.ndarray) -> list[int]:
+    """The indices of the vertices :func:`_clean_ring` keeps, each against the last one kept."""
     keep = [0]
     for i in range(1, len(v)):
         if np.any(np.abs(v[i] - v[keep[-1]]) > REPEAT_TOLERANCE):
             keep.append(i)
-    v = v[keep]
-    while len(v) > 1 and np.all(np.abs(v[-1] - v[0]) <= close_tol):
-        v = v[:-1]
-    return v
+    return keep
 
 
 def _repeats(v: np.ndarray) -> int:

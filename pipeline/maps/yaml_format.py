@@ -74,6 +74,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import shapely
 
 from ..errors import PipelineError, number_hint
 from ..geometry import is_simple_polygon, point_in_polygon, polygon_area
@@ -425,11 +426,10 @@ def _join(prefix: str, key: str) -> str:
 
 
 def _drop_repeats(v: np.ndarray) -> np.ndarray:
-    """A ring without repeated consecutive vertices, nor a repeated closing vertex (real data has them;
-    they carry no shape)."""
-    keep = np.ones(len(v), dtype=bool)
-    keep[1:] = np.any(v[1:] != v[:-1], axis=1)
-    v = v[keep]
+    """A ring (k >= 2, finite) without repeated consecutive vertices, nor a repeated closing vertex
+    (real data has them; they carry no shape). GEOS's repeated-point filter at tolerance 0 (shapely):
+    exact equality, as numpy's, and faster (``nhstab bench geometry``)."""
+    v = shapely.get_coordinates(shapely.remove_repeated_points(shapely.linestrings(v), 0.0))
     while len(v) > 1 and np.array_equal(v[-1], v[0]):
         v = v[:-1]
     return v

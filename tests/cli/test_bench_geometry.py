@@ -19,7 +19,7 @@ def test_structure_and_rows(bench):
     json.dumps(bench)
     assert bench["benchmark"] == "geometry" and bench["baseline"] == bg.BASELINE
     cases = [r["case"] for r in bench["rows"]]
-    assert len(cases) == len(set(cases)) == 9
+    assert len(cases) == len(set(cases)) == 10
     assert bench["replaced_by_shapely"] == [r["case"] for r in bench["rows"] if r["library"] == "shapely"]
     for r in bench["rows"]:
         assert r["library"] in ("shapely", "ours") and r["repeats"] == 1

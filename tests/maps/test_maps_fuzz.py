@@ -11,9 +11,12 @@ import math
 import numpy as np
 import pytest
 import shapely
+from nhstab.bench.geometry import baseline_drop_repeats
 from nhstab.collision import CollisionWorld
 from nhstab.geometry import Footprint
 from nhstab.maps import load_map
+from nhstab.maps.svg import CLOSE_TOLERANCE, _clean_ring, _kept
+from nhstab.maps.yaml_format import _drop_repeats
 from shapely import affinity
 
 PROBE = Footprint.disc(1e-3)
@@ -116,3 +119,22 @@ def test_movingai_blocked_cells_are_the_blocked_characters(tmp_path, seed):
     cells = [shapely.box(x * cell, (h - 1 - y) * cell, (x + 1) * cell, (h - y) * cell)
              for y, x in zip(*np.nonzero(blocked))]
     assert agree(m, shapely.union_all(cells), rng) > 200
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_ring_cleaning_agrees_with_the_consecutive_comparisons(seed):
+    """A YAML polygon's repeated vertices (GEOS's filter) against numpy's consecutive comparison, and a
+    Bench-MR path's (each vertex against the last kept, to REPEAT_TOLERANCE) with and without its fast
+    path, on seeded rings with exact and near repeats and closing vertices."""
+    rng = np.random.default_rng(40 + seed)
+    for i in range(400):
+        k = int(rng.integers(2, 30))
+        v = rng.integers(0, 3, (k, 2)).astype(float) * (1.0 if i % 2 else 1e-10) if i % 3 else rng.normal(size=(k, 2))
+        v = np.repeat(v, rng.integers(1, 3, k), axis=0)
+        if i % 4 == 0:
+            v = np.vstack([v, v[:1]])
+        assert np.array_equal(_drop_repeats(v), baseline_drop_repeats(v))
+        slow = v[_kept(v)]
+        while len(slow) > 1 and np.all(np.abs(slow[-1] - slow[0]) <= CLOSE_TOLERANCE):
+            slow = slow[:-1]
+        assert np.array_equal(_clean_ring(v), slow)
