@@ -31,10 +31,11 @@ from dataclasses import dataclass, field
 
 import fcl
 import numpy as np
+import shapely
 
 from .clearance_field import FINE_DISCS_PER_WIDTH, ClearanceField, disc_cover, footprint_points
 from .errors import InputError
-from .geometry import Footprint, convex_parts, point_polygon_distance, transform_points, wrap_angle
+from .geometry import Footprint, convex_parts, outline_geometry, point_polygon_distance, transform_points, wrap_angle
 from .limits import MAX_WORLD_OBJECTS
 from .maps.base import Circle, Map, MapError, OccupancyGrid, Polygon
 
@@ -285,7 +286,9 @@ class CollisionWorld:
         footprint's bounding box, or a disc's centre less its radius, and the object's bounding box)
         until that bound reaches the best distance found. FCL decides whether the footprint overlaps an
         object whose box it meets; the distance to a separated object is measured exactly in the plane
-        (:func:`_exact_distance`: vertex to edge both ways, or point to polygon for discs and circles).
+        (:func:`_poly_distances` and :func:`_circle_distances`: vertex to edge both ways, or a disc's centre
+        to the edges; :func:`_exact_distance`, GEOS's distance, for a polygon of more than ``POLY_PAD``
+        corners).
         FCL's own distance is not used for the value: for a car's prism it was off by up to 0.95 m at true
         distances of 0.3-2 m on grid maps (GJK), while its contact verdicts are exact."""
         return self._measure_near(pose, fp, math.inf)
@@ -1032,7 +1035,9 @@ def _offset_convex(v: np.ndarray, d: float) -> tuple[np.ndarray, np.ndarray]:
     """A convex counter-clockwise polygon grown by d: (outer, inner) polygons with
     inner <= polygon (+) disc(d) <= outer. Outer: edges moved out by d, corners mitred. Inner: each
     corner replaced by its two points moved out along the adjacent edges' normals (on the rounded
-    outline, so their convex hull lies inside the grown polygon)."""
+    outline, so their convex hull lies inside the grown polygon). numpy rather than shapely's mitred and
+    bevelled buffers, which are slower on a footprint's few corners (``nhstab bench geometry``) and
+    start their rings elsewhere (the FCL prisms are built from this order)."""
     e = np.roll(v, -1, axis=0) - v
     n = np.column_stack([e[:, 1], -e[:, 0]]) / np.hypot(e[:, 0], e[:, 1])[:, None]   # outward (CCW polygon)
     n_prev = np.roll(n, 1, axis=0)
@@ -1051,8 +1056,9 @@ def _box(cx, cy, lx, ly, yaw) -> np.ndarray:
 
 
 def _exact_distance(fp: Footprint, pose, outline) -> float:
-    """Exact plane distance between the footprint at pose and one obstacle outline, used where a disc
-    or circle is involved (GJK's tolerance on curved shapes is ~1e-5 m)."""
+    """Exact plane distance between the footprint at pose and one obstacle outline (a polygon of more
+    than ``POLY_PAD`` corners, or a circle), by GEOS (shapely) for polygons: FCL's GJK is not used (its
+    tolerance on curved shapes is ~1e-5 m, and it erred on car prisms)."""
     if fp.radius is not None:
         centre = np.asarray(pose[:2], dtype=float)
         if outline[0] == "circle":
@@ -1160,7 +1166,10 @@ def _circle_distances(fp: Footprint, pose, robot_v, circles: np.ndarray) -> np.n
 def _poly_distances(fp: Footprint, pose, robot_v, quads: np.ndarray) -> np.ndarray:
     """Exact distances from the footprint at ``pose`` (``robot_v``: its world outline, None for a disc)
     to each of the polygons ``quads`` (k, c, 2), none of which it overlaps: the disc's centre to the
-    polygon's edges less its radius, or the smallest vertex-to-edge distance both ways."""
+    polygon's edges less its radius, or the smallest vertex-to-edge distance both ways. numpy, not GEOS,
+    although shapely's distance is faster here (``nhstab bench geometry``): this is the formula of
+    :meth:`CollisionWorld._near_batch`, which decides many poses at once, and the two must give equal
+    answers bit for bit (GEOS rounds differently, by up to a few 1e-15 m)."""
     edges = np.roll(quads, -1, axis=1) - quads
     if robot_v is None:
         c = np.asarray(pose[:2], dtype=float)[None, None, :]
@@ -1175,17 +1184,10 @@ def _poly_distances(fp: Footprint, pose, robot_v, quads: np.ndarray) -> np.ndarr
 
 
 def polygon_distance(a: np.ndarray, b: np.ndarray) -> float:
-    """The distance between two simple polygons that do not overlap (neither inside the other): the
-    smallest distance from a vertex of one to an edge of the other, both ways (exact in the plane)."""
-    def one_way(points, poly):
-        s0 = poly
-        e = np.roll(poly, -1, axis=0) - s0                                    # (m, 2) edges
-        rel = points[:, None, :] - s0[None, :, :]                             # (n, m, 2)
-        t = np.clip(np.einsum("nmk,mk->nm", rel, e) / np.maximum(np.einsum("mk,mk->m", e, e), 1e-300), 0.0, 1.0)
-        gap = rel - t[:, :, None] * e[None, :, :]
-        return float(np.sqrt(np.min(np.einsum("nmk,nmk->nm", gap, gap))))
-
-    return min(one_way(a, b), one_way(b, a))
+    """The distance between two outlines (k, 2) (polygons, or segments of two vertices) that do not
+    overlap: GEOS's distance (shapely; exact in the plane to rounding, and faster than numpy
+    vertex-to-edge arrays, ``nhstab bench geometry``)."""
+    return float(shapely.distance(outline_geometry(a), outline_geometry(b)))
 
 
 def _pose(value, name: str = "pose") -> np.ndarray:

@@ -59,26 +59,24 @@ def transform_points(points: np.ndarray, pose) -> np.ndarray:
 
 
 def polygon_area(v: np.ndarray) -> float:
-    """Signed area (positive for counter-clockwise)."""
+    """Signed area (positive for counter-clockwise), the shoelace formula in numpy. Kept rather than
+    shapely's area: faster on the small rings of footprints and obstacle parts, and shapely's area has
+    no sign (``nhstab bench geometry``)."""
     x, y = v[:, 0], v[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+    return 0.5 * float(np.dot(x, np.concatenate((y[1:], y[:1]))) - np.dot(y, np.concatenate((x[1:], x[:1]))))
+
+
+def outline_geometry(v: np.ndarray):
+    """The shapely geometry of an outline (k, 2): a polygon, or a segment (a line string) when k is 2."""
+    v = np.asarray(v, dtype=float)
+    return shapely.LineString(v) if len(v) == 2 else shapely.Polygon(v)
 
 
 def point_in_polygon(x: float, y: float, v: np.ndarray) -> bool:
-    """Even-odd ray casting, with points on an edge (to 1e-12 relative) counted as inside."""
-    a, b = v, np.roll(v, -1, axis=0)
-    d = b - a
-    p = np.array([x, y], dtype=float)
-    # on an edge?
-    t = np.clip(np.einsum("ij,ij->i", p - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300), 0.0, 1.0)
-    dist = np.hypot(*(a + t[:, None] * d - p).T)
-    scale = max(1.0, float(np.abs(v).max()))
-    if dist.min() <= 1e-12 * scale:
-        return True
-    crosses = (a[:, 1] > y) != (b[:, 1] > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xi = a[:, 0] + (y - a[:, 1]) * d[:, 0] / d[:, 1]
-    return bool(np.count_nonzero(crosses & (x < xi)) % 2)
+    """Does (x, y) lie in the polygon ring ``v`` (k, 2; a segment when k is 2) or on its boundary?
+    GEOS's point location (shapely ``intersects_xy``): even-odd crossings for a ring that crosses
+    itself, a point on an edge inside. Faster than numpy ray casting on one point (``nhstab bench geometry``)."""
+    return bool(shapely.intersects_xy(outline_geometry(v), float(x), float(y)))
 
 
 def is_simple_polygon(v: np.ndarray) -> bool:
@@ -103,9 +101,11 @@ def _is_simple_ring(ring: bytes) -> bool:
 
 
 def is_convex(v: np.ndarray, tol: float = 1e-12) -> bool:
-    """True if the counter-clockwise polygon v is convex (collinear vertices allowed)."""
-    d1 = np.roll(v, -1, axis=0) - v
-    d2 = np.roll(d1, -1, axis=0)
+    """True if the counter-clockwise polygon v is convex (collinear vertices allowed): every turn
+    left, to ``tol`` relative. Kept rather than a shapely construction (the convex hull's area against
+    the polygon's): faster on small rings, and shapely has no convexity test (``nhstab bench geometry``)."""
+    d1 = np.concatenate((v[1:], v[:1])) - v
+    d2 = np.concatenate((d1[1:], d1[:1]))
     cross = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
     return bool(np.all(cross >= -tol * max(1.0, float(np.abs(v).max()) ** 2)))
 
@@ -136,17 +136,10 @@ def convex_parts(v: np.ndarray) -> list[np.ndarray]:
 
 
 def point_polygon_distance(p, v: np.ndarray) -> float:
-    """Euclidean distance from point p to the closed polygon v (0 inside or on it)."""
-    p = np.asarray(p, dtype=float)
-    a = np.asarray(v, dtype=float)
-    b = np.roll(a, -1, axis=0)
-    ab = b - a
-    t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300), 0.0, 1.0)
-    d = float(np.min(np.hypot(*(a + t[:, None] * ab - p).T)))
-    # inside test (even-odd ray casting)
-    x, y = p
-    crosses = ((a[:, 1] > y) != (b[:, 1] > y)) & (x < a[:, 0] + (y - a[:, 1]) * ab[:, 0] / np.where(ab[:, 1] == 0, 1e-300, ab[:, 1]))
-    return 0.0 if np.count_nonzero(crosses) % 2 == 1 else d
+    """Euclidean distance from point p to the closed polygon v (0 inside or on it; a ring that crosses
+    itself counts its inside even-odd). GEOS's distance (shapely), faster than numpy vertex-to-edge
+    arrays on one point (``nhstab bench geometry``)."""
+    return float(shapely.distance(outline_geometry(v), shapely.Point(float(p[0]), float(p[1]))))
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,10 @@
 
 Every file nhstab reads on a user's behalf (map files and their images, base maps and scenario
 lists, run and batch configs, trajectories) goes through :func:`read_bytes`, and every YAML
-document through :func:`load_yaml`. Between them they guarantee:
+document through :func:`load_yaml`: a YAML file whose top level must be a mapping (map_server
+metadata, a robot, a run or batch config) through :func:`read_yaml_mapping`, and every check of a
+mapping's keys (theirs and the nhstab map reader's, at any level) through :func:`check_keys`, so that
+the same mistake reads the same in every kind of file. Between them they guarantee:
 
 * only regular files are read (a FIFO, ``/dev/zero``, a directory or a symlink loop is refused, never
   read forever), and at most a bounded number of bytes (:mod:`nhstab.limits`);
@@ -151,17 +154,61 @@ def load_yaml_file(path, argument: str | None = None, what: str = "YAML file", e
     return load_yaml(text, f"{argument} {path}" if argument else str(path), error)
 
 
-def read_yaml_mapping(path: Path, argument: str, what: str) -> dict:
-    """A YAML file whose top level is a mapping, read by nhstab's one safe YAML loader
-    (:func:`load_yaml_file`: regular files only, bounded size, nesting and alias
-    expansion, duplicate keys refused); errors name ``argument`` (e.g. ``--config``)."""
-    data = load_yaml_file(path, argument, what)
-    if not isinstance(data, dict):
-        raise InputError(argument, "a YAML mapping at the top level", type(data).__name__)
-    for key in data:
-        if not isinstance(key, str):
-            raise InputError(argument, "a mapping with text keys", key)
-    return data
+def read_yaml_mapping(path, argument: str | None = None, what: str = "YAML file", keys=None, required=(),
+                      error=InputError) -> dict:
+    """The one loader of nhstab's YAML files (maps' map_server metadata, robots, run and batch configs;
+    the nhstab map reader parses its text with the same :func:`load_yaml` and checks its keys with the
+    same :func:`check_keys`): a YAML file whose top level is a mapping, read by :func:`load_yaml_file`
+    (regular files only, bounded size, nesting and alias expansion, duplicate keys refused).
+
+    ``keys``: the top-level keys allowed (None: any text key, for a file whose keys its reader checks,
+    as a robot's depend on its model), ``required`` those that must be there. Errors name the document
+    as its duplicate keys do, ``argument`` then the path (e.g. ``--config run.yaml``), and a key after a
+    colon (``--config run.yaml: bogus``)."""
+    data = load_yaml_file(path, argument, what, error)
+    source = f"{argument} {path}" if argument else str(path)
+    if data is None:
+        raise error(source, f"a {what} holding a YAML mapping", "an empty document")
+    if keys is None:
+        if not isinstance(data, dict):
+            raise error(source, f"a {what} holding a YAML mapping", yaml_type_name(data), detail="at top level")
+        for key in data:
+            if not isinstance(key, str):
+                raise error(_at(source, str(key)), "a text key", yaml_type_name(key))
+        return data
+    return check_keys(data, tuple(keys), source, "", error, tuple(required))
+
+
+def check_keys(value, allowed: tuple[str, ...], source: str, key: str = "", error=InputError,
+               required: tuple[str, ...] = ()) -> dict:
+    """``value`` as a mapping whose keys are among ``allowed`` and include ``required``: the one
+    unknown-key check of nhstab's YAML files. Errors name ``source`` (the file) and the key path
+    ``key`` (empty at the top level): ``'<source>: <key>.<unknown>' must be one of the keys ...; got
+    "unknown key '<unknown>'"``."""
+    label = key or "top level"
+    if not isinstance(value, dict):
+        raise error(_at(source, key), f"a mapping with keys {', '.join(allowed)}", yaml_type_name(value),
+                    detail=f"at {label}")
+    for k in value:
+        if not isinstance(k, str) or k not in allowed:
+            raise error(_at(source, f"{key}.{k}" if key else str(k)), f"one of the keys {', '.join(allowed)}",
+                        f"unknown key {k!r}")
+    for k in required:
+        if k not in value:
+            raise error(_at(source, f"{key}.{k}" if key else k), "present", "missing", detail=f"required in {label}")
+    return value
+
+
+def yaml_type_name(value) -> str:
+    """What a YAML value is, for error messages: "a list", "an integer", "nothing (null)", ..."""
+    if value is None:
+        return "nothing (null)"
+    return {dict: "a mapping", list: "a list", str: "a string", bool: "a boolean",
+            int: "an integer", float: "a number"}.get(type(value), type(value).__name__)
+
+
+def _at(source: str, key: str) -> str:
+    return f"{source}: {key}" if key else source
 
 
 def load_yaml(text: str, source: str, error=InputError):

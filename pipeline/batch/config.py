@@ -211,13 +211,7 @@ def load_batch_config(path) -> BatchConfig:
     that bundle, exactly as every trial will load it, wherever it runs: a map that cannot travel
     (it names a base map or image by an absolute path) is refused here, naming ``maps[i].path``."""
     path = Path(path)
-    data = read_yaml_mapping(path, "CONFIG", "batch config (YAML)")
-    for key in data:
-        if key not in _TOP:
-            raise InputError(key, "one of " + ", ".join(_TOP), key)
-    for key in ("root_seed", "trials", "maps"):
-        if key not in data:
-            raise InputError(key, "present (required)", "missing")
+    data = read_yaml_mapping(path, "CONFIG", "batch config (YAML)", keys=_TOP, required=("root_seed", "trials", "maps"))
     name = data.get("name", path.stem)
     if not isinstance(name, str) or not name:
         raise InputError("name", "a non-empty string", name)

@@ -13,7 +13,7 @@ from importlib import import_module
 from .gains import hilare_sinusoid  # noqa: F401  (used by tests and the batch benchmark)
 
 #: benchmark name -> module (in the order ``nhstab bench`` runs them)
-_MODULES = ("startup", "gains", "collision", "planning", "parking", "run", "batch", "tube", "polygons")
+_MODULES = ("startup", "gains", "collision", "planning", "parking", "run", "batch", "tube", "polygons", "geometry")
 
 
 def _fn(name: str):

@@ -476,10 +476,7 @@ def options_from_mapping(data: dict, allowed=None, prefix: str = "") -> RunOptio
 def load_run_config(path) -> tuple[dict, RunOptions]:
     """Read a run config; returns ({"map": resolved path or None}, RunOptions). Strict, see module doc."""
     path = Path(path)
-    data = read_yaml_mapping(path, "--config", "run config (YAML)")
-    for key in data:
-        if key not in _TOP:
-            raise InputError(key, "a run-config key (" + ", ".join(sorted(_TOP)) + ")", key)
+    data = read_yaml_mapping(path, "--config", "run config (YAML)", keys=sorted(_TOP))
     extra = {}
     if "map" in data:
         if not isinstance(data["map"], str):

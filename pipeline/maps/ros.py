@@ -50,7 +50,7 @@ from PIL import Image as _PILImage
 
 from ..errors import InputError
 from ..limits import MAX_CELL_M, MAX_COORD_M, MAX_GRID_CELLS, MIN_CELL_M
-from ..safe_io import load_yaml_file, read_bytes
+from ..safe_io import read_bytes, read_yaml_mapping
 from .base import Map, MapError, OccupancyGrid
 
 __all__ = [
@@ -220,17 +220,7 @@ def read_map_yaml(path) -> RosMapParams:
     """Read and validate a map_server YAML file (strict: only the map_server keys), with nhstab's
     safe YAML loader (:mod:`nhstab.safe_io`)."""
     path = Path(path)
-    doc = load_yaml_file(path, what="map YAML file", error=MapError)
-    if not isinstance(doc, dict):
-        raise MapError(str(path), "a YAML mapping of map_server keys " + _keys_text(ALLOWED_KEYS),
-                       type(doc).__name__)
-    for key in doc:
-        if not isinstance(key, str) or key not in ALLOWED_KEYS:
-            raise MapError(f"{path}:{key}", "one of the map_server keys " + _keys_text(ALLOWED_KEYS),
-                           key, detail="unknown key")
-    for key in REQUIRED_KEYS:
-        if key not in doc:
-            raise MapError(f"{path}:{key}", "present", detail="required map_server key is missing")
+    doc = read_yaml_mapping(path, what="map YAML file", keys=ALLOWED_KEYS, required=REQUIRED_KEYS, error=MapError)
 
     image = doc["image"]
     if not isinstance(image, str) or not image.strip():
@@ -470,10 +460,6 @@ def _number(path: Path, key: str, value) -> float:
     if not math.isfinite(result):
         raise MapError(f"{path}:{key}", "a finite number (no NaN or infinity)", value)
     return result
-
-
-def _keys_text(keys) -> str:
-    return "(" + ", ".join(keys) + ")"
 
 
 def _oneline(value) -> str:
