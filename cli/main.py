@@ -123,6 +123,7 @@ def _register():
     from .parking import parking
     from .plan import plan, sweep
     from .run import run
+    from .trailer import trailer
     from .tubes import tubes
 
     cli.add_command(examples)
@@ -135,6 +136,7 @@ def _register():
     cli.add_command(gains.gains)
     cli.add_command(bench.bench)
     cli.add_command(parking)
+    cli.add_command(trailer)
     cli.add_command(tubes)
 
 
