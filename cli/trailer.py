@@ -56,9 +56,13 @@ def table(cases, seeds, budget, out_dir):
     import json
 
     from nhstab.batch.trailer_study import check_cases, plan_table, table_markdown
+    from nhstab.execution.config import check_number
+    from nhstab.limits import check_int
     from nhstab.records import to_jsonable, write_text
 
     check_cases(_cases(cases), "--cases")
+    check_int("--seeds", seeds, 1, 1000, "a number of seeds per case")
+    check_number("--budget", budget, 0.0, lo_open=True)
     result = plan_table(_cases(cases), seeds, budget, progress=lambda s: click.echo(s, err=True))
     text = table_markdown(result)
     click.echo(text)
@@ -79,11 +83,17 @@ def figure(case, seed, budget, out_file):
     """Draw a case of the suite: its map, the start and goal rigs, and the plan of SEED with every body
     along it (or, when there is no plan, the map with the reason in the title). Exit code 4 without a plan."""
     from nhstab.batch.trailer_study import case_figure, check_cases
+    from nhstab.errors import InputError
+    from nhstab.execution.config import check_number
     from nhstab.limits import MAX_SEED, check_int
     from nhstab.records import save_figure
 
-    name = check_cases([case], "CASE")[0]["name"]
+    try:
+        name = check_cases([case], "CASE")[0]["name"]
+    except InputError as exc:
+        raise InputError("CASE", exc.expected, case) from None
     check_int("--seed", seed, 0, MAX_SEED, "a seed")
+    check_number("--budget", budget, 0.0, lo_open=True)
     fig, rec = case_figure(name, seed, budget)
     path = save_figure(fig, out_file if out_file is not None else Path(f"{name}.png"), dpi=90)
     if rec["status"] != "ok":

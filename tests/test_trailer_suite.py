@@ -222,10 +222,13 @@ def test_table_and_figure_commands_on_one_case(tmp_path):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_commands_refuse_unknown_cases(tmp_path):
-    for args in (["table", "--cases", "nope"], ["figure", "nope"]):
+def test_commands_refuse_bad_input_naming_the_option():
+    for args, key in ((["table", "--cases", "nope"], "--cases[0]"), (["figure", "nope"], "CASE"),
+                      (["table", "--seeds", "0"], "--seeds"), (["table", "--budget", "0"], "--budget"),
+                      (["figure", "trailer_turn_120", "--budget", "-1"], "--budget"),
+                      (["figure", "trailer_turn_120", "--seed", "-1"], "--seed")):
         res = CliRunner().invoke(cli, ["trailer", *args])
-        assert res.exit_code == 2 and "trailer suite" in res.output
+        assert res.exit_code == 2 and f"'{key}'" in res.output, res.output
 
 
 # ---- the sweep config -----------------------------------------------------------------------------------------
