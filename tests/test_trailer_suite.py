@@ -322,3 +322,46 @@ def test_sweep_trials_are_judged_as_shapely_and_the_hitch_angles_say():
         want.append(outcome)
     assert out["per_trial"]["outcome"] == want
     assert sum(out[k] for k in ("docked", "jackknife", "collision", "missed", "diverged")) == len(seeds)
+
+
+@pytest.mark.slow
+def test_a_plan_record_and_figure_on_a_map_that_plans_today(tmp_path):
+    """The table's record and the figure of a plan, on the bundled loading dock (the suite's cases need
+    a search that turns tighter): the clearance is every body's, checked here with shapely."""
+    fig, rec = TS.case_figure("loading_dock", 0, 10.0)
+    assert rec["status"] == "ok"
+    fig.savefig(tmp_path / "dock.png")
+    assert (tmp_path / "dock.png").read_bytes()[:4] == b"\x89PNG"
+    rec, m, robot, res = TS.plan_case("loading_dock", 0, 10.0)
+    assert rec["status"] == "ok" and rec["ok_within_budget"] == (rec["time_s"] <= 10.0)
+    v = res.nominal.u[:, 0]
+    s = np.sign(v[np.abs(v) > 1e-9])
+    assert rec["cusps"] == int(np.count_nonzero(np.diff(s))) and (v < 0).any()     # the trailer backs into the dock
+    x = res.nominal.x
+    hitch = np.abs(np.remainder(x[:, 2] - x[:, 4] + np.pi, 2 * np.pi) - np.pi)
+    assert rec["max_abs_hitch_rad"] == pytest.approx(hitch.max(), abs=1e-12)
+    assert hitch.max() <= 1.0
+    obstacles = unary_union([SPolygon(o.vertices) if hasattr(o, "vertices") else Point(o.center).buffer(o.radius, 256)
+                             for o in m.obstacles])
+    spec = T.rig_spec()
+    by_hand = min(b.distance(obstacles) for k in range(0, len(x), 5) for b in _bodies(spec, x[k, :3], x[k, 4]))
+    assert rec["min_clearance_m"] <= by_hand + 1e-3 and rec["min_clearance_m"] >= 0.3 - 1e-6   # the map's margin
+
+
+@pytest.mark.slow
+def test_sweep_command_writes_its_report_whether_or_not_the_case_plans(tmp_path):
+    cfg = tmp_path / "sweep.yaml"
+    cfg.write_text("cases: [trailer_dock_bay150_aisle200]\ntrials: 1\nnoise: [1.0]\ntvlqr: false\n"
+                   "gramian: {end_strategy: [frozen]}\n")
+    res = CliRunner().invoke(cli, ["trailer", "sweep", str(cfg), "--out", str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    data = json.loads((tmp_path / "out" / "sweep.json").read_text())
+    md = (tmp_path / "out" / "sweep.md").read_text()
+    (case,) = data["cases"]
+    assert data["cases_planned"] == int(case["plan"]["found"])
+    if case["plan"]["found"]:
+        (cell,) = case["cells"]
+        assert cell["end_strategy"] == "frozen" and cell["trials"] == 1
+        assert sum(cell[k] for k in ("docked", "jackknife", "collision", "missed", "diverged")) == 1
+    else:
+        assert case["cells"] == [] and case["plan"]["reason"] in md and "no case planned" in md

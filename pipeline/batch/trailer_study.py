@@ -95,6 +95,11 @@ def _size(row: dict) -> str:
 
 # ---- the table -------------------------------------------------------------------------------------------
 
+def path_length(x: np.ndarray) -> float:
+    """The length [m] of the car's rear-axle path along states x (N, n)."""
+    return float(np.sum(np.hypot(np.diff(x[:, 0]), np.diff(x[:, 1]))))
+
+
 def plan_case(name: str, seed: int, budget_s: float):
     """One plan of a suite case: (record, map, robot, PlanResult)."""
     m = load_map(f"example:{name}")
@@ -109,7 +114,7 @@ def plan_case(name: str, seed: int, budget_s: float):
         c, k, b = bodies.min_clearance(world, robot, x)
         v = res.nominal.u[:, 0]
         s = np.sign(v[np.abs(v) > 1e-9])
-        rec.update(cusps=int(np.sum(s[1:] != s[:-1])), length_m=res.metrics.get("length_m"),
+        rec.update(cusps=int(np.sum(s[1:] != s[:-1])), length_m=path_length(x),
                    duration_s=float(res.nominal.t[-1] - res.nominal.t[0]), min_clearance_m=c,
                    min_clearance_body=b, max_abs_hitch_rad=float(np.max(np.abs(robot.model.hitch_angles(x)))))
     if not res.ok:
@@ -360,7 +365,7 @@ def sweep_case(name: str, settings: dict, progress=None) -> dict:
         return case
     nom = result.nominal
     c, _, b = bodies.min_clearance(run.known, run.robot, nom.x)
-    case["plan"] = {"found": True, "attempts": len(attempts), "margin_m": margin, "length_m": result.metrics.get("length_m"),
+    case["plan"] = {"found": True, "attempts": len(attempts), "margin_m": margin, "length_m": path_length(nom.x),
                     "duration_s": float(law0.t_end - law0.t0), "min_clearance_m": c, "min_clearance_body": b}
     _say(progress, f"{name}: plan {case['plan']['duration_s']:.1f} s, min clearance {c:.3f} m "
                    f"({case['plan_wall_s']:.1f} s)")
@@ -443,10 +448,13 @@ def sweep_markdown(result: dict) -> str:
         if p.get("found"):
             lines.append(f"| {c['case']} | found | {p['duration_s']:.1f} | {p['min_clearance_m']:.3f} |")
         else:
-            lines.append(f"| {c['case']} | **no plan**: {p['reason']} | - | - |")
+            tries = f" (the last of {p['attempts']} attempts)" if p.get("attempts") else ""
+            lines.append(f"| {c['case']} | **no plan**{tries}: {p['reason']} | - | - |")
     lines += ["", "## Totals over the cases that planned", "",
               "| law | noise | cases | docked | jackknifes | collisions | missed | diverged |",
               "|---|---|---|---|---|---|---|---|"]
+    if not result["totals"]:
+        lines.append("| no case planned | | | | | | | |")
     for r in sorted(result["totals"], key=lambda r: (r["noise"], r["law"] != "tvlqr", r["law"])):
         lines.append(f"| {r['law']} | x{r['noise']:g} | {r['cases']} | {r['docked']}/{r['trials']} | {r['jackknife']} | "
                      f"{r['collision']} | {r['missed']} | {r['diverged']} |")
