@@ -108,17 +108,21 @@ def figure(case, seed, budget, out_file):
 @click.argument("config", type=click.Path(dir_okay=False, exists=True, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Folder for sweep.json and sweep.md.")
-def sweep(config, out_dir):
+@click.option("--workers", type=int, default=1, show_default=True,
+              help="Processes over the cases (one BLAS thread each); the result does not depend on it.")
+def sweep(config, out_dir, workers):
     """Sweep the gramian law (alpha, delta, gamma, end strategy) against TVLQR on the suite's cases
     that plan, under noise, as CONFIG says (YAML; see the trailer guide): jackknifes, collisions and
     docked trials per law and noise level. Writes sweep.json and sweep.md into OUT."""
     import json
 
     from nhstab.batch.trailer_study import load_sweep_config, run_sweep, sweep_markdown
+    from nhstab.limits import check_int
     from nhstab.records import to_jsonable, write_text
 
+    check_int("--workers", workers, 1, 64, "a number of worker processes")
     settings = load_sweep_config(config)
-    result = run_sweep(settings, progress=lambda s: click.echo(s, err=True))
+    result = run_sweep(settings, progress=lambda s: click.echo(s, err=True), workers=workers)
     files = [write_text(out_dir / "sweep.json", json.dumps(to_jsonable(result), separators=(",", ":")) + "\n"),
              write_text(out_dir / "sweep.md", sweep_markdown(result))]
     click.echo(f"{result['cases_planned']} of {len(result['cases'])} cases planned; wrote "

@@ -29,7 +29,11 @@ from __future__ import annotations
 
 import itertools
 import math
+import multiprocessing as mp
+import os
+import sys
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import replace
 
 import numpy as np
@@ -394,16 +398,58 @@ def sweep_case(name: str, settings: dict, progress=None) -> dict:
 
 
 def _say(progress, text: str) -> None:
-    if progress is not None:
+    if progress is True:
+        print(text, file=sys.stderr, flush=True)
+    elif progress is not None:
         progress(text)
 
 
-def run_sweep(settings: dict, progress=None) -> dict:
+def _case_task(args):
+    name, settings = args
+    return sweep_case(name, settings, progress=True)
+
+
+def _in_processes(names, settings, workers, progress) -> list:
+    """The cases over ``workers`` spawned processes, one BLAS thread each; results in the given order."""
+    saved = {v: os.environ.get(v) for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+    for v in saved:
+        os.environ[v] = "1"
+    try:
+        pool = ProcessPoolExecutor(max_workers=min(workers, len(names)), mp_context=mp.get_context("spawn"))
+    finally:
+        for v, old in saved.items():
+            if old is None:
+                os.environ.pop(v, None)
+            else:
+                os.environ[v] = old
+    cases = [None] * len(names)
+    try:
+        futures = {pool.submit(_case_task, (name, settings)): i for i, name in enumerate(names)}
+        for fut in as_completed(futures):
+            cases[futures[fut]] = fut.result()
+            _say(progress, f"done {names[futures[fut]]} ({sum(c is not None for c in cases)}/{len(names)} cases)")
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        for p in list((getattr(pool, "_processes", None) or {}).values()):
+            if p.is_alive():
+                p.terminate()
+        raise
+    pool.shutdown(wait=True)
+    return cases
+
+
+def run_sweep(settings: dict, progress=None, workers: int = 1) -> dict:
     """The sweep of checked ``settings`` (:func:`check_sweep_config`): per case its plan and cells, and
-    per law and noise level the totals over the cases that planned."""
+    per law and noise level the totals over the cases that planned. ``workers`` > 1 spreads the cases
+    over processes (spawned, one BLAS thread each); the result does not depend on it."""
+    workers = check_int("workers", workers, 1, 64, "a number of worker processes")
     started = time.perf_counter()
     opts = RunOptions()
-    cases = [sweep_case(name, settings, progress) for name in settings["cases"]]
+    names = settings["cases"]
+    if workers == 1 or len(names) == 1:
+        cases = [sweep_case(name, settings, progress) for name in names]
+    else:
+        cases = _in_processes(names, settings, workers, progress)
     totals = {}
     for case in cases:
         for c in case.get("cells", []):
@@ -427,7 +473,8 @@ def run_sweep(settings: dict, progress=None) -> dict:
     return {"sweep": "trailer laws", "settings": settings,
             "tolerance": {"position_m": opts.tolerance.position_m, "heading_rad": opts.tolerance.heading_rad},
             "cases": cases, "totals": rows, "matches_or_beats_tvlqr": verdicts,
-            "cases_planned": sum(1 for c in cases if c["plan"].get("found")), "wall_s": time.perf_counter() - started}
+            "cases_planned": sum(1 for c in cases if c["plan"].get("found")), "workers": workers,
+            "wall_s": time.perf_counter() - started}
 
 
 def sweep_markdown(result: dict) -> str:
