@@ -125,6 +125,7 @@ def _register():
     from .plan import plan, sweep
     from .robot import robot_group
     from .run import run
+    from .trailer import trailer
     from .tubes import tubes
 
     cli.add_command(examples)
@@ -137,6 +138,7 @@ def _register():
     cli.add_command(gains.gains)
     cli.add_command(bench.bench)
     cli.add_command(parking)
+    cli.add_command(trailer)
     cli.add_command(tubes)
     cli.add_command(robot_group)
     cli.add_command(export_group)

@@ -1,0 +1,130 @@
+"""``nhstab trailer``: the trailer suite (dock bays entered in reverse, 90 degree turns), its plans and the
+feedback laws on it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+
+@click.group("trailer")
+def trailer():
+    """The trailer suite: maps made from the car with a trailer's geometry (see maps/trailer/suite/SOURCE.md)."""
+
+
+@trailer.command("suite")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("maps/trailer/suite"), show_default=True, help="Folder for the maps, suite.csv and SOURCE.md.")
+@click.option("--check", is_flag=True,
+              help="Write nothing: compare the folder with what would be written (exit code 1 if they differ).")
+def suite(out_dir, check):
+    """Write the trailer suite: one nhstab YAML map per case (dock bays 1.1-1.5 x the rig's width off
+    aisles 1.2-2 x its swept path, entered in reverse; 90 degree turns from an aisle into a corridor
+    1.2-2 x its swept path), with suite.csv and SOURCE.md (the formula and the table)."""
+    from nhstab.trailer_suite import write_suite
+
+    result = write_suite(out_dir, check=check)
+    if check:
+        bad = {k: v for k, v in result.items() if v}
+        if bad:
+            for key, names in bad.items():
+                click.echo(f"{key}: {', '.join(names)}")
+            click.echo(f"{out_dir} is not what `nhstab trailer suite --out {out_dir}` writes", err=True)
+            return 1
+        click.echo(f"{out_dir} is up to date")
+        return 0
+    click.echo(f"wrote {len(result['written'])} files into {out_dir}")
+    return 0
+
+
+def _cases(values) -> list[str]:
+    return [s.strip() for v in values for s in v.split(",") if s.strip()]
+
+
+@trailer.command("table")
+@click.option("--cases", "cases", multiple=True, metavar="NAME",
+              help="Cases of the suite (repeat, or a comma list; default: all).")
+@click.option("--seeds", type=int, default=3, show_default=True, help="Seeds 0 .. N-1 per case.")
+@click.option("--budget", type=float, default=10.0, show_default=True, help="Search budget per plan [s].")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Also write table.md and table.json into this folder.")
+def table(cases, seeds, budget, out_dir):
+    """Plan every case of the suite over seeds and print per case: plans found within the budget,
+    median search time, cusps, smallest clearance over every body, largest hitch angle (see
+    nhstab.batch.trailer_study)."""
+    import json
+
+    from nhstab.batch.trailer_study import check_cases, plan_table, table_markdown
+    from nhstab.execution.config import check_number
+    from nhstab.limits import check_int
+    from nhstab.records import to_jsonable, write_text
+
+    check_cases(_cases(cases), "--cases")
+    check_int("--seeds", seeds, 1, 1000, "a number of seeds per case")
+    check_number("--budget", budget, 0.0, lo_open=True)
+    result = plan_table(_cases(cases), seeds, budget, progress=lambda s: click.echo(s, err=True))
+    text = table_markdown(result)
+    click.echo(text)
+    if out_dir is not None:
+        files = [write_text(out_dir / "table.md", text),
+                 write_text(out_dir / "table.json", json.dumps(to_jsonable(result), indent=1) + "\n")]
+        click.echo("wrote " + ", ".join(str(f) for f in files))
+    return 0
+
+
+@trailer.command("figure")
+@click.argument("case")
+@click.option("--seed", type=int, default=0, show_default=True, help="The plan's seed.")
+@click.option("--budget", type=float, default=10.0, show_default=True, help="Search budget [s].")
+@click.option("--out", "out_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="The PNG to write (default: CASE.png in the current folder).")
+def figure(case, seed, budget, out_file):
+    """Draw a case of the suite: its map, the start and goal rigs, and the plan of SEED with every body
+    along it (or, when there is no plan, the map with the reason in the title). Exit code 4 without a plan."""
+    from nhstab.batch.trailer_study import case_figure, check_cases
+    from nhstab.errors import InputError
+    from nhstab.execution.config import check_number
+    from nhstab.limits import MAX_SEED, check_int
+    from nhstab.records import save_figure
+
+    try:
+        name = check_cases([case], "CASE")[0]["name"]
+    except InputError as exc:
+        raise InputError("CASE", exc.expected, case) from None
+    check_int("--seed", seed, 0, MAX_SEED, "a seed")
+    check_number("--budget", budget, 0.0, lo_open=True)
+    fig, rec = case_figure(name, seed, budget)
+    path = save_figure(fig, out_file if out_file is not None else Path(f"{name}.png"), dpi=90)
+    if rec["status"] != "ok":
+        click.echo(f"{name}, seed {seed}: no plan ({rec['status']}: {rec.get('message', '')}); drew the map into {path}")
+        return 4
+    click.echo(f"{name}, seed {seed}: plan of {rec['length_m']:.1f} m, {rec['cusps']} cusp(s) in {rec['time_s']:.1f} s; "
+               f"wrote {path}")
+    return 0
+
+
+@trailer.command("sweep")
+@click.argument("config", type=click.Path(dir_okay=False, exists=True, path_type=Path))
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Folder for sweep.json and sweep.md.")
+@click.option("--workers", type=int, default=1, show_default=True,
+              help="Processes over the cases (one BLAS thread each); the result does not depend on it.")
+def sweep(config, out_dir, workers):
+    """Sweep the gramian law (alpha, delta, gamma, end strategy) against TVLQR on the suite's cases
+    that plan, under noise, as CONFIG says (YAML; see the trailer guide): jackknifes, collisions and
+    docked trials per law and noise level. Writes sweep.json and sweep.md into OUT."""
+    import json
+
+    from nhstab.batch.trailer_study import load_sweep_config, run_sweep, sweep_markdown
+    from nhstab.limits import check_int
+    from nhstab.records import to_jsonable, write_text
+
+    check_int("--workers", workers, 1, 64, "a number of worker processes")
+    settings = load_sweep_config(config)
+    result = run_sweep(settings, progress=lambda s: click.echo(s, err=True), workers=workers)
+    files = [write_text(out_dir / "sweep.json", json.dumps(to_jsonable(result), separators=(",", ":")) + "\n"),
+             write_text(out_dir / "sweep.md", sweep_markdown(result))]
+    click.echo(f"{result['cases_planned']} of {len(result['cases'])} cases planned; wrote "
+               + ", ".join(str(f) for f in files) + f" in {result['wall_s']:.0f} s")
+    return 0

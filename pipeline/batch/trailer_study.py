@@ -1,0 +1,528 @@
+"""The trailer suite measured (``nhstab trailer table``, ``figure`` and ``sweep``): whether the planner finds
+the suite's maneuvers, and how the feedback laws hold the rig on them under noise.
+
+**Table** (:func:`plan_table`). For every case of the trailer suite (``maps/trailer/suite/``, the rig of
+its ``robot:`` block) and seeds 0 .. seeds-1: :func:`nhstab.planning.plan` with a search budget of
+``budget_s`` seconds, and per plan its status, the wall time of the whole call, the nominal's cusps
+(direction reversals), its smallest clearance over every body (:func:`nhstab.bodies.min_clearance`,
+FCL at every sample of the nominal) and its largest hitch angle. A plan **succeeds** when its status is
+"ok" and the call returned within the budget. A case that does not plan is a row with the reasons.
+
+**Sweep** (:func:`run_sweep`, configured by a YAML file, :func:`load_sweep_config`). For every case, ONE
+plan: the first plan of ``nhstab run example:NAME --seed PLAN_SEED`` (the run's own first planning call,
+retried as the run retries it: :func:`nhstab.batch.parking_study.first_plan`). On that nominal, per law
+(TVLQR with Q = I, R = I; the gramian law at every combination of the config's alpha, delta, gamma and
+end strategy) and noise level (a multiple of ``nhstab run``'s default initial error, sensor noise and
+process disturbance), ``trials`` runs of the run loop (:func:`nhstab.batch.vector.simulate_shared`,
+bit-identical to ``nhstab run``'s tracking loop for the seeds of
+:func:`nhstab.batch.tube_study.trial_seeds`). A trial ends, as the run ends it, at the first sample
+where a hitch angle is beyond the jackknife limit (**jackknife**) or a body overlaps an obstacle
+(**collision**, FCL, every body at every sample); otherwise it is **docked** when the trailer's axle and
+heading end within the run's goal tolerance (0.3 m, 0.2 rad), else it **missed** the goal; a trial
+whose loop diverges counts apart. A case that does not plan is a row with the reason, and no cells.
+
+The results are JSON-ready; :func:`table_markdown` and :func:`sweep_markdown` write every number from
+them.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import multiprocessing as mp
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import replace
+
+import numpy as np
+
+from .. import bodies
+from ..collision import CollisionWorld
+from ..control import END_STRATEGIES
+from ..errors import InputError, PipelineError
+from ..examples import data_root
+from ..execution.config import RunOptions, check_number
+from ..execution.controllers import ControllerOptions, build_law
+from ..execution.runner import final_errors
+from ..limits import MAX_BATCH_TRIALS, MAX_GAMMA, MAX_NOISE_SCALE, MAX_SEED, MAX_STUDY_TRIALS, check_int
+from ..maps import load_map
+from ..planning import PathOptions, plan
+from ..report.maps import map_figure
+from ..report.plans import plan_figure
+from ..robot import robot_from_spec
+from ..safe_io import read_yaml_mapping
+from ..trailer_suite import read_suite_csv
+from .parking_study import first_plan
+from .tube_study import trial_seeds
+from .vector import simulate_shared
+
+#: the table's search budget per plan [s] and seeds per case
+BUDGET_S = 10.0
+SEEDS = 3
+
+
+# ---- the suite -------------------------------------------------------------------------------------------
+
+def suite_rows() -> list[dict]:
+    """The trailer suite's cases (maps/trailer/suite/suite.csv), in its order."""
+    return read_suite_csv(data_root() / "trailer" / "suite" / "suite.csv")
+
+
+def check_cases(names, key: str = "cases") -> list[dict]:
+    """The suite rows of ``names`` (``example:`` optional), in the order given; all when empty or None.
+    An unknown or repeated name is an InputError naming ``key``."""
+    rows = suite_rows()
+    if not names:
+        return rows
+    if not isinstance(names, (list, tuple)):
+        raise InputError(key, "a list of case names of the trailer suite", names)
+    by_name = {r["name"]: r for r in rows}
+    out, seen = [], set()
+    for j, raw in enumerate(names):
+        name = raw[len("example:"):] if isinstance(raw, str) and raw.startswith("example:") else raw
+        if name not in by_name:
+            raise InputError(f"{key}[{j}]", "a case of the trailer suite (" + ", ".join(by_name) + ")", raw)
+        if name in seen:
+            raise InputError(f"{key}[{j}]", "each case once", raw)
+        seen.add(name)
+        out.append(by_name[name])
+    return out
+
+
+def _size(row: dict) -> str:
+    if row["kind"] == "dock":
+        return f"bay {row['bay_factor']:g} W, aisle {row['aisle_factor']:g} S"
+    return f"aisle and corridor {row['aisle_factor']:g} S"
+
+
+# ---- the table -------------------------------------------------------------------------------------------
+
+def path_length(x: np.ndarray) -> float:
+    """The length [m] of the car's rear-axle path along states x (N, n)."""
+    return float(np.sum(np.hypot(np.diff(x[:, 0]), np.diff(x[:, 1]))))
+
+
+def plan_case(name: str, seed: int, budget_s: float):
+    """One plan of a suite case: (record, map, robot, PlanResult)."""
+    m = load_map(f"example:{name}")
+    robot = robot_from_spec(m.robot, source="map")
+    t0 = time.perf_counter()
+    res = plan(m, robot, m.start.as_array(), m.goal.as_array(), PathOptions(time_limit_s=budget_s, seed=seed))
+    wall = time.perf_counter() - t0
+    rec = {"seed": int(seed), "status": res.status, "time_s": wall, "ok_within_budget": bool(res.ok and wall <= budget_s)}
+    if res.nominal is not None:
+        x = res.nominal.x
+        world = CollisionWorld.from_map(m, "known")
+        c, k, b = bodies.min_clearance(world, robot, x)
+        v = res.nominal.u[:, 0]
+        s = np.sign(v[np.abs(v) > 1e-9])
+        rec.update(cusps=int(np.sum(s[1:] != s[:-1])), length_m=path_length(x),
+                   duration_s=float(res.nominal.t[-1] - res.nominal.t[0]), min_clearance_m=c,
+                   min_clearance_body=b, max_abs_hitch_rad=float(np.max(np.abs(robot.model.hitch_angles(x)))))
+    if not res.ok:
+        rec["message"] = " ".join(res.message.split())
+    return rec, m, robot, res
+
+
+def plan_table(cases=None, seeds: int = SEEDS, budget_s: float = BUDGET_S, progress=None) -> dict:
+    """Plan every case of the suite (or ``cases``) over seeds 0 .. seeds-1 (module docstring)."""
+    rows_csv = check_cases(cases)
+    seeds = check_int("seeds", seeds, 1, 1000, "a number of seeds per case")
+    budget_s = check_number("budget", budget_s, 0.0, lo_open=True)
+    rows = []
+    for spec in rows_csv:
+        trials = []
+        for seed in range(seeds):
+            rec = plan_case(spec["name"], seed, budget_s)[0]
+            trials.append(rec)
+            if progress is not None:
+                progress(f"{spec['name']} seed {seed}: {rec['status']} in {rec['time_s']:.1f} s")
+        ok = [t for t in trials if t["ok_within_budget"]]
+
+        def med(key, ok=ok):
+            vals = [t[key] for t in ok if t.get(key) is not None]
+            return float(np.median(vals)) if vals else None
+
+        statuses: dict = {}
+        for t in trials:
+            key = t["status"] if t["status"] != "ok" or t["ok_within_budget"] else "ok_over_budget"
+            statuses[key] = statuses.get(key, 0) + 1
+        rows.append({**{k: spec[k] for k in ("name", "kind", "bay_factor", "aisle_factor", "bay_m", "aisle_m")},
+                     "trials": trials, "statuses": statuses, "planned": len(ok), "seeds": seeds,
+                     "median_time_s": med("time_s"), "median_cusps": med("cusps"),
+                     "min_clearance_m": min((t["min_clearance_m"] for t in ok), default=None),
+                     "max_abs_hitch_rad": max((t["max_abs_hitch_rad"] for t in ok), default=None)})
+    return {"table": "trailer suite plans", "seeds": seeds, "budget_s": budget_s,
+            "planner": "nhstab.planning.plan with the map's rig, PathOptions(time_limit_s=budget, seed)",
+            "rows": rows, "cases_planned": sum(1 for r in rows if r["planned"] > 0), "cases": len(rows)}
+
+
+def _f(v, fmt: str) -> str:
+    return "-" if v is None else format(v, fmt)
+
+
+def table_markdown(result: dict) -> str:
+    """The table as markdown, every number from ``result``."""
+    lines = ["# The trailer suite: plans", "",
+             f"Produced by `nhstab trailer table` (nhstab.batch.trailer_study): per case of the trailer suite "
+             f"(maps/trailer/suite/SOURCE.md) and seeds 0 .. {result['seeds'] - 1}, one plan with a search budget of "
+             f"{result['budget_s']:g} s. Planned = status ok within the budget; time = the whole plan() call, median over "
+             "the plans found; cusps = direction reversals of the nominal (median); min clearance = the smallest over "
+             "every body and sample of the plans found (FCL); hitch = the largest |hitch angle| of those nominals.", "",
+             "| case | kind | size | planned | median time [s] | cusps | min clearance [m] | max hitch [rad] "
+             "| statuses |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in result["rows"]:
+        st = ", ".join(f"{k} {v}" for k, v in sorted(r["statuses"].items()))
+        lines.append(f"| {r['name']} | {r['kind']} | {_size(r)} | {r['planned']}/{r['seeds']} | "
+                     f"{_f(r['median_time_s'], '.2f')} | {_f(r['median_cusps'], 'g')} | "
+                     f"{_f(r['min_clearance_m'], '.3f')} | {_f(r['max_abs_hitch_rad'], '.3f')} | {st} |")
+    lines += ["", f"{result['cases_planned']} of {result['cases']} cases planned with at least one seed.", ""]
+    failures = [(r["name"], t) for r in result["rows"] for t in r["trials"] if not t["ok_within_budget"]]
+    if failures:
+        lines += ["## Why plans failed", ""]
+        for name, t in failures:
+            why = t.get("message") or f"ok, but {t['time_s']:.1f} s over the {result['budget_s']:g} s budget"
+            lines.append(f"- {name}, seed {t['seed']} ({t['time_s']:.1f} s): {t['status']}: {why}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def case_figure(name: str, seed: int = 0, budget_s: float = BUDGET_S):
+    """The case's map, its start and goal rigs, and the plan of ``seed`` (every body along it), or the
+    map alone with why there is no plan in the title. Returns (figure, plan record)."""
+    rec, m, robot, res = plan_case(name, seed, budget_s)
+    start, goal = m.start.as_array(), m.goal.as_array()
+    if res.nominal is None or not res.ok:
+        title = f"{name}: no plan with seed {seed} ({rec['status']}, {rec['time_s']:.1f} s)"
+        return map_figure(m, start=start, goal=goal, footprint=robot.footprint, title=title, robot=robot), rec
+    nom = res.nominal
+    poses = nom.x[:, robot.pose_columns]
+    title = (f"{name}, seed {seed}: {rec['length_m']:.1f} m, {rec['cusps']} cusp(s), min clearance "
+             f"{rec['min_clearance_m']:.3f} m, planned in {rec['time_s']:.1f} s")
+    fig = plan_figure(m, poses, np.sign(nom.u[:, 0]), robot.footprint, start, goal, title=title, robot=robot,
+                      states=nom.x)
+    return fig, rec
+
+
+# ---- the sweep config --------------------------------------------------------------------------------------
+
+_TOP = ("name", "cases", "plan_seed", "root_seed", "trials", "noise", "tvlqr", "gramian")
+_GRAMIAN = ("alpha", "delta", "gamma", "end_strategy")
+#: the sweep's defaults where the config leaves a key out
+DEFAULTS = {"plan_seed": 0, "root_seed": 2026, "trials": 50, "noise": [0.5, 1.0, 2.0], "tvlqr": True}
+
+
+def _values(key: str, v, check) -> list:
+    if not isinstance(v, list) or not v:
+        raise InputError(key, "a non-empty list", v)
+    out = [check(f"{key}[{j}]", x) for j, x in enumerate(v)]
+    if len(set(out)) != len(out):
+        raise InputError(key, "each value once", v)
+    return out
+
+
+def _number(lo: float, hi: float, lo_open: bool, what: str):
+    def check(key, x):
+        ok = isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and \
+            (x > lo if lo_open else x >= lo) and x <= hi
+        if not ok:
+            raise InputError(key, what, x)
+        return float(x)
+    return check
+
+
+def _strategy(key, x):
+    if x not in END_STRATEGIES:
+        raise InputError(key, "one of " + ", ".join(END_STRATEGIES), x)
+    return x
+
+
+def check_sweep_config(data: dict) -> dict:
+    """The sweep's settings from a config mapping (the YAML file's), every key checked; an error names
+    the key (``gramian.alpha[1]``, ``noise[0]``, ``cases[2]``). Keys left out take :data:`DEFAULTS`, and
+    the gramian's the rig's own value."""
+    if not isinstance(data, dict):
+        raise InputError("config", "a mapping of sweep settings", data)
+    for key in data:
+        if key not in _TOP:
+            raise InputError(key, "one of " + ", ".join(_TOP), key)
+    name = data.get("name", "trailer-law-sweep")
+    if not isinstance(name, str) or not name:
+        raise InputError("name", "a non-empty string", name)
+    rows = check_cases(data.get("cases"), "cases")
+    plan_seed = check_int("plan_seed", data.get("plan_seed", DEFAULTS["plan_seed"]), 0, MAX_SEED, "a seed")
+    root_seed = check_int("root_seed", data.get("root_seed", DEFAULTS["root_seed"]), 0, MAX_SEED - 1, "a seed")
+    trials = check_int("trials", data.get("trials", DEFAULTS["trials"]), 1, MAX_STUDY_TRIALS,
+                       "a number of trials per cell")
+    noise = _values("noise", data.get("noise", DEFAULTS["noise"]),
+                    _number(0.0, MAX_NOISE_SCALE, True, f"a noise scale in (0, {MAX_NOISE_SCALE:g}]"))
+    tvlqr = data.get("tvlqr", DEFAULTS["tvlqr"])
+    if not isinstance(tvlqr, bool):
+        raise InputError("tvlqr", "true or false (TVLQR as the reference law)", tvlqr)
+    gram = data.get("gramian", {}) or {}
+    if not isinstance(gram, dict):
+        raise InputError("gramian", "a mapping of alpha, delta, gamma, end_strategy lists", gram)
+    for key in gram:
+        if key not in _GRAMIAN:
+            raise InputError(f"gramian.{key}", "one of " + ", ".join(_GRAMIAN), key)
+    checks = {"alpha": _number(0.0, math.inf, True, "a positive finite number"),
+              "delta": _number(0.0, math.inf, True, "a positive finite number [s]"),
+              "gamma": _number(0.5, MAX_GAMMA, False, f"a number in [1/2, {MAX_GAMMA:g}]"),
+              "end_strategy": _strategy}
+    gramian = {k: (None if k not in gram else _values(f"gramian.{k}", gram[k], checks[k])) for k in _GRAMIAN}
+    laws = (1 if tvlqr else 0) + math.prod(len(v) if v else 1 for v in gramian.values())
+    total = len(rows) * laws * len(noise) * trials
+    if total > MAX_BATCH_TRIALS:
+        raise InputError("trials", f"at most {MAX_BATCH_TRIALS:,} trials in the sweep (cases x laws x noise x trials)",
+                         f"{len(rows)} x {laws} x {len(noise)} x {trials} = {total:,}")
+    return {"name": name, "cases": [r["name"] for r in rows], "plan_seed": plan_seed, "root_seed": root_seed,
+            "trials": trials, "noise": noise, "tvlqr": tvlqr, "gramian": gramian}
+
+
+def load_sweep_config(path) -> dict:
+    """:func:`check_sweep_config` of a YAML file."""
+    return check_sweep_config(read_yaml_mapping(path, "CONFIG", "trailer sweep config (YAML)"))
+
+
+# ---- the sweep ----------------------------------------------------------------------------------------------
+
+def laws(settings: dict, defaults: dict) -> list[dict]:
+    """The sweep's laws: TVLQR (if asked), then every gramian combination; values the config leaves out
+    are the rig's own (``defaults``: its stabilizer)."""
+    out = [{"controller": "tvlqr"}] if settings["tvlqr"] else []
+    g = settings["gramian"]
+    lists = [g[k] if g[k] else [defaults[k]] for k in _GRAMIAN]
+    for alpha, delta, gamma, end in itertools.product(*lists):
+        out.append({"controller": "gramian", "alpha": float(alpha), "delta": float(delta), "gamma": float(gamma),
+                    "end_strategy": end})
+    return out
+
+
+def law_label(law: dict) -> str:
+    if law["controller"] != "gramian":
+        return law["controller"]
+    return f"gramian a={law['alpha']:g} d={law['delta']:g} g={law['gamma']:g} {law['end_strategy']}"
+
+
+def build_sweep_law(run, result, law: dict):
+    """The feedback law of a sweep cell along the plan's nominal."""
+    if law["controller"] == "gramian":
+        copts = replace(run.opts.controller, kind="gramian", gains="default", alpha=law["alpha"], delta=law["delta"],
+                        gamma=law["gamma"])
+        return build_law(result.nominal, copts, {**run.stab_defaults, "end_strategy": law["end_strategy"]}, None)
+    copts = ControllerOptions(kind=law["controller"])
+    return build_law(result.nominal, copts, run.stab_defaults, None)
+
+
+def trial_outcomes(run, law, seeds, noise) -> dict:
+    """The trials of one cell (module docstring): jackknifes, collisions, docked, missed, diverged."""
+    sim = simulate_shared(law, seeds, noise, rate_hz=run.opts.rate_hz, substeps=run.opts.substeps, model=run.model)
+    K, S = len(seeds), len(sim.t)
+    model, robot = run.model, run.robot
+    ok = sim.completed
+    outcome = np.array(["diverged"] * K, dtype=object)
+    max_hitch = np.full(K, np.nan)
+    for i in np.flatnonzero(ok):
+        x = sim.x[i]
+        hitch = np.abs(model.hitch_angles(x)).max(axis=1)
+        max_hitch[i] = float(hitch.max())
+        over = np.flatnonzero(hitch > model.jackknife_limit)
+        free = bodies.free_many(run.known, robot, x, 0.0)
+        hit = np.flatnonzero(~free)
+        k_jack = int(over[0]) if len(over) else S
+        k_hit = int(hit[0]) if len(hit) else S
+        if k_jack < S and k_jack <= k_hit:
+            outcome[i] = "jackknife"
+        elif k_hit < S:
+            outcome[i] = "collision"
+        else:
+            fe = final_errors(robot, sim.x_final[i], run.goal)      # the docked body: the last trailer
+            tol = run.opts.tolerance
+            docked = fe["trailer_position_m"][-1] <= tol.position_m and fe["trailer_heading_rad"][-1] <= tol.heading_rad
+            outcome[i] = "docked" if docked else "missed"
+    counts = {k: int(np.sum(outcome == k)) for k in ("docked", "jackknife", "collision", "missed", "diverged")}
+    finite = np.isfinite(max_hitch)
+    return {"trials": K, **counts,
+            "median_max_hitch_rad": float(np.median(max_hitch[finite])) if finite.any() else None,
+            "per_trial": {"seed": [int(s) for s in seeds], "outcome": outcome.tolist()}}
+
+
+def sweep_case(name: str, settings: dict, progress=None) -> dict:
+    """One case of the sweep: its plan, then every (law, noise) cell."""
+    started = time.perf_counter()
+    case = {"case": name}
+    try:
+        run, attempts, result, law0, margin, _ = first_plan(name, RunOptions(seed=settings["plan_seed"]))
+    except PipelineError as exc:
+        case.update(plan={"found": False, "reason": " ".join(str(exc).split())}, cells=[],
+                    plan_wall_s=time.perf_counter() - started)
+        _say(progress, f"{name}: no plan ({case['plan']['reason']})")
+        return case
+    case["plan_wall_s"] = time.perf_counter() - started
+    if law0 is None:
+        last = attempts[-1]
+        case.update(plan={"found": False, "reason": f"{last.get('status')}: {' '.join(str(last.get('message')).split())}",
+                          "attempts": len(attempts)}, cells=[])
+        _say(progress, f"{name}: no plan ({case['plan']['reason']})")
+        return case
+    nom = result.nominal
+    c, _, b = bodies.min_clearance(run.known, run.robot, nom.x)
+    case["plan"] = {"found": True, "attempts": len(attempts), "margin_m": margin, "length_m": path_length(nom.x),
+                    "duration_s": float(law0.t_end - law0.t0), "min_clearance_m": c, "min_clearance_body": b}
+    _say(progress, f"{name}: plan {case['plan']['duration_s']:.1f} s, min clearance {c:.3f} m "
+                   f"({case['plan_wall_s']:.1f} s)")
+    seeds = trial_seeds(settings["trials"], settings["root_seed"])
+    cells = []
+    for law in laws(settings, run.stab_defaults):
+        t0 = time.perf_counter()
+        try:
+            fl = build_sweep_law(run, result, law)
+        except PipelineError as exc:
+            for level in settings["noise"]:
+                cells.append({**law, "noise": level, "error": " ".join(str(exc).split())})
+            _say(progress, f"{name} {law_label(law)}: no law ({exc})")
+            continue
+        for level in settings["noise"]:
+            noise = replace(run.opts.noise, scale=run.opts.noise.scale * level)
+            out = trial_outcomes(run, fl, seeds, noise)
+            cells.append({**law, "noise": level, "max_gain_norm": fl.info.get("max_gain_norm"), **out,
+                          "wall_s": time.perf_counter() - t0})
+            t0 = time.perf_counter()
+            _say(progress, f"{name} {law_label(law)} x{level:g}: docked {out['docked']}/{out['trials']}, "
+                           f"jackknifes {out['jackknife']}, collisions {out['collision']}")
+    case["cells"] = cells
+    case["wall_s"] = time.perf_counter() - started
+    return case
+
+
+def _say(progress, text: str) -> None:
+    if progress is True:
+        print(text, file=sys.stderr, flush=True)
+    elif progress is not None:
+        progress(text)
+
+
+def _case_task(args):
+    name, settings = args
+    return sweep_case(name, settings, progress=True)
+
+
+def _in_processes(names, settings, workers, progress) -> list:
+    """The cases over ``workers`` spawned processes, one BLAS thread each; results in the given order."""
+    saved = {v: os.environ.get(v) for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+    for v in saved:
+        os.environ[v] = "1"
+    try:
+        pool = ProcessPoolExecutor(max_workers=min(workers, len(names)), mp_context=mp.get_context("spawn"))
+    finally:
+        for v, old in saved.items():
+            if old is None:
+                os.environ.pop(v, None)
+            else:
+                os.environ[v] = old
+    cases = [None] * len(names)
+    try:
+        futures = {pool.submit(_case_task, (name, settings)): i for i, name in enumerate(names)}
+        for fut in as_completed(futures):
+            cases[futures[fut]] = fut.result()
+            _say(progress, f"done {names[futures[fut]]} ({sum(c is not None for c in cases)}/{len(names)} cases)")
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        for p in list((getattr(pool, "_processes", None) or {}).values()):
+            if p.is_alive():
+                p.terminate()
+        raise
+    pool.shutdown(wait=True)
+    return cases
+
+
+def run_sweep(settings: dict, progress=None, workers: int = 1) -> dict:
+    """The sweep of checked ``settings`` (:func:`check_sweep_config`): per case its plan and cells, and
+    per law and noise level the totals over the cases that planned. ``workers`` > 1 spreads the cases
+    over processes (spawned, one BLAS thread each); the result does not depend on it."""
+    workers = check_int("workers", workers, 1, 64, "a number of worker processes")
+    started = time.perf_counter()
+    opts = RunOptions()
+    names = settings["cases"]
+    if workers == 1 or len(names) == 1:
+        cases = [sweep_case(name, settings, progress) for name in names]
+    else:
+        cases = _in_processes(names, settings, workers, progress)
+    totals = {}
+    for case in cases:
+        for c in case.get("cells", []):
+            if "error" in c:
+                continue
+            key = (law_label(c), c["noise"])
+            t = totals.setdefault(key, {"law": law_label(c), "noise": c["noise"], "cases": 0, "trials": 0, "docked": 0,
+                                        "jackknife": 0, "collision": 0, "missed": 0, "diverged": 0})
+            t["cases"] += 1
+            for k in ("trials", "docked", "jackknife", "collision", "missed", "diverged"):
+                t[k] += c[k]
+    rows = list(totals.values())
+    ref = {r["noise"]: r for r in rows if r["law"] == "tvlqr"}
+    verdicts = {}
+    for r in rows:
+        if r["law"] == "tvlqr" or r["noise"] not in ref:
+            continue
+        q = ref[r["noise"]]
+        v = verdicts.setdefault(r["law"], True)
+        verdicts[r["law"]] = v and r["jackknife"] <= q["jackknife"] and r["collision"] <= q["collision"]
+    return {"sweep": "trailer laws", "settings": settings,
+            "tolerance": {"position_m": opts.tolerance.position_m, "heading_rad": opts.tolerance.heading_rad},
+            "cases": cases, "totals": rows, "matches_or_beats_tvlqr": verdicts,
+            "cases_planned": sum(1 for c in cases if c["plan"].get("found")), "workers": workers,
+            "wall_s": time.perf_counter() - started}
+
+
+def sweep_markdown(result: dict) -> str:
+    """The sweep as markdown, every number from ``result``."""
+    s = result["settings"]
+    tol = result["tolerance"]
+    lines = ["# The trailer suite: feedback laws under noise", "",
+             f"Produced by `nhstab trailer sweep` (nhstab.batch.trailer_study), config `{s['name']}`: per case one plan "
+             f"(the first plan of `nhstab run example:NAME --seed {s['plan_seed']}`), then per law and noise level "
+             f"{s['trials']} trials of the run loop (seeds spawned from {s['root_seed']}). Jackknife = a hitch angle "
+             "beyond the limit before any collision; collision = a body overlaps an obstacle (FCL, every sample); "
+             f"docked = neither, and the trailer's axle within {tol['position_m']:g} m and {tol['heading_rad']:g} rad "
+             "of its goal.", "",
+             f"{result['cases_planned']} of {len(result['cases'])} cases planned.", "",
+             "## Plans", "", "| case | plan | duration [s] | min clearance [m] |", "|---|---|---|---|"]
+    for c in result["cases"]:
+        p = c["plan"]
+        if p.get("found"):
+            lines.append(f"| {c['case']} | found | {p['duration_s']:.1f} | {p['min_clearance_m']:.3f} |")
+        else:
+            tries = f" (the last of {p['attempts']} attempts)" if p.get("attempts") else ""
+            lines.append(f"| {c['case']} | **no plan**{tries}: {p['reason']} | - | - |")
+    lines += ["", "## Totals over the cases that planned", "",
+              "| law | noise | cases | docked | jackknifes | collisions | missed | diverged |",
+              "|---|---|---|---|---|---|---|---|"]
+    if not result["totals"]:
+        lines.append("| no case planned | | | | | | | |")
+    for r in sorted(result["totals"], key=lambda r: (r["noise"], r["law"] != "tvlqr", r["law"])):
+        lines.append(f"| {r['law']} | x{r['noise']:g} | {r['cases']} | {r['docked']}/{r['trials']} | {r['jackknife']} | "
+                     f"{r['collision']} | {r['missed']} | {r['diverged']} |")
+    lines += ["", "## Gramian laws against TVLQR", "",
+              "A law matches or beats TVLQR when, at every noise level, it has no more jackknifes and no more "
+              "collisions than TVLQR over the same cases and seeds.", ""]
+    if result["matches_or_beats_tvlqr"]:
+        for law, ok in sorted(result["matches_or_beats_tvlqr"].items()):
+            lines.append(f"- {law}: {'**yes**' if ok else 'no'}")
+    else:
+        lines.append("Not evaluated (no TVLQR cells, or no case planned).")
+    lines += ["", "## Per case", "", "| case | law | noise | docked | jackknifes | collisions | missed | diverged "
+              "| median max hitch [rad] |", "|---|---|---|---|---|---|---|---|---|"]
+    for c in result["cases"]:
+        for cell in c.get("cells", []):
+            if "error" in cell:
+                lines.append(f"| {c['case']} | {law_label(cell)} | x{cell['noise']:g} | no law: {cell['error']} "
+                             "| | | | | |")
+                continue
+            lines.append(f"| {c['case']} | {law_label(cell)} | x{cell['noise']:g} | {cell['docked']}/{cell['trials']} | "
+                         f"{cell['jackknife']} | {cell['collision']} | {cell['missed']} | {cell['diverged']} | "
+                         f"{_f(cell['median_max_hitch_rad'], '.3f')} |")
+    lines += ["", f"Wall time: {result['wall_s']:.0f} s.", ""]
+    return "\n".join(lines)
