@@ -33,7 +33,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import wrap_angle
-from .base import Model, angle_limit, check_max_steer, positive_param
+from .base import POSE_NOISE, Model, angle_limit, check_max_steer, positive_param, with_noise
 
 #: the most trailers a model may tow (a bound on the state's size, not a physical limit)
 MAX_TRAILERS = 8
@@ -71,6 +71,10 @@ class CarTrailer(Model):
         "stabilizer": {"alpha": 0.05, "delta": 10.0, "gamma": 1.0, "end_strategy": "frozen"},
         "turning_radius": ("factor", 5.0),
     }
+    #: the car's noise (phi's as a car's), and each trailer heading's as the car's heading
+    noise_defaults: ClassVar[dict] = with_noise(POSE_NOISE, phi=(0.0, 0.005, 0.0), **{
+        f"theta{i}": tuple(POSE_NOISE[kind]["theta"] for kind in ("initial", "sensor", "process"))
+        for i in range(1, MAX_TRAILERS + 1)})
     plannable: ClassVar[bool] = True
     wheelbase: float = 2.5              # m, L of the car
     hitch_lengths: tuple = (3.0,)       # m, d_i: hitch (previous axle centre) to trailer i's axle

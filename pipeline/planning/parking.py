@@ -614,7 +614,7 @@ def lock_radius(model: Model, opts: CarOptions) -> float:
     if phi <= 0:
         raise InputError("car.steering_reserve_rad", f"below the car's max_steer {model.max_steer:g} rad",
                          opts.steering_reserve_rad)
-    return float(model.wheelbase / math.tan(phi))
+    return model.turning_radius_at(phi)
 
 
 def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, opts: PathOptions, pad: float,
