@@ -161,6 +161,13 @@ class NoiseOptions:
                                      f"{MAX_NOISE_LEVEL:g}]", v)
         return self
 
+    def merged(self, levels: dict | None = None, scale: float | None = None) -> "NoiseOptions":
+        """These options with more levels: ``levels`` maps a kind (initial, sensor, process) to levels by
+        state name, each over this kind's own (a kind None or absent keeps its levels); ``scale``, if
+        given, replaces the scale. Not validated (see :meth:`validated`)."""
+        out = replace(self, **{k: {**getattr(self, k), **v} for k, v in (levels or {}).items() if v is not None})
+        return out if scale is None else replace(out, scale=scale)
+
     def vector(self, kind: str, state_names) -> np.ndarray:
         """The levels of one kind in state order, scaled."""
         given, defaults = getattr(self, kind), default_noise()[kind]

@@ -87,6 +87,13 @@ def min_turning_radius(model: Model) -> float:
     return float(model.min_turning_radius)
 
 
+def check_plannable(robot: Robot, key: str = "robot") -> None:
+    """Refuse a robot whose model the planner does not plan for (:data:`PLANNABLE`, each model's
+    ``plannable``) with an :class:`InputError` naming ``key`` (where the robot was given)."""
+    if robot.model.name not in PLANNABLE:
+        raise InputError(key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)", robot.model.name)
+
+
 def default_turning_radius(model: Model) -> float:
     """The planning turning radius of the model's built-in robot (see :mod:`nhstab.robot`)."""
     if getattr(model, "name", None) not in PLANNABLE:
@@ -444,4 +451,5 @@ def _pose(value, name: str, robot: Robot) -> np.ndarray:
 
 __all__ = ["plan", "PlanResult", "check_map_budget", "check_start_goal", "PathOptions", "TimingOptions", "CarOptions",
            "GeometricPath", "plan_path", "path_length", "search_margin", "tracking_metrics", "DURATION_FACTOR",
-           "PLANNERS", "SPACES", "PLANNABLE", "pose_columns", "default_turning_radius", "min_turning_radius"]
+           "PLANNERS", "SPACES", "PLANNABLE", "pose_columns", "default_turning_radius", "min_turning_radius",
+           "check_plannable"]
