@@ -152,6 +152,12 @@ def check_max_steer(model: str, wheelbase: float, max_steer: float) -> None:
                          f"(a turning radius wheelbase / tan(max_steer) of at least {MIN_TURNING_RADIUS_M:g} m)", max_steer)
 
 
+def axle_turning_radius(wheelbase: float, steer: float) -> float:
+    """A rear axle's turning radius L / tan(steer) [m] at the steering angle ``steer`` in (0, pi/2) (theta' =
+    tan(phi) s / L for the rear axle's speed s): the one formula behind every car's turning radius."""
+    return float(wheelbase / math.tan(steer))
+
+
 def positive_param(name: str, value, model: str) -> float:
     """Validate a strictly positive finite model parameter (named ``model.name`` in errors)."""
     return require_positive(f"{model}.{name}", value)
@@ -180,7 +186,7 @@ class SteeredCar(Model):
 
     def turning_radius_at(self, steer: float) -> float:
         """The rear axle's turning radius L / tan(steer) [m] at a steering angle ``steer`` in (0, pi/2)."""
-        return float(self.wheelbase / math.tan(steer))
+        return axle_turning_radius(self.wheelbase, steer)
 
     @property
     def min_turning_radius(self) -> float:
