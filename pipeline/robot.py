@@ -286,11 +286,12 @@ def robot_preset(model_name: str, preset: str) -> dict:
 
 
 def make_robot(model: str | Model = "unicycle", footprint: Footprint | dict | None = None,
-               margin: float | None = None, stabilizer: dict | None = None, turning_radius: float | None = None,
-               **params) -> Robot:
+               margin: float | None = None, stabilizer: dict | RobotStabilizer | None = None,
+               turning_radius: float | None = None, **params) -> Robot:
     """A robot from Python values: ``make_robot("rwd_car", wheelbase=2.7, margin=0.1,
     footprint={"rectangle": {"length": 4.5, "width": 1.9, "rear_overhang": 1.0}})``; a footprint
-    may also be a :class:`Footprint`. Validated like the YAML form."""
+    may also be a :class:`Footprint`, a stabilizer a :class:`RobotStabilizer`. Validated like the YAML
+    form."""
     if isinstance(model, Model):
         params = {**{k: v for k, v in model.params().items()}, **params}
         model = model.name
@@ -303,7 +304,7 @@ def make_robot(model: str | Model = "unicycle", footprint: Footprint | dict | No
     if margin is not None:
         spec["margin"] = margin
     if stabilizer is not None:
-        spec["stabilizer"] = stabilizer
+        spec["stabilizer"] = stabilizer.as_dict() if isinstance(stabilizer, RobotStabilizer) else stabilizer
     if turning_radius is not None:
         spec["turning_radius"] = turning_radius
     robot = robot_from_spec(spec, source="python")

@@ -87,6 +87,8 @@ def test_builtin_robots_keep_the_old_defaults():
     assert f.stabilizer.as_dict() == {"alpha": 0.2, "delta": 3.0, "gamma": 1.0, "end_strategy": "extend", "cusps": "split"}
     assert u.stabilizer == RobotStabilizer(alpha=0.2, delta=2.0, gamma=1.0, end_strategy="frozen")    # a typed value
     assert u.stabilizer.cusps is None and c.stabilizer.cusps == "split"
+    typed = make_robot("rwd_car", stabilizer=RobotStabilizer(alpha=0.3, delta=4.0))     # the rest the rwd_car's
+    assert typed.stabilizer == RobotStabilizer(alpha=0.3, delta=4.0, gamma=1.0, end_strategy="extend", cusps="split")
     assert u.turning_radius == 0.5 and c.turning_radius == pytest.approx(1.25 * 2.5 / math.tan(0.6))
     assert u.footprint.radius == 0.3
     assert np.allclose(c.footprint.vertices, [[-0.9, -0.9], [3.3, -0.9], [3.3, 0.9], [-0.9, 0.9]])
