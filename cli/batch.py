@@ -113,85 +113,16 @@ def replay(store_path, trial_id, out_dir, animate):
     anywhere) and the run's files. STORE is a batch folder or its trials.sqlite (opened read-only).
     The map comes from the store; a store made before stores kept maps needs the map files at the
     path the trial records (with the content the batch used, when the store says which)."""
-    import tempfile
-
-    import yaml
-    from nhstab.batch.store import Store
-    from nhstab.batch.trial import replay_config
-    from nhstab.errors import InputError
-    from nhstab.execution.config import load_run_config
+    from nhstab.batch.replay import prepare_replay
 
     from .run import execute_and_write
 
-    path = store_path / "trials.sqlite" if store_path.is_dir() else store_path
-    with Store(path) as store:
-        record = store.trial(trial_id)
-        if record is None:
-            raise InputError("TRIAL_ID", "the id of a stored trial (see the report's CSV)", trial_id)
-        cell = _cell_spec(record, trial_id)
-        bundle = store.map_bundle(cell.get("map_bundle"), cell.get("map_hash"))
-        schema = store.schema
-    from_store = bundle is not None
-    if bundle is None:
-        bundle = _bundle_at_recorded_path(cell, path, schema)
-    map_rel = "map/" + bundle.entry
-    try:
-        cfg = replay_config(record, map_rel)
-    except (KeyError, TypeError, ValueError, AttributeError) as exc:
-        if isinstance(exc, InputError):
-            raise
-        raise InputError("TRIAL_ID", "a trial whose stored spec is complete", trial_id,
-                         detail=f"{type(exc).__name__}: {exc}") from None
-    text = "# replays trial " + trial_id + " of " + str(path) + "\n" + yaml.safe_dump(cfg, sort_keys=False)
-    with tempfile.TemporaryDirectory(prefix="nhstab-replay-") as tmp:
-        bundle.write_into(Path(tmp) / "map")
-        cfg_path = Path(tmp) / "run_config.yaml"
-        cfg_path.write_text(text, encoding="utf-8")
-        _, opts = load_run_config(cfg_path)
-    m = bundle.load(cell.get("cell_size"), argument="STORE")
-    from nhstab.robot import resolve_robot
-
-    click.echo(f"replaying {trial_id} (stored status: {record['status']}) on {m.name} from "
-               f"{'the store' if from_store else bundle.source}", err=True)
-    robot = resolve_robot(opts.robot, m.robot, source="run config")
-    extra = {"run_config.yaml": text, **{f"map/{rel}": data for rel, data in bundle.files.items()}}
-    return execute_and_write(m, str(out_dir / map_rel), opts, robot, opts.start, opts.goal, out_dir, animate,
-                             extra_files=extra)
-
-
-def _cell_spec(record: dict, trial_id: str) -> dict:
-    from nhstab.errors import InputError
-
-    cell = (record.get("spec") or {}).get("cell_spec") if isinstance(record.get("spec"), dict) else None
-    if not isinstance(cell, dict) or not isinstance(cell.get("map_path"), str):
-        raise InputError("TRIAL_ID", "a trial whose stored spec is complete", trial_id, detail="no cell_spec.map_path")
-    return cell
-
-
-def _bundle_at_recorded_path(cell: dict, store_path: Path, schema: int):
-    """For a trial whose map the store does not hold: its files at the recorded path, checked
-    against the recorded content hash if there is one; else one line naming what is missing."""
-    from nhstab.batch.bundle import MapBundle
-    from nhstab.errors import InputError
-    from nhstab.maps.yaml_format import is_file
-
-    why = ("it was made before stores kept maps (schema 1)" if schema < 2 else
-           f"it holds no map {cell.get('map_bundle') or '(the trial names none)'}")
-    where = Path(cell["map_path"])
-    expected = "a store that holds the trial's map, or the map files at the path the trial records"
-    if not is_file(where):
-        raise InputError("STORE", expected, str(store_path), detail=f"{why}, and {where} is not a file here")
-    size = cell.get("cell_size")
-    bundle = MapBundle.from_path(where, **({"cell_size": size} if size else {}))
-    digest = cell.get("map_hash")
-    if digest and bundle.content_hash != digest:
-        raise InputError("STORE", expected, str(store_path),
-                         detail=f"{why}, and {where} has changed since the batch: content hash "
-                                f"{bundle.content_hash[:12]}, the trial's {digest[:12]}")
-    if not digest:
-        click.echo(f"nhstab: note: {store_path} records no map content; replaying with {where} as it is now",
-                   err=True)
-    return bundle
+    r = prepare_replay(store_path, trial_id, notify=lambda line: click.echo(line, err=True))
+    click.echo(f"replaying {trial_id} (stored status: {r.record['status']}) on {r.map.name} from "
+               f"{'the store' if r.from_store else r.bundle.source}", err=True)
+    opts = r.options
+    return execute_and_write(r.map, str(out_dir / r.map_rel), opts, r.robot, opts.start, opts.goal, out_dir, animate,
+                             extra_files=r.files)
 
 
 @batch.command("report")

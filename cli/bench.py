@@ -32,26 +32,11 @@ def bench(ctx, out_dir, only):
             raise InputError("--only", "no subcommand with it (it selects among all the benchmarks)",
                              f"--only {only} with {ctx.invoked_subcommand}")
         return 0
-    from nhstab.bench import BENCHMARKS, summary_markdown
+    from nhstab.bench import BENCHMARKS, previous_results, select_benchmarks, summary_markdown
     from nhstab.records import write_json, write_text
 
-    results = {}
-    names = list(BENCHMARKS)
-    if only is not None:
-        names = list(dict.fromkeys(n.strip() for n in only.split(",") if n.strip()))     # each once
-        unknown = [n for n in names if n not in BENCHMARKS]
-        if unknown or not names:
-            raise InputError("--only", f"benchmark names from {', '.join(BENCHMARKS)}", only)
-        previous = out_dir / "bench.json"
-        if previous.is_file():
-            try:
-                results = json.loads(previous.read_text())
-            except (OSError, ValueError) as exc:
-                raise InputError("--out-dir", "a folder whose bench.json is readable JSON (to merge into)",
-                                 f"{previous}: {exc}") from None
-            if not isinstance(results, dict):
-                raise InputError("--out-dir", "a bench.json holding an object", str(previous))
-        results = {k: v for k, v in results.items() if k in BENCHMARKS}
+    names = select_benchmarks(only)
+    results = {} if only is None else previous_results(out_dir)
     for name in names:
         fn = BENCHMARKS[name]
         click.echo(f"running {name} ...", err=True)

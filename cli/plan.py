@@ -100,14 +100,12 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
 
     from nhstab.errors import InputError, user_keys
     from nhstab.limits import MAX_PLANNER_SEED, check_int
-    from nhstab.planning import PLANNABLE
+    from nhstab.planning import check_plannable
 
     check_int("--seed", seed, 0, MAX_PLANNER_SEED, "an integer (OMPL's seed)")
     m = load(map_file, cell_size, unknown)
     rob = cli_robot(robot, robot_config, None, m.robot, m)
-    if rob.model.name not in PLANNABLE:
-        key = "--robot" if robot else ("--robot-config" if robot_config else f"robot.model (in {map_file})")
-        raise InputError(key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)", rob.model.name)
+    check_plannable(rob, "--robot" if robot else ("--robot-config" if robot_config else f"robot.model (in {map_file})"))
     s, g = resolve_poses(m, parse_pose("--start", start), parse_pose("--goal", goal), problem,
                          names=("--start", "--goal", "--problem"))
     # the options name the errors about their values (the robot's keys name the robot's): the nominal's
@@ -120,7 +118,7 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     from nhstab.control import StabilizerOptions
 
     with user_keys(rob.stabilizer_keys()):        # the gain schedule's window against the nominal's time step
-        StabilizerOptions(**rob.stabilizer).validated().check_step(TimingOptions().dt)
+        StabilizerOptions(**rob.stabilizer.as_dict()).validated().check_step(TimingOptions().dt)
     with user_keys(names):
         s = rob.configuration(s, "--start" if start is not None and problem is None else "start")
         g = rob.configuration(g, "--goal" if goal is not None and problem is None else "goal")

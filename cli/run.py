@@ -146,15 +146,10 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     map_path = map_file or cfg_map
     if map_path is None:
         raise InputError("MAP", "a map file (argument or the config's `map`)", None)
-    noise = base.noise
     levels = {k: parse_levels(flag, v) for k, flag, v in
               (("initial", "--initial-error", initial_error), ("sensor", "--sensor-std", sensor_std),
                ("process", "--process-std", process_std))}
-    from dataclasses import replace
-
-    noise = replace(noise, **{k: {**getattr(noise, k), **v} for k, v in levels.items() if v is not None})
-    if noise_scale is not None:
-        noise = replace(noise, scale=noise_scale)
+    noise = base.noise.merged(levels, noise_scale)
     opts = merge(base, seed=seed, rate_hz=rate_hz, max_time_s=max_time, noise=noise,
                  controller__kind=controller, controller__window=window, controller__alpha=alpha,
                  controller__delta=delta, controller__gamma=gamma, controller__gains=gains, planning__planner=planner,
@@ -195,15 +190,12 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
 def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path, animate: bool,
                       robot_key: str = "robot", extra_files: dict | None = None,
                       pose_names: tuple[str, str] = ("start", "goal")) -> int:
-    from nhstab.errors import InputError
     from nhstab.execution import execute, write_run
     from nhstab.interrupts import holding_interrupts, interrupt_held
-    from nhstab.planning import PLANNABLE
+    from nhstab.planning import check_plannable
     from nhstab.tubes.base import certified_text
 
-    if robot.model.name not in PLANNABLE:
-        raise InputError(robot_key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)",
-                         robot.model.name)
+    check_plannable(robot, robot_key)
     # a pose, or the full state with phi = 0 (Robot.configuration): refused here, under the name it was given by
     start, goal = robot.configuration(start, pose_names[0]), robot.configuration(goal, pose_names[1])
     from nhstab.execution.runner import check_run

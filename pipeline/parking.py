@@ -61,7 +61,7 @@ from .examples import data_root
 from .execution import RunOptions, execute
 from .maps import load_map
 from .records import write_text
-from .robot import default_robot, robot_from_spec
+from .robot import default_robot, robot_from_spec, robot_preset
 
 #: parallel slot lengths, as multiples of the single-maneuver minimum L1
 PARALLEL_FACTORS = (0.9, 1.0, 1.05, 1.1, 1.2, 1.4)
@@ -88,20 +88,11 @@ BAYS_EACH_SIDE = 3          # occupied bays on either side of the free one
 WALL = 0.5                  # thickness of walls at the map's edge
 
 
-def _van_spec() -> dict:
-    # a long panel van (about a Mercedes Sprinter 314 with the standard wheelbase): 5.9 x 2.0 m body,
-    # wheelbase 3.65 m, overhangs 1.1 m (rear) and 1.15 m (front), kerb-to-kerb turning circle about
-    # 13.5 m (max_steer 0.65 rad: R = 4.80 m at the rear axle), slower steering than the car
-    return {"model": "rwd_car", "name": "van", "wheelbase": 3.65, "max_speed": 1.5, "max_steer": 0.65,
-            "max_steer_rate": 0.8, "footprint": {"rectangle": {"length": 5.9, "width": 2.0, "rear_overhang": 1.1}},
-            "margin": SUITE_MARGIN}
-
-
 def _default_car_spec() -> dict:
     """The built-in rwd_car, every parameter explicit, with the suite's margin."""
-    spec = default_robot("rwd_car").spec()
-    fp = default_robot("rwd_car").footprint
-    geo = CarGeometry.from_footprint(fp, spec["wheelbase"], spec["max_steer"])
+    robot = default_robot("rwd_car")
+    spec = robot.spec()
+    geo = CarGeometry.from_robot(robot)
     return {"model": "rwd_car", "name": "rwd_car", **{k: spec[k] for k in ("wheelbase", "max_speed", "max_steer",
                                                                           "max_steer_rate")},
             "footprint": {"rectangle": {"length": geo.length, "width": geo.width, "rear_overhang": geo.rear_overhang}},
@@ -109,8 +100,10 @@ def _default_car_spec() -> dict:
 
 
 def cars() -> dict[str, dict]:
-    """The suite's cars: name -> robot description (the ``robot:`` block of each map)."""
-    return {"rwd_car": _default_car_spec(), "van": _van_spec()}
+    """The suite's cars: name -> robot description (the ``robot:`` block of each map): the built-in
+    rwd_car and the rwd_car's ``van`` preset (:attr:`nhstab.models.RwdCar.robot_presets`), each with
+    the suite's margin."""
+    return {"rwd_car": _default_car_spec(), "van": {**robot_preset("rwd_car", "van"), "margin": SUITE_MARGIN}}
 
 
 @dataclass(frozen=True)
@@ -134,7 +127,7 @@ class CarGeometry:
         return self.length - self.rear_overhang
 
     @classmethod
-    def from_footprint(cls, fp, wheelbase: float, max_steer: float) -> "CarGeometry":
+    def from_footprint(cls, fp, wheelbase: float, min_turning_radius: float) -> "CarGeometry":
         v = None if fp.vertices is None else np.asarray(fp.vertices, dtype=float)
         if v is None or len(v) != 4:
             raise InputError("footprint", "a rectangle (4 vertices) for a parking car", fp.label or "a disc")
@@ -143,7 +136,7 @@ class CarGeometry:
             raise InputError("footprint", "an axis-aligned rectangle, symmetric about the car's axis, around the rear "
                              "axle", v.tolist())
         geo = cls(wheelbase=float(wheelbase), width=float(ys[1] - ys[0]), length=float(xs[1] - xs[0]),
-                  rear_overhang=float(-xs[0]), min_turning_radius=float(wheelbase / math.tan(max_steer)))
+                  rear_overhang=float(-xs[0]), min_turning_radius=float(min_turning_radius))
         if geo.front_overhang < 0:
             raise InputError("footprint", f"a body reaching at least the front axle ({wheelbase:g} m ahead of the "
                              "rear axle)", geo.front_reach)
@@ -154,7 +147,7 @@ class CarGeometry:
         model = robot.model
         if not (hasattr(model, "wheelbase") and hasattr(model, "max_steer")):
             raise InputError("robot", "a car (a model with wheelbase and max_steer)", model.name)
-        return cls.from_footprint(robot.footprint, model.wheelbase, model.max_steer)
+        return cls.from_footprint(robot.footprint, model.wheelbase, model.min_turning_radius)
 
     def corners(self, poses, grow: float = 0.0) -> np.ndarray:
         """World corners (N, 4, 2) of the body (grown by ``grow`` on every side) at poses (N, 3)."""

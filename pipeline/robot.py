@@ -45,6 +45,7 @@ limit. Where a problem needs tighter turns (parking) the planner may go down to 
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from dataclasses import dataclass, field
@@ -76,13 +77,33 @@ _SAME_POINT = 1e-9
 
 
 @dataclass(frozen=True)
+class RobotStabilizer:
+    """A robot's defaults for the gramian law: its ``stabilizer:`` block (alpha, delta [s], gamma,
+    end_strategy, cusps), the gain schedule's parameters that a run or a plan does not set itself. A
+    value None is one the robot does not set (the gain schedule's own default,
+    :class:`nhstab.control.StabilizerOptions`); :meth:`as_dict` leaves it out. A built-in robot sets
+    all but, for a model whose nominals have no cusps, ``cusps``."""
+
+    alpha: float | None = None
+    delta: float | None = None
+    gamma: float | None = None
+    end_strategy: str | None = None
+    cusps: str | None = None
+
+    def as_dict(self) -> dict:
+        """The keys set, in :data:`STABILIZER_KEYS` order: keyword arguments of
+        :class:`nhstab.control.StabilizerOptions`."""
+        return {k: getattr(self, k) for k in STABILIZER_KEYS if getattr(self, k) is not None}
+
+
+@dataclass(frozen=True)
 class Robot:
     """One robot: its model (with parameters and limits), footprint, and defaults."""
 
     model: Model
     footprint: Footprint
     margin: float
-    stabilizer: dict = field(default_factory=dict)      # alpha, delta, gamma, end_strategy, cusps
+    stabilizer: RobotStabilizer = field(default_factory=RobotStabilizer)
     turning_radius: float = 0.5                          # planning radius [m]
     name: str = ""                                       # a label (default: the model's name)
     #: where the description came from ("default", a file, "map", "run config", ...)
@@ -191,9 +212,9 @@ class Robot:
 
     @property
     def min_turning_radius(self) -> float:
-        """L / tan(max_steer) for the cars (a car_trailer: its last trailer's axle's smallest steady
-        turn, :attr:`CarTrailer.min_turning_radius`); 0 for robots that turn in place."""
-        return _min_radius(self.model)
+        """The model's :attr:`~nhstab.models.Model.min_turning_radius`: L / tan(max_steer) for the cars,
+        a car_trailer's last trailer's axle's smallest steady turn, 0 for robots that turn in place."""
+        return float(self.model.min_turning_radius)
 
     def input_limits(self) -> np.ndarray:
         return self.model.input_limits()
@@ -214,8 +235,8 @@ class Robot:
             trailers = {"trailer_footprint": [_footprint_spec(f) for f in self.trailer_footprints]}
         return {"model": self.model.name, **{k: _plain(v) for k, v in self.model.params().items()},
                 "footprint": _footprint_spec(fp), **trailers, "margin": float(self.margin),
-                "stabilizer": {k: (float(self.stabilizer[k]) if k in STABILIZER_NUMBERS else str(self.stabilizer[k]))
-                               for k in STABILIZER_KEYS if k in self.stabilizer},
+                "stabilizer": {k: (float(v) if k in STABILIZER_NUMBERS else str(v))
+                               for k, v in self.stabilizer.as_dict().items()},
                 "turning_radius": float(self.turning_radius), "name": self.name or self.model.name}
 
     def describe(self) -> dict:
@@ -241,17 +262,6 @@ def _footprint_spec(fp: Footprint) -> dict:
     return {"polygon": [[float(a), float(b)] for a, b in fp.vertices]}
 
 
-def _min_radius(model: Model) -> float:
-    """The model's smallest planning turning radius: its own ``min_turning_radius`` where it defines
-    one, L / tan(max_steer) for a car, 0 for robots that turn in place."""
-    own = getattr(type(model), "min_turning_radius", None)
-    if isinstance(own, property):
-        return float(model.min_turning_radius)
-    if hasattr(model, "max_steer") and hasattr(model, "wheelbase"):
-        return float(model.wheelbase / math.tan(model.max_steer))
-    return 0.0
-
-
 def default_footprint(model_name: str) -> Footprint:
     """The footprint of a model's built-in robot (:data:`MODEL_DEFAULTS`)."""
     if model_name not in MODELS:
@@ -264,12 +274,24 @@ def default_robot(model_name: str = "unicycle", **params) -> Robot:
     return robot_from_spec({"model": model_name, **params})
 
 
+def robot_preset(model_name: str, preset: str) -> dict:
+    """The description (the ``robot:`` block) of a model's named robot (its ``robot_presets``, e.g. the
+    rwd_car's ``van``): ``{"model": ..., "name": ..., <the preset's keys>}``; a fresh copy."""
+    if model_name not in MODELS:
+        raise InputError("model", "one of " + ", ".join(sorted(MODELS)), model_name)
+    presets = MODELS[model_name].robot_presets
+    if preset not in presets:
+        raise InputError(f"{model_name} preset", "one of " + (", ".join(sorted(presets)) or "none"), preset)
+    return copy.deepcopy({"model": model_name, "name": preset, **presets[preset]})
+
+
 def make_robot(model: str | Model = "unicycle", footprint: Footprint | dict | None = None,
-               margin: float | None = None, stabilizer: dict | None = None, turning_radius: float | None = None,
-               **params) -> Robot:
+               margin: float | None = None, stabilizer: dict | RobotStabilizer | None = None,
+               turning_radius: float | None = None, **params) -> Robot:
     """A robot from Python values: ``make_robot("rwd_car", wheelbase=2.7, margin=0.1,
     footprint={"rectangle": {"length": 4.5, "width": 1.9, "rear_overhang": 1.0}})``; a footprint
-    may also be a :class:`Footprint`. Validated like the YAML form."""
+    may also be a :class:`Footprint`, a stabilizer a :class:`RobotStabilizer`. Validated like the YAML
+    form."""
     if isinstance(model, Model):
         params = {**{k: v for k, v in model.params().items()}, **params}
         model = model.name
@@ -282,7 +304,7 @@ def make_robot(model: str | Model = "unicycle", footprint: Footprint | dict | No
     if margin is not None:
         spec["margin"] = margin
     if stabilizer is not None:
-        spec["stabilizer"] = stabilizer
+        spec["stabilizer"] = stabilizer.as_dict() if isinstance(stabilizer, RobotStabilizer) else stabilizer
     if turning_radius is not None:
         spec["turning_radius"] = turning_radius
     robot = robot_from_spec(spec, source="python")
@@ -355,7 +377,7 @@ def robot_from_spec(spec, where: str = "robot", source: str = "default") -> Robo
         else:
             one = parse_footprint(given, f"{where}.trailer_footprint", notes)
             trailer_fps = (one,) * n_trailers
-    r_min = _min_radius(model)
+    r_min = float(model.min_turning_radius)
     if "turning_radius" in spec:
         radius = _length(f"{where}.turning_radius", spec["turning_radius"])
         if radius < r_min - 1e-9:
@@ -369,7 +391,8 @@ def robot_from_spec(spec, where: str = "robot", source: str = "default") -> Robo
     if not isinstance(label, str) or not label.strip():
         raise InputError(f"{where}.name", "a non-empty string", label)
     given = frozenset(spec) | frozenset(f"stabilizer.{k}" for k in spec.get("stabilizer") or ())
-    return Robot(model=model, footprint=fp, margin=margin, stabilizer=stab, turning_radius=float(radius),
+    return Robot(model=model, footprint=fp, margin=margin, stabilizer=RobotStabilizer(**stab),
+                 turning_radius=float(radius),
                  name=label, source=source, notes=tuple(notes), trailer_footprints=trailer_fps, where=where,
                  given=given)
 

@@ -8,8 +8,11 @@ gives ``bench_<name>()`` and ``summary_lines(result)`` (rows of the summary tabl
 
 from __future__ import annotations
 
+import json
 from importlib import import_module
+from pathlib import Path
 
+from ..errors import InputError
 from .gains import hilare_sinusoid  # noqa: F401  (used by tests and the batch benchmark)
 
 #: benchmark name -> module (in the order ``nhstab bench`` runs them)
@@ -34,3 +37,33 @@ def summary_markdown(results: dict) -> str:
         if results.get(name):
             lines.extend(import_module(f"{__name__}.{name}").summary_lines(results[name]))
     return "\n".join(lines) + "\n"
+
+
+def select_benchmarks(only: str | None) -> list[str]:
+    """The benchmarks to run: all of them (``only`` None), else the comma-separated names of ``only``,
+    each once, in the order given; an unknown or empty selection raises :class:`InputError` naming
+    ``--only``."""
+    if only is None:
+        return list(BENCHMARKS)
+    names = list(dict.fromkeys(n.strip() for n in only.split(",") if n.strip()))     # each once
+    unknown = [n for n in names if n not in BENCHMARKS]
+    if unknown or not names:
+        raise InputError("--only", f"benchmark names from {', '.join(BENCHMARKS)}", only)
+    return names
+
+
+def previous_results(out_dir) -> dict:
+    """The results a partial run (``--only``) merges into: ``out_dir/bench.json``'s benchmarks that
+    still exist (an empty dict when the file is absent). A file that is not readable JSON holding an
+    object raises :class:`InputError` naming ``--out-dir``."""
+    previous = Path(out_dir) / "bench.json"
+    results = {}
+    if previous.is_file():
+        try:
+            results = json.loads(previous.read_text())
+        except (OSError, ValueError) as exc:
+            raise InputError("--out-dir", "a folder whose bench.json is readable JSON (to merge into)",
+                             f"{previous}: {exc}") from None
+        if not isinstance(results, dict):
+            raise InputError("--out-dir", "a bench.json holding an object", str(previous))
+    return {k: v for k, v in results.items() if k in BENCHMARKS}

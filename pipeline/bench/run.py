@@ -78,7 +78,7 @@ def bench_run(runs: int = 10) -> dict:
     for robot, (law, model) in laws.items():
         for kind in ("gramian", "tvlqr", "open-loop"):
             lw = law if kind == "gramian" else build_law(law.nominal, ControllerOptions(kind=kind),
-                                                         default_robot(robot).stabilizer)
+                                                         default_robot(robot).stabilizer.as_dict())
             lim = model.input_limits()
             T = lw.h
             taus = lw.t[:-1]

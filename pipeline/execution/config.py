@@ -72,6 +72,8 @@ from ..limits import (
     check_range,
     number_hint,
 )
+from ..models import MODELS
+from ..models.base import NOISE_KINDS
 from ..planning import PLANNERS, SPACES
 from ..robot import robot_from_spec
 from ..safe_io import read_yaml_mapping
@@ -79,15 +81,19 @@ from ..sensing import MAX_BEAMS, SensorOptions
 from ..tubes.base import TUBE_KINDS, rollouts_needed
 from .controllers import ControllerOptions
 
-#: default noise per state name: initial error std, sensor std, process intensity [unit/sqrt(s)]; a
-#: trailer's heading theta1 .. theta8 (car_trailer) as the car's heading
-DEFAULT_NOISE = {
-    "initial": {"x": 0.10, "y": 0.10, "theta": 0.05, "phi": 0.0},
-    "sensor": {"x": 0.02, "y": 0.02, "theta": 0.01, "phi": 0.005},
-    "process": {"x": 0.02, "y": 0.02, "theta": 0.01, "phi": 0.0},
-}
-for _kind in DEFAULT_NOISE.values():
-    _kind.update({f"theta{_i}": _kind["theta"] for _i in range(1, 9)})
+
+def default_noise() -> dict:
+    """The default noise per kind and state name: initial error std, sensor std, process intensity
+    [unit/sqrt(s)]; the union of the registered models' ``noise_defaults`` (:class:`nhstab.models.Model`),
+    which agree on the states they share (a test holds the built-in ones to it). Read at each call, so
+    a model registered later (``nhstab.models.MODELS``) brings its own."""
+    return {kind: {name: level for cls in MODELS.values() for name, level in cls.noise_defaults[kind].items()}
+            for kind in NOISE_KINDS}
+
+
+#: the built-in models' default noise per state name (:func:`default_noise`); a trailer's heading theta1 ..
+#: theta8 (car_trailer) as the car's heading
+DEFAULT_NOISE = default_noise()
 DISTRIBUTIONS = ("gaussian", "uniform")
 
 
@@ -155,10 +161,17 @@ class NoiseOptions:
                                      f"{MAX_NOISE_LEVEL:g}]", v)
         return self
 
+    def merged(self, levels: dict | None = None, scale: float | None = None) -> "NoiseOptions":
+        """These options with more levels: ``levels`` maps a kind (initial, sensor, process) to levels by
+        state name, each over this kind's own (a kind None or absent keeps its levels); ``scale``, if
+        given, replaces the scale. Not validated (see :meth:`validated`)."""
+        out = replace(self, **{k: {**getattr(self, k), **v} for k, v in (levels or {}).items() if v is not None})
+        return out if scale is None else replace(out, scale=scale)
+
     def vector(self, kind: str, state_names) -> np.ndarray:
         """The levels of one kind in state order, scaled."""
-        given = getattr(self, kind)
-        return self.scale * np.array([float(given.get(s, DEFAULT_NOISE[kind].get(s, 0.0))) for s in state_names])
+        given, defaults = getattr(self, kind), default_noise()[kind]
+        return self.scale * np.array([float(given.get(s, defaults.get(s, 0.0))) for s in state_names])
 
     def impulse_list(self, state_names) -> list[tuple[float, np.ndarray]]:
         return sorted(((float(t), self.scale * np.array([float(j.get(s, 0.0)) for s in state_names]))

@@ -176,7 +176,8 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
     e, track = _errors(result)
     norms = np.linalg.norm(e, axis=1)
     pos = np.linalg.norm(e[:, :2], axis=1)
-    head = np.abs(e[:, 2]) if model.name != "fwd_car" else np.abs(e[:, 3])
+    names = model.state_names
+    head = np.abs(e[:, names.index("theta") if "theta" in names else 2])     # the heading (else the third state)
     tracking = {"samples": int(track.sum())}
     if track.any():
         tracking.update({
@@ -237,7 +238,7 @@ def summary(result: RunResult, map_path: str | None = None) -> dict:
                       if robot.trailer_footprints else {}),
                    "start": result.start, "goal": result.goal,
                    "options": opts, "noise": result.options.noise.describe(model.state_names),
-                   "controller": result.options.controller.describe(model.n, model.m, robot.stabilizer),
+                   "controller": result.options.controller.describe(model.n, model.m, robot.stabilizer.as_dict()),
                    "nhstab_version": __version__},
         "seeds": result.seeds,
         "initial_state": result.info.get("x_initial"),

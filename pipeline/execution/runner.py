@@ -191,7 +191,7 @@ def check_run(m: Map, robot: Robot, opts: RunOptions) -> RunOptions:
         path = PathOptions(space=p.space, turning_radius=p.turning_radius, planner=p.planner,
                            time_limit_s=p.time_limit_s, margin=0.0 if not isinstance(p.margin, (int, float)) else
                            p.margin, guide=p.guide).for_robot(robot).validated()
-        if model.name != "unicycle" and path.turning_radius < robot.min_turning_radius - 1e-9:
+        if path.turning_radius < robot.min_turning_radius - 1e-9:
             raise InputError("turning_radius", f"at least the {model.name}'s minimum turning radius "
                              f"{robot.min_turning_radius:.4g} m", path.turning_radius)
         if robot.trailers and path.space != "reeds_shepp":
@@ -201,11 +201,11 @@ def check_run(m: Map, robot: Robot, opts: RunOptions) -> RunOptions:
                          list(model.hitch_lengths))
     step = 1.0 / opts.rate_hz                 # the nominal's grid step (at most this)
     with user_keys(robot.stabilizer_keys()):
-        StabilizerOptions(**robot.stabilizer).validated().check_step(step)
+        StabilizerOptions(**robot.stabilizer.as_dict()).validated().check_step(step)
     ctrl = opts.controller
     if ctrl.kind == "gramian" and ctrl.gains != "auto":
         with user_keys(ctrl.stabilizer_keys(robot)):
-            ctrl.stabilizer(robot.stabilizer).validated().check_step(step)
+            ctrl.stabilizer(robot.stabilizer.as_dict()).validated().check_step(step)
     return opts
 
 
@@ -253,7 +253,7 @@ class CompositeRun:
         self.impulses = opts.noise.impulse_list(model.state_names)
         lim = model.input_limits()
         self.u_lo, self.u_hi = lim[:, 0], lim[:, 1]
-        self.stab_defaults = dict(robot.stabilizer)
+        self.stab_defaults = robot.stabilizer.as_dict()
         self.plans: list[PlanRecord] = []
         self.planning_calls = 0
         self.log = RunLog()

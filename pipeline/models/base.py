@@ -18,6 +18,23 @@ from ..errors import InputError, require_positive
 from ..geometry import wrap_angle
 from ..limits import MIN_TURNING_RADIUS_M
 
+#: the kinds of noise a run adds, each a level per state name (nhstab.execution.config.NoiseOptions)
+NOISE_KINDS = ("initial", "sensor", "process")
+#: the default noise of the pose states (x, y, theta): initial error std, sensor std, process
+#: intensity [unit / sqrt(s)]
+POSE_NOISE = {
+    "initial": {"x": 0.10, "y": 0.10, "theta": 0.05},
+    "sensor": {"x": 0.02, "y": 0.02, "theta": 0.01},
+    "process": {"x": 0.02, "y": 0.02, "theta": 0.01},
+}
+
+
+def with_noise(base: dict, **levels: tuple[float, float, float]) -> dict:
+    """``base`` (noise levels by kind, then state name) with more states: ``name=(initial, sensor,
+    process)``; a new dict."""
+    return {kind: {**base.get(kind, {}), **{name: v[i] for name, v in levels.items()}}
+            for i, kind in enumerate(NOISE_KINDS)}
+
 
 @dataclass(frozen=True)
 class Model:
@@ -39,6 +56,15 @@ class Model:
     robot_defaults: ClassVar[dict] = {
 
     }
+    #: named robots of this model beside the built-in one: name -> a robot description (model parameters,
+    #: footprint, ...; the keys of a ``robot:`` block other than ``model`` and ``name``), read with
+    #: :func:`nhstab.robot.robot_preset`
+    robot_presets: ClassVar[dict] = {}
+    #: the default noise of a run (``nhstab run``, the tube): per kind (initial error std, sensor std,
+    #: process intensity [unit / sqrt(s)]), a level per state name; a state not named has none
+    noise_defaults: ClassVar[dict] = {kind: {} for kind in NOISE_KINDS}
+    #: the (alpha, delta) grid of ``nhstab sweep``, which chose the stabilizer defaults (None: not swept)
+    sweep_grid: ClassVar[dict | None] = None
     #: whether nhstab's planner plans for this model
     plannable: ClassVar[bool] = False
     #: the room [m] the geometric search keeps beyond the requested margin, so that the timed nominal
@@ -96,6 +122,14 @@ class Model:
         """(n, 2) array of [low, high] per state; +-inf where unlimited."""
         return np.tile([-np.inf, np.inf], (self.n, 1))
 
+    @property
+    def min_turning_radius(self) -> float:
+        """The smallest radius [m] of a turn the planner may ask of the model's planned point: 0 for a
+        model that turns in place (the base class's answer); the cars and the car_trailer give theirs.
+        Every stage that needs it (the robot's planning radius, the planner's checks, the parking
+        suite's geometry) asks the model."""
+        return 0.0
+
     def state_error(self, x, x_ref):
         """e = x - x_ref with angle states wrapped to [-pi, pi)."""
         e = np.asarray(x, dtype=float) - np.asarray(x_ref, dtype=float)
@@ -118,6 +152,12 @@ def check_max_steer(model: str, wheelbase: float, max_steer: float) -> None:
                          f"(a turning radius wheelbase / tan(max_steer) of at least {MIN_TURNING_RADIUS_M:g} m)", max_steer)
 
 
+def axle_turning_radius(wheelbase: float, steer: float) -> float:
+    """A rear axle's turning radius L / tan(steer) [m] at the steering angle ``steer`` in (0, pi/2) (theta' =
+    tan(phi) s / L for the rear axle's speed s): the one formula behind every car's turning radius."""
+    return float(wheelbase / math.tan(steer))
+
+
 def positive_param(name: str, value, model: str) -> float:
     """Validate a strictly positive finite model parameter (named ``model.name`` in errors)."""
     return require_positive(f"{model}.{name}", value)
@@ -137,6 +177,22 @@ class SteeredCar(Model):
     fields ``wheelbase``, ``max_speed``, ``max_steer``, ``max_steer_rate`` and their state order): the
     checks of those parameters, ``params``, the input limits (speed and steering rate) and the state
     limits (|phi| <= max_steer)."""
+
+    #: the steering angle's noise: none initially or as process noise, a 0.005 rad sensor std
+    noise_defaults: ClassVar[dict] = with_noise(POSE_NOISE, phi=(0.0, 0.005, 0.0))
+    #: whether the speed input drives the front wheels (fwd_car: the body's speed is cos(phi) times it)
+    #: rather than the rear axle (rwd_car)
+    front_wheel_drive: ClassVar[bool] = False
+
+    def turning_radius_at(self, steer: float) -> float:
+        """The rear axle's turning radius L / tan(steer) [m] at a steering angle ``steer`` in (0, pi/2)."""
+        return axle_turning_radius(self.wheelbase, steer)
+
+    @property
+    def min_turning_radius(self) -> float:
+        """The rear axle's smallest turning radius L / tan(max_steer) [m] (theta' = tan(phi) s / L for
+        the rear axle's speed s)."""
+        return self.turning_radius_at(self.max_steer)
 
     def _check_car(self, name: str) -> None:
         for key in ("wheelbase", "max_speed", "max_steer_rate"):

@@ -33,7 +33,16 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import wrap_angle
-from .base import Model, angle_limit, check_max_steer, positive_param
+from .base import (
+    NOISE_KINDS,
+    POSE_NOISE,
+    Model,
+    angle_limit,
+    axle_turning_radius,
+    check_max_steer,
+    positive_param,
+    with_noise,
+)
 
 #: the most trailers a model may tow (a bound on the state's size, not a physical limit)
 MAX_TRAILERS = 8
@@ -71,6 +80,10 @@ class CarTrailer(Model):
         "stabilizer": {"alpha": 0.05, "delta": 10.0, "gamma": 1.0, "end_strategy": "frozen"},
         "turning_radius": ("factor", 5.0),
     }
+    #: the car's noise (phi's as a car's), and each trailer heading's as the car's heading
+    noise_defaults: ClassVar[dict] = with_noise(POSE_NOISE, phi=(0.0, 0.005, 0.0), **{
+        f"theta{i}": tuple(POSE_NOISE[kind]["theta"] for kind in NOISE_KINDS)
+        for i in range(1, MAX_TRAILERS + 1)})
     plannable: ClassVar[bool] = True
     wheelbase: float = 2.5              # m, L of the car
     hitch_lengths: tuple = (3.0,)       # m, d_i: hitch (previous axle centre) to trailer i's axle
@@ -113,7 +126,7 @@ class CarTrailer(Model):
         bar is tangent to its axle's circle), with the car's R_0 >= L / tan(max_steer) and each hitch
         angle atan(d_i / R_i) <= jackknife_limit."""
         d = np.asarray(self.hitch_lengths)
-        r0 = self.wheelbase / math.tan(self.max_steer)
+        r0 = axle_turning_radius(self.wheelbase, self.max_steer)
         need = [r0 * r0 - float(np.sum(d * d))]
         tail = np.concatenate([np.cumsum((d * d)[::-1])[::-1][1:], [0.0]])     # sum of d_j^2 for j > i
         need += list((d / math.tan(self.jackknife_limit)) ** 2 - tail)

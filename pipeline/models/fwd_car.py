@@ -25,6 +25,8 @@ class FwdCar(SteeredCar):
         "stabilizer": {"alpha": 0.2, "delta": 3.0, "gamma": 1.0, "end_strategy": "extend", "cusps": "split"},
         "turning_radius": ("factor", 1.25),
     }
+    front_wheel_drive: ClassVar[bool] = True
+    sweep_grid: ClassVar[dict | None] = {"alpha": [0.05, 0.1, 0.2], "delta": [2.0, 3.0, 4.0, 6.0]}
     plannable: ClassVar[bool] = True
     search_pad: ClassVar[float | None] = 0.05
     wheelbase: float = 1.0          # m, L

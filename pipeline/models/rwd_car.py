@@ -24,6 +24,14 @@ class RwdCar(SteeredCar):
         "stabilizer": {"alpha": 0.1, "delta": 6.0, "gamma": 1.0, "end_strategy": "extend", "cusps": "split"},
         "turning_radius": ("factor", 1.25),
     }
+    # the van: a long panel van (about a Mercedes Sprinter 314 with the standard wheelbase): 5.9 x 2.0 m
+    # body, wheelbase 3.65 m, overhangs 1.1 m (rear) and 1.15 m (front), kerb-to-kerb turning circle
+    # about 13.5 m (max_steer 0.65 rad: R = 4.80 m at the rear axle), slower steering than the car
+    robot_presets: ClassVar[dict] = {
+        "van": {"wheelbase": 3.65, "max_speed": 1.5, "max_steer": 0.65, "max_steer_rate": 0.8,
+                "footprint": {"rectangle": {"length": 5.9, "width": 2.0, "rear_overhang": 1.1}}},
+    }
+    sweep_grid: ClassVar[dict | None] = {"alpha": [0.05, 0.1, 0.2], "delta": [2.0, 3.0, 4.0, 6.0]}
     plannable: ClassVar[bool] = True
     search_pad: ClassVar[float | None] = 0.05
     wheelbase: float = 2.5          # m, L
@@ -39,10 +47,6 @@ class RwdCar(SteeredCar):
         object.__setattr__(self, "angle_states", (2, 3))
         object.__setattr__(self, "state_units", ("m", "m", "rad", "rad"))
         object.__setattr__(self, "input_units", ("m/s", "rad/s"))
-
-    @property
-    def min_turning_radius(self) -> float:
-        return self.wheelbase / np.tan(self.max_steer)
 
     def g(self, x):
         x = np.asarray(x, dtype=float)

@@ -7,7 +7,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .base import Model, positive_param
+from .base import POSE_NOISE, Model, positive_param
 
 
 @dataclass(frozen=True)
@@ -18,6 +18,8 @@ class Unicycle(Model):
         "stabilizer": {"alpha": 0.2, "delta": 2.0, "gamma": 1.0, "end_strategy": "frozen"},
         "turning_radius": ("fixed", 0.5),
     }
+    noise_defaults: ClassVar[dict] = POSE_NOISE
+    sweep_grid: ClassVar[dict | None] = {"alpha": [0.1, 0.2, 0.5, 1.0], "delta": [0.5, 1.0, 2.0]}
     plannable: ClassVar[bool] = True
     search_pad: ClassVar[float | None] = 0.02
     max_speed: float = 1.0          # m/s, |v|

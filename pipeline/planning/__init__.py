@@ -24,6 +24,7 @@ from ..geometry import wrap_angle
 from ..limits import FCL_CHECK_S, check_headings, check_turning_radius
 from ..maps.base import Map
 from ..models import MODELS, Model
+from ..models.base import SteeredCar
 from ..nominal import Nominal
 from ..robot import Robot, default_robot
 from .cars import CarPlanningError, car_nominal, exact_nominal
@@ -82,8 +83,15 @@ def check_start_goal(start: np.ndarray, goal: np.ndarray) -> None:
 
 
 def min_turning_radius(model: Model) -> float:
-    """Both cars: theta' = tan(phi) s / L for rear-axle speed s, so R_min = L / tan(max_steer)."""
-    return float(model.wheelbase / math.tan(model.max_steer))
+    """The model's own :attr:`~nhstab.models.Model.min_turning_radius` (L / tan(max_steer) for a car)."""
+    return float(model.min_turning_radius)
+
+
+def check_plannable(robot: Robot, key: str = "robot") -> None:
+    """Refuse a robot whose model the planner does not plan for (:data:`PLANNABLE`, each model's
+    ``plannable``) with an :class:`InputError` naming ``key`` (where the robot was given)."""
+    if robot.model.name not in PLANNABLE:
+        raise InputError(key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)", robot.model.name)
 
 
 def default_turning_radius(model: Model) -> float:
@@ -181,7 +189,7 @@ def _plan(m: Map, robot: Robot, start, goal, path_opts: PathOptions | None = Non
         # the gain schedule's parameters are the robot's: errors about them name its keys
         with user_keys(robot.stabilizer_keys()):
             return _plan_with(m, robot, start, goal, path_opts, timing_opts,
-                              StabilizerOptions(**robot.stabilizer).validated(), check_resolution, world, car_opts,
+                              StabilizerOptions(**robot.stabilizer.as_dict()).validated(), check_resolution, world, car_opts,
                               robot.key("stabilizer.delta"))
     return _plan_with(m, robot, start, goal, path_opts, timing_opts, stab_opts.validated(), check_resolution, world,
                       car_opts, "delta")
@@ -194,13 +202,13 @@ def _plan_with(m: Map, robot: Robot, start, goal, path_opts: PathOptions, timing
     model, fp = robot.model, robot.footprint
     check_map_budget(m, path_opts.time_limit_s, path_opts.resolution)
     check_turning_radius("turning_radius", path_opts.turning_radius, m.bounds)
-    if model.name == "car_trailer":       # the trailer's path, the rig checked (nhstab.planning.trailer)
+    if robot.trailers:       # the trailer's path, the rig checked (nhstab.planning.trailer)
         return plan_trailer(m, robot, start, goal, path_opts, timing_opts, stab_opts, check_resolution, world)
     start, goal = _pose(start, "start", robot), _pose(goal, "goal", robot)
     check_start_goal(start, goal)
-    if model.name != "unicycle" and path_opts.turning_radius < min_turning_radius(model) - 1e-9:
+    if path_opts.turning_radius < model.min_turning_radius - 1e-9:
         raise InputError("turning_radius", f"at least the {model.name}'s minimum turning radius "
-                         f"{min_turning_radius(model):.4g} m", path_opts.turning_radius)
+                         f"{model.min_turning_radius:.4g} m", path_opts.turning_radius)
     world = world or CollisionWorld.from_map(m, "known")
     clearances = check_poses(m, fp, {"start": start, "goal": goal}, world=world)
     ends = {"start": start, "goal": goal}
@@ -211,11 +219,12 @@ def _plan_with(m: Map, robot: Robot, start, goal, path_opts: PathOptions, timing
                              np.round(ends[key], 4).tolist(), detail=f"clearance {c:.3g} m")
     started = time.perf_counter()
     car_opts = (car_opts or CarOptions()).validated()
-    pad = EXACT_PAD if model.name != "unicycle" and car_opts.nominal == "exact" else MARGIN_PAD[model.name]
+    car = isinstance(model, SteeredCar)        # else the unicycle's planner (a model that turns in place)
+    pad = EXACT_PAD if car and car_opts.nominal == "exact" else MARGIN_PAD[model.name]
     search_m = search_margin(world, fp, path_opts.margin, pad, [start, goal], clearances)
     base = {"planner": path_opts.planner, "start_clearance_m": clearances["start"],
             "goal_clearance_m": clearances["goal"]}
-    if model.name == "unicycle":
+    if not car:
         path = plan_path(world, fp, start, goal, replace(path_opts, margin=search_m))
         if path.status != "exact":
             return _no_path(path, path_opts, base, f"OMPL: {path.planner_status}")
@@ -295,7 +304,7 @@ def _from_path(path: GeometricPath, robot: Robot, world: CollisionWorld, path_op
     error about delta (e.g. a window too short for the nominal's time step) names delta itself."""
     model, fp = robot.model, robot.footprint
     metrics = {**base, **_path_metrics(path)}
-    if model.name == "unicycle":
+    if not isinstance(model, SteeredCar):
         nominal, tinfo = unicycle_nominal(model, path, timing_opts)
     else:
         try:
@@ -442,4 +451,5 @@ def _pose(value, name: str, robot: Robot) -> np.ndarray:
 
 __all__ = ["plan", "PlanResult", "check_map_budget", "check_start_goal", "PathOptions", "TimingOptions", "CarOptions",
            "GeometricPath", "plan_path", "path_length", "search_margin", "tracking_metrics", "DURATION_FACTOR",
-           "PLANNERS", "SPACES", "PLANNABLE", "pose_columns", "default_turning_radius", "min_turning_radius"]
+           "PLANNERS", "SPACES", "PLANNABLE", "pose_columns", "default_turning_radius", "min_turning_radius",
+           "check_plannable"]

@@ -35,6 +35,8 @@ import numpy as np
 
 from ..errors import InputError, require_finite, require_positive
 from ..geometry import wrap_angle
+from ..models import MODELS
+from ..models.base import SteeredCar
 from .steering import STEERING_MODES, SteeringPlan, _array, _count, _vector, steer_chained, steer_chained_constant_v1
 
 __all__ = ["CarSteering", "to_chained", "from_chained", "car_inputs_from_chained", "chained_inputs_from_car", "steer_car"]
@@ -43,24 +45,40 @@ __all__ = ["CarSteering", "to_chained", "from_chained", "car_inputs_from_chained
 # ---------------------------------------------------------------------------------------------
 # cars <-> chained form
 # ---------------------------------------------------------------------------------------------
-def _car_kind(model) -> tuple[str, float]:
-    name = getattr(model, "name", None)
-    if name not in ("rwd_car", "fwd_car"):
-        raise InputError("model", "a rwd_car or fwd_car model", name if name is not None else model)
-    L = require_positive(f"{name}.wheelbase", getattr(model, "wheelbase", None))
-    return name, L
+#: the models with a chained-form chart: the steered cars (x, y, theta, phi in their own state order)
+CAR_MODELS = tuple(name for name, cls in MODELS.items() if issubclass(cls, SteeredCar))
 
 
-def _theta_phi(name: str, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    return (x[..., 2], x[..., 3]) if name == "rwd_car" else (x[..., 3], x[..., 2])
+@dataclass(frozen=True)
+class _CarLayout:
+    """Where a steered car keeps its heading and steering angle in its state (from its state names),
+    and whether its speed input drives the front wheels (the body's speed is then cos(phi) times it)."""
+
+    name: str
+    theta: int
+    phi: int
+    front_wheel_drive: bool
+
+
+def _car_kind(model) -> tuple[_CarLayout, float]:
+    if not isinstance(model, SteeredCar):
+        name = getattr(model, "name", None)
+        raise InputError("model", "a " + " or ".join(CAR_MODELS) + " model", name if name is not None else model)
+    L = require_positive(f"{model.name}.wheelbase", getattr(model, "wheelbase", None))
+    names = model.state_names
+    return _CarLayout(model.name, names.index("theta"), names.index("phi"), model.front_wheel_drive), L
+
+
+def _theta_phi(lay: _CarLayout, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return x[..., lay.theta], x[..., lay.phi]
 
 
 def to_chained(model, x) -> np.ndarray:
     """Model state(s) (..., 4) in model order to chained coordinates (..., 4):
     z = (x, tan(phi) / (L cos^3 theta), tan(theta), y). Needs |theta| < pi/2, |phi| < pi/2."""
-    name, L = _car_kind(model)
+    lay, L = _car_kind(model)
     x = _array("x", x, last=4)
-    th, phi = _theta_phi(name, x)
+    th, phi = _theta_phi(lay, x)
     if np.any(np.abs(th) >= 0.5 * np.pi):
         raise InputError("x", "heading |theta| < pi/2 (the chained chart)", f"max |theta| {np.abs(th).max():.6g}")
     if np.any(np.abs(phi) >= 0.5 * np.pi):
@@ -77,17 +95,14 @@ def to_chained(model, x) -> np.ndarray:
 def from_chained(model, z) -> np.ndarray:
     """Chained coordinates (..., 4) to model state(s) in model order:
     theta = arctan z3, phi = arctan(L z2 cos^3 theta) (inverse of :func:`to_chained`)."""
-    name, L = _car_kind(model)
+    lay, L = _car_kind(model)
     z = _array("z", z, last=4)
     th = np.arctan(z[..., 2])
     phi = np.arctan(L * z[..., 1] * np.cos(th) ** 3)
     x = np.empty(z.shape)
     x[..., 0] = z[..., 0]
     x[..., 1] = z[..., 3]
-    if name == "rwd_car":
-        x[..., 2], x[..., 3] = th, phi
-    else:
-        x[..., 2], x[..., 3] = phi, th
+    x[..., lay.theta], x[..., lay.phi] = th, phi
     return x
 
 
@@ -98,11 +113,11 @@ def car_inputs_from_chained(model, z, v) -> np.ndarray:
     omega_s = L cos^2(phi) cos^3(theta) (v2 - 3 z2^2 z3 v1 / (1 + z3^2));
     first input v = s (rwd_car) or u1 = s / cos(phi) (fwd_car, whose body speed is cos(phi) u1).
     """
-    name, L = _car_kind(model)
-    return _car_inputs(name, L, _array("z", z, last=4), _array("v", v, last=2))
+    lay, L = _car_kind(model)
+    return _car_inputs(lay, L, _array("z", z, last=4), _array("v", v, last=2))
 
 
-def _car_inputs(name: str, L: float, z: np.ndarray, v: np.ndarray) -> np.ndarray:
+def _car_inputs(lay: _CarLayout, L: float, z: np.ndarray, v: np.ndarray) -> np.ndarray:
     """:func:`car_inputs_from_chained` without validation; uses only z2 and z3 of ``z``."""
     z2, z3 = z[..., 1], z[..., 2]
     v1, v2 = v[..., 0], v[..., 1]
@@ -111,7 +126,7 @@ def _car_inputs(name: str, L: float, z: np.ndarray, v: np.ndarray) -> np.ndarray
     cphi2 = 1.0 / (1.0 + (L * z2 * ct**3) ** 2)  # cos^2 phi
     s = v1 * np.sqrt(q)
     omega = L * cphi2 * ct**3 * (v2 - 3.0 * z2 * z2 * z3 * v1 / q)
-    first = s if name == "rwd_car" else s / np.sqrt(cphi2)
+    first = s / np.sqrt(cphi2) if lay.front_wheel_drive else s
     return np.stack(np.broadcast_arrays(first, omega), axis=-1)
 
 
@@ -121,12 +136,12 @@ def chained_inputs_from_car(model, x, u) -> np.ndarray:
     v1 = cos(theta) s with s = v (rwd) or cos(phi) u1 (fwd);
     v2 = omega_s / (L cos^2 phi cos^3 theta) + 3 z2^2 z3 v1 / (1 + z3^2).
     """
-    name, L = _car_kind(model)
+    lay, L = _car_kind(model)
     z = to_chained(model, x)
     x = np.asarray(x, dtype=float)
     u = _array("u", u, last=2)
-    th, phi = _theta_phi(name, x)
-    s = u[..., 0] if name == "rwd_car" else np.cos(phi) * u[..., 0]
+    th, phi = _theta_phi(lay, x)
+    s = np.cos(phi) * u[..., 0] if lay.front_wheel_drive else u[..., 0]
     v1 = np.cos(th) * s
     z2, z3 = z[..., 1], z[..., 2]
     v2 = u[..., 1] / (L * np.cos(phi) ** 2 * np.cos(th) ** 3) + 3.0 * z2 * z2 * z3 * v1 / (1.0 + z3 * z3)
@@ -176,23 +191,24 @@ class CarSteering:
 
     def inputs_at(self, t) -> np.ndarray:
         """Model inputs at times t, shape t.shape + (2,) (frame-independent)."""
-        name, L = _car_kind(self.model)
-        return _car_inputs(name, L, self.plan.states(t), self.plan.inputs(t))
+        lay, L = _car_kind(self.model)
+        return _car_inputs(lay, L, self.plan.states(t), self.plan.inputs(t))
 
 
-def _pose_parts(name: str, x: np.ndarray):
-    th, phi = _theta_phi(name, x)
+def _pose_parts(lay: _CarLayout, x: np.ndarray):
+    th, phi = _theta_phi(lay, x)
     return x[..., 0], x[..., 1], th, phi
 
 
-def _assemble(name: str, px, py, th, phi) -> np.ndarray:
-    cols = (px, py, th, phi) if name == "rwd_car" else (px, py, phi, th)
+def _assemble(lay: _CarLayout, px, py, th, phi) -> np.ndarray:
+    cols = [px, py, None, None]
+    cols[lay.theta], cols[lay.phi] = th, phi
     return np.stack(np.broadcast_arrays(*cols), axis=-1)
 
 
-def _frames(frame, x0, xf, name):
-    _, _, th0, _ = _pose_parts(name, x0)
-    _, _, thf, _ = _pose_parts(name, xf)
+def _frames(frame, x0, xf, lay):
+    _, _, th0, _ = _pose_parts(lay, x0)
+    _, _, thf, _ = _pose_parts(lay, xf)
     origin = np.array([x0[0], x0[1]])
     mean = float(th0 + 0.5 * wrap_angle(thf - th0))
     options = {"mean": mean, "start": float(th0), "goal": float(thf)}
@@ -230,7 +246,7 @@ def steer_car(model, x0, xf, T: float | None = None, frame="auto", *, mode: str 
     :func:`steer_chained` (phased mode only); ``balance`` defaults to L^2, i.e. |a| = |b| in the
     dimensionless chained coordinates (x/L, tan(phi)/cos^3 theta, tan theta, y/L).
     """
-    name, L = _car_kind(model)
+    lay, L = _car_kind(model)
     if mode not in STEERING_MODES:
         raise InputError("mode", "one of " + ", ".join(STEERING_MODES), mode)
     if mode == "constant_v1":
@@ -248,7 +264,7 @@ def steer_car(model, x0, xf, T: float | None = None, frame="auto", *, mode: str 
     if theta_limit >= 0.5 * np.pi:
         raise InputError("theta_limit", "below pi/2 rad", theta_limit)
     for label, xx in (("x0", x0), ("xf", xf)):
-        if abs(_theta_phi(name, xx)[1]) >= 0.5 * np.pi:
+        if abs(_theta_phi(lay, xx)[1]) >= 0.5 * np.pi:
             raise InputError(label, "a steering angle |phi| < pi/2", xx)
 
     def chained(z0, zf, T):
@@ -259,19 +275,19 @@ def steer_car(model, x0, xf, T: float | None = None, frame="auto", *, mode: str 
     best = None
     refusals = []
     tried = []
-    for fname, origin, alpha in _frames(frame, x0, xf, name):
+    for fname, origin, alpha in _frames(frame, x0, xf, lay):
         if any(alpha == a and np.array_equal(origin, o) for o, a in tried):
             continue        # the same chart as an earlier frame (e.g. a straight piece): same plan
         tried.append((origin, alpha))
         ca, sa = math.cos(alpha), math.sin(alpha)
 
         def to_local(x, origin=origin, ca=ca, sa=sa, alpha=alpha):
-            px, py, th, phi = _pose_parts(name, x)
+            px, py, th, phi = _pose_parts(lay, x)
             dx, dy = px - origin[0], py - origin[1]
-            return _assemble(name, ca * dx + sa * dy, -sa * dx + ca * dy, wrap_angle(th - alpha), phi)
+            return _assemble(lay, ca * dx + sa * dy, -sa * dx + ca * dy, wrap_angle(th - alpha), phi)
 
         l0, lf = to_local(x0), to_local(xf)
-        ends = max(abs(_theta_phi(name, l0)[0]), abs(_theta_phi(name, lf)[0]))
+        ends = max(abs(_theta_phi(lay, l0)[0]), abs(_theta_phi(lay, lf)[0]))
         if ends >= theta_limit:
             refusals.append(f"{fname}: endpoint |theta - alpha| = {ends:.3f}")
             continue
@@ -296,20 +312,20 @@ def steer_car(model, x0, xf, T: float | None = None, frame="auto", *, mode: str 
     max_th, fname, origin, alpha, plan, l0, dense, zl = best
 
     if T is None:   # time scaling: same path, inputs divided by T
-        uu = _car_inputs(name, L, zl, plan.inputs(dense))
+        uu = _car_inputs(lay, L, zl, plan.inputs(dense))
         T = max(float(np.abs(uu[:, 0]).max()) / model.max_speed,
                 float(np.abs(uu[:, 1]).max()) / model.max_steer_rate) * 1.001
         if T <= 0.0:
             T = 1.0   # x0 == xf: nothing to do
         plan = chained(plan.z0, plan.zf, T)
 
-    th_l0 = float(_theta_phi(name, l0)[0])
-    th0 = float(_theta_phi(name, x0)[0])
+    th_l0 = float(_theta_phi(lay, l0)[0])
+    th0 = float(_theta_phi(lay, x0)[0])
     ca, sa = math.cos(alpha), math.sin(alpha)
 
     def to_world(xl):
-        px, py, th, phi = _pose_parts(name, xl)
-        return _assemble(name, origin[0] + ca * px - sa * py, origin[1] + sa * px + ca * py,
+        px, py, th, phi = _pose_parts(lay, xl)
+        return _assemble(lay, origin[0] + ca * px - sa * py, origin[1] + sa * px + ca * py,
                          th0 + (th - th_l0), phi)
 
     t = plan.grid(ppp)
@@ -317,7 +333,7 @@ def steer_car(model, x0, xf, T: float | None = None, frame="auto", *, mode: str 
     u = car_inputs_from_chained(model, z, plan.inputs(t))
     x = to_world(from_chained(model, z))
     x[0] = x0       # exact start (differs by round-off only)
-    phi = _theta_phi(name, x)[1]
+    phi = _theta_phi(lay, x)[1]
     res_max_phi = float(np.abs(phi).max())
     res_max_speed = float(np.abs(u[:, 0]).max())
     res_max_omega = float(np.abs(u[:, 1]).max())

@@ -46,8 +46,9 @@ from ..errors import InputError, PipelineError
 from ..geometry import Footprint, wrap_angle
 from ..limits import nominal_grid
 from ..models import Model
+from ..models.base import SteeredCar
 from ..nominal import Nominal
-from .car_charts import _car_inputs, _pose_parts, _theta_phi, from_chained, steer_car
+from .car_charts import CAR_MODELS, _assemble, _car_inputs, _car_kind, _pose_parts, _theta_phi, from_chained, steer_car
 from .geometric import GeometricPath
 from .steering import _constant_phase, _constant_v1_phase, _sin_phase
 from .timing import TimingOptions
@@ -112,7 +113,7 @@ class _SteerInPlace:
         t = np.asarray(t, dtype=float)
         phi = self.phi0 + self.rate * t
         x = np.broadcast_to(_state(self.model, self.pose, 0.0), t.shape + (self.model.n,)).copy()
-        x[..., 3 if self.model.name == "rwd_car" else 2] = phi
+        x[..., self.model.state_names.index("phi")] = phi
         return x
 
     def inputs_at(self, t):
@@ -128,10 +129,11 @@ class _Arc:
 
     def __init__(self, model: Model, pose, phi: float, direction: int, length: float, speed: float):
         self.model, self.pose, self.phi, self.direction = model, np.asarray(pose, dtype=float), float(phi), int(direction)
+        self.lay = _car_kind(model)[0]
         L = float(model.wheelbase)
         self.kappa = math.tan(self.phi) / L
         # body (rear-axle) speed: the rwd car's input; the fwd car's front wheels run at s / cos(phi)
-        self.body_speed = float(speed) if model.name == "rwd_car" else float(speed) * math.cos(self.phi)
+        self.body_speed = float(speed) * math.cos(self.phi) if model.front_wheel_drive else float(speed)
         duration = max(float(length) / self.body_speed, 1e-9)
         self.t = np.linspace(0.0, duration, max(2, int(math.ceil(length / 0.05)) + 1))
         self.x = self.states_at(self.t)
@@ -152,8 +154,7 @@ class _Arc:
         t = np.asarray(t, dtype=float)
         px, py, th = self._poses(t)
         phi = np.full_like(px, self.phi)
-        cols = (px, py, th, phi) if self.model.name == "rwd_car" else (px, py, phi, th)
-        return np.stack(np.broadcast_arrays(*cols), axis=-1)
+        return _assemble(self.lay, px, py, th, phi)
 
     def inputs_at(self, t):
         t = np.asarray(t, dtype=float)
@@ -169,7 +170,7 @@ class _Joined:
 
     def __init__(self, model: Model, pieces: list):
         self.model, self.pieces = model, pieces
-        self.name, self.L = model.name, float(model.wheelbase)
+        self.lay, self.L = _car_kind(model)[0], float(model.wheelbase)
         self.lengths = np.array([float(p.t[-1]) for p in pieces])
         self.starts = np.concatenate([[0.0], np.cumsum(self.lengths)])
         self.duration = float(self.starts[-1])
@@ -190,7 +191,7 @@ class _Joined:
                 continue
             self.bounds[j, : len(p.plan.phase_times) - 2] = p.plan.phase_times[1:-1]
             alpha = p.frame["heading"]
-            th0 = float(_theta_phi(self.name, p.x0)[0])
+            th0 = float(_theta_phi(self.lay, p.x0)[0])
             self.frame[j] = [*p.frame["origin"], math.cos(alpha), math.sin(alpha), th0, float(wrap_angle(th0 - alpha))]
             for ph in p.plan.phases:
                 kind = {"constant": 0, "constant_v1": 1}.get(ph.kind, ph.k)
@@ -262,12 +263,12 @@ class _Joined:
         in_place = kind < 0
         steer = np.flatnonzero(~in_place) if in_place.any() else slice(None)
         zl = z[steer]
-        px, py, th, phi = _pose_parts(self.name, from_chained(self.model, zl))
+        px, py, th, phi = _pose_parts(self.lay, from_chained(self.model, zl))
         ox, oy, ca, sa, th0, th_l0 = self.frame[j[steer]].T
-        cx, cy, cth, cphi = _pose_cols(self.model) + [3 if self.name == "rwd_car" else 2]
+        cx, cy, cth, cphi = _pose_cols(self.model) + [self.lay.phi]
         x[steer, cx], x[steer, cy] = ox + ca * px - sa * py, oy + sa * px + ca * py
         x[steer, cth], x[steer, cphi] = th0 + (th - th_l0), phi
-        u[steer] = _car_inputs(self.name, self.L, zl, v[steer])
+        u[steer] = _car_inputs(self.lay, self.L, zl, v[steer])
         if in_place.any():      # steering in place and held-steering arcs: their own closed forms
             sel = np.flatnonzero(in_place)
             x[sel], u[sel] = self._held(j[sel], local[sel])
@@ -297,10 +298,9 @@ class _Joined:
 
     def _held(self, j: np.ndarray, local: np.ndarray):
         """States and inputs of the pieces ``j`` (arcs or steering in place) at their local times."""
-        rwd = self.name == "rwd_car"
         x = np.empty((len(j), self.model.n))
         u = np.zeros((len(j), 2))
-        cx, cy, cth, cphi = (0, 1, 2, 3) if rwd else (0, 1, 3, 2)
+        cx, cy, cth, cphi = _pose_cols(self.model) + [self.lay.phi]
         x[:, cx], x[:, cy], x[:, cth] = self.h_pose[j].T
         arc = self.h_arc[j]
         steer = np.flatnonzero(~arc)
@@ -370,12 +370,18 @@ def _split(a: int, b: int, sigma: np.ndarray, jumps: np.ndarray) -> list[int]:
 
 
 def _state(model: Model, pose, phi: float) -> np.ndarray:
+    """The car's state at ``pose`` (x, y, theta) with steering angle ``phi``, in its state order."""
     x, y, th = pose
-    return np.array([x, y, th, phi]) if model.name == "rwd_car" else np.array([x, y, phi, th])
+    out = [x, y, None, None]
+    lay = _car_kind(model)[0]
+    out[lay.theta], out[lay.phi] = th, phi
+    return np.array(out)
 
 
 def _pose_cols(model: Model):
-    return [0, 1, 2] if model.name == "rwd_car" else [0, 1, 3]
+    """State indices of x, y, theta (from the model's state names)."""
+    names = model.state_names
+    return [names.index("x"), names.index("y"), names.index("theta")]
 
 
 def car_nominal(model: Model, path: GeometricPath, timing: TimingOptions, world: CollisionWorld, fp: Footprint,
@@ -385,8 +391,8 @@ def car_nominal(model: Model, path: GeometricPath, timing: TimingOptions, world:
     (``path.info["exact_runs"]``: sample ranges (i0, i1, phi, direction) of segments driven with the
     steering angle ``phi`` held, e.g. the parking maneuvers of :mod:`nhstab.planning.parking`) are
     driven exactly, at ``arc_speed`` (default: the speed limit), stopping at both ends of each to steer."""
-    if model.name not in ("rwd_car", "fwd_car"):
-        raise InputError("model", "rwd_car or fwd_car", model.name)
+    if not isinstance(model, SteeredCar):
+        raise InputError("model", " or ".join(CAR_MODELS), model.name)
     L = float(model.wheelbase)
     samples, sigma, direction = path.samples, path.sigma, path.direction
     d_theta, d_sigma = np.diff(samples[:, 2]), np.diff(sigma)
@@ -520,8 +526,8 @@ def exact_nominal(model: Model, path: GeometricPath, timing: TimingOptions,
     ends, where the wheels are straight). Each piece starts where the previous one ended, so the
     nominal is the model's exact solution; ``path_deviation_m`` is how far its end lies from the
     path's end (round-off and the segments' recovery, ~1e-7 m)."""
-    if model.name not in ("rwd_car", "fwd_car"):
-        raise InputError("model", "rwd_car or fwd_car", model.name)
+    if not isinstance(model, SteeredCar):
+        raise InputError("model", " or ".join(CAR_MODELS), model.name)
     if "segments" not in path.info:
         raise InputError("path", "a car path with its segments (nhstab.planning.parking)", "no segments")
     lim = float(model.max_steer)

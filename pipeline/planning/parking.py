@@ -297,7 +297,7 @@ def unparking_tree(world: CollisionWorld, fp: Footprint, model: Model, root, mar
     enough = opts.escaped_enough if enough is None else enough
     L = float(model.wheelbase)
     phi_lock = float(model.max_steer) - opts.steering_reserve_rad
-    r_lock = L / math.tan(phi_lock)
+    r_lock = lock_radius(model, opts)
     reach = fp.bounding_radius
     # sample so that no footprint point moves more than ~5 cm between checked poses
     step = min(0.05, 0.05 * r_lock / max(reach, 1e-9))
@@ -614,7 +614,7 @@ def lock_radius(model: Model, opts: CarOptions) -> float:
     if phi <= 0:
         raise InputError("car.steering_reserve_rad", f"below the car's max_steer {model.max_steer:g} rad",
                          opts.steering_reserve_rad)
-    return float(model.wheelbase / math.tan(phi))
+    return model.turning_radius_at(phi)
 
 
 def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, opts: PathOptions, pad: float,

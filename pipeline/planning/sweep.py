@@ -17,14 +17,12 @@ from __future__ import annotations
 from ..control import GAIN_BOUND, StabilizerOptions, compute_schedule
 from ..errors import SingularGramianError
 from ..maps import load_map
+from ..models import MODELS
 from ..robot import default_robot
 from . import PathOptions, plan
 
-GRID = {
-    "unicycle": {"alpha": [0.1, 0.2, 0.5, 1.0], "delta": [0.5, 1.0, 2.0]},
-    "rwd_car": {"alpha": [0.05, 0.1, 0.2], "delta": [2.0, 3.0, 4.0, 6.0]},
-    "fwd_car": {"alpha": [0.05, 0.1, 0.2], "delta": [2.0, 3.0, 4.0, 6.0]},
-}
+#: the robots swept and their (alpha, delta) grids: each model's ``sweep_grid`` (:class:`nhstab.models.Model`)
+GRID = {name: cls.sweep_grid for name, cls in MODELS.items() if cls.sweep_grid is not None}
 
 
 def sweep(map_path, seed: int = 1) -> dict:
@@ -43,7 +41,7 @@ def sweep(map_path, seed: int = 1) -> dict:
                          "plan_length_m": r.metrics["length_m"], "plan_duration_s": r.metrics["duration_s"]}
                 try:
                     d = compute_schedule(r.nominal, StabilizerOptions(
-                        alpha=alpha, delta=delta, end_strategy=robot.stabilizer["end_strategy"])).diagnostics
+                        alpha=alpha, delta=delta, end_strategy=robot.stabilizer.end_strategy)).diagnostics
                     entry.update({k: d[k] for k in ("h_min_eigenvalue", "max_gain_norm", "rate_bound",
                                                     "rate_bound_printed", "p_m", "p_M")})
                 except SingularGramianError as exc:

@@ -49,6 +49,7 @@ import numpy as np
 
 from ..errors import InputError, require_finite, require_positive
 from ..geometry import wrap_angle
+from ..models.car_trailer import CarTrailer
 from .steering import SteeringPlan, _array, _count, _vector, steer_chained, steer_chained_polynomial
 
 __all__ = ["TrailerSteering", "to_chained", "from_chained", "inputs_from_chained", "chained_inputs", "steer_trailer",
@@ -61,7 +62,7 @@ TRAILER_MODES = ("polynomial", "phased")
 
 def _kind(model) -> tuple[float, float]:
     """(L, d) of a car_trailer with one trailer."""
-    if getattr(model, "name", None) != "car_trailer":
+    if not isinstance(model, CarTrailer):
         raise InputError("model", "a car_trailer model", getattr(model, "name", model))
     if model.trailers != 1:
         raise InputError("model", "a car_trailer with one trailer (the chained chart here is for N = 1)",

@@ -326,7 +326,7 @@ def plan_and_tube(m, robot, start, goal, path_options, timing_options, *, margin
     if several and margin == "auto":
         raise InputError("--margin", SEVERAL_BODIES, margin)
     world = world or CollisionWorld.from_map(m, "known")
-    defaults = dict(robot.stabilizer)
+    defaults = robot.stabilizer.as_dict()
     extra = {"tube_model": {"noise": noise.describe(model.state_names), "rate_hz": rate_hz, "substeps": substeps,
                             "input_limits": robot.model.input_limits()[:, 1].tolist(),
                             "controller": "gramian, future window",

@@ -295,6 +295,16 @@ def test_replay_reproduces_a_stored_trial(tmp_path, monkeypatch):
     assert d["status"] == rec["status"]
     assert d["clearance"]["min_executed_m"] == rec["metrics"]["min_clearance_m"]
     assert d["tracking"].get("max_error_norm") == rec["metrics"]["max_error_norm"]
+    # the library half of the command: the trial's map from the store, its options and its files
+    from nhstab.batch.replay import prepare_replay
+
+    r = prepare_replay(tmp_path / "b", rec["id"])
+    assert r.from_store and r.map_rel == "map/" + r.bundle.entry and r.options.seed == rec["spec"]["seed"]
+    assert r.robot.model.name == "unicycle" and set(r.files) == {"run_config.yaml", *(f"map/{k}" for k in r.bundle.files)}
+    assert (tmp_path / "r" / "run_config.yaml").read_text() == r.config_text
+    with pytest.raises(InputError) as err:
+        prepare_replay(tmp_path / "b", "no-such-trial")
+    assert err.value.argument == "TRIAL_ID"
 
 
 def test_wilson_interval_matches_the_closed_form():

@@ -119,7 +119,7 @@ def test_in_a_tight_slot_split_gains_stop_the_surge_that_hits_the_parked_car(tig
     seeds = list(range(300))
     rates = {}
     for cusps in ("across", "split"):
-        law = build_law(r.nominal, ControllerOptions(kind="gramian"), {**rob.stabilizer, "cusps": cusps})
+        law = build_law(r.nominal, ControllerOptions(kind="gramian"), {**rob.stabilizer.as_dict(), "cusps": cusps})
         res = simulate_shared(law, seeds, NoiseOptions(), model=rob.model, record=True)
         hit = [world.clearance_many(res.x[i, :, :3], rob.footprint).min() < 0 for i in range(len(seeds))]
         rates[cusps] = float(np.mean(hit))

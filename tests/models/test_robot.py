@@ -18,7 +18,15 @@ from nhstab.errors import InputError, PipelineError
 from nhstab.execution import RunOptions, execute, read_run_csv
 from nhstab.maps import load_map
 from nhstab.planning import PathOptions, plan
-from nhstab.robot import MODEL_DEFAULTS, default_footprint, default_robot, load_robot, make_robot, robot_from_spec
+from nhstab.robot import (
+    MODEL_DEFAULTS,
+    RobotStabilizer,
+    default_footprint,
+    default_robot,
+    load_robot,
+    make_robot,
+    robot_from_spec,
+)
 
 #: the user's car of the issue's example (a longer, wider car than the default rwd_car)
 USER_CAR = {
@@ -72,11 +80,15 @@ def test_builtin_robots_keep_the_old_defaults():
     execution.DEFAULT_MARGIN, geometry.DEFAULT_FOOTPRINTS, the turning-radius rule)."""
     u, c, f = default_robot("unicycle"), default_robot("rwd_car"), default_robot("fwd_car")
     assert (u.margin, c.margin, f.margin) == (0.1, 0.3, 0.2)
-    assert u.stabilizer == {"alpha": 0.2, "delta": 2.0, "gamma": 1.0, "end_strategy": "frozen"}
+    assert u.stabilizer.as_dict() == {"alpha": 0.2, "delta": 2.0, "gamma": 1.0, "end_strategy": "frozen"}
     # the cars' schedules keep sliding along a final straight run's continuation (docs/theory/control-law.md, Ends of a trajectory), and
     # are split at cusps (docs/theory/control-law.md, Cusps: no window looks across a cusp)
-    assert c.stabilizer == {"alpha": 0.1, "delta": 6.0, "gamma": 1.0, "end_strategy": "extend", "cusps": "split"}
-    assert f.stabilizer == {"alpha": 0.2, "delta": 3.0, "gamma": 1.0, "end_strategy": "extend", "cusps": "split"}
+    assert c.stabilizer.as_dict() == {"alpha": 0.1, "delta": 6.0, "gamma": 1.0, "end_strategy": "extend", "cusps": "split"}
+    assert f.stabilizer.as_dict() == {"alpha": 0.2, "delta": 3.0, "gamma": 1.0, "end_strategy": "extend", "cusps": "split"}
+    assert u.stabilizer == RobotStabilizer(alpha=0.2, delta=2.0, gamma=1.0, end_strategy="frozen")    # a typed value
+    assert u.stabilizer.cusps is None and c.stabilizer.cusps == "split"
+    typed = make_robot("rwd_car", stabilizer=RobotStabilizer(alpha=0.3, delta=4.0))     # the rest the rwd_car's
+    assert typed.stabilizer == RobotStabilizer(alpha=0.3, delta=4.0, gamma=1.0, end_strategy="extend", cusps="split")
     assert u.turning_radius == 0.5 and c.turning_radius == pytest.approx(1.25 * 2.5 / math.tan(0.6))
     assert u.footprint.radius == 0.3
     assert np.allclose(c.footprint.vertices, [[-0.9, -0.9], [3.3, -0.9], [3.3, 0.9], [-0.9, 0.9]])
@@ -294,7 +306,8 @@ def test_make_robot_and_footprints():
 
 def test_the_adding_a_model_guide_example_runs(tmp_path):
     """docs/guide/robots.md's worked example: a model defined in one class and one registry entry is
-    taken by make_robot (with its robot_defaults) and stabilized along its own nominal."""
+    taken by make_robot (with its robot_defaults), gets its own default noise (noise_defaults) and is
+    stabilized along its own nominal."""
     import re
     import subprocess
     import sys
@@ -304,8 +317,9 @@ def test_the_adding_a_model_guide_example_runs(tmp_path):
     code = re.search(r"## Adding a model.*?```python\n(.*?)```", text, re.S).group(1)
     res = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr[-2000:]
-    name_line, gain_line = res.stdout.strip().splitlines()
-    assert name_line == "chained disc r=0.2 m 0.1"
+    name_line, noise_line, gain_line = res.stdout.strip().splitlines()
+    assert name_line == "chained disc r=0.2 m 0.1 0.0"
+    assert noise_line == "sensor noise [0.01, 0.01, 0.01]"          # the model's own noise_defaults
     assert gain_line.startswith("max gain norm ") and 0.0 < float(gain_line.split()[-1]) < 1e3
 
 
@@ -321,3 +335,42 @@ def test_per_model_knowledge_is_read_from_the_model_classes():
     for name in MODELS:
         robot = default_robot(name)
         assert robot.margin == MODELS[name].robot_defaults["margin"]
+
+
+def test_noise_grid_and_van_are_read_from_the_model_classes():
+    """The default noise (execution.config.DEFAULT_NOISE), the sweep's grid and the parking suite's van
+    are the model classes' own (noise_defaults, sweep_grid, robot_presets); the models agree on the
+    noise of the states they share."""
+    from nhstab.execution.config import DEFAULT_NOISE, default_noise
+    from nhstab.models import MODELS
+    from nhstab.parking import SUITE_MARGIN, cars
+    from nhstab.planning.sweep import GRID
+
+    for kind in ("initial", "sensor", "process"):
+        for cls in MODELS.values():
+            for state, level in cls.noise_defaults[kind].items():
+                assert DEFAULT_NOISE[kind][state] == level, (cls.__name__, kind, state)
+    assert DEFAULT_NOISE == default_noise()
+    assert DEFAULT_NOISE["sensor"]["phi"] == 0.005 and DEFAULT_NOISE["initial"]["theta8"] == 0.05
+    assert GRID == {name: cls.sweep_grid for name, cls in MODELS.items() if cls.sweep_grid is not None}
+    assert list(GRID) == ["unicycle", "rwd_car", "fwd_car"]
+    van = cars()["van"]
+    assert van == {"model": "rwd_car", "name": "van", **MODELS["rwd_car"].robot_presets["van"], "margin": SUITE_MARGIN}
+    assert robot_from_spec(van).min_turning_radius == pytest.approx(3.65 / math.tan(0.65), rel=1e-15)
+
+
+@pytest.mark.parametrize("name", ["unicycle", "rwd_car", "fwd_car", "heisenberg", "car_trailer"])
+def test_the_minimum_turning_radius_has_one_owner(name):
+    """Robot, planner and parking geometry all read the model's min_turning_radius: L / tan(max_steer)
+    for the cars, 0 for models that turn in place, the trailer's own closed form for car_trailer."""
+    from nhstab.planning import min_turning_radius
+
+    r = default_robot(name)
+    assert r.min_turning_radius == r.model.min_turning_radius == min_turning_radius(r.model)
+    if name in ("rwd_car", "fwd_car"):
+        assert r.min_turning_radius == r.model.wheelbase / math.tan(r.model.max_steer)
+    elif name in ("unicycle", "heisenberg"):
+        assert r.min_turning_radius == 0.0
+    else:
+        r0, d = r.model.wheelbase / math.tan(r.model.max_steer), r.model.hitch_lengths[0]   # one trailer:
+        assert r.min_turning_radius == pytest.approx(math.sqrt(r0 * r0 - d * d), rel=1e-12)    # R1^2 = R0^2 - d^2

@@ -224,7 +224,7 @@ def test_default_stabilizer_parameters_are_the_committed_sweeps_choice():
     from nhstab.robot import default_robot
 
     sweep = json.loads((Path(__file__).parents[2] / "results" / "planning" / "sweep.json").read_text())
-    assert sweep["chosen"] == {name: {k: default_robot(name).stabilizer[k] for k in ("alpha", "delta", "gamma")}
+    assert sweep["chosen"] == {name: {k: getattr(default_robot(name).stabilizer, k) for k in ("alpha", "delta", "gamma")}
                                for name in sweep["chosen"]}
     for row in sweep["rows"]:
         chosen = sweep["chosen"][row["robot"]]

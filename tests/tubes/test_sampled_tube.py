@@ -196,7 +196,7 @@ def test_the_certified_clearance_is_the_rollouts_smallest_clearance(scale):
     t = np.arange(0.0, 8.0 + 1e-9, 0.02)
     nom = Nominal.from_samples(model, t, np.column_stack([3.0 + 1.0 * t, 0 * t + 2.0, 0 * t, 0 * t]),
                                np.column_stack([1.0 + 0 * t, 0 * t]))
-    law = build_law(nom, ControllerOptions(kind="gramian"), dict(robot.stabilizer))
+    law = build_law(nom, ControllerOptions(kind="gramian"), robot.stabilizer.as_dict())
     m = Map("wall", (0.0, 0.0, 18.0, 6.0), obstacles=(box_polygon(9.0, 3.65, 14.0, 0.3),))
     world = CollisionWorld.from_map(m, "known")
     tube = sampled_tube(law, NoiseOptions(scale=scale), robot.footprint, world, model=model, rollouts=60,
