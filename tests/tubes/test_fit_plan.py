@@ -6,7 +6,6 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-
 from nhstab.tubes.fit import fit_plan
 
 
