@@ -123,6 +123,8 @@ NOMINAL_BUDGET_FACTOR = 3.0
 #: and goal allow it), and drives at this fraction of the speed limit
 LATTICE_MARGIN_PAD = 0.03
 LATTICE_SPEED_FRACTION = 0.6
+#: where the trailer's Reeds-Shepp paths fail, the lattice search runs for this factor times the time limit
+LATTICE_BUDGET_FACTOR = 5.0
 #: the lattice search rooted at the tighter end gets this share of its budget, the other end the rest
 LATTICE_FIRST_SHARE = 0.6
 #: the nominal's tail (the motion continued past the goal for the gain schedule's windows) [s]
@@ -828,9 +830,8 @@ def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts
         if time.perf_counter() - started >= budget:
             break
     if result is not None:
-        # the trailer's Reeds-Shepp paths failed: the search over the whole rig, with what is left of the
-        # budget (at least the time limit)
-        left = max(float(path_opts.time_limit_s), budget - (time.perf_counter() - started))
+        # the trailer's Reeds-Shepp paths failed: the search over the whole rig, with its own budget
+        left = LATTICE_BUDGET_FACTOR * float(path_opts.time_limit_s)
         lattice = _lattice_plan(world, robot, path_opts, timing_opts, x_start, x_goal, clearances, left,
                                 check_resolution, started)
         attempts.append(f"{lattice[0]} (lattice)")

@@ -85,7 +85,7 @@ LAW_STEER_FRACTION = 0.97
 #: the approach primitives' law: lateral error [1/m^2], heading error [1/m] (the tracker's gains)
 APPROACH_GAINS = (0.15, 0.8)
 #: nodes expanded together (their primitives integrated and checked at once)
-BATCH_NODES = 8
+BATCH_NODES = 16
 #: the duplicate cells: trailer axle position [m], trailer heading bins per turn, hitch angle [rad]
 CELL_M = 0.5
 HEADING_BINS = 72
@@ -327,15 +327,15 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
     use_grid = bool(np.isfinite(grid_h(start_p1)))
 
     def rs_to(p, target):
-        # the Reeds-Shepp length to ``target``, from its frame, memoised on a lattice of CELL_M / 2 and a
-        # heading bin
+        # the Reeds-Shepp length to ``target``, from its frame, memoised on a lattice of CELL_M and a heading
+        # bin (the same lattice for every target)
         c, s_ = math.cos(target[2]), math.sin(target[2])
         dx, dy = p[0] - target[0], p[1] - target[1]
-        q = (int(round((c * dx + s_ * dy) / (0.5 * CELL_M))), int(round((-s_ * dx + c * dy) / (0.5 * CELL_M))),
+        q = (int(round((c * dx + s_ * dy) / CELL_M)), int(round((-s_ * dx + c * dy) / CELL_M)),
              int(round(float(wrap_angle(p[2] - target[2])) / (2 * math.pi) * HEADING_BINS)))
         v = rs_cache.get(q)
         if v is None:
-            a = (q[0] * 0.5 * CELL_M, q[1] * 0.5 * CELL_M, q[2] * 2 * math.pi / HEADING_BINS)
+            a = (q[0] * CELL_M, q[1] * CELL_M, q[2] * 2 * math.pi / HEADING_BINS)
             v = local_paths.path_length(local_paths.reeds_shepp(a, (0.0, 0.0, 0.0), r_h), r_h)
             rs_cache[q] = v
         return v
