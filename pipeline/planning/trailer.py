@@ -46,6 +46,15 @@ the goal) so that the gramian law's future windows are whole up to the goal: the
 carries the last whole window along the linearised flow, which in reverse is unstable, and the gains
 faded exactly where the trailer backs into the dock (tests/planning/test_trailer_planning.py).
 
+Where the paths fail
+--------------------
+Where no Reeds-Shepp path of the trailer at R1 leads to a usable nominal (aisles and dock bays that a
+circle of R1 does not fit), the lattice search over the whole rig (:mod:`nhstab.planning.
+trailer_search`: Hybrid A* with primitives integrated from the model, rooted at the tighter of start
+and goal, joined to the other with the chained-form piece) runs for ``LATTICE_BUDGET_FACTOR`` times
+the time limit, and :func:`lattice_nominal` makes its plan the same kind of nominal (the primitives'
+inputs integrated again with the tracker's RK4, the piece, the tail).
+
 Alternatives considered, and what they did on the loading dock
 ---------------------------------------------------------------
 * A search whose local planner is the polynomial steering between poses where the rig stands straight

@@ -4,51 +4,62 @@ angle carried along, for the spaces the trailer's Reeds-Shepp path cannot use (a
 Motion primitives
 -----------------
 A node is a full state (x, y, theta, phi, theta1) of the ``car_trailer`` model reached exactly, with
-the input it was reached with. From a node the rig drives ``PRIMITIVE_STEPS`` steps of
-``PRIMITIVE_STEP_S`` seconds, forward or in reverse at the nominal's speed, while its steering angle
-moves to one of ``STEER_LEVELS`` levels spread evenly over +-``steer_cap`` (those it can reach at the
-steering rate cap within the primitive). The inputs are piecewise linear in time with their knots on
-the primitive's steps: v is the node's speed at the first knot and +-speed at the others (a reversal
-swings it over one step); omega_s is 0 at the first knot, a constant w at the next m - 1 knots and 0
-after them, with w = (phi_target - phi) / ((m - 1) step) and m the fewest knots that keep |w| within
-the rate cap (the steering angle then reaches its level exactly at knot m). Every primitive ends with
-omega_s 0, so primitives chain with continuous inputs except at a reversal. The model's right-hand
-side (:meth:`CarTrailer.rhs`) is integrated with RK4 (``RK4_SUBSTEPS`` steps per knot interval, all
-primitives of a node at once); the nominal integrates the same inputs again on its own grid with
-RK4 (:func:`nhstab.planning.trailer.lattice_nominal`), so the plan is exactly a motion of the model.
+the input it was reached with. From a node the rig drives ``PRIMITIVE_STEPS`` steps of ``step_s``
+seconds, forward or in reverse at the nominal's speed, under :func:`hitch_law`, which steers the
+hitch angle D towards one of ``HITCH_LEVELS`` targets (so that D' = -``HITCH_GAIN`` |v| (D - target)
+forward and in reverse alike: reversing stays stable), the steering angle within its cap and its
+rate within the rate cap. The law's commands become the input knots one step late and the inputs
+are linear between knots, as the tracker of :mod:`nhstab.planning.trailer` holds its commands. The
+model's right-hand side is integrated with RK4 (``RK4_SUBSTEPS`` steps per knot interval), all
+primitives of ``BATCH_NODES`` nodes at once; the nominal integrates the same knots again on its own
+grid (:func:`nhstab.planning.trailer.lattice_nominal`), so the plan is exactly a motion of the model.
+Nodes near the target's axis get one more primitive whose target hitch angle comes from the
+tracker's curvature law towards that straight line (``APPROACH_GAINS``).
 
 Checks
 ------
-A primitive is kept when at every integrated state the hitch angle is within ``hitch_cap``, and both
-bodies (the car's and the trailer's footprints) are free by the margin: the collision world's
-:meth:`~nhstab.collision.CollisionWorld.free_many` for all states of all of a node's primitives at
-once (its conservative distance field decides most poses vectorised, FCL the rest).
+A primitive is kept when at every integrated state the hitch angle is within ``hitch_cap``, the
+steering angle within ``steer_cap``, and both bodies (the car's and the trailer's footprints) are
+free by the margin: the collision world's :meth:`~nhstab.collision.CollisionWorld.free_many` on all
+states of all primitives of a batch at once (its conservative distance field decides most poses
+vectorised, FCL the rest).
 
 Cost and heuristic
 ------------------
 The cost is the trailer axle's arc length, reversing costing ``REVERSE_FACTOR`` times as much, plus
 ``CUSP_COST_M`` per reversal and ``STEER_CHANGE_COST_M`` per radian of steering change. The
-heuristic is the larger of two lower bounds of the trailer axle's remaining arc length: its
-obstacle-free Reeds-Shepp length to the goal's trailer pose at the radius d / tan(hitch_cap) (the
-trailer's curvature is tan(D) / d, D the hitch angle), and the 8-connected grid distance (Dijkstra,
-cells of ``GRID_CELL_M``) from the goal's trailer axle through the cells where a disc of the trailer
-footprint's inscribed radius about its axle keeps the margin (less a cell's slack). Nodes are
-ordered by g + ``HEURISTIC_WEIGHT`` h (weighted A*: not optimal, much faster), and duplicates by
-cells of ``CELL_M`` (trailer axle position), ``HEADING_BINS`` (trailer heading), ``HITCH_BIN_RAD``
-(hitch angle), the steering level and the direction.
+heuristic, weighted ``HEURISTIC_WEIGHT``, is the larger of the 8-connected grid distance (Dijkstra,
+cells of ``GRID_CELL_M``) from the target's trailer axle through the cells where a disc of the
+trailer footprint's inscribed radius about its axle keeps the margin (less a cell's slack), and the
+obstacle-free Reeds-Shepp length of the trailer's axle at the radius d / tan(hitch_cap) (the
+trailer's curvature is tan(D) / d) to a pose ``PRE_GOAL_M`` before or beyond the target on its
+axis, plus that distance (on that stretch, near the axis: to the target itself). The exact join
+below needs that room. Duplicates are merged by cells of ``CELL_M`` (trailer axle position),
+``HEADING_BINS`` (trailer heading), ``HITCH_BIN_RAD`` (hitch angle) and the direction.
+
+Rooted at either end
+--------------------
+The car with a trailer is driftless (x' = g(x) u), so a motion run backwards in time is a motion
+under the negated inputs. ``from_goal`` roots the search at the goal: the rig drives out of the
+dock (forward, where the hitch angle is stable) towards the start, and the plan is that motion
+reversed in time; the target is then the start.
 
 Analytic expansion
 ------------------
-From nodes whose grid distance is below ``ANALYTIC_RANGE_M`` (every ``ANALYTIC_EVERY`` expansions,
-and always from the start), the exact chained-form polynomial piece
-(:func:`~nhstab.planning.trailer_charts.steer_trailer`) to the goal state is tried; it is taken when
-it keeps the steering angle within ``steer_cap``, the hitch angle within ``hitch_cap``, the speed
-within the nominal's and both bodies free by the margin.
+From calm nodes (steering and hitch angles within ``ANALYTIC_CALM_RAD``) ``ANALYTIC_MIN_M`` to
+``ANALYTIC_RANGE_M`` from the target along its axis, within ``ANALYTIC_CONE`` and
+``ANALYTIC_HEADING_RAD``, and moving towards it (once per cell of ``ANALYTIC_CELL_M``), and always
+from the root, the exact chained-form polynomial piece
+(:func:`~nhstab.planning.trailer_charts.steer_trailer`) is tried from the node to the goal (rooted at
+the goal: from the start to the node); it is taken when it keeps the steering angle within
+``steer_cap``, the hitch angle within ``hitch_cap``, the speed within the nominal's, the steering
+rate within the limit and both bodies free by the margin.
 
 Budget
 ------
 The search stops at ``budget_s`` seconds or ``MAX_EXPANSIONS`` expansions; without a plan it reports
-the node closest to the goal (trailer axle distance and heading error, and the heuristic there).
+the node closest to the target (the trailer axle's distance and heading error, the heuristic there)
+and why the pieces tried were refused.
 """
 
 from __future__ import annotations
@@ -67,18 +78,19 @@ from ..geometry import wrap_angle
 from . import local_paths
 from .trailer_charts import TrailerSteering, steer_trailer
 
-#: the duration of one knot interval of a primitive's inputs [s] (rounded to a whole number of the
-#: nominal's steps)
+#: the duration of one knot interval of a primitive's inputs [s] (the planner rounds it to a whole number
+#: of the nominal's steps)
 PRIMITIVE_STEP_S = 0.1
-#: knot intervals per primitive (with PRIMITIVE_STEP_S and the default rig: 0.72 m at 0.9 m/s)
+#: knot intervals per primitive (with PRIMITIVE_STEP_S and the built-in rig: 1.08 m at 0.9 m/s)
 PRIMITIVE_STEPS = 12
-#: RK4 steps per knot interval in the search
+#: RK4 steps per knot interval in the search (every one of their states is checked)
 RK4_SUBSTEPS = 2
 #: the hitch angles the primitives aim at: this many levels (odd: straight is one) over +- this fraction of
 #: the smaller of hitch_cap and the hitch angle the car can hold in reverse at the steering cap
 HITCH_LEVELS = 5
 HITCH_TARGET_FRACTION = 0.95
-#: the primitives' law: hitch angle gain [1/m], steering angle gain [1/s]
+#: the primitives' law: hitch angle gain [1/m], steering angle gain [1/s], and the fraction of the steering
+#: cap it asks for (room for the one-knot lag of its commands)
 HITCH_GAIN = 3.0
 STEER_GAIN = 5.0
 LAW_STEER_FRACTION = 0.97
@@ -98,27 +110,25 @@ STEER_CHANGE_COST_M = 0.5
 HEURISTIC_WEIGHT = 2.5
 #: the grid of the distance heuristic [m]
 GRID_CELL_M = 0.25
-#: analytic expansion from nodes whose trailer axle is this far from the goal's along the goal's axis [m],
-#: moving towards it, within this cone (|across| / |along|) and this heading error [rad], once per cell of
-#: ANALYTIC_CELL_M [m] and 0.1 rad
-ANALYTIC_MIN_M = 1.5
-#: the Reeds-Shepp part of the heuristic leads to the poses this far before and beyond the goal's trailer
-#: pose along its axis [m] (where the final piece starts best), plus this distance
+#: the Reeds-Shepp part of the heuristic leads to the poses this far before and beyond the target's trailer
+#: pose on its axis [m] (where the exact join starts best), plus this distance; between such a pose and
+#: the target, within PRE_GOAL_ZONE of its axis ([m], [rad] of heading), to the target itself
 PRE_GOAL_M = 8.0
-#: (between a pre-goal pose and the goal, within this distance of the goal's axis [m] and heading error
-#: [rad], the Reeds-Shepp length to the goal itself)
 PRE_GOAL_ZONE = (1.0, 0.5)
+#: analytic expansion from nodes whose trailer axle is ANALYTIC_MIN_M to ANALYTIC_RANGE_M from the target's
+#: along its axis [m], moving towards it, within ANALYTIC_CONE (|across| / |along|) and ANALYTIC_HEADING_RAD,
+#: with steering and hitch angles within ANALYTIC_CALM_RAD, once per cell of ANALYTIC_CELL_M [m] and 0.1 rad
+ANALYTIC_MIN_M = 1.5
 ANALYTIC_RANGE_M = 20.0
 ANALYTIC_CONE = 0.35
 ANALYTIC_HEADING_RAD = 0.6
+ANALYTIC_CALM_RAD = 0.6
 ANALYTIC_CELL_M = 0.5
-#: nodes whose trailer axle is within this distance of the goal's along its axis, this cone and this
-#: heading error get one more primitive, towards the goal along its axis (APPROACH_GAINS)
+#: nodes whose trailer axle is within APPROACH_RANGE_M of the target's along its axis, APPROACH_CONE and
+#: APPROACH_HEADING_RAD get one more primitive, towards the target along its axis (APPROACH_GAINS)
 APPROACH_RANGE_M = 25.0
 APPROACH_CONE = 0.6
 APPROACH_HEADING_RAD = 0.8
-#: and only from calm nodes: steering and hitch angles within this [rad]
-ANALYTIC_CALM_RAD = 0.6
 #: an upper bound on expansions, whatever the budget
 MAX_EXPANSIONS = 200_000
 
@@ -377,8 +387,8 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
     tried: set = set()
 
     def aimed(p, direction):
-        """Is the trailer's axle ANALYTIC_MIN_M to ANALYTIC_RANGE_M from the goal's, moving towards it
-        (as it last moved), within ANALYTIC_CONE of the goal's axis and ANALYTIC_HEADING_RAD of its
+        """Is the trailer's axle ANALYTIC_MIN_M to ANALYTIC_RANGE_M from the target's, moving towards it
+        (as it last moved), within ANALYTIC_CONE of the target's axis and ANALYTIC_HEADING_RAD of its
         heading, in a cell not tried yet?"""
         dx, dy = p[0] - goal_p1[0], p[1] - goal_p1[1]
         along, across = cg * dx + sg_ * dy, -sg_ * dx + cg * dy
@@ -395,7 +405,7 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
 
     def approach_direction(p) -> float:
         """The direction (+-1) of an approach primitive from trailer axle pose p, 0 for none: p within
-        APPROACH_RANGE_M of the goal's along its axis, within APPROACH_CONE and APPROACH_HEADING_RAD."""
+        APPROACH_RANGE_M of the target's along its axis, within APPROACH_CONE and APPROACH_HEADING_RAD."""
         dx, dy = p[0] - goal_p1[0], p[1] - goal_p1[1]
         along, across = cg * dx + sg_ * dy, -sg_ * dx + cg * dy
         if not ANALYTIC_MIN_M <= abs(along) <= APPROACH_RANGE_M or abs(across) > APPROACH_CONE * abs(along):

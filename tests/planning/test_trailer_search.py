@@ -11,11 +11,11 @@ from nhstab.collision import CollisionWorld
 from nhstab.maps import load_map
 from nhstab.planning import PathOptions, plan
 from nhstab.planning.trailer import JACKKNIFE_FRACTION, STEER_FRACTION
-from nhstab.planning.trailer_search import (grid_distance, inscribed_radius, integrate_primitives, lattice_search)
+from nhstab.planning.trailer_search import grid_distance, inscribed_radius, integrate_primitives, lattice_search
 from nhstab.robot import default_robot, resolve_robot
 from scipy.integrate import solve_ivp
 
-AISLE = "maps/trailer/warehouse_aisle.yaml"
+AISLE = "maps/trailer/tugger_aisle.yaml"
 BAYS = "maps/trailer/dock_bays.yaml"
 
 
