@@ -530,7 +530,7 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
     elapsed = time.perf_counter() - started
     info = {"search": "lattice", "expansions": expansions, "nodes": len(nodes), "analytic_tries": analytic_tries,
             "search_time_s": elapsed, "grid_heuristic": use_grid, "heuristic_radius_m": r_h,
-            "hitch_levels_rad": float(top), **stats}
+            "hitch_target_max_rad": float(top), **stats}
     if found is None:
         hn, ni = closest
         xc = nodes[ni][0]

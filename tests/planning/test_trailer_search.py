@@ -138,3 +138,20 @@ def test_tight_maps_plan_with_the_lattice(tight_plan):
         assert nom.u[-5:, 0].max() < 0
     else:                                # out of the aisle forward, round the corner: heading turned 90 degrees
         assert nom.u[-5:, 0].min() > 0
+
+
+def test_plan_reports_both_searches_when_neither_finds_a_path(tmp_path):
+    """The dock bays off an aisle narrowed to 6.5 m: the rig cannot pull out of the bay and turn. `plan`
+    says so in one message: the Reeds-Shepp paths, then the lattice search from each end with its
+    closest node."""
+    text = open(BAYS).read().replace("center: [20.0, 2.5], size: [40.0, 5.0]", "center: [20.0, 3.25], size: [40.0, 6.5]")
+    p = tmp_path / "narrow.yaml"
+    p.write_text(text)
+    m = load_map(p)
+    robot = resolve_robot(None, m.robot, "car_trailer")
+    res = plan(m, robot, m.start.as_array(), m.goal.as_array(), PathOptions(seed=0, time_limit_s=0.3))
+    assert res.status == "no_path"
+    assert "lattice search (from the goal)" in res.message and "lattice search (from the start)" in res.message
+    assert res.message.count("closest node: the trailer's axle") == 2
+    assert "after the trailer's Reeds-Shepp paths" in res.message
+    assert res.metrics["path_attempts"][-1] == "no_path (lattice)"
