@@ -303,10 +303,14 @@ def _search(world: CollisionWorld, robot, rig: TrailerRig, opts: PathOptions, x_
     return replace(last, planning_time_s=time.perf_counter() - started)
 
 
-def _lattice_plan(world: CollisionWorld, robot, path_opts: PathOptions, timing: TimingOptions, x_start, x_goal,
-                  clearances: dict, budget: float, check_resolution: float, started: float):
-    """The lattice search (:mod:`nhstab.planning.trailer_search`) and its nominal: (status, message,
-    path, nominal, metrics) with status "ok", "no_path", "infeasible" or "not_clear"."""
+def lattice_plan(world: CollisionWorld, robot, path_opts: PathOptions, timing: TimingOptions, x_start, x_goal,
+                 clearances: dict, budget: float, check_resolution: float = 0.05, started: float | None = None):
+    """The lattice search (:mod:`nhstab.planning.trailer_search`) between full states ``x_start`` and
+    ``x_goal`` for ``budget`` seconds, and its nominal checked at ``check_resolution``: (status,
+    message, path, nominal, metrics) with status "ok", "no_path", "infeasible" or "not_clear".
+    ``clearances``: the start's and goal's ({"start": ..., "goal": ...}, :func:`check_configuration`);
+    ``started``: the clock reading the metrics' planning time counts from (default: now)."""
+    started = time.perf_counter() if started is None else started
     model = robot.model
     margin = float(path_opts.margin)
     search_margin = max(margin, min(margin + LATTICE_MARGIN_PAD, min(clearances.values()) - 1e-3))
@@ -841,7 +845,7 @@ def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts
     if result is not None:
         # the trailer's Reeds-Shepp paths failed: the search over the whole rig, with its own budget
         left = LATTICE_BUDGET_FACTOR * float(path_opts.time_limit_s)
-        lattice = _lattice_plan(world, robot, path_opts, timing_opts, x_start, x_goal, clearances, left,
+        lattice = lattice_plan(world, robot, path_opts, timing_opts, x_start, x_goal, clearances, left,
                                 check_resolution, started)
         attempts.append(f"{lattice[0]} (lattice)")
         if lattice[0] == "ok":

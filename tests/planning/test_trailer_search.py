@@ -10,7 +10,8 @@ import shapely.geometry as sg
 from nhstab.collision import CollisionWorld
 from nhstab.maps import load_map
 from nhstab.planning import PathOptions, plan
-from nhstab.planning.trailer import JACKKNIFE_FRACTION, STEER_FRACTION
+from nhstab.planning.timing import TimingOptions
+from nhstab.planning.trailer import JACKKNIFE_FRACTION, STEER_FRACTION, check_configuration, lattice_plan
 from nhstab.planning.trailer_search import grid_distance, inscribed_radius, integrate_primitives, lattice_search
 from nhstab.robot import default_robot, resolve_robot
 from scipy.integrate import solve_ivp
@@ -107,23 +108,33 @@ def _bodies(robot, x):
     return [sg.Polygon(fp.outline_at(p)) for fp, p in zip(robot.footprints, (car, trailer))]
 
 
+def _configs(m, robot, world):
+    s, g = m.start.as_array(), m.goal.as_array()
+    xs, xg = np.array([*s, 0.0, s[2]]), np.array([*g, 0.0, g[2]])
+    clearances = {"start": check_configuration(m, robot, robot.configuration(s), "start", world),
+                  "goal": check_configuration(m, robot, robot.configuration(g), "goal", world)}
+    return xs, xg, clearances
+
+
 @pytest.fixture(scope="module", params=[AISLE, BAYS], ids=["aisle_turn", "reverse_dock"])
 def tight_plan(request):
+    """The lattice search itself on the tight maps (`plan` runs it where the trailer's Reeds-Shepp paths
+    fail; whether they do depends on OMPL's time budget)."""
     m = load_map(request.param)
     robot = resolve_robot(None, m.robot, "car_trailer")
-    res = plan(m, robot, m.start.as_array(), m.goal.as_array(), PathOptions(seed=0, time_limit_s=2.0))
-    return request.param, m, robot, res
+    world = CollisionWorld.from_map(m, "known")
+    xs, xg, clearances = _configs(m, robot, world)
+    opts = PathOptions(seed=0).for_robot(robot).validated()
+    status, message, path, nominal, metrics = lattice_plan(world, robot, opts, TimingOptions(), xs, xg, clearances,
+                                                           budget=20.0)
+    return request.param, m, robot, status, message, nominal, metrics
 
 
-def test_tight_maps_plan_with_the_lattice(tight_plan):
-    """The trailer's Reeds-Shepp paths find nothing here; the lattice search does: the nominal starts
-    at the start and ends at the goal, is a motion of the model (multiple shooting), keeps the hitch
-    angle within the planner's fraction of the jackknife limit and the steering within its cap, and
-    every body at every sample keeps the margin from every obstacle (shapely, 1 cm tolerance)."""
-    name, m, robot, res = tight_plan
-    assert res.ok, res.message
-    assert res.metrics["planner_used"] == "lattice"
-    nom, model = res.nominal, robot.model
+def _check_nominal(m, robot, nom):
+    """Starts at the start, ends at the goal, a motion of the model (multiple shooting), the hitch angle
+    within the planner's fraction of the jackknife limit, the steering within its cap, and every body
+    at every sample clear of every obstacle by the margin (shapely, 1 cm tolerance)."""
+    model = robot.model
     s, g = m.start.as_array(), m.goal.as_array()
     np.testing.assert_allclose(nom.x[0], [*s, 0.0, s[2]], atol=1e-9)
     np.testing.assert_allclose(model.state_error(nom.x[-1], [*g, 0.0, g[2]]), 0.0, atol=1e-6)
@@ -134,10 +145,29 @@ def test_tight_maps_plan_with_the_lattice(tight_plan):
     obstacles = _shapely_obstacles(m)
     worst = min(min(poly.distance(obstacles) for poly in _bodies(robot, x)) for x in nom.x)
     assert worst >= robot.margin - 0.01
-    if name == BAYS:                     # into the bay in reverse
-        assert nom.u[-5:, 0].max() < 0
-    else:                                # out of the aisle forward, round the corner: heading turned 90 degrees
-        assert nom.u[-5:, 0].min() > 0
+
+
+def test_tight_maps_plan_with_the_lattice(tight_plan):
+    """The lattice search plans the tugger's 90-degree turn out of a 3 m aisle (forward) and the rig's
+    reverse into a 2.6 m dock bay; the nominals pass :func:`_check_nominal`."""
+    name, m, robot, status, message, nom, metrics = tight_plan
+    assert status == "ok", message
+    _check_nominal(m, robot, nom)
+    if name == BAYS:                     # into the bay in reverse, rooted at the bay (the tighter end)
+        assert nom.u[-5:, 0].max() < 0 and metrics["lattice_rooted_at"] == "goal"
+    else:                                # out of the aisle forward
+        assert nom.u[-5:, 0].min() > 0 and metrics["lattice_rooted_at"] == "start"
+
+
+def test_plan_reverses_into_the_dock_bay():
+    """`plan` on the dock bays (its Reeds-Shepp paths, then the lattice search where they fail): a plan
+    that passes :func:`_check_nominal` and ends reversing."""
+    m = load_map(BAYS)
+    robot = resolve_robot(None, m.robot, "car_trailer")
+    res = plan(m, robot, m.start.as_array(), m.goal.as_array(), PathOptions(seed=0, time_limit_s=2.0))
+    assert res.ok, res.message
+    _check_nominal(m, robot, res.nominal)
+    assert res.nominal.u[-5:, 0].max() < 0
 
 
 def test_plan_reports_both_searches_when_neither_finds_a_path(tmp_path):
