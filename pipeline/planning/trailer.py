@@ -668,7 +668,8 @@ def lattice_nominal(robot, found: LatticeResult, timing: TimingOptions, world: C
                                    f"{max(np.abs(hitches).max(), piece.max_abs_hitch):.3f} rad)")
     if found.from_goal:
         joined = _PieceThenTracked(model, piece, t_track, x_track, u_track)
-        nominal = _nominal_of(model, timing, joined, max_speed, speed, float(u_track[-1, 0]))
+        v_end = float(u_track[-1, 0]) if len(u_track) > 1 else float(piece.inputs_at(np.array([piece.T]))[0, 0])
+        nominal = _nominal_of(model, timing, joined, max_speed, speed, v_end)
     else:
         joined = _TrackedThenPiece(model, t_track, x_track, u_track, piece)
         nominal = _nominal_of(model, timing, joined, max_speed, speed,
