@@ -46,6 +46,15 @@ the goal) so that the gramian law's future windows are whole up to the goal: the
 carries the last whole window along the linearised flow, which in reverse is unstable, and the gains
 faded exactly where the trailer backs into the dock (tests/planning/test_trailer_planning.py).
 
+Where the paths fail
+--------------------
+Where no Reeds-Shepp path of the trailer at R1 leads to a usable nominal (aisles and dock bays that a
+circle of R1 does not fit), the lattice search over the whole rig (:mod:`nhstab.planning.
+trailer_search`: Hybrid A* with primitives integrated from the model, rooted at the tighter of start
+and goal, joined to the other with the chained-form piece) runs for ``LATTICE_BUDGET_FACTOR`` times
+the time limit, and :func:`lattice_nominal` makes its plan the same kind of nominal (the primitives'
+inputs integrated again with the tracker's RK4, the piece, the tail).
+
 Alternatives considered, and what they did on the loading dock
 ---------------------------------------------------------------
 * A search whose local planner is the polynomial steering between poses where the rig stands straight
@@ -89,6 +98,7 @@ from .geometric import GeometricPath, PathOptions, densify, path_directions, pla
 from .result import PlanResult, schedule_metrics
 from .timing import TimingOptions
 from .trailer_charts import steer_trailer
+from .trailer_search import PRIMITIVE_STEP_S, LatticeResult, lattice_search
 
 #: plans keep every hitch angle within this fraction of the jackknife limit (room for the feedback)
 JACKKNIFE_FRACTION = 0.8
@@ -118,6 +128,14 @@ CUSP_COST_M = 10.0
 #: many paths and while the time spent is below this factor times the planning budget
 NOMINAL_ATTEMPTS = 4
 NOMINAL_BUDGET_FACTOR = 3.0
+#: the lattice search (nhstab.planning.trailer_search) keeps this much more than the margin (where the start
+#: and goal allow it), and drives at this fraction of the speed limit
+LATTICE_MARGIN_PAD = 0.03
+LATTICE_SPEED_FRACTION = 0.6
+#: where the trailer's Reeds-Shepp paths fail, the lattice search runs for this factor times the time limit
+LATTICE_BUDGET_FACTOR = 5.0
+#: the lattice search rooted at the tighter end gets this share of its budget, the other end the rest
+LATTICE_FIRST_SHARE = 0.6
 #: the nominal's tail (the motion continued past the goal for the gain schedule's windows) [s]
 TAIL_S = 20.0
 #: the final piece starts between the first and last of these distances from the goal (trailer's axle) [m]
@@ -283,6 +301,77 @@ def _search(world: CollisionWorld, robot, rig: TrailerRig, opts: PathOptions, x_
         path = plan_path(world, rig.trailer_fp, ps, pg, replace(opts, time_limit_s=max(left, 0.05 * budget)), rig=rig)
         return replace(path, planning_time_s=time.perf_counter() - started)
     return replace(last, planning_time_s=time.perf_counter() - started)
+
+
+def lattice_plan(world: CollisionWorld, robot, path_opts: PathOptions, timing: TimingOptions, x_start, x_goal,
+                 clearances: dict, budget: float, check_resolution: float = 0.05, started: float | None = None):
+    """The lattice search (:mod:`nhstab.planning.trailer_search`) between full states ``x_start`` and
+    ``x_goal`` for ``budget`` seconds, and its nominal checked at ``check_resolution``: (status,
+    message, path, nominal, metrics) with status "ok", "no_path", "infeasible" or "not_clear".
+    ``clearances``: the start's and goal's ({"start": ..., "goal": ...}, :func:`check_configuration`);
+    ``started``: the clock reading the metrics' planning time counts from (default: now)."""
+    started = time.perf_counter() if started is None else started
+    model = robot.model
+    margin = float(path_opts.margin)
+    search_margin = max(margin, min(margin + LATTICE_MARGIN_PAD, min(clearances.values()) - 1e-3))
+    max_speed = timing.max_speed or float(model.input_limits()[0, 1])
+    speed = LATTICE_SPEED_FRACTION * max_speed
+    step_s = float(timing.dt) * max(1, int(round(PRIMITIVE_STEP_S / float(timing.dt))))
+    # rooted first at the tighter end (the smaller clearance): the primitives work their way out of it,
+    # and the chained-form piece joins the roomier end; then at the other end with what is left
+    order = (True, False) if clearances["goal"] < clearances["start"] else (False, True)
+    began = time.perf_counter()
+    messages = []
+    for k, from_goal in enumerate(order):
+        left = budget - (time.perf_counter() - began)
+        found = lattice_search(world, robot, x_start, x_goal, margin=search_margin, speed=speed, step_s=step_s,
+                               hitch_cap=JACKKNIFE_FRACTION * float(model.jackknife_limit),
+                               steer_cap=STEER_FRACTION * float(model.max_steer),
+                               rate_cap=STEER_FRACTION * float(model.max_steer_rate), max_speed=max_speed,
+                               budget_s=LATTICE_FIRST_SHARE * budget if k == 0 else left,
+                               piece_margin=max(margin, search_margin - 1e-3), from_goal=from_goal)
+        messages.append(found.message)
+        if found.found:
+            break
+    if not found.found:
+        found.message = "; ".join(messages)
+    metrics = {"planner": path_opts.planner, "planner_used": "lattice", "planner_status": found.message,
+               "planning_time_s": time.perf_counter() - started, "start_clearance_m": clearances["start"],
+               "goal_clearance_m": clearances["goal"], "planned_body": "the whole rig (lattice search)",
+               "search_margin_m": search_margin, **{f"lattice_{k}": v for k, v in found.info.items()
+                                                      if not isinstance(v, np.ndarray)}}
+    empty = GeometricPath("failed", found.message, np.array([trailer_pose(model, x_start)]),
+                          np.array([trailer_pose(model, x_start)]), np.zeros(1), np.zeros(0), 0.0, 0,
+                          found.info["search_time_s"], found.info.get("states_checked", 0), 0.0, path_opts,
+                          {"planner_used": "lattice"})
+    if not found.found:
+        return "no_path", f"no collision-free path found: {found.message}", empty, None, metrics
+    try:
+        nominal, tinfo = lattice_nominal(robot, found, timing, world, margin, x_start, x_goal, speed)
+    except TrailerPlanningError as exc:
+        return ("infeasible", f"the lattice plan could not be made an exact nominal: {exc}", empty, None, metrics)
+    samples = robot.body_poses(nominal.x)[:, 1]
+    samples[:, 2] = np.unwrap(samples[:, 2])
+    sigma = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(samples[:, :2], axis=0).T))])
+    direction, cusps = path_directions(samples)
+    waypoints = np.vstack([robot.body_poses(found.states)[:, 1], trailer_pose(model, x_goal)])
+    path = GeometricPath("exact", found.message, waypoints, samples, sigma, direction, float(sigma[-1]), cusps,
+                         found.info["search_time_s"], found.info.get("states_checked", 0), 0.0, path_opts,
+                         {"planner_used": "lattice"})
+    check = bodies.check_path(world, robot, nominal.x, margin=margin, resolution=check_resolution)
+    metrics.update({
+        "length_m": path.length, "cusps": cusps, "max_curvature_per_m": math.tan(JACKKNIFE_FRACTION * float(
+            model.jackknife_limit)) / float(model.hitch_lengths[0]), "waypoints": len(waypoints), **tinfo,
+        "min_clearance_m": check.min_clearance, "min_clearance_pose": check.min_clearance_pose,
+        "min_clearance_body": ("car", "trailer 1")[check.min_clearance_body],
+        "clearance_check_resolution_m": check_resolution, "clearance_samples": check.samples,
+        "max_abs_inputs": np.max(np.abs(nominal.u), axis=0), "input_limits": model.input_limits()[:, 1],
+    })
+    if not check.clear:
+        return ("not_clear", f"the lattice nominal comes within {check.min_clearance:.3g} m of an obstacle (margin "
+                f"{margin:g} m) with its {('car', 'trailer')[check.min_clearance_body]} at "
+                f"{np.round(check.min_clearance_pose, 3).tolist()}", path, nominal, metrics)
+    return "ok", "", path, nominal, metrics
 
 
 def check_configuration(m: Map, robot, config, name: str, world: CollisionWorld) -> float:
@@ -500,16 +589,11 @@ def trailer_nominal(robot, path: GeometricPath, timing: TimingOptions, world: Co
         raise TrailerPlanningError(f"the tracked motion leaves the limits (max |hitch| {np.abs(hitches).max():.3f} rad, "
                                    f"max |phi| {np.abs(x_track[:, 3]).max():.3f} rad)")
     joined = _TrackedThenPiece(model, t_track, x_track, u_track, piece)
-    npts = nominal_grid(joined.duration, timing.dt, "max_speed", max_speed, tracker.speed)
-    t = np.linspace(0.0, joined.duration, npts)
-    nominal = Nominal.from_functions(model, joined.states, joined.inputs, t)
     # the motion continued past the goal, for the gramian law's future windows only (Nominal.tail): the
     # rig driving on at its final speed with the steering held
-    v_end = float(piece.inputs_at(np.array([piece.T]))[0, 0])
-    t_tail = np.linspace(0.0, TAIL_S, int(round(TAIL_S / timing.dt)) + 1)
-    nominal.tail = Nominal.from_inputs(model, lambda tau: np.tile([v_end, 0.0], (np.size(tau), 1)),
-                                       nominal.x[-1], t_tail)
-
+    nominal = _nominal_of(model, timing, joined, max_speed, tracker.speed,
+                          float(piece.inputs_at(np.array([piece.T]))[0, 0]))
+    t = nominal.t
     hitches = model.hitch_angles(nominal.x)[:, 0]
     return nominal, {"duration_s": joined.duration, "tracked_s": float(t_track[-1]), "final_piece_s": piece.T,
                      "final_piece_from_goal_m": float(dist[k]), "runs": len(ends) - 1,
@@ -520,6 +604,90 @@ def trailer_nominal(robot, path: GeometricPath, timing: TimingOptions, world: Co
                      "max_abs_steering_rad": float(np.abs(nominal.x[:, 3]).max()),
                      "steering_limit_rad": float(model.max_steer),
                      "final_piece_end_error": float(np.abs(piece.final_error).max())}
+
+
+def _nominal_of(model, timing: TimingOptions, joined, max_speed: float, speed: float, v_end: float) -> Nominal:
+    """The nominal of a joined motion on the timing's grid, with its tail: the rig driving on past the goal
+    at its final speed ``v_end`` with the steering held, for the gramian law's future windows only
+    (:attr:`~nhstab.nominal.Nominal.tail`)."""
+    npts = nominal_grid(joined.duration, timing.dt, "max_speed", max_speed, speed)
+    t = np.linspace(0.0, joined.duration, npts)
+    nominal = Nominal.from_functions(model, joined.states, joined.inputs, t)
+    t_tail = np.linspace(0.0, TAIL_S, int(round(TAIL_S / timing.dt)) + 1)
+    nominal.tail = Nominal.from_inputs(model, lambda tau: np.tile([v_end, 0.0], (np.size(tau), 1)),
+                                       nominal.x[-1], t_tail)
+    return nominal
+
+
+def lattice_nominal(robot, found: LatticeResult, timing: TimingOptions, world: CollisionWorld, margin: float,
+                    x_start: np.ndarray, x_goal: np.ndarray, speed: float) -> tuple[Nominal, dict]:
+    """The exact nominal of a lattice search's plan (:mod:`nhstab.planning.trailer_search`): its
+    primitives' inputs (piecewise linear between knots on the nominal's grid) integrated again with the
+    tracker's RK4 at the nominal's step, and its chained-form piece. Rooted at the start: the
+    primitives from the start, then the piece recomputed from the state reached (same duration and
+    frame) to the goal. Rooted at the goal: the piece from the start, then the primitives (reversed in
+    time) from the piece's end. Raises :class:`TrailerPlanningError` when the motion so made leaves
+    the limits or the margin."""
+    model = robot.model
+    dt = float(timing.dt)
+    per = int(round(found.step_s / dt))
+    max_speed = timing.max_speed or float(model.input_limits()[0, 1])
+    tracker = _Tracker(robot, timing, speed)
+    knots = found.knots
+    nominal_grid(found.step_s * (len(knots) - 1) + found.piece.T, dt, "max_speed", max_speed, speed)
+    frac = np.arange(per) / per
+    if found.from_goal:
+        knots = -knots[::-1]           # the order the search drove them in, away from the goal
+    u_track = np.vstack([knots[k] + frac[:, None] * (knots[k + 1] - knots[k]) for k in range(len(knots) - 1)]
+                        + [knots[-1:]])
+    old = found.piece
+    x = np.array(x_goal if found.from_goal else x_start, dtype=float)
+    xs = [x]
+    for k in range(len(u_track) - 1):
+        x = tracker.step(x, u_track[k], u_track[k + 1])
+        xs.append(x)
+    x_track = np.array(xs)
+    t_track = dt * np.arange(len(x_track))
+    if found.from_goal:
+        # integrated away from the goal (the direction in which the hitch angle is stable), then reversed in
+        # time: the motion ends at the goal exactly; the piece is recomputed to where it starts
+        x_track, u_track = x_track[::-1].copy(), -u_track[::-1]
+    a, b = (x_start, x_track[0]) if found.from_goal else (x_track[-1], x_goal)
+    try:
+        piece = steer_trailer(model, a, b, T=old.T, frame=old.frame["heading"], mode="polynomial")
+    except InputError as exc:
+        raise TrailerPlanningError(f"the chained-form piece to the integrated state: {exc.expected}") from None
+    end_error = float(np.abs(piece.final_error).max())
+    hitch_cap = JACKKNIFE_FRACTION * float(model.jackknife_limit)
+    steer_cap = STEER_FRACTION * float(model.max_steer)
+    hitches = model.hitch_angles(x_track)[:, 0]
+    if (piece.max_abs_phi > steer_cap + 1e-6 or piece.max_abs_hitch > hitch_cap + 1e-6
+            or np.abs(hitches).max() > hitch_cap + 1e-6 or np.abs(x_track[:, 3]).max() > steer_cap + 1e-6
+            or not bool(bodies.free_many(world, robot, piece.x, margin).all())):
+        raise TrailerPlanningError("the plan integrated again leaves the limits or the margin (max |hitch| "
+                                   f"{max(np.abs(hitches).max(), piece.max_abs_hitch):.3f} rad)")
+    if found.from_goal:
+        joined = _PieceThenTracked(model, piece, t_track, x_track, u_track)
+        v_end = float(u_track[-1, 0]) if len(u_track) > 1 else float(piece.inputs_at(np.array([piece.T]))[0, 0])
+        nominal = _nominal_of(model, timing, joined, max_speed, speed, v_end)
+    else:
+        joined = _TrackedThenPiece(model, t_track, x_track, u_track, piece)
+        nominal = _nominal_of(model, timing, joined, max_speed, speed,
+                              float(piece.inputs_at(np.array([piece.T]))[0, 0]))
+    hitches = model.hitch_angles(nominal.x)[:, 0]
+    reversals = direction_reversals(robot.body_poses(nominal.x)[:, 1])
+    piece_start = x_start if found.from_goal else x_track[-1]
+    piece_end = piece.states_at(np.array([piece.T]))[0]
+    return nominal, {"duration_s": joined.duration, "tracked_s": float(t_track[-1]), "final_piece_s": piece.T,
+                     "final_piece_from_goal_m": float(np.hypot(*(trailer_pose(model, piece_start)[:2]
+                                                                  - trailer_pose(model, piece_end)[:2]))),
+                     "runs": reversals + 1, "direction_reversals": reversals,
+                     "dt_s": float(nominal.t[1] - nominal.t[0]), "speed_m_s": speed,
+                     "max_abs_hitch_angle_rad": float(np.abs(hitches).max()),
+                     "jackknife_limit_rad": float(model.jackknife_limit),
+                     "max_abs_steering_rad": float(np.abs(nominal.x[:, 3]).max()),
+                     "steering_limit_rad": float(model.max_steer),
+                     "final_piece_end_error": end_error}
 
 
 class _TrackedThenPiece:
@@ -556,6 +724,43 @@ class _TrackedThenPiece:
                 out[first, j] = np.interp(tt[first], self._t, self._u[:, j])
         if (~first).any():
             out[~first] = self.piece.inputs_at(tt[~first] - self.t_switch)
+        return out
+
+
+class _PieceThenTracked:
+    """The chained-form piece from the start (closed form), then a driven motion from its end (samples
+    on a uniform grid, as in :class:`_TrackedThenPiece`)."""
+
+    def __init__(self, model, piece, t, x, u):
+        from scipy.interpolate import CubicHermiteSpline
+
+        self.model, self.piece = model, piece
+        self.t_switch = float(piece.T)
+        self.duration = self.t_switch + float(t[-1])
+        self._x = CubicHermiteSpline(t, x, model.rhs(x, u), axis=0) if len(t) > 1 else None
+        self._t, self._u, self._x0 = t, u, x[0]
+
+    def _split(self, t):
+        tt = np.clip(np.atleast_1d(np.asarray(t, dtype=float)).reshape(-1), 0.0, self.duration)
+        return tt, tt < self.t_switch
+
+    def states(self, t) -> np.ndarray:
+        tt, first = self._split(t)
+        out = np.empty((len(tt), self.model.n))
+        if first.any():
+            out[first] = self.piece.states_at(tt[first])
+        if (~first).any():
+            out[~first] = self._x(tt[~first] - self.t_switch) if self._x is not None else self._x0
+        return out
+
+    def inputs(self, t) -> np.ndarray:
+        tt, first = self._split(t)
+        out = np.empty((len(tt), 2))
+        if first.any():
+            out[first] = self.piece.inputs_at(tt[first])
+        if (~first).any():
+            for j in range(2):
+                out[~first, j] = np.interp(tt[~first] - self.t_switch, self._t, self._u[:, j])
         return out
 
 
@@ -638,6 +843,18 @@ def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts
         attempts.append(f"{result[0]} ({'guided' if k == 0 and search.guide else f'seed {opts_k.seed}'})")
         if time.perf_counter() - started >= budget:
             break
+    if result is not None:
+        # the trailer's Reeds-Shepp paths failed: the search over the whole rig, with its own budget
+        left = LATTICE_BUDGET_FACTOR * float(path_opts.time_limit_s)
+        lattice = lattice_plan(world, robot, path_opts, timing_opts, x_start, x_goal, clearances, left,
+                                check_resolution, started)
+        attempts.append(f"{lattice[0]} (lattice)")
+        if lattice[0] == "ok":
+            result = None
+            _, _, path, nominal, metrics = lattice
+        elif result[0] == "no_path" or lattice[0] != "no_path":
+            result = (lattice[0], lattice[1] + f" (after the trailer's Reeds-Shepp paths: {result[1]})",
+                      *lattice[2:])
     if result is not None:
         status, message, path, nominal, metrics = result
         metrics.update({"time_to_nominal_s": time.perf_counter() - started, "path_attempts": attempts})

@@ -1,0 +1,187 @@
+"""The lattice search over the whole car-with-trailer rig: its primitives against an independent
+integration of the model, its heuristic's pieces, and its plans on the bundled tight maps (a tugger
+turning out of a 3 m aisle, a rig reversing into a 2.6 m dock bay), checked body by body with shapely."""
+
+import math
+
+import numpy as np
+import pytest
+import shapely.geometry as sg
+from nhstab.collision import CollisionWorld
+from nhstab.maps import load_map
+from nhstab.planning import PathOptions, plan
+from nhstab.planning.timing import TimingOptions
+from nhstab.planning.trailer import JACKKNIFE_FRACTION, STEER_FRACTION, check_configuration, lattice_plan
+from nhstab.planning.trailer_search import grid_distance, inscribed_radius, integrate_primitives, lattice_search
+from nhstab.robot import default_robot, resolve_robot
+from scipy.integrate import solve_ivp
+
+AISLE = "maps/trailer/tugger_aisle.yaml"
+BAYS = "maps/trailer/dock_bays.yaml"
+
+
+def _rhs(model, x, u):
+    """The car with one trailer written out here (not with nhstab's rhs)."""
+    L, d = model.wheelbase, model.hitch_lengths[0]
+    _, _, th, phi, th1 = x
+    v, w = u
+    return [v * math.cos(th), v * math.sin(th), v * math.tan(phi) / L, w, v * math.sin(th - th1) / d]
+
+
+def test_primitives_follow_the_model(rng):
+    """Every primitive's states are the model's under its own knots (inputs linear between them):
+    scipy's DOP853 at rtol 1e-11 agrees to 1e-6 at every integrated state; the knots keep the speed and
+    the steering rate cap, the states the steering cap."""
+    robot = default_robot("car_trailer")
+    model = robot.model
+    K = 12
+    x0 = np.column_stack([rng.uniform(-5, 5, K), rng.uniform(-5, 5, K), rng.uniform(-3, 3, K),
+                          rng.uniform(-0.4, 0.4, K), np.zeros(K)])
+    x0[:, 4] = x0[:, 2] - rng.uniform(-0.5, 0.5, K)
+    u0 = np.column_stack([rng.choice([-0.9, 0.0, 0.9], K), np.zeros(K)])
+    targets = rng.uniform(-0.7, 0.7, K)
+    dirs = rng.choice([-1.0, 1.0], K)
+    steer_cap, rate_cap, step = 0.54, 0.9, 0.1
+    states, knots = integrate_primitives(model, x0, u0, targets, dirs, speed=0.9, steer_cap=steer_cap,
+                                         rate_cap=rate_cap, step_s=step)
+    sub = (states.shape[1] - 1) // (knots.shape[1] - 1)
+    t_states = np.arange(states.shape[1]) * step / sub
+    t_knots = np.arange(knots.shape[1]) * step
+    for k in range(K):
+        def f(t, x, k=k):
+            return _rhs(model, x, [np.interp(t, t_knots, knots[k, :, 0]), np.interp(t, t_knots, knots[k, :, 1])])
+        sol = solve_ivp(f, (0.0, t_knots[-1]), x0[k], method="DOP853", rtol=1e-11, atol=1e-12, t_eval=t_states,
+                        max_step=step / 4)
+        np.testing.assert_allclose(states[k], sol.y.T, atol=1e-6)
+        np.testing.assert_allclose(np.abs(knots[k, 1:, 0]), 0.9)
+        np.testing.assert_array_equal(np.sign(knots[k, 1:, 0]), dirs[k])
+    assert np.abs(knots[:, :, 1]).max() <= rate_cap + 1e-12
+    assert np.abs(states[:, :, 3]).max() <= steer_cap
+
+
+def test_heuristic_pieces():
+    """The trailer footprint's inscribed radius about its axle (shapely), and the grid distance: in an
+    empty world between the octile and the Euclidean distance (one cell's slack)."""
+    robot = default_robot("car_trailer")
+    fp = robot.footprints[1]
+    poly = sg.Polygon(fp.vertices)
+    assert inscribed_radius(fp) == pytest.approx(poly.exterior.distance(sg.Point(0, 0)), abs=1e-12)
+    world = CollisionWorld([], bounds=(0.0, 0.0, 30.0, 20.0))
+    dist, x0, y0 = grid_distance(world, robot, 0.2, (5.0, 5.0), cell=0.25)
+    ys, xs = np.mgrid[0:dist.shape[0], 0:dist.shape[1]]
+    cx, cy = x0 + (xs + 0.5) * 0.25, y0 + (ys + 0.5) * 0.25
+    gx, gy = 5.125, 5.125                                   # the goal cell's centre
+    euclid = np.hypot(cx - gx, cy - gy)
+    inner = np.isfinite(dist)
+    assert inner.sum() > 0.5 * dist.size
+    assert np.all(dist[inner] >= euclid[inner] - 1e-9)
+    assert np.all(dist[inner] <= 1.0824 * euclid[inner] + 1e-9)     # octile: at most sec(22.5 deg) longer
+
+
+def test_timeout_reports_the_closest_node():
+    """A budget too short for the dock: no plan, and the message names the closest node with numbers."""
+    m = load_map(BAYS)
+    robot = resolve_robot(None, m.robot, "car_trailer")
+    world = CollisionWorld.from_map(m, "known")
+    s, g = m.start.as_array(), m.goal.as_array()
+    xs, xg = np.array([*s, 0.0, s[2]]), np.array([*g, 0.0, g[2]])
+    res = lattice_search(world, robot, xs, xg, margin=0.2, speed=0.9, step_s=0.1, hitch_cap=0.8, steer_cap=0.54,
+                         rate_cap=0.9, max_speed=1.5, budget_s=0.2, from_goal=True)
+    assert not res.found
+    assert "closest node: the trailer's axle" in res.message and "m from the start's" in res.message
+    assert res.info["closest_m"] > 0.0 and res.info["expansions"] >= 1
+
+
+def _shapely_obstacles(m):
+    shapes = [sg.Polygon(o.vertices) if hasattr(o, "vertices") else sg.Point(*o.center).buffer(o.radius, 256)
+              for o in m.obstacles]
+    xmin, ymin, xmax, ymax = m.bounds
+    shapes.append(sg.box(xmin - 1, ymin - 1, xmax + 1, ymax + 1).difference(sg.box(xmin, ymin, xmax, ymax)))
+    return sg.GeometryCollection(shapes)
+
+
+def _bodies(robot, x):
+    """The car's and the trailer's polygons at state x, placed here from the columns and the hitch length."""
+    d = robot.model.hitch_lengths[0]
+    car = (x[0], x[1], x[2])
+    trailer = (x[0] - d * math.cos(x[4]), x[1] - d * math.sin(x[4]), x[4])
+    return [sg.Polygon(fp.outline_at(p)) for fp, p in zip(robot.footprints, (car, trailer))]
+
+
+def _configs(m, robot, world):
+    s, g = m.start.as_array(), m.goal.as_array()
+    xs, xg = np.array([*s, 0.0, s[2]]), np.array([*g, 0.0, g[2]])
+    clearances = {"start": check_configuration(m, robot, robot.configuration(s), "start", world),
+                  "goal": check_configuration(m, robot, robot.configuration(g), "goal", world)}
+    return xs, xg, clearances
+
+
+@pytest.fixture(scope="module", params=[AISLE, BAYS], ids=["aisle_turn", "reverse_dock"])
+def tight_plan(request):
+    """The lattice search itself on the tight maps (`plan` runs it where the trailer's Reeds-Shepp paths
+    fail; whether they do depends on OMPL's time budget)."""
+    m = load_map(request.param)
+    robot = resolve_robot(None, m.robot, "car_trailer")
+    world = CollisionWorld.from_map(m, "known")
+    xs, xg, clearances = _configs(m, robot, world)
+    opts = PathOptions(seed=0).for_robot(robot).validated()
+    status, message, path, nominal, metrics = lattice_plan(world, robot, opts, TimingOptions(), xs, xg, clearances,
+                                                           budget=20.0)
+    return request.param, m, robot, status, message, nominal, metrics
+
+
+def _check_nominal(m, robot, nom):
+    """Starts at the start, ends at the goal, a motion of the model (multiple shooting), the hitch angle
+    within the planner's fraction of the jackknife limit, the steering within its cap, and every body
+    at every sample clear of every obstacle by the margin (shapely, 1 cm tolerance)."""
+    model = robot.model
+    s, g = m.start.as_array(), m.goal.as_array()
+    np.testing.assert_allclose(nom.x[0], [*s, 0.0, s[2]], atol=1e-9)
+    np.testing.assert_allclose(model.state_error(nom.x[-1], [*g, 0.0, g[2]]), 0.0, atol=1e-6)
+    assert nom.feasibility_residual() < 1e-5
+    assert np.abs(model.hitch_angles(nom.x)).max() <= JACKKNIFE_FRACTION * model.jackknife_limit + 1e-6
+    assert np.abs(nom.x[:, 3]).max() <= STEER_FRACTION * model.max_steer + 1e-6
+    assert np.all(np.abs(nom.u[:, 0]) <= model.max_speed + 1e-9)
+    obstacles = _shapely_obstacles(m)
+    worst = min(min(poly.distance(obstacles) for poly in _bodies(robot, x)) for x in nom.x)
+    assert worst >= robot.margin - 0.01
+
+
+def test_tight_maps_plan_with_the_lattice(tight_plan):
+    """The lattice search plans the tugger's 90-degree turn out of a 3 m aisle (forward) and the rig's
+    reverse into a 2.6 m dock bay; the nominals pass :func:`_check_nominal`."""
+    name, m, robot, status, message, nom, metrics = tight_plan
+    assert status == "ok", message
+    _check_nominal(m, robot, nom)
+    if name == BAYS:                     # into the bay in reverse, rooted at the bay (the tighter end)
+        assert nom.u[-5:, 0].max() < 0 and metrics["lattice_rooted_at"] == "goal"
+    else:                                # out of the aisle forward
+        assert nom.u[-5:, 0].min() > 0 and metrics["lattice_rooted_at"] == "start"
+
+
+def test_plan_reverses_into_the_dock_bay():
+    """`plan` on the dock bays (its Reeds-Shepp paths, then the lattice search where they fail): a plan
+    that passes :func:`_check_nominal` and ends reversing."""
+    m = load_map(BAYS)
+    robot = resolve_robot(None, m.robot, "car_trailer")
+    res = plan(m, robot, m.start.as_array(), m.goal.as_array(), PathOptions(seed=0, time_limit_s=2.0))
+    assert res.ok, res.message
+    _check_nominal(m, robot, res.nominal)
+    assert res.nominal.u[-5:, 0].max() < 0
+
+
+def test_plan_reports_both_searches_when_neither_finds_a_path(tmp_path):
+    """The dock bays off an aisle narrowed to 6.5 m: the rig cannot pull out of the bay and turn. `plan`
+    says so in one message: the Reeds-Shepp paths, then the lattice search from each end with its
+    closest node."""
+    text = open(BAYS).read().replace("center: [20.0, 2.5], size: [40.0, 5.0]", "center: [20.0, 3.25], size: [40.0, 6.5]")
+    p = tmp_path / "narrow.yaml"
+    p.write_text(text)
+    m = load_map(p)
+    robot = resolve_robot(None, m.robot, "car_trailer")
+    res = plan(m, robot, m.start.as_array(), m.goal.as_array(), PathOptions(seed=0, time_limit_s=0.3))
+    assert res.status == "no_path"
+    assert "lattice search (from the goal)" in res.message and "lattice search (from the start)" in res.message
+    assert res.message.count("closest node: the trailer's axle") == 2
+    assert "after the trailer's Reeds-Shepp paths" in res.message
+    assert res.metrics["path_attempts"][-1] == "no_path (lattice)"
