@@ -8,6 +8,8 @@ from pathlib import Path
 import click
 
 from .map import load, map_options, parse_pose, pose_keys
+from nhstab.limits import DEFAULT_HEADROOM
+
 from .options import cli_robot, robot_options
 
 #: exit code when the request is valid but no plan was found within the budget
@@ -50,9 +52,9 @@ EXIT_INTERRUPTED = 130
                    "not saturate and the plan has no stop, sampled elsewhere.")
 @click.option("--confidence", type=float, default=0.95, show_default=True,
               help="Confidence of the sampled tube's certificate: N >= ln(1 - confidence) / ln(p) rollouts.")
-@click.option("--headroom", type=float, default=1.0, show_default=True,
-              help="Plan within this fraction of the input limits (nhstab run uses 0.8, leaving the rest to the "
-                   "feedback; the tube's saturation probability is against the full limits).")
+@click.option("--headroom", type=float, default=None,
+              help="Plan within this fraction of the input limits, leaving the rest to the feedback (default: "
+                   f"nhstab run's, {DEFAULT_HEADROOM:g}; the tube's saturation probability is against the full limits).")
 @click.option("--max-speed", type=float, default=None, help="[m/s] (default: the robot's limit).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True)
 @click.option("--figure/--no-figure", default=True, show_default=True,
@@ -95,6 +97,8 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     except InputError as exc:
         raise InputError("--confidence", exc.expected, confidence, detail=exc.detail) from None
     check_range("--noise", noise_scale, 0.0, MAX_NOISE_SCALE)
+    if headroom is None:
+        headroom = DEFAULT_HEADROOM
     if not (0.0 < headroom <= 1.0):
         raise InputError("--headroom", "a number in (0, 1]", headroom)
 
@@ -164,9 +168,14 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
         click.echo(f"nhstab: no tube: {extra.get('tube_error', 'not predicted')}", err=True)
         return EXIT_FAILURE
     click.echo(tube_line(tube, noise_scale))
-    if headroom == 1.0 and (tube.saturation["run_bound"] > 0.01):
-        click.echo("note: the nominal may use the full input limits, so the feedback saturates; nhstab run plans "
-                   "with --headroom 0.8")
+    if headroom > DEFAULT_HEADROOM and tube.kind != "sampled" and tube.saturation["run_bound"] > 0.01:
+        click.echo(f"note: planned with --headroom {headroom:g}, the nominal leaves the feedback little of the input "
+                   f"limits (saturation probability up to {tube.saturation['run_bound']:.2g}); "
+                   f"--headroom {DEFAULT_HEADROOM:g} (the default) leaves it {100 * (1 - DEFAULT_HEADROOM):.0f} %")
+    elif headroom > DEFAULT_HEADROOM and tube.kind == "sampled" and tube.saturation["observed_fraction"] > 0.01:
+        click.echo(f"note: planned with --headroom {headroom:g}, inputs reach a limit in "
+                   f"{100 * tube.saturation['observed_fraction']:.0f} % of rollouts; --headroom {DEFAULT_HEADROOM:g} "
+                   f"(the default) leaves the feedback {100 * (1 - DEFAULT_HEADROOM):.0f} % of the limits")
     click.echo(f"wrote {out_dir}/trajectory.csv, trajectory.npz, tube.npz, plan.json" + (", plan.png" if figure else ""))
     return 0
 

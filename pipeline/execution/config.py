@@ -58,6 +58,7 @@ import numpy as np
 from ..errors import InputError, user_keys
 from ..examples import resolve_map_path
 from ..limits import (
+    DEFAULT_HEADROOM,
     MAX_CONTROL_PERIODS,
     MAX_NOISE_LEVEL,
     MAX_NOISE_SCALE,
@@ -313,7 +314,7 @@ class RunOptions:
     rate_hz: float = 50.0
     substeps: int = 4
     saturate: bool = True
-    headroom: float = 0.8
+    headroom: float = DEFAULT_HEADROOM
     max_time_s: float | None = None
     controller: ControllerOptions = field(default_factory=ControllerOptions)
     noise: NoiseOptions = field(default_factory=NoiseOptions)
