@@ -6,10 +6,9 @@ from dataclasses import replace
 from pathlib import Path
 
 import click
-
-from .map import load, map_options, parse_pose, pose_keys
 from nhstab.limits import DEFAULT_HEADROOM
 
+from .map import load, map_options, parse_pose, pose_keys
 from .options import cli_robot, robot_options
 
 #: exit code when the request is valid but no plan was found within the budget
@@ -143,6 +142,8 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
             click.echo(extra[key]["message"])
     if law is None:
         click.echo(f"nhstab: no plan ({result.status}): {result.message}", err=True)
+        if "likely_cause" in result.metrics:
+            click.echo(result.metrics["likely_cause"]["text"], err=True)
         return EXIT_NO_PLAN
     if margin == "auto":
         path_opts = replace(path_opts, margin=extra["margin_auto"]["margin_m"])

@@ -215,6 +215,8 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
         files = write_run(result, out_dir, map_path, animate=animate, extra_files=extra_files)
     replans = sum(1 for p in result.plans if p.trigger != "initial")
     click.echo(f"{result.status}: {result.message}")
+    if result.status == "no_plan" and result.plans and "likely_cause" in result.plans[0].attempts[-1]:
+        click.echo(result.plans[0].attempts[-1]["likely_cause"]["text"])
     for rec in result.plans:
         for attempt in rec.attempts:
             for key in ("margin_auto", "gains_auto", "fit"):

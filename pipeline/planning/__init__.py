@@ -28,6 +28,7 @@ from ..nominal import Nominal
 from ..robot import Robot, default_robot
 from .cars import CarPlanningError, car_nominal, exact_nominal
 from .geometric import PLANNERS, SPACES, GeometricPath, PathOptions, path_length, plan_path
+from .guide import likely_cause
 from .parking import CarOptions, car_paths, failed_path
 from .result import PlanResult, schedule_metrics
 from .timing import TimingOptions, unicycle_nominal
@@ -218,7 +219,9 @@ def _plan_with(m: Map, robot: Robot, start, goal, path_opts: PathOptions, timing
     if model.name == "unicycle":
         path = plan_path(world, fp, start, goal, replace(path_opts, margin=search_m))
         if path.status != "exact":
-            return _no_path(path, path_opts, base, f"OMPL: {path.planner_status}")
+            return _no_path(path, path_opts, base, f"OMPL: {path.planner_status}",
+                            likely_cause(world, fp, start, goal, path_opts.margin, path_opts.turning_radius,
+                                         path_opts.time_limit_s, model.name, search_m - path_opts.margin))
         return _from_path(path, robot, world, path_opts, timing_opts, stab_opts, car_opts, check_resolution,
                           base, started, delta_key)
     # cars: the paths the car planner offers, best guess first, until a nominal worth tracking
@@ -245,7 +248,9 @@ def _plan_with(m: Map, robot: Robot, start, goal, path_opts: PathOptions, timing
         best.metrics["attempts"] = attempts
         return best
     path = failed_path(path_opts, info, started)
-    return _no_path(path, path_opts, base, path.planner_status)
+    return _no_path(path, path_opts, base, path.planner_status,
+                    likely_cause(world, fp, start, goal, path_opts.margin, path_opts.turning_radius,
+                                 path_opts.time_limit_s, model.name, search_m - path_opts.margin))
 
 
 def _better(a: PlanResult, b: PlanResult) -> bool:
@@ -266,8 +271,12 @@ def _better(a: PlanResult, b: PlanResult) -> bool:
     return excess(a) < excess(b)
 
 
-def _no_path(path: GeometricPath, path_opts: PathOptions, base: dict, why: str) -> PlanResult:
+def _no_path(path: GeometricPath, path_opts: PathOptions, base: dict, why: str, cause: dict | None = None) -> PlanResult:
+    """A search that found no path; ``cause``: :func:`~nhstab.planning.guide.likely_cause` (kept as the
+    metrics' ``likely_cause``)."""
     metrics = {**base, **_path_metrics(path)}
+    if cause is not None:
+        metrics["likely_cause"] = cause
     radius = f"{path_opts.turning_radius:g} m"
     if path.info.get("lock_radius_m", math.inf) < path_opts.turning_radius:
         radius += f", then {path.info['lock_radius_m']:.4g} m with unparking maneuvers"

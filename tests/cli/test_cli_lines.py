@@ -8,6 +8,7 @@ import pytest
 from clitools import invoke
 from nhstab.cli.gains import DEFAULTS_HELP
 from nhstab.execution import RunOptions
+from nhstab.geometry import Footprint
 from nhstab.limits import DEFAULT_HEADROOM
 from nhstab.models import make_model
 from nhstab.parking import suite
@@ -96,3 +97,46 @@ def test_gains_defaults_are_the_models_and_the_file_has_a_and_b(tmp_path, model,
     # an option given overrides the model's default
     res = invoke("gains", traj, "--model", model, "--alpha", "0.3", "--out", tmp_path / "g")
     assert json.loads((tmp_path / "g" / "gains.json").read_text())["rate_bound"] == pytest.approx(0.9)
+
+
+GAP_MAP = ("bounds: [0, 0, 20, 10]\nobstacles:\n"
+           "  - box: {center: [10, 2.25], size: [0.4, 4.5]}\n  - box: {center: [10, 7.75], size: [0.4, 4.5]}\n"
+           "start: [3, 5, 0]\ngoal: [17, 5, 0]\nrobot: {model: unicycle}\n")
+#: the gap in the wall is 1.0 m wide: the unicycle's disc (radius 0.3 m) keeps at most 0.2 m from it
+GAP_ROOM = 0.5 - 0.3
+
+
+def test_the_widest_way_through_a_gap_keeps_half_the_gap_less_the_radius(tmp_path):
+    from nhstab import load_map
+    from nhstab.collision import CollisionWorld
+    from nhstab.planning.guide import likely_cause, passage
+    from nhstab.robot import default_robot
+
+    (tmp_path / "gap.yaml").write_text(GAP_MAP)
+    m = load_map(tmp_path / "gap.yaml")
+    world, fp = CollisionWorld.from_map(m, "known"), default_robot("unicycle").footprint
+    start, goal = np.array([3.0, 5.0, 0.0]), np.array([17.0, 5.0, 0.0])
+    info = passage(world, fp, start, goal)
+    cell = world.clearance_field().r
+    assert info["connected"] and info["margin_m"] == pytest.approx(GAP_ROOM, abs=0.5 * cell)
+    assert abs(info["at"][0] - 10.0) <= 0.2 + cell and abs(info["at"][1] - 5.0) <= cell
+    why = likely_cause(world, fp, start, goal, 0.25, 0.5, 2.0, "unicycle", pad=0.02)
+    assert why["cause"] == "margin" and why["fits_below_m"] == pytest.approx(GAP_ROOM - 0.02, abs=0.5 * cell)
+    assert likely_cause(world, fp, start, goal, 0.1, 0.5, 2.0, "unicycle", pad=0.02)["cause"] == \
+        "turning_radius_or_budget"
+    wide = Footprint.disc(0.6)
+    assert likely_cause(world, wide, start, goal, 0.0, 0.5, 2.0, "unicycle")["cause"] in ("footprint", "blocked")
+
+
+def test_run_without_a_first_plan_says_each_attempt_and_the_margin_that_fits(tmp_path):
+    (tmp_path / "gap.yaml").write_text(GAP_MAP)
+    res = invoke("run", tmp_path / "gap.yaml", "--margin", "0.25", "--time-limit", "0.2", "--out", tmp_path / "r")
+    assert res.exit_code == 3, res.output
+    progress = [ln for ln in res.stderr.splitlines() if ln.startswith("planning the first plan")]
+    assert [p.split(",")[0] for p in progress] == [f"planning the first plan: attempt {k} of 3" for k in (1, 2, 3)]
+    causes = [ln for ln in res.stdout.splitlines() if ln.startswith("likely cause: the margin")]
+    assert len(causes) == 1
+    below = float(re.search(r"--margin below ([0-9.]+) m", causes[0]).group(1))
+    assert below == pytest.approx(GAP_ROOM - 0.02, abs=0.03)
+    run = json.loads((tmp_path / "r" / "run.json").read_text())
+    assert run["plans"][0]["attempts"][-1]["likely_cause"]["cause"] == "margin"
