@@ -397,7 +397,7 @@ def _check_problems(key: str, m, problems, robot, opts) -> None:
             else:
                 c = world.clearance(config[:3], fp)
             if c <= margin:
-                raise InputError(where, f"a pose more than the planning margin {margin:g} m from the known "
+                raise InputError(where, f"a pose more than the planning margin {margin:.3g} m from the known "
                                  f"obstacles of {m.name} for the {rob_name}", [round(float(v), 4) for v in pose],
                                  detail=f"clearance {c:.3g} m")
 

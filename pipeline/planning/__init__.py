@@ -208,7 +208,7 @@ def _plan_with(m: Map, robot: Robot, start, goal, path_opts: PathOptions, timing
     check = world.state_checker(fp, path_opts.margin)     # the search's own rule (see search_margin)
     for key, c in clearances.items():
         if c <= path_opts.margin or not check(*(float(v) for v in ends[key])):
-            raise InputError(key, f"a pose at least the margin {path_opts.margin:g} m from the known obstacles",
+            raise InputError(key, f"a pose at least the margin {path_opts.margin:.3g} m from the known obstacles",
                              np.round(ends[key], 4).tolist(), detail=f"clearance {c:.3g} m")
     started = time.perf_counter()
     car_opts = (car_opts or CarOptions()).validated()
@@ -277,7 +277,7 @@ def _no_path(path: GeometricPath, path_opts: PathOptions, base: dict, why: str, 
     metrics = {**base, **_path_metrics(path)}
     if cause is not None:
         metrics["likely_cause"] = cause
-    radius = f"{path_opts.turning_radius:g} m"
+    radius = f"{path_opts.turning_radius:.3g} m"
     if path.info.get("lock_radius_m", math.inf) < path_opts.turning_radius:
         radius += f", then {path.info['lock_radius_m']:.4g} m with unparking maneuvers"
     tried = (f"{path_opts.planner} in the {path_opts.space} space (turning radius {radius}, margin "
@@ -337,7 +337,7 @@ def _from_path(path: GeometricPath, robot: Robot, world: CollisionWorld, path_op
     if not check.clear:
         metrics["time_to_nominal_s"] = time.perf_counter() - started
         return PlanResult("not_clear", f"the nominal comes within {check.min_clearance:.3g} m of an obstacle "
-                          f"(margin {path_opts.margin:g} m) at {np.round(check.min_clearance_pose, 3).tolist()}",
+                          f"(margin {path_opts.margin:.3g} m) at {np.round(check.min_clearance_pose, 3).tolist()}",
                           path, nominal, metrics=metrics)
     try:
         schedule = compute_schedule(nominal, stab_opts)
