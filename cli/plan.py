@@ -82,7 +82,7 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     from nhstab.limits import MAX_NOISE_SCALE, check_probability, check_range
     from nhstab.maps import resolve_poses
     from nhstab.planning import PathOptions, TimingOptions
-    from nhstab.tubes.base import tube_line
+    from nhstab.tubes.base import saturation_text, tube_line
     from nhstab.tubes.fit import plan_and_tube
 
     margin = None if margin is None else parse_margin("--margin", margin)
@@ -171,8 +171,8 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     click.echo(tube_line(tube, noise_scale))
     if headroom > DEFAULT_HEADROOM and tube.kind != "sampled" and tube.saturation["run_bound"] > 0.01:
         click.echo(f"note: planned with --headroom {headroom:g}, the nominal leaves the feedback little of the input "
-                   f"limits (saturation probability up to {tube.saturation['run_bound']:.2g}); "
-                   f"--headroom {DEFAULT_HEADROOM:g} (the default) leaves it {100 * (1 - DEFAULT_HEADROOM):.0f} %")
+                   f"limits: {saturation_text(tube.saturation['run_bound'])}; --headroom {DEFAULT_HEADROOM:g} (the "
+                   f"default) leaves it {100 * (1 - DEFAULT_HEADROOM):.0f} %")
     elif headroom > DEFAULT_HEADROOM and tube.kind == "sampled" and tube.saturation["observed_fraction"] > 0.01:
         click.echo(f"note: planned with --headroom {headroom:g}, inputs reach a limit in "
                    f"{100 * tube.saturation['observed_fraction']:.0f} % of rollouts; --headroom {DEFAULT_HEADROOM:g} "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import click
@@ -233,7 +234,10 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
             adopted = sum(1 for c in checks if c.get("adopted"))
             click.echo(f"plan {rec.id}: {len(checks)} cusp check(s): the rest certified clear at {clear}, replanned at "
                        f"{sum(1 for c in checks if c.get('replanned'))} ({adopted} new plan(s) followed)")
-    click.echo(f"{replans} replan(s), {len(result.discovered)} obstacle(s) discovered, "
+    executed = json.loads((Path(out_dir) / "run.json").read_text()).get("clearance") or {}
+    closest = (f"closest {executed['min_executed_m']:.3f} m to an obstacle at t = {executed['time_s']:.1f} s (margin "
+               f"{executed['margin_m']:.3g} m), " if "min_executed_m" in executed else "")
+    click.echo(f"{replans} replan(s), {len(result.discovered)} obstacle(s) discovered, {closest}"
                f"{result.log['t'][-1] if len(result.log['t']) else 0:.1f} s simulated in {result.wall_time_s:.1f} s")
     click.echo("wrote " + ", ".join(str(f) for f in files))
     if interrupt_held():

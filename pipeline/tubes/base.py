@@ -280,8 +280,11 @@ def certified_text(tube) -> str:
     of several bodies, whose tube is certified for no body)."""
     if tube.certified_clearance is None:
         return "clearance not certified (a robot of several bodies)"
-    word = "certified clear by" if tube.certified_clearance >= 0 else "NOT certified: tube clearance"
-    return f"{word} {tube.certified_clearance:+.3f} m"
+    c = tube.certified_clearance
+    if c >= 0:
+        return f"certified clear by {c:+.3f} m"
+    return (f"NOT certified: tube clearance {c:+.3f} m (at this probability the robot's footprint may overlap "
+            f"a known obstacle by {-c:.3f} m)")
 
 
 def verdict(tube, world, fp: Footprint, margin: float | None = None, cap: float | None = None) -> dict:
@@ -363,8 +366,17 @@ def tube_line(tube, noise_scale: float | None = None, prefix: str = "tube") -> s
         if frac > 0:
             text += f"; inputs reach a limit in {100.0 * frac:.0f} % of rollouts"
     elif tube.saturation["run_bound"] > LINEAR_SATURATION_NOTE:
-        text += f"; inputs may saturate (probability <= {tube.saturation['run_bound']:.2g})"
+        text += "; " + saturation_text(tube.saturation["run_bound"])
     return text
+
+
+def saturation_text(bound: float) -> str:
+    """The linear tube's bound on the probability that the inputs saturate, for a user: a percentage,
+    or where the bound is (about) 1, that it says nothing and what measures it."""
+    if bound >= 0.995:
+        return ("inputs may saturate (the linear bound on how often is 1, no information: --tube sampled "
+                "measures it)")
+    return f"inputs may saturate (probability at most {100.0 * bound:.2g} %)"
 
 
 def hull_vertices(fp: Footprint) -> np.ndarray | None:

@@ -140,3 +140,25 @@ def test_run_without_a_first_plan_says_each_attempt_and_the_margin_that_fits(tmp
     assert below == pytest.approx(GAP_ROOM - 0.02, abs=0.03)
     run = json.loads((tmp_path / "r" / "run.json").read_text())
     assert run["plans"][0]["attempts"][-1]["likely_cause"]["cause"] == "margin"
+
+
+def test_saturation_and_negative_clearance_lines_say_what_they_mean():
+    from types import SimpleNamespace
+
+    from nhstab.tubes.base import certified_text, saturation_text
+
+    assert "<=" not in saturation_text(1.0) and "no information" in saturation_text(1.0)
+    assert "--tube sampled" in saturation_text(0.999)
+    assert saturation_text(0.123) == "inputs may saturate (probability at most 12 %)"
+    text = certified_text(SimpleNamespace(certified_clearance=-0.0134))
+    assert text.startswith("NOT certified: tube clearance -0.013 m") and "overlap a known obstacle by 0.013 m" in text
+    assert certified_text(SimpleNamespace(certified_clearance=0.2)) == "certified clear by +0.200 m"
+
+
+def test_run_says_the_closest_it_came_to_an_obstacle(tmp_path):
+    res = invoke("run", ROOM, "--out", tmp_path / "r")
+    assert res.exit_code == 0, res.output
+    doc = json.loads((tmp_path / "r" / "run.json").read_text())["clearance"]
+    line = next(ln for ln in res.stdout.splitlines() if "obstacle(s) discovered" in ln)
+    assert f"closest {doc['min_executed_m']:.3f} m to an obstacle at t = {doc['time_s']:.1f} s (margin 0.1 m)" in line
+    assert "planning the first plan: attempt 1 of 3, budget 2 s" in res.stderr
