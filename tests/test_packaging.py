@@ -174,6 +174,7 @@ def test_wheel_installs_one_import_name_and_runs_examples_from_anywhere(tmp_path
     assert not {"pipeline", "cli", "maps", "tests"} & top, top
     assert (site / "nhstab" / "data" / "scenarios" / "depot_blocked_aisle.yaml").is_file()
     assert (site / "nhstab" / "data" / "nav2" / "depot.pgm").is_file()
+    assert (site / "nhstab" / "data" / "configs" / "depot_robustness.yaml").is_file()    # example:NAME configs
 
     work = tmp_path / "elsewhere"
     work.mkdir()
