@@ -155,7 +155,8 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     from nhstab.interrupts import holding_interrupts, interrupt_held
 
     with holding_interrupts():      # from here a Ctrl-C does not lose the plan: its files are completed, then exit 130
-        write_plan(result, out_dir, m, str(map_file), rob, s, g, path_opts, figures=figure, tube=tube, extra=extra)
+        write_plan(result, out_dir, m, str(map_file), rob, s, g, path_opts, figures=figure, tube=tube,
+                   extra={**extra, "headroom": headroom})
     if interrupt_held():
         click.echo(f"nhstab: interrupted after planning; the plan's files in {out_dir} are complete", err=True)
         return EXIT_INTERRUPTED

@@ -255,7 +255,7 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
                     click.echo(f"plan {rec.id}: {attempt[key]['message']}")
         if rec.tube is not None:
             tb = rec.tube
-            click.echo(f"plan {rec.id} ({rec.trigger}): {certified_text(tb)} at p = {tb.probability:g} ({tb.kind} tube)")
+            click.echo(f"plan {rec.id} ({rec.trigger}): {certified_text(tb, explain=True)} at p = {tb.probability:g} ({tb.kind} tube)")
         elif rec.law is not None:
             click.echo(f"plan {rec.id} ({rec.trigger}): no error tube (the closed loop diverges under the law)")
         checks = rec.cusp_checks

@@ -275,16 +275,19 @@ def failing_samples(world, fp: Footprint, poses: np.ndarray, reach: np.ndarray) 
     return cand[bad], gap[bad]
 
 
-def certified_text(tube) -> str:
+def certified_text(tube, explain: bool = False) -> str:
     """The tube's certified clearance for a message, or that it was not certified (no world: e.g. a robot
-    of several bodies, whose tube is certified for no body)."""
+    of several bodies, whose tube is certified for no body); with ``explain``, a negative clearance
+    says in words what it means (for a line a user reads; a figure's title keeps the short form)."""
     if tube.certified_clearance is None:
         return "clearance not certified (a robot of several bodies)"
     c = tube.certified_clearance
     if c >= 0:
         return f"certified clear by {c:+.3f} m"
-    return (f"NOT certified: tube clearance {c:+.3f} m (at this probability the robot's footprint may overlap "
-            f"a known obstacle by {-c:.3f} m)")
+    text = f"NOT certified: tube clearance {c:+.3f} m"
+    if explain:
+        text += f" (at this probability the robot's footprint may overlap a known obstacle by {-c:.3f} m)"
+    return text
 
 
 def verdict(tube, world, fp: Footprint, margin: float | None = None, cap: float | None = None) -> dict:
@@ -345,7 +348,7 @@ def tube_line(tube, noise_scale: float | None = None, prefix: str = "tube") -> s
     if tube.certified_clearance is None:
         return (f"{head}: clearance not certified (a robot of several bodies); reach up to "
                 f"{float(tube.reach.max()):.2f} m")
-    text = f"{head}: {certified_text(tube)}"
+    text = f"{head}: {certified_text(tube, explain=True)}"
     t = v.get("tightest")
     if t:
         x, y, th = t["pose"][:3]

@@ -43,6 +43,7 @@ def test_default_plan_prints_no_saturation_note_and_a_larger_headroom_prints_an_
     assert res.exit_code == 0, res.output
     assert "note:" not in res.stdout
     plan = json.loads((tmp_path / "a" / "plan.json").read_text())
+    assert plan["headroom"] == DEFAULT_HEADROOM
     res = invoke("plan", ROOM, "--out", tmp_path / "b", "--no-figure", "--headroom", "1")
     assert res.exit_code == 0, res.output
     notes = [ln for ln in res.stdout.splitlines() if ln.startswith("note:")]
@@ -150,8 +151,9 @@ def test_saturation_and_negative_clearance_lines_say_what_they_mean():
     assert "<=" not in saturation_text(1.0) and "no information" in saturation_text(1.0)
     assert "--tube sampled" in saturation_text(0.999)
     assert saturation_text(0.123) == "inputs may saturate (probability at most 12 %)"
-    text = certified_text(SimpleNamespace(certified_clearance=-0.0134))
+    text = certified_text(SimpleNamespace(certified_clearance=-0.0134), explain=True)
     assert text.startswith("NOT certified: tube clearance -0.013 m") and "overlap a known obstacle by 0.013 m" in text
+    assert certified_text(SimpleNamespace(certified_clearance=-0.0134)) == "NOT certified: tube clearance -0.013 m"
     assert certified_text(SimpleNamespace(certified_clearance=0.2)) == "certified clear by +0.200 m"
 
 
