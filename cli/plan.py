@@ -118,8 +118,9 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     names = {**pose_keys(m, start, goal, problem), "space": "--space", "planner": "--planner", "time_limit_s": "--time-limit", "seed": "--seed",
              "margin": "--margin" if margin is not None else rob.key("margin"),
              "turning_radius": "--turning-radius" if turning_radius is not None else rob.key("turning_radius"),
-             "max_speed": "--max-speed" if max_speed is not None else ("--headroom", headroom) if headroom < 1.0
-             else rob.key("max_speed")}
+             "max_speed": "--max-speed" if max_speed is not None
+             else ("--headroom", headroom) if headroom not in (DEFAULT_HEADROOM, 1.0)
+             else (rob.key("max_speed"), getattr(rob.model, "max_speed", None))}
     from nhstab.control import StabilizerOptions
 
     with user_keys(rob.stabilizer_keys()):        # the gain schedule's window against the nominal's time step
