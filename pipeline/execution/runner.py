@@ -544,17 +544,17 @@ class CompositeRun:
         # robot has not moved yet
         attempts = []
         while True:
-            if self.notify is not None:
-                self.notify(f"planning the first plan: attempt {len(attempts) + 1} of {opts.replan.max_attempts}, "
-                            f"budget {opts.planning.time_limit_s * opts.replan.budget_factor(len(attempts)):g} s ...")
             attempt, result, law, margin, tube = self._plan_once(self._start_configuration, len(attempts))
             attempts.append(attempt)
             if law is not None or len(attempts) >= opts.replan.max_attempts:
                 break
-            if self.notify is not None:
-                self.notify(f"attempt {len(attempts)}: {attempt['status']} after {attempt['latency_s']:.1f} s"
-                            + (f"; {attempt['likely_cause']['text']}" if "likely_cause" in attempt
-                               and len(attempts) == 1 else ""))
+            if self.notify is not None:     # a failed attempt, as it happens (the next may take longer)
+                self.notify(f"first plan, attempt {len(attempts)} of {opts.replan.max_attempts}: {attempt['status']} "
+                            f"after {attempt['latency_s']:.1f} s"
+                            + (f" ({attempt['likely_cause']['text']})" if "likely_cause" in attempt
+                               and len(attempts) == 1 else "")
+                            + f"; attempt {len(attempts) + 1} with a budget of "
+                              f"{opts.planning.time_limit_s * opts.replan.budget_factor(len(attempts)):g} s ...")
         first = PlanRecord(0, "initial", 0.0, 0.0, self._start_configuration.copy(), attempt["seed"], margin,
                            attempts, result, law, tube=tube)
         self.plans.append(first)
