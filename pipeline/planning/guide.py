@@ -222,7 +222,8 @@ def passage(world, fp: Footprint, start, goal, samples: int = 9) -> dict | None:
     from the start's disc centre to the goal's (a max-min clearance path on the world's distance
     field), and where that way is narrowest. None when the world has no field (unbounded).
 
-    The field's central estimate (the distance between cell centres) sets the threshold by bisection
+    The field's central estimate (the distance between cell centres; pooled to at most ``MAX_CELLS``
+    cells, the smallest per block) sets the threshold by bisection
     (start and goal connected in ``{clearance >= c}``, :func:`scipy.ndimage.label`); the cells at the
     threshold on the start's side are the narrowest places. Up to ``samples`` of them are measured with
     FCL (the inscribed disc, best over a +-1 cell neighbourhood), and the smallest of those is
@@ -238,6 +239,11 @@ def passage(world, fp: Footprint, start, goal, samples: int = 9) -> dict | None:
     centre, radius = inscribed_disc(fp)
     r = field.r
     clear = field.lower_bound + math.sqrt(2.0) * r            # the central estimate (see ClearanceField)
+    f = max(1, math.ceil(math.sqrt(clear.size / MAX_CELLS)))
+    if f > 1:                       # a large raster: pooled to at most MAX_CELLS cells (the smallest per block)
+        rows, cols = clear.shape[0] // f, clear.shape[1] // f
+        clear = clear[: rows * f, : cols * f].reshape(rows, f, cols, f).min(axis=(1, 3))
+        r = f * r
     rows, cols = clear.shape
 
     def cell_of(pose):

@@ -107,7 +107,7 @@ GAP_MAP = ("bounds: [0, 0, 20, 10]\nobstacles:\n"
 GAP_ROOM = 0.5 - 0.3
 
 
-def test_the_widest_way_through_a_gap_keeps_half_the_gap_less_the_radius(tmp_path):
+def test_the_widest_way_through_a_gap_keeps_half_the_gap_less_the_radius(tmp_path, monkeypatch):
     from nhstab import load_map
     from nhstab.collision import CollisionWorld
     from nhstab.planning.guide import likely_cause, passage
@@ -125,6 +125,13 @@ def test_the_widest_way_through_a_gap_keeps_half_the_gap_less_the_radius(tmp_pat
     assert why["cause"] == "margin" and why["fits_below_m"] == pytest.approx(GAP_ROOM - 0.02, abs=0.5 * cell)
     assert likely_cause(world, fp, start, goal, 0.1, 0.5, 2.0, "unicycle", pad=0.02)["cause"] == \
         "turning_radius_or_budget"
+    # a raster pooled to fewer cells (as a large map's is) finds the same gap, to about a pooled cell
+    import nhstab.planning.guide as guide
+
+    monkeypatch.setattr(guide, "MAX_CELLS", 20_000)
+    coarse = passage(world, fp, start, goal)
+    pooled = cell * np.ceil(np.sqrt(world.clearance_field().lower_bound.size / 20_000))
+    assert pooled > 2 * cell and coarse["margin_m"] == pytest.approx(GAP_ROOM, abs=pooled)
     wide = Footprint.disc(0.6)
     assert likely_cause(world, wide, start, goal, 0.0, 0.5, 2.0, "unicycle")["cause"] in ("footprint", "blocked")
 
