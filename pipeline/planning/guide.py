@@ -225,7 +225,8 @@ def passage(world, fp: Footprint, start, goal, samples: int = 9) -> dict | None:
     The field's central estimate (the distance between cell centres; pooled to at most ``MAX_CELLS``
     cells, the smallest per block) sets the threshold by bisection
     (start and goal connected in ``{clearance >= c}``, :func:`scipy.ndimage.label`); the cells at the
-    threshold on the start's side are the narrowest places. Up to ``samples`` of them are measured with
+    threshold along a shortest grid path through the cells above it are the narrowest places of that
+    way. Up to ``samples`` of them are measured with
     FCL (the inscribed disc, best over a +-1 cell neighbourhood), and the smallest of those is
     ``margin_m``: the exact clearance of the inscribed disc where the way is narrowest, a value within
     about a cell of the true max-min (the start's and goal's own clearance bound it too: a start near a
@@ -262,7 +263,7 @@ def passage(world, fp: Footprint, start, goal, samples: int = 9) -> dict | None:
     if not len(finite):
         return None
     lo, hi = 0.0, float(finite.max()) + r
-    if joined(radius) is None and joined(0.0) is None:
+    if joined(0.0) is None:
         return {"connected": False, "inscribed_radius_m": radius}
     for _ in range(40):
         if hi - lo < 0.05 * r:
