@@ -23,15 +23,22 @@ def batch():
 
 @batch.command("run")
 @click.argument("config_file", metavar="CONFIG", type=click.Path(path_type=Path))
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
-              help="Folder of the batch: trials.sqlite (and the report).")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Folder of the batch: trials.sqlite (and the report). Required, except with --print-config.")
 @click.option("--workers", type=int, default=None, help="Local worker processes (default: the number of cores).")
 @click.option("--scheduler", default=None, help="Address of a Dask distributed scheduler, e.g. tcp://10.0.0.5:8786.")
 @click.option("--resume", is_flag=True, help="Continue the batch stored in --out: run each missing trial once.")
 @click.option("--retry-errors", is_flag=True, help="With --resume: also run again the trials stored with an error.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
-def run_cmd(config_file, out_dir, workers, scheduler, resume, retry_errors, no_progress):
-    """Run every trial of CONFIG (strict YAML; see pipeline/batch/config.py), committing each to
+@click.option("--trials", "trials", type=int, default=None,
+              help="Trials per cell instead of the config's, e.g. 2 for a quick look (trial k has the same seed "
+                   "whatever the count, so these are the first trials of the full batch).")
+@click.option("--print-config", is_flag=True,
+              help="Print the effective batch config (YAML: every map's problems, the grid and every run option, "
+                   "defaults filled in) and the number of trials, and exit without running (--out is not needed).")
+def run_cmd(config_file, out_dir, workers, scheduler, resume, retry_errors, no_progress, trials, print_config):
+    """Run every trial of CONFIG (a strict YAML batch config, docs/reference/batch-config.md, or
+    example:NAME, a bundled one: `nhstab examples` lists them), committing each to
     OUT/trials.sqlite as it finishes. A trial that fails by error is recorded with its error; the
     batch says how many did, and exits 1 if every trial it ran did. Ctrl-C stops the batch (exit
     code 130; SIGTERM 143, SIGHUP 129) without storing the trials that were running, and ends every
@@ -49,6 +56,18 @@ def run_cmd(config_file, out_dir, workers, scheduler, resume, retry_errors, no_p
     if scheduler is not None:
         check_scheduler_address(scheduler)
     config = load_batch_config(config_file)
+    if trials is not None:
+        config = with_trials(config, trials)
+    if print_config:
+        import yaml
+
+        click.echo(f"# the effective batch config: {len(config.cells())} cells x {config.trials} trials = "
+                   f"{config.n_trials()} trials; options not given are the robot's (margin, stabilizer), noise levels not "
+                   "given the defaults by state (docs/reference/run-config.md)")
+        click.echo(yaml.safe_dump(config.effective(), sort_keys=False), nl=False)
+        return 0
+    if out_dir is None:
+        raise InputError("--out", "a folder for the batch (required to run it)", None)
     n = config.n_trials()
     click.echo(f"batch {config.name}: {len(config.cells())} cells x {config.trials} trials = {n} trials", err=True)
     try:
@@ -85,6 +104,21 @@ def run_cmd(config_file, out_dir, workers, scheduler, resume, retry_errors, no_p
         if every:
             return 1
     return 0
+
+
+def with_trials(config, trials: int):
+    """``config`` with ``trials`` trials per cell (--trials), checked as the config's own count is."""
+    from dataclasses import replace
+
+    from nhstab.errors import InputError
+    from nhstab.limits import MAX_BATCH_TRIALS, check_int
+
+    trials = check_int("--trials", trials, 1, MAX_BATCH_TRIALS, "a number of trials per cell")
+    cells = config.cell_count()
+    if cells * trials > MAX_BATCH_TRIALS:
+        raise InputError("--trials", f"at most {MAX_BATCH_TRIALS:,} trials in the batch (cells x trials)",
+                         f"{cells:,} cells x {trials} = {cells * trials:,}")
+    return replace(config, trials=trials)
 
 
 def _kb(n) -> str:

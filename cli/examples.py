@@ -10,9 +10,11 @@ import click
 @click.command()
 @click.option("--json", "as_json", is_flag=True, help="Print JSON (name, path, format, robot, kind, description).")
 def examples(as_json):
-    """List the bundled maps and scenarios. Any command that takes a map accepts example:NAME,
-    e.g. `nhstab run example:depot_blocked_aisle --out run1`."""
-    from nhstab.examples import list_examples
+    """List the bundled maps and scenarios, then the bundled batch and run configs. Any command that
+    takes a map accepts example:NAME, e.g. `nhstab run example:depot_blocked_aisle --out run1`; so do
+    `nhstab batch example:NAME` and `nhstab run --config example:NAME` for the configs (--json lists
+    the maps only)."""
+    from nhstab.examples import list_configs, list_examples
 
     items = list_examples()
     if as_json:
@@ -29,4 +31,13 @@ def examples(as_json):
                         "problems": "Maps with start/goal problems: add --problem N",
                         "map": "Maps: give --start and --goal unless the map has them"}[kind])
         click.echo(f"  {e.name:<{width}}  {e.format:<{fmt_w}}  {e.robot:<{rob_w}}  {e.description}")
+    configs = list_configs()
+    for kind, head in (("batch_config", "Batch configs: nhstab batch example:NAME --out DIR (--trials N for a quick "
+                                        "look, --print-config to see every option)"),
+                       ("run_config", "Run configs: nhstab run --config example:NAME --out DIR")):
+        rows = [c for c in configs if c.kind == kind]
+        if rows:
+            click.echo(head)
+            for c in rows:
+                click.echo(f"  {c.name:<{width}}  {c.description}")
     return 0

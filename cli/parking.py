@@ -39,15 +39,20 @@ def suite(out_dir, check):
 
 @parking.command("table")
 def table():
-    """Print the suite's cases: car, kind, slot length or aisle width, and its reference (L1 or the
-    aisle's swept-path estimate)."""
+    """Print the suite's cases, one row each under a header: map name, car, kind, what is sized (the
+    slot's length or the aisle's width), its size, the factor and the reference it multiplies (L1 or
+    the aisle's swept-path estimate)."""
     from nhstab.parking import suite as cases
 
-    for c in cases():
-        what = "slot" if c.kind == "parallel" else "aisle"
-        ref = "L1" if c.kind == "parallel" else "swept-path estimate"
-        click.echo(f"{c.name:<34} {c.car:<8} {c.kind:<14} {what} {c.size_m:6.3f} m = {c.factor:g} x {ref} "
-                   f"{c.reference_m:.3f} m")
+    head = ("map", "car", "kind", "measure", "size [m]", "factor", "reference", "reference [m]")
+    rows = [(c.name, c.car, c.kind, "slot length" if c.kind == "parallel" else "aisle width", f"{c.size_m:.3f}",
+             f"{c.factor:g}", "L1" if c.kind == "parallel" else "swept-path estimate", f"{c.reference_m:.3f}")
+            for c in cases()]
+    widths = [max(len(r[i]) for r in (head, *rows)) for i in range(len(head))]
+    numeric = {4, 5, 7}
+    for r in (head, *rows):
+        click.echo("  ".join(v.rjust(w) if i in numeric else v.ljust(w)
+                             for i, (v, w) in enumerate(zip(r, widths))).rstrip())
     return 0
 
 

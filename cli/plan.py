@@ -6,6 +6,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import click
+from nhstab.limits import DEFAULT_HEADROOM
 
 from .map import load, map_options, parse_pose, pose_keys
 from .options import cli_robot, robot_options
@@ -50,9 +51,9 @@ EXIT_INTERRUPTED = 130
                    "not saturate and the plan has no stop, sampled elsewhere.")
 @click.option("--confidence", type=float, default=0.95, show_default=True,
               help="Confidence of the sampled tube's certificate: N >= ln(1 - confidence) / ln(p) rollouts.")
-@click.option("--headroom", type=float, default=1.0, show_default=True,
-              help="Plan within this fraction of the input limits (nhstab run uses 0.8, leaving the rest to the "
-                   "feedback; the tube's saturation probability is against the full limits).")
+@click.option("--headroom", type=float, default=None,
+              help="Plan within this fraction of the input limits, leaving the rest to the feedback (default: "
+                   f"nhstab run's, {DEFAULT_HEADROOM:g}; the tube's saturation probability is against the full limits).")
 @click.option("--max-speed", type=float, default=None, help="[m/s] (default: the robot's limit).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True)
 @click.option("--figure/--no-figure", default=True, show_default=True,
@@ -81,7 +82,7 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     from nhstab.limits import MAX_NOISE_SCALE, check_probability, check_range
     from nhstab.maps import resolve_poses
     from nhstab.planning import PathOptions, TimingOptions
-    from nhstab.tubes.base import tube_line
+    from nhstab.tubes.base import saturation_text, tube_line
     from nhstab.tubes.fit import plan_and_tube
 
     margin = None if margin is None else parse_margin("--margin", margin)
@@ -95,6 +96,8 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     except InputError as exc:
         raise InputError("--confidence", exc.expected, confidence, detail=exc.detail) from None
     check_range("--noise", noise_scale, 0.0, MAX_NOISE_SCALE)
+    if headroom is None:
+        headroom = DEFAULT_HEADROOM
     if not (0.0 < headroom <= 1.0):
         raise InputError("--headroom", "a number in (0, 1]", headroom)
 
@@ -113,8 +116,9 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     names = {**pose_keys(m, start, goal, problem), "space": "--space", "planner": "--planner", "time_limit_s": "--time-limit", "seed": "--seed",
              "margin": "--margin" if margin is not None else rob.key("margin"),
              "turning_radius": "--turning-radius" if turning_radius is not None else rob.key("turning_radius"),
-             "max_speed": "--max-speed" if max_speed is not None else ("--headroom", headroom) if headroom < 1.0
-             else rob.key("max_speed")}
+             "max_speed": "--max-speed" if max_speed is not None
+             else ("--headroom", headroom) if headroom not in (DEFAULT_HEADROOM, 1.0)
+             else (rob.key("max_speed"), getattr(rob.model, "max_speed", None))}
     from nhstab.control import StabilizerOptions
 
     with user_keys(rob.stabilizer_keys()):        # the gain schedule's window against the nominal's time step
@@ -137,6 +141,8 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
             click.echo(extra[key]["message"])
     if law is None:
         click.echo(f"nhstab: no plan ({result.status}): {result.message}", err=True)
+        if "likely_cause" in result.metrics:
+            click.echo(result.metrics["likely_cause"]["text"], err=True)
         return EXIT_NO_PLAN
     if margin == "auto":
         path_opts = replace(path_opts, margin=extra["margin_auto"]["margin_m"])
@@ -148,7 +154,8 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     from nhstab.interrupts import holding_interrupts, interrupt_held
 
     with holding_interrupts():      # from here a Ctrl-C does not lose the plan: its files are completed, then exit 130
-        write_plan(result, out_dir, m, str(map_file), rob, s, g, path_opts, figures=figure, tube=tube, extra=extra)
+        write_plan(result, out_dir, m, str(map_file), rob, s, g, path_opts, figures=figure, tube=tube,
+                   extra={**extra, "headroom": headroom})
     if interrupt_held():
         click.echo(f"nhstab: interrupted after planning; the plan's files in {out_dir} are complete", err=True)
         return EXIT_INTERRUPTED
@@ -162,9 +169,14 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
         click.echo(f"nhstab: no tube: {extra.get('tube_error', 'not predicted')}", err=True)
         return EXIT_FAILURE
     click.echo(tube_line(tube, noise_scale))
-    if headroom == 1.0 and (tube.saturation["run_bound"] > 0.01):
-        click.echo("note: the nominal may use the full input limits, so the feedback saturates; nhstab run plans "
-                   "with --headroom 0.8")
+    if headroom > DEFAULT_HEADROOM and tube.kind != "sampled" and tube.saturation["run_bound"] > 0.01:
+        click.echo(f"note: planned with --headroom {headroom:g}, the nominal leaves the feedback little of the input "
+                   f"limits: {saturation_text(tube.saturation['run_bound'])}; --headroom {DEFAULT_HEADROOM:g} (the "
+                   f"default) leaves it {100 * (1 - DEFAULT_HEADROOM):.0f} %")
+    elif headroom > DEFAULT_HEADROOM and tube.kind == "sampled" and tube.saturation["observed_fraction"] > 0.01:
+        click.echo(f"note: planned with --headroom {headroom:g}, inputs reach a limit in "
+                   f"{100 * tube.saturation['observed_fraction']:.0f} % of rollouts; --headroom {DEFAULT_HEADROOM:g} "
+                   f"(the default) leaves the feedback {100 * (1 - DEFAULT_HEADROOM):.0f} % of the limits")
     click.echo(f"wrote {out_dir}/trajectory.csv, trajectory.npz, tube.npz, plan.json" + (", plan.png" if figure else ""))
     return 0
 

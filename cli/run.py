@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import click
@@ -87,11 +88,14 @@ def parse_levels(name: str, text: str | None) -> dict | None:
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results/run"),
               show_default=True)
 @click.option("--animate", is_flag=True, help="Also write run.gif.")
+@click.option("--print-config", is_flag=True,
+              help="Print the effective run config (YAML: the map, robot, start, goal and every option, its "
+                   "defaults filled in) and exit without running; --config runs it as printed.")
 @map_options
 def run(map_file, config_file, robot, robot_config, start, goal, problem, controller, window, alpha, delta, gamma,
         rate_hz, noise_scale, initial_error, sensor_std, process_std, seed, planner, time_limit, guide, margin, gains,
         fit, tube_kind, probability, confidence, require_certified, cusp_replan, max_time,
-        out_dir, animate, cell_size, unknown):
+        out_dir, animate, print_config, cell_size, unknown):
     """Run the composite controller on MAP: plan, stabilize under noise, sense, monitor with FCL, replan.
 
     Writes run.json, trajectory.csv, run_map.png and run_tracking.png (and run.gif with --animate)
@@ -143,6 +147,8 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     if config_file is not None:
         extra, base = load_run_config(config_file)
         cfg_map = extra.get("map")
+        if str(extra.get("map_given", "")).startswith("example:"):
+            cfg_map = extra["map_given"]          # a bundled map, by the name the config gives
     map_path = map_file or cfg_map
     if map_path is None:
         raise InputError("MAP", "a map file (argument or the config's `map`)", None)
@@ -183,8 +189,33 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     for kind, flag in (("initial", "--initial-error"), ("sensor", "--sensor-std"), ("process", "--process-std")):
         names.update({f"noise.{kind}.{state}": f"{flag} {state}" for state in levels[kind] or {}})
     with user_keys(names):
+        if print_config:
+            click.echo(effective_config(m, str(map_path), opts, rob, s, g, robot_key, (s_key, g_key)), nl=False)
+            return 0
         return execute_and_write(m, str(map_path), opts, rob, s, g, out_dir, animate, robot_key=robot_key,
                                  pose_names=(s_key, g_key))
+
+
+def effective_config(m, map_path: str, opts, robot, start, goal, robot_key: str = "robot",
+                     pose_names: tuple[str, str] = ("start", "goal")) -> str:
+    """The run config ``nhstab run`` would run (YAML): the map, the robot's full description, start,
+    goal and every option with its defaults filled in; checked as a run checks it."""
+    import yaml
+    from nhstab.errors import InputError
+    from nhstab.execution.config import config_mapping
+    from nhstab.execution.runner import check_run
+    from nhstab.planning import PLANNABLE
+
+    if robot.model.name not in PLANNABLE:
+        raise InputError(robot_key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)",
+                         robot.model.name)
+    start, goal = robot.configuration(start, pose_names[0]), robot.configuration(goal, pose_names[1])
+    check_run(m, robot, opts)
+    doc = {"map": map_path, "robot": robot.spec(), "start": [float(v) for v in start],
+           "goal": [float(v) for v in goal]}
+    doc.update({k: v for k, v in config_mapping(opts, robot).items() if k not in doc})
+    return ("# the effective run config: every option with its default filled in (nhstab run --config FILE "
+            "runs it)\n" + yaml.safe_dump(doc, sort_keys=False))
 
 
 def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path, animate: bool,
@@ -207,6 +238,8 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
         files = write_run(result, out_dir, map_path, animate=animate, extra_files=extra_files)
     replans = sum(1 for p in result.plans if p.trigger != "initial")
     click.echo(f"{result.status}: {result.message}")
+    if result.status == "no_plan" and result.plans and "likely_cause" in result.plans[0].attempts[-1]:
+        click.echo(result.plans[0].attempts[-1]["likely_cause"]["text"])
     for rec in result.plans:
         for attempt in rec.attempts:
             for key in ("margin_auto", "gains_auto", "fit"):
@@ -214,7 +247,7 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
                     click.echo(f"plan {rec.id}: {attempt[key]['message']}")
         if rec.tube is not None:
             tb = rec.tube
-            click.echo(f"plan {rec.id} ({rec.trigger}): {certified_text(tb)} at p = {tb.probability:g} ({tb.kind} tube)")
+            click.echo(f"plan {rec.id} ({rec.trigger}): {certified_text(tb, explain=True)} at p = {tb.probability:g} ({tb.kind} tube)")
         elif rec.law is not None:
             click.echo(f"plan {rec.id} ({rec.trigger}): no error tube (the closed loop diverges under the law)")
         checks = rec.cusp_checks
@@ -223,7 +256,10 @@ def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path,
             adopted = sum(1 for c in checks if c.get("adopted"))
             click.echo(f"plan {rec.id}: {len(checks)} cusp check(s): the rest certified clear at {clear}, replanned at "
                        f"{sum(1 for c in checks if c.get('replanned'))} ({adopted} new plan(s) followed)")
-    click.echo(f"{replans} replan(s), {len(result.discovered)} obstacle(s) discovered, "
+    executed = json.loads((Path(out_dir) / "run.json").read_text()).get("clearance") or {}
+    closest = (f"closest {executed['min_executed_m']:.3f} m to an obstacle at t = {executed['time_s']:.1f} s (margin "
+               f"{executed['margin_m']:.3g} m), " if "min_executed_m" in executed else "")
+    click.echo(f"{replans} replan(s), {len(result.discovered)} obstacle(s) discovered, {closest}"
                f"{result.log['t'][-1] if len(result.log['t']) else 0:.1f} s simulated in {result.wall_time_s:.1f} s")
     click.echo("wrote " + ", ".join(str(f) for f in files))
     if interrupt_held():

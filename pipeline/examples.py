@@ -19,7 +19,16 @@ from pathlib import Path
 
 from .errors import PipelineError
 from .maps import load_map
-from .maps.bundled import EXAMPLE_PREFIX, _benchmr_rows, _catalog, data_root, example_path, is_example, resolve_map_path  # noqa: F401 - the names a user resolves examples by, kept here too
+from .maps.bundled import (  # noqa: F401 - the names a user resolves examples by, kept here too
+    EXAMPLE_PREFIX,
+    _benchmr_rows,
+    _catalog,
+    config_catalog,
+    data_root,
+    example_path,
+    is_example,
+    resolve_map_path,
+)
 from .safe_io import load_yaml_file
 
 
@@ -44,6 +53,23 @@ def list_examples() -> list[Example]:
     out = [_describe(name, path) for name, path in _catalog().items()]
     order = {"scenario": 0, "problems": 1, "map": 2}
     return sorted(out, key=lambda e: (order[e.kind], e.name.lower()))
+
+
+def list_configs() -> list[Example]:
+    """The bundled batch configs (``nhstab batch example:NAME``), then the run configs (``nhstab run
+    --config example:NAME``), each described by the first sentence of its leading comment."""
+    out = []
+    for kind in ("batch", "run"):
+        for name, path in config_catalog(kind).items():
+            head = []
+            for line in path.read_text(encoding="utf-8").splitlines():
+                if not line.startswith("#"):
+                    break
+                head.append(line.lstrip("#").strip())
+            text = " ".join(h for h in head if h and not h.startswith("nhstab "))
+            text = text.split(": ", 1)[-1] if text.lower().startswith(("batch:", "run config:")) else text
+            out.append(Example(name, path, f"{kind} config", "-", f"{kind}_config", text.split(". ")[0].rstrip(".")))
+    return out
 
 
 def _describe(name: str, path: Path) -> Example:

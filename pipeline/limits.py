@@ -13,6 +13,9 @@ import math
 from .errors import InputError, number_hint
 
 # ---- files ------------------------------------------------------------------------------------
+#: the fraction of the input limits a nominal is planned within (``nhstab run``'s ``headroom`` and
+#: ``nhstab plan --headroom``): the rest is left to the feedback
+DEFAULT_HEADROOM = 0.8
 #: largest YAML document (map, run config, batch config, ROS map metadata) [bytes]: the bundled ones
 #: are a few kB, and 1 MiB holds about 50,000 polygon vertices (parsed in a few seconds);
 #: geometry beyond this belongs in an occupancy image or a Moving AI file

@@ -174,6 +174,7 @@ def test_wheel_installs_one_import_name_and_runs_examples_from_anywhere(tmp_path
     assert not {"pipeline", "cli", "maps", "tests"} & top, top
     assert (site / "nhstab" / "data" / "scenarios" / "depot_blocked_aisle.yaml").is_file()
     assert (site / "nhstab" / "data" / "nav2" / "depot.pgm").is_file()
+    assert (site / "nhstab" / "data" / "configs" / "depot_robustness.yaml").is_file()    # example:NAME configs
 
     work = tmp_path / "elsewhere"
     work.mkdir()
@@ -214,6 +215,20 @@ def test_the_python_guide_example_runs(tmp_path):
     lines = res.stdout.strip().splitlines()
     assert lines[0].startswith("ok ") and lines[-1].startswith("reached")
     assert (tmp_path / "run1" / "run.json").is_file()
+
+
+def test_the_quick_start_run_writes_where_git_does_not_track():
+    """The README's Quick start run writes into a folder git ignores, outside the committed results, so
+    running it leaves ``git status`` clean."""
+    block = re.search(r"## Quick start.*?```bash\n(.*?)```", (ROOT / "README.md").read_text(), re.S).group(1)
+    run = block.strip().splitlines()[0]
+    out = re.search(r"nhstab run \S+ --out (\S+)$", run).group(1)
+    assert not out.startswith("results")
+    if not (ROOT / ".git").exists():
+        pytest.skip("not a git clone")
+    for name in ("run.json", "trajectory.csv", "run_map.png", "run_tracking.png", "nhstab-manifest.json"):
+        res = subprocess.run(["git", "check-ignore", "-q", f"{out}/{name}"], cwd=ROOT)
+        assert res.returncode == 0, f"{out}/{name} is not ignored by git"
 
 
 def test_ci_runs_the_quick_start_test_command():

@@ -51,11 +51,13 @@ from ..collision import CollisionWorld
 from ..control import WINDOWS
 from ..errors import InputError, user_keys
 from ..examples import resolve_map_path
-from ..execution.config import RunOptions, check_number, check_pose, options_from_mapping
+from ..execution.config import RunOptions, check_number, check_pose, config_mapping, options_from_mapping
 from ..execution.controllers import CONTROLLERS
 from ..execution.runner import check_run
 from ..limits import MAX_BATCH_TRIALS, MAX_GAMMA, MAX_NOISE_SCALE, MAX_SEED, check_int, check_turning_radius
+from ..maps.bundled import resolve_config_path
 from ..planning import PLANNABLE
+from ..records import to_jsonable
 from ..robot import map_robot_where, resolve_robot, robot_from_spec
 from ..safe_io import read_yaml_mapping
 from ..tubes.fit import AUTO_MARGIN_START
@@ -79,6 +81,8 @@ class MapSpec:
     #: the map as data (every file's bytes, nhstab.batch.bundle): what the trials load their map
     #: from, wherever they run, and what the store keeps for replays
     bundle: object = field(default=None, repr=False, compare=False)
+    #: the map as the config names it: ``example:NAME``, else the file's absolute path
+    given: str = field(default="", compare=False)
 
 
 @dataclass
@@ -153,6 +157,27 @@ class BatchConfig:
                 "robots": self.robots, "controllers": self.controllers, "grid": self.grid, "run": self.run,
                 "source": self.source}
 
+    def effective(self) -> dict:
+        """The config as a batch config with every default filled in: each map's problems spelled out,
+        the grid's noise, and every run option (:func:`~nhstab.execution.config.config_mapping`; the
+        options left to the robot, such as its margin and stabilizer, are left out). Loaded again, it
+        defines the same cells and seeds, and gives this same mapping."""
+        maps = []
+        for m in self.maps:
+            entry = {"path": m.given or str(Path(m.path).resolve()),
+                     "problems": [{"start": [float(v) for v in a], "goal": [float(v) for v in b]}
+                                  for a, b in m.problems]}
+            if m.cell_size is not None:
+                entry["cell_size"] = m.cell_size
+            maps.append(entry)
+        out = {"name": self.name, "root_seed": self.root_seed, "trials": self.trials, "maps": maps}
+        if self.robots is not None:
+            out["robots"] = self.robots
+        out["controllers"] = list(self.controllers)
+        out["grid"] = {"noise": [1.0], **self.grid}
+        out["run"] = {k: v for k, v in config_mapping(self.base_options).items() if k not in _RUN_EXCLUDED}
+        return to_jsonable(out)
+
     def bundles(self) -> dict:
         """The maps as data, by bundle id (see nhstab.batch.bundle)."""
         return {m.bundle.id: m.bundle for m in self.maps if m.bundle is not None}
@@ -210,7 +235,7 @@ def load_batch_config(path) -> BatchConfig:
     Each map is read into a bundle (its files' bytes, :mod:`nhstab.batch.bundle`) and loaded from
     that bundle, exactly as every trial will load it, wherever it runs: a map that cannot travel
     (it names a base map or image by an absolute path) is refused here, naming ``maps[i].path``."""
-    path = Path(path)
+    path = resolve_config_path(path, "CONFIG", "batch")
     data = read_yaml_mapping(path, "CONFIG", "batch config (YAML)", keys=_TOP, required=("root_seed", "trials", "maps"))
     name = data.get("name", path.stem)
     if not isinstance(name, str) or not name:
@@ -240,7 +265,8 @@ def load_batch_config(path) -> BatchConfig:
                 raise
             raise InputError(f"{where}.path", "a map that loads", str(entry["path"]), detail=str(exc)) from None
         problems = _problems(f"{where}.problems", entry.get("problems", "map"), m)
-        maps.append(MapSpec(str(mpath), m.name, cell, problems, m.meta["content_hash"], bundle))
+        given = entry["path"] if entry["path"].startswith("example:") else str(Path(mpath).resolve())
+        maps.append(MapSpec(str(mpath), m.name, cell, problems, m.meta["content_hash"], bundle, given))
         loaded.append(m)
     labels = [m.label for m in maps]
     if len(set(labels)) != len(labels):
@@ -391,7 +417,7 @@ def _check_problems(key: str, m, problems, robot, opts) -> None:
             else:
                 c = world.clearance(config[:3], fp)
             if c <= margin:
-                raise InputError(where, f"a pose more than the planning margin {margin:g} m from the known "
+                raise InputError(where, f"a pose more than the planning margin {margin:.3g} m from the known "
                                  f"obstacles of {m.name} for the {rob_name}", [round(float(v), 4) for v in pose],
                                  detail=f"clearance {c:.3g} m")
 

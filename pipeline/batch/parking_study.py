@@ -473,7 +473,7 @@ def study_map(row: dict, settings: dict, progress=None) -> tuple[dict, dict]:
                     "tube_x1": None if tube0 is None else {"kind": tube0.kind, "certified": tube0.certified,
                                                            "certified_clearance_m": tube0.certified_clearance}}
     _say(progress, f"{case['map']}: plan {case['plan']['length_m']:.1f} m, {case['plan']['duration_s']:.1f} s, "
-                   f"{case['plan']['cusps']} cusp(s), margin {margin:g} m ({case['plan_wall_s']:.1f} s)")
+                   f"{case['plan']['cusps']} cusp(s), margin {margin:.3g} m ({case['plan_wall_s']:.1f} s)")
     trial_s = trial_seeds(settings["trials"], settings["root_seed"])
     cells, curves = [], {}
     for ctrl in settings["controllers"]:

@@ -12,7 +12,6 @@ hash). Whichever it is, the map is loaded from the bundle, once per process (see
 
 from __future__ import annotations
 
-import dataclasses
 import time
 import traceback
 import warnings
@@ -22,6 +21,7 @@ import numpy as np
 
 from ..errors import NotStabilizingWarning
 from ..execution import execute, summary
+from ..execution.config import config_mapping
 from ..records import to_jsonable
 from ..robot import resolve_robot
 from .bundle import MapBundle, MapChangedError, loaded
@@ -187,22 +187,7 @@ def replay_config(record: dict, map_path: str | None = None) -> dict:
     beside it), or by default the absolute form of the path the trial records."""
     opts = trial_options(record["spec"])
     cell = record["spec"]["cell_spec"]
-    d = dataclasses.asdict(opts)
     if map_path is None:
         map_path = str(Path(cell["map_path"]).resolve())
-    out = {"map": map_path, "seed": opts.seed, "start": list(opts.start), "goal": list(opts.goal)}
-    if opts.robot:
-        out["robot"] = opts.robot
-    for key in ("rate_hz", "substeps", "saturate", "headroom", "max_time_s"):
-        if d[key] is not None:
-            out[key] = d[key]
-    out["controller"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in d["controller"].items() if v is not None}
-    noise = opts.noise
-    out["noise"] = {"scale": noise.scale, "initial": {"distribution": noise.distribution, **noise.initial},
-                    "sensor": dict(noise.sensor), "process": dict(noise.process),
-                    "impulses": [{"time": t, **j} for t, j in noise.impulses]}
-    # radians as stored (a round trip through degrees could change the last bit)
-    out["sensor"] = {**d["sensor"], "mount": list(d["sensor"]["mount"])}
-    for key in ("monitor", "planning", "replan", "tolerance"):
-        out[key] = {k: v for k, v in d[key].items() if v is not None}
+    out = {"map": map_path, **config_mapping(opts)}
     return to_jsonable(out)

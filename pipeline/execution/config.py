@@ -50,14 +50,15 @@ Noise levels are given per state name; states not named get the robot's default 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
-from pathlib import Path
+from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
+from ..control.frozen import MAX_GAIN
 from ..errors import InputError, user_keys
 from ..examples import resolve_map_path
 from ..limits import (
+    DEFAULT_HEADROOM,
     MAX_CONTROL_PERIODS,
     MAX_NOISE_LEVEL,
     MAX_NOISE_SCALE,
@@ -72,9 +73,11 @@ from ..limits import (
     check_range,
     number_hint,
 )
+from ..maps.bundled import resolve_config_path
 from ..models import MODELS
 from ..models.base import NOISE_KINDS
 from ..planning import PLANNERS, SPACES
+from ..records import to_jsonable
 from ..robot import robot_from_spec
 from ..safe_io import read_yaml_mapping
 from ..sensing import MAX_BEAMS, SensorOptions
@@ -326,7 +329,7 @@ class RunOptions:
     rate_hz: float = 50.0
     substeps: int = 4
     saturate: bool = True
-    headroom: float = 0.8
+    headroom: float = DEFAULT_HEADROOM
     max_time_s: float | None = None
     controller: ControllerOptions = field(default_factory=ControllerOptions)
     noise: NoiseOptions = field(default_factory=NoiseOptions)
@@ -437,7 +440,11 @@ def _section(name: str, data) -> object:
 
 def _sensor_degrees(data: dict) -> None:
     """``fov_deg`` and ``resolution_deg`` checked in degrees (the errors name the keys the user
-    wrote), then converted to the radians of :class:`SensorOptions` in place."""
+    wrote), then converted to the radians of :class:`SensorOptions` in place (an angle given both ways
+    is refused)."""
+    for deg, rad in (("fov_deg", "fov_rad"), ("resolution_deg", "resolution_rad")):
+        if deg in data and rad in data:
+            raise InputError(f"sensor.{rad}", f"left out when sensor.{deg} is given (one angle, one key)", data[rad])
     fov = None
     if "fov_deg" in data:
         fov = check_number("sensor.fov_deg", data.pop("fov_deg"), 0.0, lo_open=True)
@@ -487,8 +494,9 @@ def options_from_mapping(data: dict, allowed=None, prefix: str = "") -> RunOptio
 
 
 def load_run_config(path) -> tuple[dict, RunOptions]:
-    """Read a run config; returns ({"map": resolved path or None}, RunOptions). Strict, see module doc."""
-    path = Path(path)
+    """Read a run config (a file, or ``example:NAME``: a bundled one); returns ({"map": resolved path,
+    "map_given": the text the config gives, when it has a map}, RunOptions). Strict, see module doc."""
+    path = resolve_config_path(path, "--config", "run")
     data = read_yaml_mapping(path, "--config", "run config (YAML)", keys=sorted(_TOP))
     extra = {}
     if "map" in data:
@@ -497,7 +505,54 @@ def load_run_config(path) -> tuple[dict, RunOptions]:
         with user_keys({"example": ("map", data["map"])}):
             m = resolve_map_path(data["map"])            # example:NAME, or relative to the config
         extra["map"] = m if m.is_absolute() else (path.parent / m)
+        extra["map_given"] = data["map"]
     return extra, options_from_mapping({k: v for k, v in data.items() if k != "map"})
+
+
+def config_mapping(opts: RunOptions, robot=None) -> dict:
+    """``opts`` as a run config (the ``nhstab run --config`` keys, without ``map``), every section with
+    every key; plain data that YAML and JSON write. Keys left at None (the robot's) are left out,
+    unless ``robot`` (a :class:`~nhstab.robot.Robot`) is given: then they are filled with its values
+    (planning.margin and turning_radius, controller.alpha, delta and gamma; max_gain with the
+    frozen-time law's; every state's noise level). The sensor's angles are in radians as stored (``fov_rad``,
+    ``resolution_rad``): a round trip through degrees could change the last bit. Read back by
+    :func:`options_from_mapping`, it gives ``opts`` again (with the robot's values filled in)."""
+    if robot is not None:
+        st = robot.stabilizer.as_dict()
+        c, p = opts.controller, opts.planning
+        opts = replace(opts, controller=replace(
+            c, alpha=c.alpha if c.alpha is not None else st.get("alpha"),
+            delta=c.delta if c.delta is not None else st.get("delta"),
+            gamma=c.gamma if c.gamma is not None else st.get("gamma"),
+            max_gain=c.max_gain if c.max_gain is not None else MAX_GAIN),
+            planning=replace(p, margin=p.margin if p.margin is not None else robot.margin,
+                             turning_radius=p.turning_radius if p.turning_radius is not None
+                             else robot.turning_radius))
+    d = asdict(opts)
+    out = {}
+    for key in ("seed", "rate_hz", "substeps", "saturate", "headroom", "max_time_s"):
+        if d[key] is not None:
+            out[key] = d[key]
+    if opts.robot is not None:
+        out["robot"] = opts.robot
+    if opts.start is not None:
+        out["start"] = list(opts.start)
+    if opts.goal is not None:
+        out["goal"] = list(opts.goal)
+    out["controller"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in d["controller"].items()
+                         if v is not None}
+    noise = opts.noise
+    levels = {k: dict(getattr(noise, k)) for k in ("initial", "sensor", "process")}
+    if robot is not None:           # every state's level, the defaults (DEFAULT_NOISE) filled in
+        levels = {k: {s: float(v.get(s, DEFAULT_NOISE[k].get(s, 0.0))) for s in robot.state_names}
+                  for k, v in levels.items()}
+    out["noise"] = {"scale": noise.scale, "initial": {"distribution": noise.distribution, **levels["initial"]},
+                    "sensor": levels["sensor"], "process": levels["process"],
+                    "impulses": [{"time": t, **j} for t, j in noise.impulses]}
+    out["sensor"] = {**d["sensor"], "mount": list(d["sensor"]["mount"])}
+    for key in ("monitor", "planning", "replan", "tolerance", "tube"):
+        out[key] = {k: v for k, v in d[key].items() if v is not None}
+    return to_jsonable(out)
 
 
 def merge(base: RunOptions, **overrides) -> RunOptions:

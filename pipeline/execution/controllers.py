@@ -86,8 +86,10 @@ class ControllerOptions:
                 keys[key] = f"controller.{key}"
         return keys
 
-    def stabilizer(self, defaults: dict) -> StabilizerOptions:
-        params = dict(defaults)
+    def stabilizer(self, defaults) -> StabilizerOptions:
+        """The gain schedule's options: ``defaults`` (a robot's :class:`~nhstab.robot.RobotStabilizer` or
+        a dict of StabilizerOptions keywords) with the values set here on top."""
+        params = dict(defaults.as_dict() if hasattr(defaults, "as_dict") else defaults)
         for key in ("alpha", "delta", "gamma", "max_gain"):
             if getattr(self, key) is not None:
                 params[key] = float(getattr(self, key))
@@ -157,9 +159,10 @@ class FeedbackLaw:
         return np.sum(0.5 * (vals[1:] + vals[:-1]) * np.diff(pts)[:, None], axis=0) / (t_to - t_from)
 
 
-def build_law(nominal: Nominal, options: ControllerOptions, defaults: dict,
+def build_law(nominal: Nominal, options: ControllerOptions, defaults,
               schedule: GainSchedule | None = None) -> FeedbackLaw:
-    """The feedback law of ``options.kind`` along ``nominal``.
+    """The feedback law of ``options.kind`` along ``nominal``; ``defaults``: the robot's stabilizer
+    (a :class:`~nhstab.robot.RobotStabilizer`, or a dict of its keys) for what ``options`` leaves unset.
 
     For the gramian law a schedule already computed with the same options (the planner computes one
     for the future window) is reused. Raises SingularGramianError where the gramian is singular.

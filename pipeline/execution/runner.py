@@ -330,6 +330,8 @@ class CompositeRun:
                 attempt.update(status="ok", message=result.message)
             else:
                 attempt.update(status=result.status, message=result.message)
+                if "likely_cause" in result.metrics:
+                    attempt["likely_cause"] = result.metrics["likely_cause"]
         except InputError as exc:
             if not self.plans:
                 raise
@@ -546,6 +548,13 @@ class CompositeRun:
             attempts.append(attempt)
             if law is not None or len(attempts) >= opts.replan.max_attempts:
                 break
+            if self.notify is not None:     # a failed attempt, as it happens (the next may take longer)
+                self.notify(f"first plan, attempt {len(attempts)} of {opts.replan.max_attempts}: {attempt['status']} "
+                            f"after {attempt['latency_s']:.1f} s"
+                            + (f" ({attempt['likely_cause']['text']})" if "likely_cause" in attempt
+                               and len(attempts) == 1 else "")
+                            + f"; attempt {len(attempts) + 1} with a budget of "
+                              f"{opts.planning.time_limit_s * opts.replan.budget_factor(len(attempts)):g} s ...")
         first = PlanRecord(0, "initial", 0.0, 0.0, self._start_configuration.copy(), attempt["seed"], margin,
                            attempts, result, law, tube=tube)
         self.plans.append(first)

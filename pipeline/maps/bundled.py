@@ -15,6 +15,9 @@ from ..errors import InputError
 
 #: the prefix that names a bundled example instead of a file
 EXAMPLE_PREFIX = "example:"
+#: the folder of the bundled run and batch configs (``example:NAME`` for ``nhstab run --config`` and
+#: ``nhstab batch``), under the data folder; never maps
+CONFIG_FOLDER = "configs"
 #: map file suffixes, by format label
 _FORMATS = {".svg": "Bench-MR SVG", ".map": "Moving AI", ".yaml": None, ".yml": None}
 
@@ -47,6 +50,34 @@ def resolve_map_path(value) -> Path:
     return Path(value)
 
 
+@lru_cache(maxsize=2)
+def config_catalog(kind: str) -> dict[str, Path]:
+    """The bundled configs of ``kind`` ("batch": those with ``trials``, or "run") by name (file stem)."""
+    folder = data_root() / CONFIG_FOLDER
+    if not folder.is_dir():
+        return {}
+    out = {}
+    for p in sorted(folder.glob("*.yaml")):
+        is_batch = bool(re.search(r"^trials:", p.read_text(encoding="utf-8", errors="replace"), flags=re.M))
+        if is_batch == (kind == "batch"):
+            out[p.stem] = p
+    return out
+
+
+def resolve_config_path(value, argument: str, kind: str) -> Path:
+    """A ``kind`` ("run" or "batch") config: ``example:NAME`` -> the bundled config's path (an unknown
+    name is an InputError naming ``argument`` and listing the names); anything else -> ``Path(value)``."""
+    text = str(value)
+    if not is_example(text):
+        return Path(value)
+    name = text[len(EXAMPLE_PREFIX):]
+    catalog = config_catalog(kind)
+    if name not in catalog:
+        raise InputError(argument, f"a {kind} config file or example:NAME, one of " + ", ".join(catalog)
+                         + " (see `nhstab examples`)", text)
+    return catalog[name]
+
+
 def example_path(name: str) -> Path:
     """The file of the bundled example ``name``."""
     catalog = _catalog()
@@ -63,7 +94,8 @@ def _catalog() -> dict[str, Path]:
     for path in sorted(root.rglob("*")):
         if not path.is_file() or path.suffix.lower() not in _FORMATS:
             continue
-        if path.name.startswith("_") or "batch" in path.parts[len(root.parts):-1]:
+        inside = path.parts[len(root.parts):-1]
+        if path.name.startswith("_") or "batch" in inside or CONFIG_FOLDER in inside:
             continue
         if path.suffix.lower() in (".yaml", ".yml") and _is_config(path):
             continue

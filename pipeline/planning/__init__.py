@@ -29,6 +29,7 @@ from ..nominal import Nominal
 from ..robot import Robot, default_robot
 from .cars import CarPlanningError, car_nominal, exact_nominal
 from .geometric import PLANNERS, SPACES, GeometricPath, PathOptions, path_length, plan_path
+from .guide import likely_cause
 from .parking import CarOptions, car_paths, failed_path
 from .result import PlanResult, schedule_metrics
 from .timing import TimingOptions, unicycle_nominal
@@ -215,7 +216,7 @@ def _plan_with(m: Map, robot: Robot, start, goal, path_opts: PathOptions, timing
     check = world.state_checker(fp, path_opts.margin)     # the search's own rule (see search_margin)
     for key, c in clearances.items():
         if c <= path_opts.margin or not check(*(float(v) for v in ends[key])):
-            raise InputError(key, f"a pose at least the margin {path_opts.margin:g} m from the known obstacles",
+            raise InputError(key, f"a pose at least the margin {path_opts.margin:.3g} m from the known obstacles",
                              np.round(ends[key], 4).tolist(), detail=f"clearance {c:.3g} m")
     started = time.perf_counter()
     car_opts = (car_opts or CarOptions()).validated()
@@ -227,7 +228,9 @@ def _plan_with(m: Map, robot: Robot, start, goal, path_opts: PathOptions, timing
     if not car:
         path = plan_path(world, fp, start, goal, replace(path_opts, margin=search_m))
         if path.status != "exact":
-            return _no_path(path, path_opts, base, f"OMPL: {path.planner_status}")
+            return _no_path(path, path_opts, base, f"OMPL: {path.planner_status}",
+                            likely_cause(world, fp, start, goal, path_opts.margin, path_opts.turning_radius,
+                                         path_opts.time_limit_s, model.name, search_m - path_opts.margin))
         return _from_path(path, robot, world, path_opts, timing_opts, stab_opts, car_opts, check_resolution,
                           base, started, delta_key)
     # cars: the paths the car planner offers, best guess first, until a nominal worth tracking
@@ -254,7 +257,9 @@ def _plan_with(m: Map, robot: Robot, start, goal, path_opts: PathOptions, timing
         best.metrics["attempts"] = attempts
         return best
     path = failed_path(path_opts, info, started)
-    return _no_path(path, path_opts, base, path.planner_status)
+    return _no_path(path, path_opts, base, path.planner_status,
+                    likely_cause(world, fp, start, goal, path_opts.margin, path_opts.turning_radius,
+                                 path_opts.time_limit_s, model.name, search_m - path_opts.margin))
 
 
 def _better(a: PlanResult, b: PlanResult) -> bool:
@@ -275,9 +280,13 @@ def _better(a: PlanResult, b: PlanResult) -> bool:
     return excess(a) < excess(b)
 
 
-def _no_path(path: GeometricPath, path_opts: PathOptions, base: dict, why: str) -> PlanResult:
+def _no_path(path: GeometricPath, path_opts: PathOptions, base: dict, why: str, cause: dict | None = None) -> PlanResult:
+    """A search that found no path; ``cause``: :func:`~nhstab.planning.guide.likely_cause` (kept as the
+    metrics' ``likely_cause``)."""
     metrics = {**base, **_path_metrics(path)}
-    radius = f"{path_opts.turning_radius:g} m"
+    if cause is not None:
+        metrics["likely_cause"] = cause
+    radius = f"{path_opts.turning_radius:.3g} m"
     if path.info.get("lock_radius_m", math.inf) < path_opts.turning_radius:
         radius += f", then {path.info['lock_radius_m']:.4g} m with unparking maneuvers"
     tried = (f"{path_opts.planner} in the {path_opts.space} space (turning radius {radius}, margin "
@@ -337,7 +346,7 @@ def _from_path(path: GeometricPath, robot: Robot, world: CollisionWorld, path_op
     if not check.clear:
         metrics["time_to_nominal_s"] = time.perf_counter() - started
         return PlanResult("not_clear", f"the nominal comes within {check.min_clearance:.3g} m of an obstacle "
-                          f"(margin {path_opts.margin:g} m) at {np.round(check.min_clearance_pose, 3).tolist()}",
+                          f"(margin {path_opts.margin:.3g} m) at {np.round(check.min_clearance_pose, 3).tolist()}",
                           path, nominal, metrics=metrics)
     try:
         schedule = compute_schedule(nominal, stab_opts)

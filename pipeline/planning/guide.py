@@ -214,3 +214,164 @@ class Guide:
             return float(s_from)
         d = np.hypot(self.points[sel, 0] - xy[0], self.points[sel, 1] - xy[1])
         return float(self.arc[sel[int(np.argmin(d))]])
+
+
+def passage(world, fp: Footprint, start, goal, samples: int = 9) -> dict | None:
+    """The widest way from start to goal for the footprint's inscribed disc: the largest margin m such
+    that the disc (centred where the robot's is at each pose), kept m from the known obstacles, can go
+    from the start's disc centre to the goal's (a max-min clearance path on the world's distance
+    field), and where that way is narrowest. None when the world has no field (unbounded).
+
+    The field's central estimate (the distance between cell centres; pooled to at most ``MAX_CELLS``
+    cells, the smallest per block) sets the threshold by bisection
+    (start and goal connected in ``{clearance >= c}``, :func:`scipy.ndimage.label`); the cells at the
+    threshold along a shortest grid path through the cells above it are the narrowest places of that
+    way. Up to ``samples`` of them are measured with
+    FCL (the inscribed disc, best over a +-1 cell neighbourhood), and the smallest of those is
+    ``margin_m``: the exact clearance of the inscribed disc where the way is narrowest, a value within
+    about a cell of the true max-min (the start's and goal's own clearance bound it too: a start near a
+    wall is the narrowest place). Returns {margin_m, at: [x, y], inscribed_radius_m,
+    connected: False when even touching obstacles (margin 0) there is no way}."""
+    from scipy import ndimage
+
+    field = world.clearance_field()
+    if field is None:
+        return None
+    centre, radius = inscribed_disc(fp)
+    r = field.r
+    clear = field.lower_bound + math.sqrt(2.0) * r            # the central estimate (see ClearanceField)
+    f = max(1, math.ceil(math.sqrt(clear.size / MAX_CELLS)))
+    if f > 1:                       # a large raster: pooled to at most MAX_CELLS cells (the smallest per block)
+        rows, cols = clear.shape[0] // f, clear.shape[1] // f
+        clear = clear[: rows * f, : cols * f].reshape(rows, f, cols, f).min(axis=(1, 3))
+        r = f * r
+    rows, cols = clear.shape
+
+    def cell_of(pose):
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        x, y = pose[0] + c * centre[0] - s * centre[1], pose[1] + s * centre[0] + c * centre[1]
+        return min(max(int((y - field.y0) // r), 0), rows - 1), min(max(int((x - field.x0) // r), 0), cols - 1)
+
+    s_cell, g_cell = cell_of(start), cell_of(goal)
+    eight = np.ones((3, 3), dtype=bool)
+
+    def joined(c):
+        lab, _ = ndimage.label(clear >= c, structure=eight)
+        return lab if lab[s_cell] and lab[s_cell] == lab[g_cell] else None
+
+    finite = clear[np.isfinite(clear)]
+    if not len(finite):
+        return None
+    lo, hi = 0.0, float(finite.max()) + r
+    if joined(0.0) is None:
+        return {"connected": False, "inscribed_radius_m": radius}
+    for _ in range(40):
+        if hi - lo < 0.05 * r:
+            break
+        mid = 0.5 * (lo + hi)
+        if joined(mid) is not None:
+            lo = mid
+        else:
+            hi = mid
+    # the narrowest places: the cells below hi on a shortest way through the cells at least lo
+    ok = joined(lo) == joined(lo)[s_cell]
+    on_way = _grid_path(ok, s_cell, g_cell)
+    ci, cj = on_way[:, 0], on_way[:, 1]
+    narrow = clear[ci, cj] < hi
+    ci, cj = ci[narrow], cj[narrow]
+    if not len(ci):
+        return {"connected": True, "margin_m": math.inf, "inscribed_radius_m": radius}
+    order = np.argsort(np.hypot(ci - s_cell[0], cj - s_cell[1]))
+    pick = order[np.linspace(0, len(order) - 1, min(samples, len(order))).round().astype(int)]
+    disc = Footprint.disc(radius) if radius > 0 else Footprint.disc(1e-6)
+    best = []
+    for k in pick:
+        x, y = field.x0 + (cj[k] + 0.5) * r, field.y0 + (ci[k] + 0.5) * r
+        around = [(x + a * r, y + b * r) for a in (-1, -0.5, 0, 0.5, 1) for b in (-1, -0.5, 0, 0.5, 1)]
+        vals = [world.clearance(np.array([px, py, 0.0]), disc) for px, py in around]
+        j = int(np.argmax(vals))
+        best.append((vals[j], around[j]))
+    value, at = min(best)
+    return {"connected": True, "margin_m": float(value), "at": [float(at[0]), float(at[1])],
+            "inscribed_radius_m": float(radius)}
+
+
+def _grid_path(ok: np.ndarray, a, b) -> np.ndarray:
+    """A shortest 8-connected path of cells (P, 2) from cell a to cell b through the cells where ``ok``
+    (both in it and joined)."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import dijkstra
+
+    rows, cols = ok.shape
+    idx = np.arange(rows * cols).reshape(rows, cols)
+    src, dst, w = [], [], []
+    for di, dj, length in _STEPS:
+        p = (slice(0, rows - di), slice(max(0, -dj), cols - max(0, dj)))
+        q = (slice(di, rows), slice(max(0, dj), cols - max(0, -dj)))
+        m = ok[p] & ok[q]
+        src.append(idx[p][m])
+        dst.append(idx[q][m])
+        w.append(np.full(int(m.sum()), length))
+    src, dst, w = np.concatenate(src), np.concatenate(dst), np.concatenate(w)
+    n = rows * cols
+    graph = sp.csr_matrix((np.concatenate([w, w]), (np.concatenate([src, dst]), np.concatenate([dst, src]))),
+                          shape=(n, n))
+    s, g = a[0] * cols + a[1], b[0] * cols + b[1]
+    _, pred = dijkstra(graph, directed=True, indices=g, return_predecessors=True)
+    path = [s]
+    while path[-1] != g and pred[path[-1]] >= 0:
+        path.append(int(pred[path[-1]]))
+    path = np.asarray(path)
+    return np.column_stack([path // cols, path % cols])
+
+
+def likely_cause(world, fp: Footprint, start, goal, margin: float, turning_radius: float, budget_s: float,
+                 model_name: str, pad: float = 0.0) -> dict:
+    """Why a search found no path, most likely, in one line with its numbers (``text``), from
+    :func:`passage`: the margin (the widest way fits the footprint's inscribed disc only with a
+    smaller one: ``fits_margin_m``; the search keeps ``pad`` more than the margin, so the margin that
+    fits is below ``fits_margin_m - pad``), the footprint (it does not fit even touching), no way at
+    all, else the turning radius and the budget (the way is wide enough for the footprint's width)."""
+    info = passage(world, fp, start, goal)
+    out = {"margin_m": float(margin), "search_pad_m": float(pad), "turning_radius_m": float(turning_radius),
+           "budget_s": float(budget_s)}
+    if info is None:
+        out.update(cause="budget", text=f"likely cause: the budget ({budget_s:g} s, --time-limit) or the turning "
+                                        f"radius ({turning_radius:g} m)")
+        return out
+    r = info["inscribed_radius_m"]
+    out["inscribed_radius_m"] = r
+    width = "radius" if fp.radius is not None else "half-width"
+    if not info["connected"]:
+        out.update(cause="blocked", text=f"likely cause: the known obstacles: no way from start to goal is wide "
+                                         f"enough for the footprint's {width} {r:.3g} m even touching them")
+        return out
+    fit, (x, y) = info["margin_m"], info.get("at", (math.nan, math.nan))
+    out.update(fits_margin_m=fit, narrowest_at=[x, y])
+    if r + fit <= 0:
+        out.update(cause="blocked", text=f"likely cause: the known obstacles: no way from start to goal is wide "
+                                         f"enough for the footprint's {width} {r:.3g} m even touching them")
+    elif fit < 0:
+        out.update(cause="footprint", text=f"likely cause: the footprint: the widest way from start to goal, "
+                                           f"narrowest near ({x:.2f}, {y:.2f}), is {2 * (r + fit):.3g} m wide, less "
+                                           f"than the footprint's {2 * r:.3g} m ({width} {r:.3g} m)")
+    elif fit < margin + pad:
+        searched = f" (the search keeps {margin + pad:.3g} m)" if pad > 0 else ""
+        below = max(0.0, _floor_mm(fit - pad))
+        out.update(cause="margin", fits_below_m=below,
+                   text=f"likely cause: the margin: the widest way from start to goal, narrowest near ({x:.2f}, "
+                        f"{y:.2f}), keeps the footprint ({width} {r:.3g} m) {fit:.3f} m from the obstacles, less "
+                        f"than the margin {margin:.3g} m{searched}; it can fit only with --margin below {below:.3f} m")
+    else:
+        turn = (f"the turning radius {turning_radius:.3g} m (--turning-radius)" if model_name != "unicycle" else
+                f"the turning radius {turning_radius:.3g} m of the path's arcs (--turning-radius)")
+        out.update(cause="turning_radius_or_budget",
+                   text=f"likely cause: {turn} or the budget {budget_s:g} s (--time-limit): the widest way keeps "
+                        f"the footprint ({width} {r:.3g} m) {fit:.3f} m from the obstacles near ({x:.2f}, {y:.2f}), "
+                        f"more than the {margin + pad:.3g} m the search keeps")
+    return out
+
+
+def _floor_mm(value: float) -> float:
+    """``value`` rounded down to the millimetre."""
+    return math.floor(value * 1000.0 + 1e-9) / 1000.0

@@ -783,7 +783,7 @@ def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts
     for key, c in clearances.items():
         if c <= path_opts.margin:
             value = start_c if key == "start" else goal_c
-            raise InputError(key, f"a configuration whose every body is at least the margin {path_opts.margin:g} m "
+            raise InputError(key, f"a configuration whose every body is at least the margin {path_opts.margin:.3g} m "
                              f"from the known obstacles", np.round(value, 4).tolist(), detail=f"clearance {c:.3g} m")
     if path_opts.turning_radius < model.min_turning_radius - 1e-9:
         raise InputError("turning_radius", f"at least the trailer's smallest steady turning radius "
@@ -814,7 +814,7 @@ def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts
                    "planned_body": "trailer 1 (its axle)", "hitch_angle_on_arcs_rad": rig.hitch_on_arcs}
         if path.status != "exact":
             tried = (f"{path_opts.planner} for the trailer's axle in the reeds_shepp space (turning radius "
-                     f"{path_opts.turning_radius:g} m, margin {path_opts.margin:g} m) for {opts_k.time_limit_s:g} s "
+                     f"{path_opts.turning_radius:.3g} m, margin {path_opts.margin:.3g} m) for {opts_k.time_limit_s:g} s "
                      f"with seed {opts_k.seed}")
             result = ("no_path", f"no collision-free path found: tried {tried}; OMPL: {path.planner_status}", path,
                       None, metrics)
@@ -838,7 +838,7 @@ def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts
                     result = None
                     break
                 result = ("not_clear", f"the nominal comes within {check.min_clearance:.3g} m of an obstacle "
-                          f"(margin {path_opts.margin:g} m) with its {('car', 'trailer')[check.min_clearance_body]} at "
+                          f"(margin {path_opts.margin:.3g} m) with its {('car', 'trailer')[check.min_clearance_body]} at "
                           f"{np.round(check.min_clearance_pose, 3).tolist()}", path, nominal, metrics)
         attempts.append(f"{result[0]} ({'guided' if k == 0 and search.guide else f'seed {opts_k.seed}'})")
         if time.perf_counter() - started >= budget:

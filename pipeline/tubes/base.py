@@ -275,13 +275,19 @@ def failing_samples(world, fp: Footprint, poses: np.ndarray, reach: np.ndarray) 
     return cand[bad], gap[bad]
 
 
-def certified_text(tube) -> str:
+def certified_text(tube, explain: bool = False) -> str:
     """The tube's certified clearance for a message, or that it was not certified (no world: e.g. a robot
-    of several bodies, whose tube is certified for no body)."""
+    of several bodies, whose tube is certified for no body); with ``explain``, a negative clearance
+    says in words what it means (for a line a user reads; a figure's title keeps the short form)."""
     if tube.certified_clearance is None:
         return "clearance not certified (a robot of several bodies)"
-    word = "certified clear by" if tube.certified_clearance >= 0 else "NOT certified: tube clearance"
-    return f"{word} {tube.certified_clearance:+.3f} m"
+    c = tube.certified_clearance
+    if c >= 0:
+        return f"certified clear by {c:+.3f} m"
+    text = f"NOT certified: tube clearance {c:+.3f} m"
+    if explain:
+        text += f" (at this probability the robot's footprint may overlap a known obstacle by {-c:.3f} m)"
+    return text
 
 
 def verdict(tube, world, fp: Footprint, margin: float | None = None, cap: float | None = None) -> dict:
@@ -342,7 +348,7 @@ def tube_line(tube, noise_scale: float | None = None, prefix: str = "tube") -> s
     if tube.certified_clearance is None:
         return (f"{head}: clearance not certified (a robot of several bodies); reach up to "
                 f"{float(tube.reach.max()):.2f} m")
-    text = f"{head}: {certified_text(tube)}"
+    text = f"{head}: {certified_text(tube, explain=True)}"
     t = v.get("tightest")
     if t:
         x, y, th = t["pose"][:3]
@@ -363,8 +369,17 @@ def tube_line(tube, noise_scale: float | None = None, prefix: str = "tube") -> s
         if frac > 0:
             text += f"; inputs reach a limit in {100.0 * frac:.0f} % of rollouts"
     elif tube.saturation["run_bound"] > LINEAR_SATURATION_NOTE:
-        text += f"; inputs may saturate (probability <= {tube.saturation['run_bound']:.2g})"
+        text += "; " + saturation_text(tube.saturation["run_bound"])
     return text
+
+
+def saturation_text(bound: float) -> str:
+    """The linear tube's bound on the probability that the inputs saturate, for a user: a percentage,
+    or where the bound is (about) 1, that it says nothing and what measures it."""
+    if bound >= 0.995:
+        return ("inputs may saturate (the linear bound on how often is 1, no information: --tube sampled "
+                "measures it)")
+    return f"inputs may saturate (probability at most {100.0 * bound:.2g} %)"
 
 
 def hull_vertices(fp: Footprint) -> np.ndarray | None:

@@ -82,9 +82,9 @@ def test_gains_command(runner, tmp_path, traj):
 def test_gains_reports_the_3_alpha_bound_and_warns_once_for_the_past_window(runner, tmp_path, traj):
     out = tmp_path / "g"
     res = runner.invoke(cli, ["gains", str(traj), "--model", "unicycle", "--out", str(out)])
-    assert res.exit_code == 0 and "guaranteed rate 3 alpha = 0.3 1/s" in res.stdout
+    assert res.exit_code == 0 and "guaranteed rate 3 alpha = 0.6 1/s" in res.stdout   # the unicycle's alpha 0.2
     diag = json.loads((out / "gains.json").read_text())
-    assert diag["rate_bound"] == pytest.approx(0.3) and diag["rate_bound_printed"] < 0.3
+    assert diag["rate_bound"] == pytest.approx(0.6) and diag["rate_bound_printed"] < 0.6
     res = runner.invoke(cli, ["gains", str(traj), "--model", "unicycle", "--window", "past", "--out", str(out)])
     assert res.exit_code == 0, res.output
     warnings = [ln for ln in res.stderr.splitlines() if ln.strip()]

@@ -166,7 +166,12 @@ def test_plan_cli_no_plan_exit_3(tmp_path):
                         "  - box: {center: [12.2, 5], size: [0.4, 5.4]}\n  - box: {center: [17.8, 5], size: [0.4, 5.4]}\n"
                         "start: [3, 5, 0]\ngoal: [15, 5, 0]\nrobot: {model: unicycle}\n")
     res = _cli(["plan", str(enclosed), "--time-limit", "0.3", "--out", str(tmp_path / "o")])
-    only_line(res, 3, "no plan", "rrtconnect", "0.3 s", "seed 0")
+    assert res.exit_code == 3 and "Traceback" not in res.output
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 2, lines
+    assert all(n in lines[0] for n in ("nhstab: no plan", "rrtconnect", "0.3 s", "seed 0")), lines[0]
+    # the second line says why: the goal's room is walled in (the unicycle's radius 0.3 m)
+    assert lines[1].startswith("likely cause: the known obstacles: no way from start to goal") and "0.3 m" in lines[1]
     assert not (tmp_path / "o").exists()
 
 
