@@ -259,7 +259,7 @@ def test_sweep_config_errors_name_the_key(config, key):
 def test_sweep_config_defaults_and_laws():
     s = TS.check_sweep_config({"gramian": {"alpha": [0.02, 0.05], "end_strategy": ["frozen", "extend"]}})
     assert s["cases"] == [r["name"] for r in TS.suite_rows()] and s["noise"] == [0.5, 1.0, 2.0] and s["trials"] == 50
-    defaults = robot_from_spec(T.rig_spec()).stabilizer
+    defaults = robot_from_spec(T.rig_spec()).stabilizer.as_dict()
     laws = TS.laws(s, defaults)
     assert laws[0] == {"controller": "tvlqr"} and len(laws) == 1 + 2 * 2
     assert {(w["alpha"], w["delta"], w["gamma"], w["end_strategy"]) for w in laws[1:]} == {

@@ -45,7 +45,7 @@ def test_a_dubins_car_is_told_to_plan_forward_only(tmp_path):
     assert "# forward only: plan with --space dubins" in res.stdout
 
 
-def test_bad_nav2_files_are_one_line_naming_the_key(tmp_path):
+def test_bad_nav2_files_are_one_line_naming_the_key(tmp_path, monkeypatch):
     p = tmp_path / "bad.yaml"
     p.write_text(CAR.read_text().replace('"[ [0.55, 0.2], [0.55, -0.2], [-0.15, -0.2], [-0.15, 0.2] ]"',
                                          '"[ [0.55, 0.2], [0.55, -0.2], [-0.15, -0.2], [-0.15, 0.2] "'))
@@ -53,7 +53,8 @@ def test_bad_nav2_files_are_one_line_naming_the_key(tmp_path):
              "not closed")
     p.write_text(CAR.read_text().replace("minimum_turning_radius: 0.8", "minimum_turning_radius: -1"))
     one_line(invoke("robot", "from-nav2", p), 2, "planner_server.ros__parameters.GridBased.minimum_turning_radius")
-    one_line(invoke("robot", "from-nav2", tmp_path / "missing.yaml"), 2, "missing.yaml")
+    monkeypatch.chdir(tmp_path)          # a short path: a long one is shortened in the message
+    one_line(invoke("robot", "from-nav2", "missing.yaml"), 2, "missing.yaml")
     one_line(invoke("robot", "from-nav2", CAR, "--wheelbase", "nan"), 2, "'--wheelbase'")
     one_line(invoke("robot", "from-nav2", CAR, "--margin", "-0.1"), 2, "'--margin'")
 
