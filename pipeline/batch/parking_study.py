@@ -11,8 +11,8 @@ sensor noise and process disturbance), a **cell**:
 
 1. **The tube**: :func:`nhstab.tubes.predict_tube` of the cell's law and noise against the known
    obstacles, probability p = 0.997, kind "auto" (the linear tube where it holds: no saturation, no
-   interior stop; the sampled tube of N = ceil(ln(1 - c) / ln p) = 998 rollouts at confidence c = 0.95
-   elsewhere), with its :func:`nhstab.tubes.verdict` (certified or not, where it is tightest, the margin
+   interior stop; elsewhere the sampled tube of N rollouts with r = 2 left out, N = 2,097 the smallest
+   with P[Bin(N, 1 - p) <= r] <= 1 - c at confidence c = 0.95), with its :func:`nhstab.tubes.verdict` (certified or not, where it is tightest, the margin
    it would need). A tube that is not certified gets the reason: where it is tightest, and whether
    the margin it needs is more than the start's or goal's own clearance (less 1 mm, as the run's cap):
    then no plan between them can be certified at that noise.
@@ -45,14 +45,15 @@ sensor noise and process disturbance), a **cell**:
    * **below**: the samples where reach_k is below the lower end of the binomial 95 % confidence
      interval of q_k (the order statistics X_(l), X_(u) with l = the 2.5 % point and u - 1 the 97.5 %
      point of Bin(M, p)): below the quantile beyond the Monte Carlo's sampling error. The reach is the
-     largest of N draws, so it is below the p-quantile at a sample with probability beta = p^N (the
-     certificate's 1 - confidence), by design: ``expected_if_correct`` is the count a correct tube gives.
+     (r + 1)-th largest of N draws, so it is below the p-quantile at a sample with probability beta =
+     P[Bin(N, 1 - p) <= r] (the certificate's 1 - confidence), by design: ``expected_if_correct`` is the
+     count a correct tube gives.
 
    A cell's tube **passes** when the certificate coverage and the per-sample coverage are not below p
    beyond their Wilson intervals (upper end >= p), the conservatism at the tightest sample is at most
    1.25, and the fraction of samples below is at most beta. The 95th percentile of the conservatism is
-   reported against 1.25 too (``p95_within``): the largest of N = 998 draws sits at the 0.999-quantile on
-   average, above p = 0.997 by the tail's shape. The M x S displacements (about 160 MB at M = 9,980 and
+   reported against 1.25 too (``p95_within``): the third largest of N = 2,097 draws sits near the
+   0.9986-quantile on average, above p = 0.997 by the tail's shape. The M x S displacements (about 160 MB at M = 9,980 and
    S = 2,000) are freed after each cell.
 4. **Targets** (``result["targets"]``): at x1, no collision in any cell whose tube is certified;
    success >= 98 % in every parallel slot of at least 1.0 x L1 and every bay, >= 90 % at 0.9 x L1 (the
@@ -86,7 +87,15 @@ from ..maps import load_map, resolve_poses
 from ..parking import read_suite_csv
 from ..report import subplots
 from ..robot import resolve_robot
-from ..tubes.base import displacement, hull_vertices, pose_indices, rollouts_needed, verdict
+from ..tubes.base import (
+    DEFAULT_DISCARDS,
+    displacement,
+    hull_vertices,
+    order_statistic_beta,
+    pose_indices,
+    rollouts_needed,
+    verdict,
+)
 from ..tubes.predict import predict_tube
 from .report import wilson
 from .tube_study import trial_seeds
@@ -330,23 +339,31 @@ def quantile_indices(M: int, p: float, level: float = QUANTILE_CI) -> tuple[int,
     return j, lo, hi
 
 
-def below_chance(l: int, M: int, N: int) -> float:
-    """E[F(X_(l))^N] with F(X_(l)) ~ Beta(l, M - l + 1): the chance that the largest of N independent
-    draws is below the l-th of M others (a correct sampled tube's chance of a 'below' at one sample)."""
-    from scipy.special import betaln
+def below_chance(l: int, M: int, N: int, r: int = 0) -> float:
+    """The chance that the (r + 1)-th largest of N independent draws is below the l-th smallest of M others
+    (a correct sampled tube's chance of a 'below' at one sample): with U = F(X_(l)) ~ Beta(l, M - l + 1),
+    E[P(Bin(N, 1 - U) <= r)] = sum_j C(N, j) B(l + N - j, M - l + 1 + j) / B(l, M - l + 1), j = 0..r
+    (r = 0: E[U^N])."""
+    from scipy.special import betaln, gammaln
 
     if l < 1:
         return 0.0
-    return float(math.exp(betaln(l + N, M - l + 1) - betaln(l, M - l + 1)))
+    base = betaln(l, M - l + 1)
+    total = 0.0
+    for j in range(int(r) + 1):
+        log_choose = gammaln(N + 1) - gammaln(j + 1) - gammaln(N - j + 1)
+        total += math.exp(log_choose + betaln(l + N - j, M - l + 1 + j) - base)
+    return float(total)
 
 
-def probability_beta(p: float, rollouts: int) -> float:
-    """beta = p^N: the chance that the largest of N draws is below the p-quantile (at one sample)."""
-    return float(p) ** int(rollouts)
+def probability_beta(p: float, rollouts: int, discards: int = 0) -> float:
+    """beta = P[Bin(N, 1 - p) <= r]: the chance that the (r + 1)-th largest of N draws is below the
+    p-quantile (at one sample; r = 0: p^N)."""
+    return order_statistic_beta(p, int(rollouts), int(discards))
 
 
 def tube_check(reach: np.ndarray, Dt: np.ndarray, p: float, t: np.ndarray, tightest: int | None = None,
-               runs_below: int | None = None, rollouts: int | None = None) -> tuple[dict, dict]:
+               runs_below: int | None = None, rollouts: int | None = None, discards: int = 0) -> tuple[dict, dict]:
     """The tube check of one cell (see the module docstring): reach (S,) against the displacements
     Dt (S, M) of M Monte Carlo runs. Returns (JSON record, per-sample curves)."""
     S, M = Dt.shape
@@ -394,7 +411,7 @@ def tube_check(reach: np.ndarray, Dt: np.ndarray, p: float, t: np.ndarray, tight
                     "times_s": [float(t[kb].min()), float(t[kb].max())] if len(kb) else None,
                     "largest_shortfall_m": float(np.max(qlo[kb] - reach[kb])) if len(kb) else None}
     if rollouts is not None:
-        chance = below_chance(l, M, int(rollouts))
+        chance = below_chance(l, M, int(rollouts), discards)
         rec["below"]["chance_per_sample_if_correct"] = chance
         rec["below"]["expected_if_correct"] = chance * S
     if runs_below is not None:
@@ -407,7 +424,7 @@ def tube_check(reach: np.ndarray, Dt: np.ndarray, p: float, t: np.ndarray, tight
                                   "note": "pooled over runs and samples (correlated within a run: the interval is "
                                           "too narrow); reach_k claims the p-quantile at each sample"}
     cons = rec["conservatism"]
-    beta = None if rollouts is None else float(probability_beta(p, rollouts))
+    beta = None if rollouts is None else float(probability_beta(p, rollouts, discards))
     rec["below"]["fraction"] = float(below.mean())
     rec["below"]["allowed_fraction"] = beta
     cert_ok = True
@@ -489,7 +506,8 @@ def study_map(row: dict, settings: dict, progress=None) -> tuple[dict, dict]:
             cell = {"controller": ctrl, "noise": level, "wall_s": {}}
             t0 = time.perf_counter()
             reuse = (tube0 is not None and law is law0 and noise == run.opts.noise and opts.tube.kind == "auto"
-                     and opts.tube.probability == p and opts.tube.confidence == conf)
+                     and opts.tube.probability == p and opts.tube.confidence == conf
+                     and opts.tube.discards == DEFAULT_DISCARDS)
             tube = None
             try:
                 tube = tube0 if reuse else predict_tube(
@@ -513,7 +531,8 @@ def study_map(row: dict, settings: dict, progress=None) -> tuple[dict, dict]:
                 Dt, mc = mc_displacements(run, law, tube.poses, trial_seeds(M, settings["root_seed"] + 1), noise,
                                           c_nom, tube.certified_clearance)
                 rec, cur = tube_check(tube.reach, Dt, p, tube.t, tube.certified_index, mc.get("runs_below"),
-                                      tube.certificate.get("rollouts") if tube.kind == "sampled" else None)
+                                      tube.certificate.get("rollouts") if tube.kind == "sampled" else None,
+                                      tube.certificate.get("discards", 0) if tube.kind == "sampled" else 0)
                 del Dt
                 rec["monte_carlo"] = mc
                 cell["tube_check"] = rec
@@ -575,7 +594,7 @@ def run_parking_study(trials: int = TRIALS, mc_factor: int = MC_FACTOR, maps=Non
     rows = check_maps(maps)
     levels = check_levels(noise_levels)
     ctrls = check_controllers(controllers)
-    N = rollouts_needed(probability, confidence)
+    N = rollouts_needed(probability, confidence, DEFAULT_DISCARDS)
     mc_factor = check_int("mc_factor", mc_factor, 1, max(1, MAX_ROLLOUTS // N),
                           f"a factor of the tube's {N} rollouts (at most {MAX_ROLLOUTS:,} Monte Carlo runs)")
     opts = replace(options, seed=plan_seed) if options is not None else RunOptions(seed=plan_seed)
@@ -584,7 +603,7 @@ def run_parking_study(trials: int = TRIALS, mc_factor: int = MC_FACTOR, maps=Non
                 "rollouts": N, "mc_factor": mc_factor}
     started = time.perf_counter()
     out = {"study": "parking", "probability": probability, "confidence": confidence, "rollouts": N,
-           "mc_factor": mc_factor, "mc_runs": mc_factor * N, "trials": trials, "root_seed": root_seed,
+           "discards": DEFAULT_DISCARDS, "mc_factor": mc_factor, "mc_runs": mc_factor * N, "trials": trials, "root_seed": root_seed,
            "mc_root_seed": root_seed + 1, "plan_seed": plan_seed, "controllers": ctrls, "noise_levels": levels,
            "tolerance": {"position_m": opts.tolerance.position_m, "heading_rad": opts.tolerance.heading_rad},
            "planning": {"margin": opts.planning.margin, "fit": opts.planning.fit, "headroom": opts.headroom,
@@ -763,7 +782,8 @@ def study_markdown(result: dict) -> str:
         + ("the map robot's" if pl["margin"] is None else str(pl["margin"]))
         + f", headroom {pl['headroom']:g}, {pl['planner']} with {pl['time_limit_s']:g} s). Per controller "
         f"and noise level (a cell): the {p:g}-tube (`predict_tube`, kind auto: linear where it holds, else sampled "
-        f"with N = {result['rollouts']} rollouts, confidence {result['confidence']:g}); {result['trials']} trials of "
+        f"with N = {result['rollouts']} rollouts, the {result.get('discards', 0)} most extreme left out, confidence "
+        f"{result['confidence']:g}); {result['trials']} trials of "
         f"the run loop (seeds spawned from {result['root_seed']}): collision = the footprint overlaps a known "
         f"obstacle at some sample (FCL), success = no collision and the end within {result['tolerance']['position_m']:g} m "
         f"and {result['tolerance']['heading_rad']:g} rad of the goal (Wilson 95 %); and the tube check: "

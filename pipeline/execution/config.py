@@ -38,10 +38,13 @@ was given. The format::
     replan: {pause_s: 1.0, max_attempts: 3, max_replans: 10, budget_growth: 4.0, at_cusps: true,
              max_cusp_replans: 3}      # at_cusps: at each cusp, replan the rest when its tube is not clear
     tolerance: {position_m: 0.3, heading_rad: 0.2}
-    tube: {kind: auto, probability: 0.997, confidence: 0.95, require_certified: false}
+    tube: {kind: auto, probability: 0.997, confidence: 0.95, discards: 2,
+           require_certified: false}
                                       # every plan's error tube (nhstab.tubes): auto = linear where it holds,
-                                      # sampled rollouts elsewhere; require_certified: refuse a plan whose
-                                      # tube is not certified clear (status not_certified)
+                                      # sampled rollouts elsewhere; discards: rollouts the sampled tube's
+                                      # reach and clearance leave out (more rollouts, a tighter tube);
+                                      # require_certified: refuse a plan whose tube is not certified clear
+                                      # (status not_certified)
 
 Noise levels are given per state name; states not named get the robot's default (see
 :data:`DEFAULT_NOISE`).
@@ -81,7 +84,7 @@ from ..records import to_jsonable
 from ..robot import robot_from_spec
 from ..safe_io import read_yaml_mapping
 from ..sensing import MAX_BEAMS, SensorOptions
-from ..tubes.base import TUBE_KINDS, rollouts_needed
+from ..tubes.base import DEFAULT_DISCARDS, TUBE_KINDS, check_discards, rollouts_needed
 from .controllers import ControllerOptions
 
 
@@ -280,13 +283,16 @@ class ReplanOptions:
 class TubeOptions:
     """The error tube of every plan (:func:`nhstab.tubes.predict_tube`): ``kind`` auto (the linear tube
     where it holds, the sampled one elsewhere), linear or sampled; its ``probability`` p and, for the
-    sampled tube, the certificate's ``confidence`` (N >= ln(1 - confidence) / ln(p) rollouts).
+    sampled tube, the certificate's ``confidence`` and ``discards`` r (N rollouts, the smallest with
+    P[Binomial(N, 1 - p) <= r] <= 1 - confidence; r = 0: N >= ln(1 - confidence) / ln(p)); the reach and
+    certified clearance leave out the r most extreme rollouts (:mod:`nhstab.tubes.sampled`).
     ``require_certified``: a plan whose tube is not certified clear is not executed (the run ends
     "not_certified" before the robot follows it; ``nhstab run`` exits with code 5)."""
 
     kind: str = "auto"
     probability: float = 0.997
     confidence: float = 0.95
+    discards: int = DEFAULT_DISCARDS
     require_certified: bool = False
 
     def validated(self) -> "TubeOptions":
@@ -296,10 +302,15 @@ class TubeOptions:
         v = check_number("tube.confidence", self.confidence, 0.0, lo_open=True)
         if v >= 1.0:
             raise InputError("tube.confidence", "a number in (0, 1)", v)
+        check_discards(self.discards, "tube.discards")
         try:
             rollouts_needed(self.probability, self.confidence)
         except InputError as exc:
             raise exc.renamed("tube.confidence") from None
+        try:
+            rollouts_needed(self.probability, self.confidence, self.discards)
+        except InputError as exc:
+            raise exc.renamed("tube.discards") from None
         if not isinstance(self.require_certified, bool):
             raise InputError("tube.require_certified", "true or false", self.require_certified)
         return self

@@ -391,7 +391,8 @@ class CompositeRun:
             tube = predict_tube(law, self.opts.noise, self.fp, self.robot_world if certify else None,
                                 rate_hz=self.opts.rate_hz, substeps=self.opts.substeps, model=self.model,
                                 initial_cov=initial, impulses=not self.plans, probability=to.probability,
-                                kind=to.kind if world else "linear", confidence=to.confidence)
+                                kind=to.kind if world else "linear", confidence=to.confidence,
+                                discards=to.discards)
         except NumericalError:
             if not world:
                 raise                  # choose_gains skips the setting
@@ -643,7 +644,8 @@ class CompositeRun:
         try:
             rest = sampled_tube(sub, start_noise, self.fp, self.robot_world, rate_hz=self.opts.rate_hz,
                                 substeps=self.opts.substeps, model=self.model, probability=to.probability,
-                                confidence=to.confidence, x_start=y, why="the rest of the maneuver at a cusp")
+                                confidence=to.confidence, x_start=y, why="the rest of the maneuver at a cusp",
+                                discards=to.discards)
             verdict(rest, self.robot_world, self.fp, rec.margin)
         except NumericalError as exc:
             rest = None

@@ -423,12 +423,42 @@ DEFAULT_CONFIDENCE = 0.95
 TUBE_KINDS = ("auto", "linear", "sampled")
 
 
-def rollouts_needed(probability: float, confidence: float = DEFAULT_CONFIDENCE) -> int:
-    """The smallest N with p^N <= 1 - confidence: N rollouts, none outside the reported region, bound
-    its p-quantile with that confidence (the scenario bound; see the module docstring)."""
+#: the sampled tube's default number of discarded rollouts r: its reach at a sample is the (r + 1)-th largest
+#: displacement of the N rollouts, and its certified clearance the (r + 1)-th smallest rollout clearance
+#: (the scenario bound with discarded samples); r = 0 is the plain largest of N
+DEFAULT_DISCARDS = 2
+
+
+#: the most discarded rollouts a sampled tube may ask for
+MAX_DISCARDS = 1000
+
+
+def check_discards(discards, key: str = "discards") -> int:
+    """``discards`` as an int in [0, MAX_DISCARDS], else an InputError naming ``key``."""
+    if isinstance(discards, bool) or not isinstance(discards, (int, np.integer)) or not 0 <= discards <= MAX_DISCARDS:
+        raise InputError(key, f"an integer in [0, {MAX_DISCARDS}]", discards)
+    return int(discards)
+
+
+def order_statistic_beta(probability: float, rollouts: int, discards: int = 0) -> float:
+    """beta = P[Binomial(N, 1 - p) <= r]: the chance that fewer than r + 1 of N independent draws exceed the
+    p-quantile, i.e. that the (r + 1)-th largest of N lies below it (r = 0: p^N)."""
+    from scipy.stats import binom
+
+    if discards == 0:
+        return float(probability) ** int(rollouts)
+    return float(binom.cdf(int(discards), int(rollouts), 1.0 - float(probability)))
+
+
+def rollouts_needed(probability: float, confidence: float = DEFAULT_CONFIDENCE, discards: int = 0) -> int:
+    """The smallest N with P[Binomial(N, 1 - p) <= r] <= 1 - confidence (r = ``discards``; for r = 0,
+    p^N <= 1 - confidence): N rollouts of which at most r lie outside the reported region bound its
+    p-quantile with that confidence (the scenario bound with discarded samples; see
+    :mod:`nhstab.tubes.sampled`)."""
     check_probability("probability", probability)
     if not (isinstance(confidence, (int, float)) and 0.0 < confidence < 1.0):
         raise InputError("confidence", "a number in (0, 1)", confidence)
+    r = check_discards(discards)
     n = math.log1p(-confidence) / math.log(probability)
     if not math.isfinite(n) or n > MAX_ROLLOUTS:
         raise InputError("confidence", f"a probability and confidence needing at most {MAX_ROLLOUTS:,} rollouts "
@@ -438,4 +468,21 @@ def rollouts_needed(probability: float, confidence: float = DEFAULT_CONFIDENCE) 
     N = max(1, math.ceil(n - 1e-9))
     while probability ** N > 1.0 - confidence:
         N += 1
-    return N
+    if r == 0:
+        return N
+    # P[Bin(N, q) <= r] falls as N grows: a doubling search, then bisection
+    lo, hi = N, N
+    while order_statistic_beta(probability, hi, r) > 1.0 - confidence:
+        lo, hi = hi, 2 * hi
+        if hi > 4 * MAX_ROLLOUTS:
+            break
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if order_statistic_beta(probability, mid, r) <= 1.0 - confidence:
+            hi = mid
+        else:
+            lo = mid + 1
+    if hi > MAX_ROLLOUTS:
+        raise InputError("discards", f"a number of discarded rollouts needing at most {MAX_ROLLOUTS:,} rollouts", r,
+                         detail=f"p = {probability:.10g} at confidence {confidence:.10g} needs {hi:,}")
+    return hi

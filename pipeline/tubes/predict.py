@@ -9,7 +9,15 @@ import numpy as np
 from ..errors import InputError, NumericalError
 from ..geometry import Footprint
 from ..limits import check_probability
-from .base import DEFAULT_CONFIDENCE, DEFAULT_PROBABILITY, TUBE_KINDS, Tube, certified_clearance, verdict
+from .base import (
+    DEFAULT_CONFIDENCE,
+    DEFAULT_DISCARDS,
+    DEFAULT_PROBABILITY,
+    TUBE_KINDS,
+    Tube,
+    certified_clearance,
+    verdict,
+)
 from .linear import _linear_tube
 from .sampled import linear_validity, sampled_tube
 
@@ -17,7 +25,7 @@ from .sampled import linear_validity, sampled_tube
 def predict_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float = 50.0, substeps: int = 4,
                  model=None, probability: float = DEFAULT_PROBABILITY, initial_cov: np.ndarray | None = None,
                  t_end: float | None = None, impulses: bool = True, kind: str = "auto",
-                 confidence: float | None = None) -> Tube:
+                 confidence: float | None = None, discards: int = DEFAULT_DISCARDS) -> Tube:
     """The error tube of ``law`` (a FeedbackLaw) under ``noise`` (a NoiseOptions), see the module
     docstring. ``world``: the CollisionWorld of the obstacles to certify against (None: no certified
     clearance). ``model``: the real robot (input limits for the saturation probability; default the
@@ -26,7 +34,7 @@ def predict_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
     error is the sensor noise). ``impulses``: include the noise's impulses (times from the start).
 
     ``kind``: "linear" (the linear-Gaussian tube), "sampled" (rollouts of the run loop,
-    :func:`nhstab.tubes.sampled_tube`, with ``confidence``), or "auto" (default): the linear tube
+    :func:`nhstab.tubes.sampled_tube`, with ``confidence`` and ``discards``), or "auto" (default): the linear tube
     where it holds (:func:`nhstab.tubes.linear_validity`: no input saturation to speak of and no
     interior stop), the sampled one elsewhere; the tube's ``certificate`` says which and why. With a
     world the tube carries its :func:`verdict` (without the plan's margin; call it again with it)."""
@@ -69,7 +77,7 @@ def predict_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
     if not impulses:
         sample_noise = replace(sample_noise, impulses=())
     tube = sampled_tube(law, sample_noise, footprint, world, rate_hz=rate_hz, substeps=substeps, model=model,
-                        probability=probability, confidence=confidence, t_end=t_end, why=why)
+                        probability=probability, confidence=confidence, t_end=t_end, why=why, discards=discards)
     if world is not None:
         verdict(tube, world, footprint)
     return tube

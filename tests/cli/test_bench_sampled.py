@@ -9,7 +9,7 @@ import json
 
 import numpy as np
 import pytest
-from nhstab.tubes.base import rollouts_needed
+from nhstab.tubes.base import DEFAULT_DISCARDS, rollouts_needed
 
 #: every test reads the benchmark that the module fixture runs once
 pytestmark = pytest.mark.slow
@@ -43,8 +43,9 @@ def test_sampled_rows_are_independent_predict_tubes_with_the_scenario_count(benc
         tube = predict_tube(law, run.opts.noise, run.fp, run.robot_world, rate_hz=run.opts.rate_hz,
                             substeps=run.opts.substeps, model=run.model)
         assert row["kind"] == tube.kind == "sampled"
-        assert row["N"] == tube.certificate["rollouts"] == rollouts_needed(0.997, 0.95) == 998
-        assert row["samples"] == len(tube.t) and row["rollout_poses"] == 998 * len(tube.t)
+        N = rollouts_needed(0.997, 0.95, DEFAULT_DISCARDS)
+        assert row["N"] == tube.certificate["rollouts"] == N == 2097 and tube.certificate["discards"] == 2
+        assert row["samples"] == len(tube.t) and row["rollout_poses"] == N * len(tube.t)
         assert row["certified_clearance_m"] == tube.certified_clearance
         assert row["clearance_evaluations"] == tube.clearance_evaluations
 
@@ -79,8 +80,8 @@ def test_the_sampled_baseline_agrees_and_its_extrapolation_is_the_kept_times(ben
     for b in bench["sampled_baseline"]:
         assert b["agrees"] and b["clearance_many_agrees"] and b["reach_max_diff_m"] <= 1e-9
         assert b["certified_clearance_m"] == pytest.approx(b["sampled_certified_clearance_m"], abs=1e-9)
-        assert b["rollouts_run"] == 3 and b["N"] == 998 and b["extrapolated"]
-        assert b["baseline_s"] == pytest.approx((b["loop_s"] + b["clearance_s"]) * 998 / 3, rel=1e-12)
+        assert b["rollouts_run"] == 3 and b["N"] == 2097 and b["extrapolated"]
+        assert b["baseline_s"] == pytest.approx((b["loop_s"] + b["clearance_s"]) * 2097 / 3, rel=1e-12)
         assert b["speedup_vs_baseline"] == pytest.approx(b["baseline_s"] / b["sampled_tube_s"], rel=1e-12)
         assert b["sampled_tube_s"] == next(r["tube_s"] for r in bench["auto_rows"] if r["name"] == b["name"])
 

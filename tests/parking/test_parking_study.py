@@ -7,7 +7,10 @@ import math
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from nhstab.batch.parking_study import below_chance, probability_beta
 from nhstab.cli.main import cli
+from scipy.integrate import quad
+from scipy.stats import beta as beta_dist
 from scipy.stats import binom
 
 #: every test reads the study run once by the module fixtures
@@ -218,3 +221,23 @@ def test_bad_options_are_refused_in_one_line(tmp_path, args, needle):
     assert len(lines) == 1 and needle in lines[0], res.stderr
     assert "Traceback" not in res.output
     assert not out.exists()
+
+
+@pytest.mark.parametrize("r", [0, 2])
+def test_below_chance_is_the_order_statistics_integral(r):
+    """A correct tube's chance of a 'below' at one sample: the (r + 1)-th largest of N uniform draws below
+    the l-th of M others, E[P(Bin(N, 1 - U) <= r)], U ~ Beta(l, M - l + 1): the closed-form sum against a
+    numerical integral, and against a seeded simulation of the two order statistics (3.5 standard errors)."""
+    M, N, l = 5000, 700, 4975
+    integral = quad(lambda u: binom.cdf(r, N, 1.0 - u) * beta_dist.pdf(u, l, M - l + 1), 0.98, 1.0, limit=200,
+                    points=[l / (M + 1)])[0]
+    got = below_chance(l, M, N, r)
+    assert got == pytest.approx(integral, rel=1e-6)
+    rng = np.random.default_rng(7)
+    K = 4000
+    y = np.sort(rng.random((K, M)), axis=1)[:, l - 1]
+    x = np.sort(rng.random((K, N)), axis=1)[:, N - 1 - r]
+    freq = float(np.mean(x < y))
+    assert abs(freq - got) <= 3.5 * np.sqrt(got * (1 - got) / K) + 1e-3
+    assert probability_beta(0.997, 2097, 2) == pytest.approx(binom.cdf(2, 2097, 0.003), rel=1e-12)
+    assert probability_beta(0.997, 998, 0) == pytest.approx(0.997 ** 998, rel=1e-12)

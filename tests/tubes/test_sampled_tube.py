@@ -15,7 +15,7 @@ from nhstab.maps.base import Map, Pose, box_polygon
 from nhstab.models import make_model
 from nhstab.nominal import Nominal
 from nhstab.robot import default_footprint, make_robot
-from nhstab.tubes.base import displacement, hull_vertices, rollouts_needed
+from nhstab.tubes.base import DEFAULT_DISCARDS, displacement, hull_vertices, rollouts_needed
 from nhstab.tubes.predict import predict_tube
 from nhstab.tubes.sampled import interior_stops, linear_validity, sampled_tube
 from scipy.optimize import brentq
@@ -142,6 +142,14 @@ def test_certificate_against_the_closed_form_of_a_saturated_loop():
     lo, hi = binom.ppf([0.0005, 0.9995], groups, p ** N)
     assert np.all((misses >= lo) & (misses <= hi)), (misses, lo, hi)
     assert abs(tube.certificate["confidence"] - (1.0 - p ** (N * groups))) < 1e-12
+    # with r = 2 rollouts left out: the third largest of N2 below the p-quantile with P[Bin(N2, 1 - p) <= 2]
+    N2 = rollouts_needed(p, 0.9, 2)
+    assert binom.cdf(2, N2, 1 - p) <= 0.1 < binom.cdf(2, N2 - 1, 1 - p)
+    g2 = (N * groups) // N2
+    third = np.sort(D[:g2 * N2].reshape(g2, N2, S), axis=1)[:, -3][:, picks]
+    misses = (third < q).sum(axis=0)
+    lo, hi = binom.ppf([0.0005, 0.9995], g2, binom.cdf(2, N2, 1 - p))
+    assert np.all((misses >= lo) & (misses <= hi)), (misses, lo, hi)
     # the linear tube misses the lag it cannot see
     lin = predict_tube(law, noise, fp, model=model, probability=p, kind="linear")
     assert lin.reach[-1] < 0.5 * q[-1]
@@ -182,12 +190,14 @@ def test_rollouts_are_the_run_loop_bit_for_bit():
     assert not np.array_equal(other, r.log["x"])
 
 
+@pytest.mark.parametrize("discards", [0, 2])
 @pytest.mark.parametrize("scale", [1.0, 4.0])
-def test_the_certified_clearance_is_the_rollouts_smallest_clearance(scale):
-    """The sampled tube's certified clearance is the smallest FCL clearance of any rollout at any control
-    sample, found by branch and bound: equal to measuring every rollout pose (a car along a wall, 60
-    rollouts, at the default noise (clear) and four times it (touching)); with the needed clearance of
-    each failing sample the nominal's minus its worst rollout's."""
+def test_the_certified_clearance_is_the_rollouts_smallest_clearance(scale, discards):
+    """The sampled tube's certified clearance is the (r + 1)-th smallest of the rollouts' own smallest FCL
+    clearances (r = 0: the smallest of any rollout at any control sample), found by branch and bound: equal
+    to measuring every rollout pose (a car along a wall, 60 rollouts, at the default noise (clear) and four
+    times it (touching)); its reach the (r + 1)-th largest displacement at each sample; with the needed
+    clearance of each failing sample the nominal's minus its worst rollout's, the r rollouts left out."""
     from nhstab.collision import CollisionWorld
     from nhstab.robot import default_robot
 
@@ -200,12 +210,18 @@ def test_the_certified_clearance_is_the_rollouts_smallest_clearance(scale):
     m = Map("wall", (0.0, 0.0, 18.0, 6.0), obstacles=(box_polygon(9.0, 3.65, 14.0, 0.3),))
     world = CollisionWorld.from_map(m, "known")
     tube = sampled_tube(law, NoiseOptions(scale=scale), robot.footprint, world, model=model, rollouts=60,
-                        keep_states=True)
+                        keep_states=True, keep_displacements=True, discards=discards)
+    assert tube.certificate["discards"] == discards
     X = tube.info["states"][:, :, :3]
     c = world.clearance_many(X.reshape(-1, 3), robot.footprint).reshape(X.shape[:2])
-    assert tube.certified_clearance == pytest.approx(c.min(), abs=1e-12)
+    g = c.min(axis=1)                                  # each rollout's own smallest clearance
+    kept = np.sort(np.argsort(g, kind="stable")[discards:])
+    assert tube.certified_clearance == pytest.approx(np.sort(g)[discards], abs=1e-12)
+    D = tube.info["displacements"]
+    assert np.array_equal(tube.reach, np.sort(D, axis=0)[-1 - discards])
     rc = tube.info["rollout_clearance"]
-    assert (rc["rollout"], rc["sample"]) == np.unravel_index(np.argmin(c), c.shape)
+    assert rc["rollout"] == np.argsort(g, kind="stable")[discards] and c[rc["rollout"], rc["sample"]] == g[rc["rollout"]]
+    c = c[kept]
     grown = world.clearance_many(tube.poses, robot.footprint) - tube.reach
     assert rc["grown_footprint_clearance_m"] == pytest.approx(grown.min(), abs=1e-12)
     if grown.min() >= 0:             # (a penetration depth is not bounded by the displacement)
@@ -235,7 +251,7 @@ def test_auto_keeps_the_linear_tube_where_it_holds_and_samples_elsewhere():
     valid, why = linear_validity(lin, law2.nominal)
     assert not valid and "saturate" in why
     auto = predict_tube(law2, noise, Footprint.disc(0.3), model=model2, probability=0.9, confidence=0.9)
-    assert auto.kind == "sampled" and auto.certificate["rollouts"] == 22 and "saturate" in auto.certificate["why"]
+    assert auto.kind == "sampled" and auto.certificate["rollouts"] == rollouts_needed(0.9, 0.9, DEFAULT_DISCARDS) and "saturate" in auto.certificate["why"]
     assert auto.summary()["kind"] == "sampled"
 
 
