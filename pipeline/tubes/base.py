@@ -31,12 +31,12 @@ CONSTRUCTION = ("per control sample, probability >= p under the linear-Gaussian 
                 "of FCL clearance at the nominal pose minus reach")
 
 
-SAMPLED_CONSTRUCTION = ("N rollouts of the run loop (saturating law, plant, zero-order hold, noise model); per control "
-                        "sample, reach = the largest displacement of any footprint point over the rollouts (at a vertex "
-                        "of the footprint's convex hull: |(R(theta) - R(theta0)) b + p - p0|); certified clearance = "
-                        "min over samples of FCL clearance at the nominal pose minus reach; scenario bound: with "
-                        "N >= ln(beta) / ln(p), a run keeps it at every sample with probability >= p, with confidence "
-                        "1 - beta")
+SAMPLED_CONSTRUCTION = ("N rollouts of the run loop (saturating law, plant, zero-order hold, noise model), r of them "
+                        "left out; per control sample, reach = the (r + 1)-th largest displacement of any footprint "
+                        "point over the rollouts (at a vertex of the footprint's convex hull: |(R(theta) - R(theta0)) b "
+                        "+ p - p0|); certified clearance = the (r + 1)-th smallest of the rollouts' own smallest FCL "
+                        "clearances; scenario bound with discarded samples: with P[Binomial(N, 1 - p) <= r] <= beta, a "
+                        "run keeps it at every sample with probability >= p, with confidence 1 - beta")
 
 
 def pose_indices(model) -> list[int]:
@@ -340,8 +340,10 @@ def tube_line(tube, noise_scale: float | None = None, prefix: str = "tube") -> s
     what would certify it (from :func:`verdict`, which must have run)."""
     v = tube.info.get("verdict") or {}
     if tube.kind == "sampled":
-        how = (f"sampled: {tube.certificate['rollouts']} rollouts of the run loop, confidence "
-               f"{tube.certificate['confidence']:.3g}, the whole run")
+        r = tube.certificate.get("discards", 0)
+        how = (f"sampled: {tube.certificate['rollouts']:,} rollouts of the run loop"
+               + (f", the {r} most extreme left out" if r else "")
+               + f", confidence {tube.certificate['confidence']:.3g}, the whole run")
     else:
         how = "linear, per sample"
     head = f"{prefix} (p = {tube.probability:g}, {how}" + (f", noise x{noise_scale:g}" if noise_scale is not None else "") + ")"
