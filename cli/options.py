@@ -100,3 +100,19 @@ def _nav2_file(robot_config) -> Path | None:
     except InputError:
         return None                  # load_robot reports it
     return Path(text) if is_nav2_params(data) else None
+
+
+def echo_suite_write(result: dict, out_dir, check: bool, command: str) -> int:
+    """Print what a suite's ``write_suite`` did (``nhstab parking suite``, ``nhstab trailer suite``): the files
+    written, or with ``check`` whether the folder is what the command writes; the exit code."""
+    if check:
+        bad = {k: v for k, v in result.items() if v}
+        if bad:
+            for key, names in bad.items():
+                click.echo(f"{key}: {', '.join(names)}")
+            click.echo(f"{out_dir} is not what `nhstab {command} suite --out {out_dir}` writes", err=True)
+            return 1
+        click.echo(f"{out_dir} is up to date")
+        return 0
+    click.echo(f"wrote {len(result['written'])} files into {out_dir}")
+    return 0

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from .options import echo_suite_write
+
 
 @click.group("parking")
 def parking():
@@ -23,18 +25,7 @@ def suite(out_dir, check):
     long van, with suite.csv and SOURCE.md (the formulas and the table)."""
     from nhstab.parking import write_suite
 
-    result = write_suite(out_dir, check=check)
-    if check:
-        bad = {k: v for k, v in result.items() if v}
-        if bad:
-            for key, names in bad.items():
-                click.echo(f"{key}: {', '.join(names)}")
-            click.echo(f"{out_dir} is not what `nhstab parking suite --out {out_dir}` writes", err=True)
-            return 1
-        click.echo(f"{out_dir} is up to date")
-        return 0
-    click.echo(f"wrote {len(result['written'])} files into {out_dir}")
-    return 0
+    return echo_suite_write(write_suite(out_dir, check=check), out_dir, check, "parking")
 
 
 @parking.command("table")

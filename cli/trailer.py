@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from .options import echo_suite_write
+
 
 @click.group("trailer")
 def trailer():
@@ -24,18 +26,7 @@ def suite(out_dir, check):
     1.2-2 x its swept path), with suite.csv and SOURCE.md (the formula and the table)."""
     from nhstab.trailer_suite import write_suite
 
-    result = write_suite(out_dir, check=check)
-    if check:
-        bad = {k: v for k, v in result.items() if v}
-        if bad:
-            for key, names in bad.items():
-                click.echo(f"{key}: {', '.join(names)}")
-            click.echo(f"{out_dir} is not what `nhstab trailer suite --out {out_dir}` writes", err=True)
-            return 1
-        click.echo(f"{out_dir} is up to date")
-        return 0
-    click.echo(f"wrote {len(result['written'])} files into {out_dir}")
-    return 0
+    return echo_suite_write(write_suite(out_dir, check=check), out_dir, check, "trailer")
 
 
 def _cases(values) -> list[str]:

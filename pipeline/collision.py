@@ -262,7 +262,11 @@ class CollisionWorld:
         return self._in_collision(_pose(pose), fp)
 
     def _in_collision(self, pose, fp: Footprint) -> bool:
-        for o in self._robot(fp, pose):
+        return self._any_contact(self._robot(fp, pose))
+
+    def _any_contact(self, objs) -> bool:
+        """Does one of the placed FCL objects ``objs`` touch an obstacle? (A Ctrl-C held meanwhile is raised.)"""
+        for o in objs:
             data = fcl.CollisionData()
             self.manager.collide(o, data, _first_contact)
             if _PENDING_INTERRUPT[0]:
@@ -699,13 +703,7 @@ class CollisionWorld:
                            np.array([float(pose[0]), float(pose[1]), 0.0]))
         for o in objs:
             o.setTransform(tf)
-            data = fcl.CollisionData()
-            self.manager.collide(o, data, _first_contact)
-            if _PENDING_INTERRUPT[0]:
-                _raise_pending_interrupt()
-            if data.result.is_collision:
-                return True
-        return False
+        return self._any_contact(objs)
 
     def _within(self, pose, fp: Footprint, margin: float) -> bool:
         """Is some obstacle within ``margin`` of the footprint (which overlaps none)? The exact plane
@@ -1190,16 +1188,21 @@ def polygon_distance(a: np.ndarray, b: np.ndarray) -> float:
     return float(shapely.distance(outline_geometry(a), outline_geometry(b)))
 
 
+def _float_array(value, name: str, expected: str) -> np.ndarray:
+    """``value`` as a float array, or an InputError naming ``name`` (None and what numpy cannot convert)."""
+    if value is None:
+        raise InputError(name, expected, "None")
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(name, expected, value) from None
+
+
 def _pose(value, name: str = "pose") -> np.ndarray:
     """A pose (x, y, theta) as an array; anything but three finite numbers is an InputError naming
     ``name`` (a robot's full state, e.g. a car's (x, y, theta, phi), is not a pose: take its pose
     columns)."""
-    try:
-        p = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError(name, "a pose of three finite numbers (x, y, theta)", value) from None
-    if value is None:
-        raise InputError(name, "a pose of three finite numbers (x, y, theta)", "None")
+    p = _float_array(value, name, "a pose of three finite numbers (x, y, theta)")
     if p.shape != (3,) or not (math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])):
         raise InputError(name, "a pose of three finite numbers (x, y, theta)",
                          value if p.size <= 6 else f"an array of shape {p.shape}")
@@ -1208,12 +1211,7 @@ def _pose(value, name: str = "pose") -> np.ndarray:
 
 def _poses(value, name: str = "poses", at_least: int = 0) -> np.ndarray:
     """Poses as an (N, 3) array (one pose (3,) counts as N = 1); anything else is an InputError."""
-    try:
-        p = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError(name, "an (N, 3) array of poses (x, y, theta)", value) from None
-    if value is None:
-        raise InputError(name, "an (N, 3) array of poses (x, y, theta)", "None")
+    p = _float_array(value, name, "an (N, 3) array of poses (x, y, theta)")
     if p.shape == (3,):
         p = p.reshape(1, 3)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < at_least or not np.all(np.isfinite(p)):

@@ -60,7 +60,7 @@ from .errors import InputError
 from .examples import data_root
 from .execution import RunOptions, execute
 from .maps import load_map
-from .records import write_text
+from .records import write_generated
 from .robot import default_robot, robot_from_spec, robot_preset
 
 #: parallel slot lengths, as multiples of the single-maneuver minimum L1
@@ -493,11 +493,16 @@ def case_yaml(case: Case) -> str:
                                                    f"{case.factor:g} x {case.reference_m:.6f} m"
                                                    if case.kind == "parallel" else
                                                    f"aisle {case.size_m:.6f} m = {case.factor:g} x "
-                                                   f"{case.reference_m:.6f} m (swept-path estimate)"),
-             f"name: {case.name}",
-             f"description: \"{case.description}\"",
-             f"bounds: {_flow(list(case.bounds))}",
-             "obstacles:"]
+                                                   f"{case.reference_m:.6f} m (swept-path estimate)")]
+    return generated_map_yaml(lines, case)
+
+
+def generated_map_yaml(header: list[str], case) -> str:
+    """A generated case (the parking suite's, the trailer suite's) as an nhstab YAML map: the comment lines
+    ``header``, then its name, description, bounds, box obstacles (each with its label), start, goal and
+    robot."""
+    lines = list(header) + [f"name: {case.name}", f"description: \"{case.description}\"",
+                            f"bounds: {_flow(list(case.bounds))}", "obstacles:"]
     for b in case.obstacles:
         lines.append(f"  - box: {{center: [{_num(b.cx)}, {_num(b.cy)}], size: [{_num(b.length)}, {_num(b.width)}], "
                      f"yaw: {_num(b.yaw)}}}   # {b.label}")
@@ -630,36 +635,37 @@ def source_md(cases: list[Case]) -> str:
         what = "slot" if c.kind == "parallel" else "aisle"
         ref = "L1" if c.kind == "parallel" else ("A90" if c.kind == "perpendicular" else "estimate")
         lines.append(f"| `{c.name}` | {c.car} | {c.kind} | {what} {c.size_m:.3f} m | {c.factor:g} x {ref} "
-                     f"{c.reference_m:.3f} m | ({c.start[0]:.2f}, {c.start[1]:.2f}, {c.start[2]:.2f}) | "
-                     f"({c.goal[0]:.2f}, {c.goal[1]:.2f}, {c.goal[2]:.3f}) |")
+                     f"{c.reference_m:.3f} m | {start_goal_cells(c)} |")
     lines += ["", "`suite.csv` lists the same with full precision. `tests/parking/test_parking.py` checks that the committed",
               "files equal the generator's output, that every slot is its factor x L1 to 1e-9 m, that start and",
               "goal are clear by the margin (FCL and shapely) and that every goal lies inside its slot or bay.", ""]
     return "\n".join(lines)
 
 
-def suite_files(cases: list[Case] | None = None) -> dict[str, str]:
-    """file name -> text of every file of the suite folder."""
-    cases = suite() if cases is None else cases
+def folder_files(cases, case_yaml, suite_csv, source_md) -> dict[str, str]:
+    """file name -> text of every file of a generated suite folder: one map per case (``case_yaml``),
+    suite.csv and SOURCE.md (the parking suite's and the trailer suite's)."""
     files = {c.file_name: case_yaml(c) for c in cases}
     files["suite.csv"] = suite_csv(cases)
     files["SOURCE.md"] = source_md(cases)
     return files
 
 
+def start_goal_cells(case) -> str:
+    """A generated case's start and goal poses as two cells of a SOURCE.md table."""
+    s, g = case.start, case.goal
+    return f"({s[0]:.2f}, {s[1]:.2f}, {s[2]:.2f}) | ({g[0]:.2f}, {g[1]:.2f}, {g[2]:.3f})"
+
+
+def suite_files(cases: list[Case] | None = None) -> dict[str, str]:
+    """file name -> text of every file of the suite folder."""
+    return folder_files(suite() if cases is None else cases, case_yaml, suite_csv, source_md)
+
+
 def write_suite(out, check: bool = False) -> dict:
     """Write the suite into the folder ``out`` (atomically, file by file), or with ``check`` only
     compare: returns {"written" | "differ": [...], "missing": [...], "extra": [...]}."""
-    out = Path(out)
-    files = suite_files()
-    if check:
-        differ = [n for n, t in files.items() if (out / n).is_file() and (out / n).read_text(encoding="utf-8") != t]
-        missing = [n for n in files if not (out / n).is_file()]
-        extra = sorted(p.name for p in out.glob("*.yaml") if p.name not in files) if out.is_dir() else []
-        return {"differ": differ, "missing": missing, "extra": extra}
-    for name, text in files.items():
-        write_text(out / name, text)
-    return {"written": sorted(files), "folder": str(out)}
+    return write_generated(out, suite_files(), check)
 
 
 # ---- the figure of the tightest parallel maneuver ---------------------------------------------------

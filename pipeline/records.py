@@ -68,6 +68,21 @@ def write_text(path, text: str) -> Path:
     return _atomic_write(Path(path), lambda fh: fh.write(text.encode()))
 
 
+def write_generated(out, files: dict[str, str], check: bool = False, pattern: str = "*.yaml") -> dict:
+    """Write the generated ``files`` (name -> text) into the folder ``out``, file by file and atomically,
+    or with ``check`` only compare: returns {"written": [...], "folder": ...} or {"differ": [...],
+    "missing": [...], "extra": [...]} (files matching ``pattern`` in ``out`` that are not generated)."""
+    out = Path(out)
+    if check:
+        differ = [n for n, t in files.items() if (out / n).is_file() and (out / n).read_text(encoding="utf-8") != t]
+        missing = [n for n in files if not (out / n).is_file()]
+        extra = sorted(p.name for p in out.glob(pattern) if p.name not in files) if out.is_dir() else []
+        return {"differ": differ, "missing": missing, "extra": extra}
+    for name, text in files.items():
+        write_text(out / name, text)
+    return {"written": sorted(files), "folder": str(out)}
+
+
 def write_npz(path, **arrays) -> Path:
     """An NPZ file (what ``numpy.savez_compressed`` writes, read by ``numpy.load``) compressed at zlib
     level 1: float arrays hardly compress further at numpy's level 6 (a 9,000-sample tube.npz: 1.379

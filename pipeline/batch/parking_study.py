@@ -98,16 +98,12 @@ from ..tubes.base import (
 )
 from ..tubes.predict import predict_tube
 from .report import wilson
-from .tube_study import trial_seeds
+from .tube_study import CONTROLLERS, NOISE_LEVELS, PLAN_SEED, PROBABILITY, ROOT_SEED, trial_seeds
 from .vector import simulate_shared
 
-CONTROLLERS = ("gramian", "tvlqr")
-NOISE_LEVELS = (0.5, 1.0, 2.0)
+# the controllers, noise levels, seeds and probability are the tube study's (nhstab.batch.tube_study)
 TRIALS = 50
 MC_FACTOR = 10
-ROOT_SEED = 2026
-PLAN_SEED = 0
-PROBABILITY = 0.997
 CONFIDENCE = 0.95
 #: a tube passes when its conservatism (reach / MC quantile) at the tightest sample and its 95th
 #: percentile over the samples are at most this
@@ -628,9 +624,9 @@ def run_parking_study(trials: int = TRIALS, mc_factor: int = MC_FACTOR, maps=Non
     return out, curves
 
 
-def _in_processes(rows, settings, workers, progress):
-    """The maps over ``workers`` spawned processes, one BLAS thread each (the environment they start
-    with); results in the suite's order."""
+def spawned_pool(workers: int, tasks: int):
+    """A ProcessPoolExecutor of min(workers, tasks) spawned processes, each started with one BLAS thread
+    (the environment they start with; this process's is restored)."""
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
@@ -638,18 +634,31 @@ def _in_processes(rows, settings, workers, progress):
     for v in saved:
         os.environ[v] = "1"
     try:
-        pool = ProcessPoolExecutor(max_workers=min(workers, len(rows)), mp_context=mp.get_context("spawn"))
+        return ProcessPoolExecutor(max_workers=min(workers, tasks), mp_context=mp.get_context("spawn"))
     finally:
         for v, old in saved.items():
             if old is None:
                 os.environ.pop(v, None)
             else:
                 os.environ[v] = old
+
+
+def stop_pool(pool) -> None:
+    """Cancel what has not started and end the pool's processes (on an error or an interrupt)."""
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in list((getattr(pool, "_processes", None) or {}).values()):
+        if p.is_alive():
+            p.terminate()
+
+
+def _in_processes(rows, settings, workers, progress):
+    """The maps over ``workers`` spawned processes, one BLAS thread each; results in the suite's order."""
+    from concurrent.futures import as_completed
+
+    pool = spawned_pool(workers, len(rows))
     cases, curves = [None] * len(rows), {}
     try:
         futures = {pool.submit(_map_task, (row, settings)): i for i, row in enumerate(rows)}
-        from concurrent.futures import as_completed
-
         for fut in as_completed(futures):
             i = futures[fut]
             case, cur = fut.result()
@@ -657,10 +666,7 @@ def _in_processes(rows, settings, workers, progress):
             curves.update({(case["map"],) + k: v for k, v in cur.items()})
             _say(progress, f"done {case['map']} ({sum(c is not None for c in cases)}/{len(rows)} maps)")
     except BaseException:
-        pool.shutdown(wait=False, cancel_futures=True)
-        for p in list((getattr(pool, "_processes", None) or {}).values()):
-            if p.is_alive():
-                p.terminate()
+        stop_pool(pool)
         raise
     pool.shutdown(wait=True)
     return cases, curves

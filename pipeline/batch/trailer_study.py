@@ -29,11 +29,9 @@ from __future__ import annotations
 
 import itertools
 import math
-import multiprocessing as mp
-import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from dataclasses import replace
 
 import numpy as np
@@ -54,7 +52,7 @@ from ..report.plans import plan_figure
 from ..robot import robot_from_spec
 from ..safe_io import read_yaml_mapping
 from ..trailer_suite import read_suite_csv
-from .parking_study import first_plan
+from .parking_study import first_plan, spawned_pool, stop_pool
 from .tube_study import trial_seeds
 from .vector import simulate_shared
 
@@ -411,17 +409,7 @@ def _case_task(args):
 
 def _in_processes(names, settings, workers, progress) -> list:
     """The cases over ``workers`` spawned processes, one BLAS thread each; results in the given order."""
-    saved = {v: os.environ.get(v) for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
-    for v in saved:
-        os.environ[v] = "1"
-    try:
-        pool = ProcessPoolExecutor(max_workers=min(workers, len(names)), mp_context=mp.get_context("spawn"))
-    finally:
-        for v, old in saved.items():
-            if old is None:
-                os.environ.pop(v, None)
-            else:
-                os.environ[v] = old
+    pool = spawned_pool(workers, len(names))
     cases = [None] * len(names)
     try:
         futures = {pool.submit(_case_task, (name, settings)): i for i, name in enumerate(names)}
@@ -429,10 +417,7 @@ def _in_processes(names, settings, workers, progress) -> list:
             cases[futures[fut]] = fut.result()
             _say(progress, f"done {names[futures[fut]]} ({sum(c is not None for c in cases)}/{len(names)} cases)")
     except BaseException:
-        pool.shutdown(wait=False, cancel_futures=True)
-        for p in list((getattr(pool, "_processes", None) or {}).values()):
-            if p.is_alive():
-                p.terminate()
+        stop_pool(pool)
         raise
     pool.shutdown(wait=True)
     return cases

@@ -194,11 +194,17 @@ class SteeredCar(Model):
         the rear axle's speed s)."""
         return self.turning_radius_at(self.max_steer)
 
-    def _check_car(self, name: str) -> None:
+    def _check_car(self, name: str, state_names: tuple[str, ...]) -> None:
+        """Check the car's parameters (errors name the model ``name``) and set its names: states in
+        ``state_names`` order (x, y and the two angles theta, phi), inputs speed and steering rate."""
         for key in ("wheelbase", "max_speed", "max_steer_rate"):
             positive_param(key, getattr(self, key), name)
         angle_limit("max_steer", self.max_steer, name)
         check_max_steer(name, self.wheelbase, self.max_steer)
+        for key, value in (("name", name), ("state_names", tuple(state_names)), ("input_names", ("v", "omega_s")),
+                           ("angle_states", (2, 3)), ("state_units", ("m", "m", "rad", "rad")),
+                           ("input_units", ("m/s", "rad/s"))):
+            object.__setattr__(self, key, value)
 
     def params(self) -> dict:
         return {"wheelbase": self.wheelbase, "max_speed": self.max_speed,

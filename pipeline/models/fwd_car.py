@@ -35,13 +35,7 @@ class FwdCar(SteeredCar):
     max_steer_rate: float = 1.0     # rad/s, |u2|
 
     def __post_init__(self):
-        self._check_car("fwd_car")
-        object.__setattr__(self, "name", "fwd_car")
-        object.__setattr__(self, "state_names", ("x", "y", "phi", "theta"))
-        object.__setattr__(self, "input_names", ("v", "omega_s"))
-        object.__setattr__(self, "angle_states", (2, 3))
-        object.__setattr__(self, "state_units", ("m", "m", "rad", "rad"))
-        object.__setattr__(self, "input_units", ("m/s", "rad/s"))
+        self._check_car("fwd_car", ("x", "y", "phi", "theta"))
 
     def g(self, x):
         x = np.asarray(x, dtype=float)

@@ -40,13 +40,7 @@ class RwdCar(SteeredCar):
     max_steer_rate: float = 1.0     # rad/s, |omega_s|
 
     def __post_init__(self):
-        self._check_car("rwd_car")
-        object.__setattr__(self, "name", "rwd_car")
-        object.__setattr__(self, "state_names", ("x", "y", "theta", "phi"))
-        object.__setattr__(self, "input_names", ("v", "omega_s"))
-        object.__setattr__(self, "angle_states", (2, 3))
-        object.__setattr__(self, "state_units", ("m", "m", "rad", "rad"))
-        object.__setattr__(self, "input_units", ("m/s", "rad/s"))
+        self._check_car("rwd_car", ("x", "y", "theta", "phi"))
 
     def g(self, x):
         x = np.asarray(x, dtype=float)

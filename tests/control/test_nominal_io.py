@@ -126,18 +126,13 @@ def test_bad_files(tmp_path):
     with pytest.raises(InputError, match="existing"):
         read_trajectory(tmp_path / "missing.csv", model)
     p = tmp_path / "bad.csv"
-    p.write_text("t,x,y,theta,v\n0,0,0,0,1\n1,1,0,0,1\n")
-    with pytest.raises(TrajectoryError, match="missing omega"):
-        read_trajectory(p, model)
-    p.write_text("t,x,y,theta,v,omega,extra\n0,0,0,0,1,0,0\n1,1,0,0,1,0,0\n")
-    with pytest.raises(TrajectoryError, match="unknown extra"):
-        read_trajectory(p, model)
-    p.write_text("t,x,y,theta,v,omega\n0,0,0,0,1,0\n1,nan,0,0,1,0\n")
-    with pytest.raises(TrajectoryError, match="'x' must be finite"):
-        read_trajectory(p, model)
-    p.write_text("t,x,y,theta,v,omega\n0,0,0,0,1,0\n1,oops,0,0,1,0\n")
-    with pytest.raises(TrajectoryError, match="numbers"):
-        read_trajectory(p, model)
+    for text, match in (("t,x,y,theta,v\n0,0,0,0,1\n1,1,0,0,1\n", "missing omega"),
+                        ("t,x,y,theta,v,omega,extra\n0,0,0,0,1,0,0\n1,1,0,0,1,0,0\n", "unknown extra"),
+                        ("t,x,y,theta,v,omega\n0,0,0,0,1,0\n1,nan,0,0,1,0\n", "'x' must be finite"),
+                        ("t,x,y,theta,v,omega\n0,0,0,0,1,0\n1,oops,0,0,1,0\n", "numbers")):
+        p.write_text(text)
+        with pytest.raises(TrajectoryError, match=match):
+            read_trajectory(p, model)
     q = tmp_path / "bad.npz"
     np.savez(q, t=np.arange(5.0), x=np.zeros((5, 4)), u=np.zeros((5, 2)))
     with pytest.raises(TrajectoryError, match="'x' must be shape \\(5, 3\\)"):

@@ -250,25 +250,26 @@ SUITE = ["parallel_rwd_car_110", "parallel_rwd_car_105", "parallel_van_100", "pe
 TIGHT = ["perpendicular_rwd_car_aisle130", "angled60_rwd_car_aisle150"]
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("name", SUITE)
-def test_parks_on_the_parking_suite(name):
+def _suite_plan_checked(name: str) -> dict:
+    """Plan the suite map ``name`` with its own robot (5 s, seed 0) and check the plan (check_plan)."""
     m = load_map(MAPS / f"parking/{name}.yaml")
     robot = robot_from_spec(m.robot)
     goal = m.goal.as_array()
     r = plan(m, robot, m.start.as_array(), goal, PathOptions(time_limit_s=5.0, seed=0))
-    t = check_plan(m, robot, r, goal, robot.margin)
+    return check_plan(m, robot, r, goal, robot.margin)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", SUITE)
+def test_parks_on_the_parking_suite(name):
+    t = _suite_plan_checked(name)
     assert t["worth_tracking"], t
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", TIGHT)
 def test_parks_in_tight_bays(name):
-    m = load_map(MAPS / f"parking/{name}.yaml")
-    robot = robot_from_spec(m.robot)
-    goal = m.goal.as_array()
-    r = plan(m, robot, m.start.as_array(), goal, PathOptions(time_limit_s=5.0, seed=0))
-    t = check_plan(m, robot, r, goal, robot.margin)
+    t = _suite_plan_checked(name)
     assert t["steering_within_limit"] and t["duration_within_bound"]
     assert t["gain_within_bound"], t
 
