@@ -62,7 +62,7 @@ def run_cmd(config_file, out_dir, workers, scheduler, resume, retry_errors, no_p
         import yaml
 
         click.echo(f"# the effective batch config: {len(config.cells())} cells x {config.trials} trials = "
-                   f"{config.n_trials()} trials; options not given are the robot's (margin, stabilizer), noise levels not "
+                   f"{config.n_trials()} trials; options not given are the robot's (margin, space, stabilizer), noise levels not "
                    "given the defaults by state (docs/reference/run-config.md)")
         click.echo(yaml.safe_dump(config.effective(), sort_keys=False), nl=False)
         return 0

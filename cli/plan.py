@@ -26,7 +26,9 @@ EXIT_INTERRUPTED = 130
 @click.option("--goal", default=None, help="Goal: the pose x,y,theta (a car_trailer may add its trailer angle theta1), or the robot's full state in its state order with phi = 0, e.g. rwd_car x,y,theta,0 (default: the map's).")
 @click.option("--problem", type=int, default=None, help="Use the map's start/goal problem with this index.")
 @click.option("--planner", default="rrtconnect", show_default=True, help="OMPL planner: rrtconnect, rrtstar, bitstar, prmstar, ...")
-@click.option("--space", default="reeds_shepp", show_default=True, help="reeds_shepp (forward and reverse) or dubins.")
+@click.option("--space", default=None,
+              help="reeds_shepp (forward and reverse) or dubins (forward only) (default: the robot's space, e.g. "
+                   "dubins for a Nav2 DUBIN robot, else reeds_shepp).")
 @click.option("--turning-radius", type=float, default=None,
               help="[m] (default: the robot's: unicycle 0.5, cars 1.25 x their minimum).")
 @click.option("--time-limit", type=float, default=2.0, show_default=True, help="Planning budget [s].")
@@ -64,7 +66,7 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
          cell_size, unknown):
     """Plan on MAP and write trajectory.csv, trajectory.npz, plan.json and plan.png into OUT.
 
-    The robot (model, footprint, margin, turning radius, stabilizer) comes from --robot-config,
+    The robot (model, footprint, margin, turning radius, space, stabilizer) comes from --robot-config,
     else --robot, else the map's robot block, else the unicycle. The plan's error tube (nhstab run's
     default noise times --noise, 50 Hz, the gramian law) is drawn in plan.png, summarised in
     plan.json (``tube``) and stored in tube.npz.
@@ -113,7 +115,7 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
                          names=("--start", "--goal", "--problem"))
     # the options name the errors about their values (the robot's keys name the robot's): the nominal's
     # speed is --max-speed's, else the robot's limit scaled by --headroom
-    names = {**pose_keys(m, start, goal, problem), "space": "--space", "planner": "--planner", "time_limit_s": "--time-limit", "seed": "--seed",
+    names = {**pose_keys(m, start, goal, problem), "space": "--space" if space is not None else rob.key("space"), "planner": "--planner", "time_limit_s": "--time-limit", "seed": "--seed",
              "margin": "--margin" if margin is not None else rob.key("margin"),
              "turning_radius": "--turning-radius" if turning_radius is not None else rob.key("turning_radius"),
              "max_speed": "--max-speed" if max_speed is not None
