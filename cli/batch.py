@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from .options import out_option
+
 
 class _DefaultToRun(click.Group):
     """``nhstab batch CONFIG ...`` means ``nhstab batch run CONFIG ...``."""
@@ -23,8 +25,7 @@ def batch():
 
 @batch.command("run")
 @click.argument("config_file", metavar="CONFIG", type=click.Path(path_type=Path))
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Folder of the batch: trials.sqlite (and the report). Required, except with --print-config.")
+@out_option("batch", "the batch: its store trials.sqlite and the report (not used with --print-config)")
 @click.option("--workers", type=int, default=None, help="Local worker processes (default: the number of cores).")
 @click.option("--scheduler", default=None, help="Address of a Dask distributed scheduler, e.g. tcp://10.0.0.5:8786.")
 @click.option("--resume", is_flag=True, help="Continue the batch stored in --out: run each missing trial once.")
@@ -66,8 +67,6 @@ def run_cmd(config_file, out_dir, workers, scheduler, resume, retry_errors, no_p
                    "given the defaults by state (docs/reference/run-config.md)")
         click.echo(yaml.safe_dump(config.effective(), sort_keys=False), nl=False)
         return 0
-    if out_dir is None:
-        raise InputError("--out", "a folder for the batch (required to run it)", None)
     n = config.n_trials()
     click.echo(f"batch {config.name}: {len(config.cells())} cells x {config.trials} trials = {n} trials", err=True)
     try:

@@ -9,7 +9,7 @@ import click
 from nhstab.limits import DEFAULT_HEADROOM
 
 from .map import load, map_options, parse_pose, pose_keys
-from .options import cli_robot, robot_options
+from .options import cli_robot, out_option, robot_options
 
 #: exit code when the request is valid but no plan was found within the budget
 EXIT_NO_PLAN = 3
@@ -57,14 +57,14 @@ EXIT_INTERRUPTED = 130
               help="Plan within this fraction of the input limits, leaving the rest to the feedback (default: "
                    f"nhstab run's, {DEFAULT_HEADROOM:g}; the tube's saturation probability is against the full limits).")
 @click.option("--max-speed", type=float, default=None, help="[m/s] (default: the robot's limit).")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True)
+@out_option("plan", "trajectory.csv, trajectory.npz, tube.npz, plan.json and plan.png")
 @click.option("--figure/--no-figure", default=True, show_default=True,
               help="Draw plan.png (--no-figure: skip it and matplotlib's drawing stack, for scripted planning).")
 @map_options
 def plan(map_file, robot, robot_config, start, goal, problem, planner, space, turning_radius, time_limit, seed, guide,
          margin, gains, fit, noise_scale, probability, tube_kind, confidence, headroom, max_speed, out_dir, figure,
          cell_size, unknown):
-    """Plan on MAP and write trajectory.csv, trajectory.npz, plan.json and plan.png into OUT.
+    """Plan on MAP and write trajectory.csv, trajectory.npz, plan.json and plan.png into OUT (default out/plan).
 
     The robot (model, footprint, margin, turning radius, space, stabilizer) comes from --robot-config,
     else --robot, else the map's robot block, else the unicycle. The plan's error tube (nhstab run's
