@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from .options import out_option
+
 
 class _DefaultToRun(click.Group):
     """``nhstab batch CONFIG ...`` means ``nhstab batch run CONFIG ...``."""
@@ -23,8 +25,7 @@ def batch():
 
 @batch.command("run")
 @click.argument("config_file", metavar="CONFIG", type=click.Path(path_type=Path))
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Folder of the batch: trials.sqlite (and the report). Required, except with --print-config.")
+@out_option("batch", "the batch: its store trials.sqlite and the report (not used with --print-config)")
 @click.option("--workers", type=int, default=None, help="Local worker processes (default: the number of cores).")
 @click.option("--scheduler", default=None, help="Address of a Dask distributed scheduler, e.g. tcp://10.0.0.5:8786.")
 @click.option("--resume", is_flag=True, help="Continue the batch stored in --out: run each missing trial once.")
@@ -62,17 +63,15 @@ def run_cmd(config_file, out_dir, workers, scheduler, resume, retry_errors, no_p
         import yaml
 
         click.echo(f"# the effective batch config: {len(config.cells())} cells x {config.trials} trials = "
-                   f"{config.n_trials()} trials; options not given are the robot's (margin, stabilizer), noise levels not "
+                   f"{config.n_trials()} trials; options not given are the robot's (margin, space, stabilizer), noise levels not "
                    "given the defaults by state (docs/reference/run-config.md)")
         click.echo(yaml.safe_dump(config.effective(), sort_keys=False), nl=False)
         return 0
-    if out_dir is None:
-        raise InputError("--out", "a folder for the batch (required to run it)", None)
     n = config.n_trials()
     click.echo(f"batch {config.name}: {len(config.cells())} cells x {config.trials} trials = {n} trials", err=True)
     try:
-        counts = run_batch(config, out_dir, workers=workers or os.cpu_count() or 1, scheduler=scheduler,
-                           resume=resume, progress=not no_progress, retry_errors=retry_errors)
+        summary = run_batch(config, out_dir, workers=workers or os.cpu_count() or 1, scheduler=scheduler,
+                            resume=resume, progress=not no_progress, retry_errors=retry_errors)
     except KeyboardInterrupt as exc:
         signum = getattr(exc, "signum", 2)          # SIGTERM, SIGHUP: BatchSignal; Ctrl-C: SIGINT
         store = out_dir / STORE_NAME
@@ -81,11 +80,11 @@ def run_cmd(config_file, out_dir, workers, scheduler, resume, retry_errors, no_p
         click.echo(f"nhstab: {how}: {stored} of {n} trials are stored in {store}; the running ones were "
                    f"not; `nhstab batch {config_file} --out {out_dir} --resume` runs the rest", err=True)
         return 128 + signum
-    outcomes = ", ".join(f"{k} {v}" for k, v in sorted(counts["outcomes"].items(), key=lambda kv: (kv[0] == "error",
-                                                                                                    -kv[1], kv[0])))
-    click.echo(f"ran {counts['ran']} trials in {counts['wall_s']:.1f} s ({counts['already_stored']} already stored)"
-               + (f": {outcomes}" if outcomes else "") + f"; {counts['stored']} in {out_dir / STORE_NAME}")
-    t = counts["transfer"]
+    outcomes = ", ".join(f"{k} {v}" for k, v in sorted(summary.outcomes.items(), key=lambda kv: (kv[0] == "error",
+                                                                                                 -kv[1], kv[0])))
+    click.echo(f"ran {summary.ran} trials in {summary.wall_s:.1f} s ({summary.already_stored} already stored)"
+               + (f": {outcomes}" if outcomes else "") + f"; {summary.stored} in {out_dir / STORE_NAME}")
+    t = summary.transfer
     if scheduler is not None and t["trials"]:
         click.echo(f"shipped: map bundles {_kb(t['bundles_sent_bytes'])} ({_kb(sum(t['bundle_bytes'].values()))} "
                    f"to each of {t['bundle_copies']} workers); per trial {_kb(t['spec_bytes_per_trial'])} sent, "
@@ -94,11 +93,11 @@ def run_cmd(config_file, out_dir, workers, scheduler, resume, retry_errors, no_p
 
     files = write_report(out_dir)
     click.echo(f"report: {out_dir / 'report.html'} (and {len(files) - 1} more files)")
-    if counts["errors"]:
-        trial_id, message = counts["first_error"]
-        every = counts["errors"] == counts["ran"]
-        head = (f"failed: all {counts['ran']} trials failed by error" if every else
-                f"warning: {counts['errors']} of {counts['ran']} trials failed by error")
+    if summary.errors:
+        trial_id, message = summary.first_error
+        every = summary.errors == summary.ran
+        head = (f"failed: all {summary.ran} trials failed by error" if every else
+                f"warning: {summary.errors} of {summary.ran} trials failed by error")
         click.echo(f"nhstab: {head}, not by an outcome; the first, {trial_id}: {message} (they are stored as "
                    "errors; --resume --retry-errors runs them again)", err=True)
         if every:

@@ -6,7 +6,16 @@ from pathlib import Path
 
 import click
 
+#: where plan, run and batch write when --out is not given: out/COMMAND in the current folder (the
+#: repository's .gitignore ignores out/, so a run from the clone leaves the committed results/ alone)
+OUT_ROOT = Path("out")
 WINDOW_CHOICES = ("future", "past", "frozen-time")
+
+
+def out_option(command: str, what: str):
+    """``--out DIR`` of plan, run and batch: ``what`` the folder holds; default ``out/COMMAND``."""
+    return click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+                        default=OUT_ROOT / command, show_default=True, help=f"Folder for {what}.")
 END_STRATEGY_CHOICES = ("frozen", "extend")
 
 

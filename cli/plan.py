@@ -9,7 +9,7 @@ import click
 from nhstab.limits import DEFAULT_HEADROOM
 
 from .map import load, map_options, parse_pose, pose_keys
-from .options import cli_robot, robot_options
+from .options import cli_robot, out_option, robot_options
 
 #: exit code when the request is valid but no plan was found within the budget
 EXIT_NO_PLAN = 3
@@ -26,7 +26,9 @@ EXIT_INTERRUPTED = 130
 @click.option("--goal", default=None, help="Goal: the pose x,y,theta (a car_trailer may add its trailer angle theta1), or the robot's full state in its state order with phi = 0, e.g. rwd_car x,y,theta,0 (default: the map's).")
 @click.option("--problem", type=int, default=None, help="Use the map's start/goal problem with this index.")
 @click.option("--planner", default="rrtconnect", show_default=True, help="OMPL planner: rrtconnect, rrtstar, bitstar, prmstar, ...")
-@click.option("--space", default="reeds_shepp", show_default=True, help="reeds_shepp (forward and reverse) or dubins.")
+@click.option("--space", default=None,
+              help="reeds_shepp (forward and reverse) or dubins (forward only) (default: the robot's space, e.g. "
+                   "dubins for a Nav2 DUBIN robot, else reeds_shepp).")
 @click.option("--turning-radius", type=float, default=None,
               help="[m] (default: the robot's: unicycle 0.5, cars 1.25 x their minimum).")
 @click.option("--time-limit", type=float, default=2.0, show_default=True, help="Planning budget [s].")
@@ -55,16 +57,16 @@ EXIT_INTERRUPTED = 130
               help="Plan within this fraction of the input limits, leaving the rest to the feedback (default: "
                    f"nhstab run's, {DEFAULT_HEADROOM:g}; the tube's saturation probability is against the full limits).")
 @click.option("--max-speed", type=float, default=None, help="[m/s] (default: the robot's limit).")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True)
+@out_option("plan", "trajectory.csv, trajectory.npz, tube.npz, plan.json and plan.png")
 @click.option("--figure/--no-figure", default=True, show_default=True,
               help="Draw plan.png (--no-figure: skip it and matplotlib's drawing stack, for scripted planning).")
 @map_options
 def plan(map_file, robot, robot_config, start, goal, problem, planner, space, turning_radius, time_limit, seed, guide,
          margin, gains, fit, noise_scale, probability, tube_kind, confidence, headroom, max_speed, out_dir, figure,
          cell_size, unknown):
-    """Plan on MAP and write trajectory.csv, trajectory.npz, plan.json and plan.png into OUT.
+    """Plan on MAP and write trajectory.csv, trajectory.npz, plan.json and plan.png into OUT (default out/plan).
 
-    The robot (model, footprint, margin, turning radius, stabilizer) comes from --robot-config,
+    The robot (model, footprint, margin, turning radius, space, stabilizer) comes from --robot-config,
     else --robot, else the map's robot block, else the unicycle. The plan's error tube (nhstab run's
     default noise times --noise, 50 Hz, the gramian law) is drawn in plan.png, summarised in
     plan.json (``tube``) and stored in tube.npz.
@@ -113,7 +115,7 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
                          names=("--start", "--goal", "--problem"))
     # the options name the errors about their values (the robot's keys name the robot's): the nominal's
     # speed is --max-speed's, else the robot's limit scaled by --headroom
-    names = {**pose_keys(m, start, goal, problem), "space": "--space", "planner": "--planner", "time_limit_s": "--time-limit", "seed": "--seed",
+    names = {**pose_keys(m, start, goal, problem), "space": "--space" if space is not None else rob.key("space"), "planner": "--planner", "time_limit_s": "--time-limit", "seed": "--seed",
              "margin": "--margin" if margin is not None else rob.key("margin"),
              "turning_radius": "--turning-radius" if turning_radius is not None else rob.key("turning_radius"),
              "max_speed": "--max-speed" if max_speed is not None

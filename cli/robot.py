@@ -27,8 +27,9 @@ def from_nav2(params, out_file, model, wheelbase, margin):
     """Read the robot of a Nav2 parameters file (nav2_params.yaml) and write it as an nhstab robot YAML.
 
     The footprint comes from the costmaps (footprint string or robot_radius, plus footprint_padding),
-    the model and minimum turning radius from the Smac planner (SmacPlannerHybrid's
-    motion_model_for_search and minimum_turning_radius), the speed limits from the controller and the
+    the model, planning space (space: dubins for a forward-only DUBIN motion model) and minimum turning
+    radius from the Smac planner (SmacPlannerHybrid's motion_model_for_search and
+    minimum_turning_radius), the speed limits from the controller and the
     velocity smoother. One line per value says where it came from. The same file is read directly by
     --robot-config nav2:PARAMS.yaml on plan, run and map.
     """
@@ -47,7 +48,8 @@ def from_nav2(params, out_file, model, wheelbase, margin):
     head = [f"nhstab robot read from the Nav2 parameters file {params.name} (nhstab robot from-nav2)"]
     head += got.lines
     if got.space == "dubins":
-        head.append("forward only: plan with --space dubins")
+        head.append("forward only: space dubins, which nhstab plan and run use unless --space or planning.space "
+                    "says otherwise")
     text = "".join(f"# {h}\n" for h in head) + yaml.safe_dump({"robot": rob.spec()}, sort_keys=False,
                                                                default_flow_style=None)
     if out_file is None:

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from .map import load, map_options, parse_pose, pose_keys
-from .options import cli_robot, robot_options
+from .options import cli_robot, out_option, robot_options
 
 #: exit codes: the run ended but did not reach the goal (collision, replan failed, ...); no first plan; a
 #: plan refused because its error tube is not certified clear (--require-certified)
@@ -85,8 +85,7 @@ def parse_levels(name: str, text: str | None) -> dict | None:
               help="At each cusp, replan the rest of the maneuver from the measured state when its tube is not "
                    "certified clear (default on).")
 @click.option("--max-time", type=float, default=None, help="Simulated time limit [s].")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results/run"),
-              show_default=True)
+@out_option("run", "run.json, trajectory.csv and the figures")
 @click.option("--animate", is_flag=True, help="Also write run.gif.")
 @click.option("--print-config", is_flag=True,
               help="Print the effective run config (YAML: the map, robot, start, goal and every option, its "
@@ -99,7 +98,7 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
     """Run the composite controller on MAP: plan, stabilize under noise, sense, monitor with FCL, replan.
 
     Writes run.json, trajectory.csv, run_map.png and run_tracking.png (and run.gif with --animate)
-    into OUT. Before the robot follows a plan, one line says whether its error tube is certified
+    into OUT (default out/run). Before the robot follows a plan, one line says whether its error tube is certified
     clear, at which probability, where it is tightest and what would certify it. Exit code 0 when the
     goal is reached, 4 when the run ended otherwise (collision, replan failed, timed out, missed goal,
     numerical failure), 5 when --require-certified refused a plan (run.json records the plan and its

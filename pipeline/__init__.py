@@ -27,7 +27,7 @@ The names a user needs for the common jobs are here, at the top (each is documen
 ``execute(m, robot)``    one run of the composite controller -> ``RunResult``
 ``RunOptions``           options of a run (controller, noise, sensing, replanning); ``load_run_config``
 ``write_run``            a run's files (run.json, trajectory.csv, figures)
-``load_batch_config``    a Monte Carlo batch config; ``run_batch`` runs it into a store
+``load_batch_config``    a Monte Carlo batch config; ``run_batch`` runs it into a store -> ``BatchSummary``
 ======================== ==========================================================================
 
 Submodules: ``nhstab.models``, ``nhstab.maps``, ``nhstab.collision``, ``nhstab.planning``,
@@ -73,6 +73,7 @@ _PUBLIC = {
     "write_run": "nhstab.execution",
     "load_batch_config": "nhstab.batch.config",
     "run_batch": "nhstab.batch.runner",
+    "BatchSummary": "nhstab.batch.runner",
     "PipelineError": "nhstab.errors",
     "InputError": "nhstab.errors",
 }

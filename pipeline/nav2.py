@@ -15,10 +15,11 @@ three places, and this module reads each of them:
 * **the kinematics**, in ``planner_server.ros__parameters``: each planner plugin named in
   ``planner_plugins`` (default ``[GridBased]``). ``nav2_smac_planner/SmacPlannerHybrid`` with
   ``motion_model_for_search`` DUBIN (Nav2's default) or REEDS_SHEPP and ``minimum_turning_radius``
-  R (Nav2's default 0.4 m) gives a car whose minimum turning radius L / tan(max_steer) is R;
+  R (Nav2's default 0.4 m) gives a car whose minimum turning radius L / tan(max_steer) is R, and
+  which plans in the dubins space (forward only, the robot's ``space``) or reeds_shepp;
   ``SmacPlannerLattice`` (STATE_LATTICE) reads the motion model and turning radius from the
-  ``lattice_metadata`` of its ``lattice_filepath`` (an ``ackermann`` lattice gives a car, ``diff`` and
-  ``omni`` a unicycle). Any other planner (NavFn, Smac 2D, Theta*), no planner server or a radius of
+  ``lattice_metadata`` of its ``lattice_filepath`` (an ``ackermann`` lattice gives a car, in the dubins
+  space unless ``allow_reverse_expansion``; ``diff`` and ``omni`` a unicycle). Any other planner (NavFn, Smac 2D, Theta*), no planner server or a radius of
   0 gives a unicycle: the robot turns in place.
 * **the speed limits**, in ``controller_server.ros__parameters`` (each plugin in
   ``controller_plugins``, default ``[FollowPath]``: DWB's ``max_vel_x``, ``max_speed_xy`` and
@@ -82,7 +83,8 @@ class Nav2Robot:
     """A robot read from a Nav2 parameters file, with what was read from where."""
 
     robot: Robot
-    #: the planning space the Smac planner searches ("dubins", "reeds_shepp"), or None (a unicycle)
+    #: the planning space the Smac planner searches ("dubins", "reeds_shepp"), or None (a unicycle); the
+    #: robot carries it (``robot.space``), so nhstab plans in it unless the planning options give another
     space: str | None
     #: one line per value taken: what, from which key (the CLI prints them)
     lines: tuple[str, ...]
@@ -156,12 +158,15 @@ def read_nav2_robot(path, model: str | None = None, wheelbase: float | None = No
         spec["max_turn_rate"] = turn
         lines.append(turn_line)
     spec["footprint"] = _footprint_spec(fp)
+    space = kin["space"] if chosen != "unicycle" else None
+    if space is not None:
+        spec["space"] = space
     if margin is not None:
         spec["margin"] = margin
     robot = robot_from_spec(spec, where=f"{file}: robot", source=f"{NAV2_PREFIX}{path}")
     lines = [line.replace(f"{file}: ", "") for line in lines]
     robot = dataclasses.replace(robot, footprint=fp, notes=tuple(lines))
-    return Nav2Robot(robot=robot, space=kin["space"] if chosen != "unicycle" else None, lines=tuple(lines))
+    return Nav2Robot(robot=robot, space=space, lines=tuple(lines))
 
 
 # ---- the footprint ------------------------------------------------------------------------------
@@ -399,7 +404,7 @@ def _hybrid(block: dict, key: str) -> dict:
     return {"model": "rwd_car", "radius": r, "radius_key": f"{key}.minimum_turning_radius",
             "space": HYBRID_MOTION_MODELS[mm],
             "line": f"model rwd_car, {'forward only' if mm == 'DUBIN' else 'forward and reverse'} "
-                    f"(plan with --space {HYBRID_MOTION_MODELS[mm]}): {src}"}
+                    f"(space {HYBRID_MOTION_MODELS[mm]}): {src}"}
 
 
 def _lattice(block: dict, key: str, folder: Path) -> dict:
@@ -434,7 +439,7 @@ def _lattice(block: dict, key: str, folder: Path) -> dict:
     space = "reeds_shepp" if reverse else "dubins"
     return {"model": "rwd_car", "radius": r, "radius_key": fkey, "space": space,
             "line": f"model rwd_car, {'forward and reverse' if reverse else 'forward only'} "
-                    f"(plan with --space {space}): {src}"}
+                    f"(space {space}): {src}"}
 
 
 # ---- the speeds ---------------------------------------------------------------------------------

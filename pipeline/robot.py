@@ -17,6 +17,8 @@ the ``robot:`` block of map, run and batch files::
       margin: 0.1               # planning margin [m]
       stabilizer: {alpha: 0.1, delta: 6.0, gamma: 1.0, end_strategy: extend, cusps: split}   # the gramian law's defaults
       turning_radius: 5.0       # planning turning radius [m] (default: the rule below)
+      space: dubins             # the planning space: dubins (forward only) or reeds_shepp (forward and
+                                #   reverse); default: none, the planner's (reeds_shepp)
 
 A ``car_trailer`` also takes ``hitch_lengths: [d1, ...]`` (one per trailer, the model's list-valued
 parameter) and ``trailer_footprint`` (one footprint spec for every trailer, or a list with one per
@@ -65,7 +67,11 @@ from .safe_io import read_yaml_mapping
 #: the model's smallest turning radius)), and a car_trailer's trailer footprint
 MODEL_DEFAULTS: dict[str, dict] = {name: cls.robot_defaults for name, cls in MODELS.items()}
 #: the robot keys other than the model's parameters
-ROBOT_KEYS = ("model", "footprint", "margin", "stabilizer", "turning_radius", "name", "trailer_footprint")
+ROBOT_KEYS = ("model", "footprint", "margin", "stabilizer", "turning_radius", "space", "name", "trailer_footprint")
+#: the planning spaces (OMPL state spaces): Reeds-Shepp paths drive forward and reverse, Dubins paths
+#: forward only; a robot's ``space`` is one of them, or None (the planner's default, :data:`DEFAULT_SPACE`)
+SPACES = ("reeds_shepp", "dubins")
+DEFAULT_SPACE = "reeds_shepp"
 STABILIZER_KEYS = ("alpha", "delta", "gamma", "end_strategy", "cusps")
 #: the stabilizer keys that are numbers (end_strategy is one of the gain schedule's END_STRATEGIES, cusps
 #: one of its CUSP_HANDLING)
@@ -105,6 +111,9 @@ class Robot:
     margin: float
     stabilizer: RobotStabilizer = field(default_factory=RobotStabilizer)
     turning_radius: float = 0.5                          # planning radius [m]
+    #: the planning space the robot is limited to ("dubins": forward only; "reeds_shepp"), or None: the
+    #: planner's default (:data:`DEFAULT_SPACE`); an explicit space in the planning options overrides it
+    space: str | None = None
     name: str = ""                                       # a label (default: the model's name)
     #: where the description came from ("default", a file, "map", "run config", ...)
     source: str = "default"
@@ -228,7 +237,8 @@ class Robot:
 
     # ---- records ----------------------------------------------------------------------------
     def spec(self) -> dict:
-        """The YAML form of this robot (every key explicit): ``robot_from_spec(r.spec())`` gives it back."""
+        """The YAML form of this robot (every key explicit, ``space`` when the robot has one):
+        ``robot_from_spec(r.spec())`` gives it back."""
         fp = self.footprint
         trailers = {}
         if self.trailer_footprints:
@@ -237,7 +247,13 @@ class Robot:
                 "footprint": _footprint_spec(fp), **trailers, "margin": float(self.margin),
                 "stabilizer": {k: (float(v) if k in STABILIZER_NUMBERS else str(v))
                                for k, v in self.stabilizer.as_dict().items()},
-                "turning_radius": float(self.turning_radius), "name": self.name or self.model.name}
+                "turning_radius": float(self.turning_radius), **({"space": self.space} if self.space else {}),
+                "name": self.name or self.model.name}
+
+    @property
+    def planning_space(self) -> str:
+        """The space this robot plans in when the options give none: its own, else :data:`DEFAULT_SPACE`."""
+        return self.space or DEFAULT_SPACE
 
     def describe(self) -> dict:
         """What results record: the spec, the state layout, the limits and where it came from."""
@@ -287,11 +303,12 @@ def robot_preset(model_name: str, preset: str) -> dict:
 
 def make_robot(model: str | Model = "unicycle", footprint: Footprint | dict | None = None,
                margin: float | None = None, stabilizer: dict | RobotStabilizer | None = None,
-               turning_radius: float | None = None, **params) -> Robot:
+               turning_radius: float | None = None, space: str | None = None, **params) -> Robot:
     """A robot from Python values: ``make_robot("rwd_car", wheelbase=2.7, margin=0.1,
     footprint={"rectangle": {"length": 4.5, "width": 1.9, "rear_overhang": 1.0}})``; a footprint
-    may also be a :class:`Footprint`, a stabilizer a :class:`RobotStabilizer`. Validated like the YAML
-    form."""
+    may also be a :class:`Footprint`, a stabilizer a :class:`RobotStabilizer`; ``space`` ("dubins":
+    forward only, or "reeds_shepp") the space it plans in when the planning options give none.
+    Validated like the YAML form."""
     if isinstance(model, Model):
         params = {**{k: v for k, v in model.params().items()}, **params}
         model = model.name
@@ -307,6 +324,8 @@ def make_robot(model: str | Model = "unicycle", footprint: Footprint | dict | No
         spec["stabilizer"] = stabilizer.as_dict() if isinstance(stabilizer, RobotStabilizer) else stabilizer
     if turning_radius is not None:
         spec["turning_radius"] = turning_radius
+    if space is not None:
+        spec["space"] = space
     robot = robot_from_spec(spec, source="python")
     return robot if fp_obj is None else dataclasses.replace(robot, footprint=fp_obj)
 
@@ -387,12 +406,19 @@ def robot_from_spec(spec, where: str = "robot", source: str = "default") -> Robo
     else:
         kind, value = defaults["turning_radius"]
         radius = value if kind == "fixed" else value * r_min
+    space = spec.get("space")
+    if space is not None:
+        if space not in SPACES:
+            raise InputError(f"{where}.space", "one of " + ", ".join(SPACES) + " (or leave it out: the planner's)",
+                             space)
+        if n_trailers and space != "reeds_shepp":
+            raise InputError(f"{where}.space", "reeds_shepp (a car with a trailer reverses)", space)
     label = spec.get("name", name)
     if not isinstance(label, str) or not label.strip():
         raise InputError(f"{where}.name", "a non-empty string", label)
     given = frozenset(spec) | frozenset(f"stabilizer.{k}" for k in spec.get("stabilizer") or ())
     return Robot(model=model, footprint=fp, margin=margin, stabilizer=RobotStabilizer(**stab),
-                 turning_radius=float(radius),
+                 turning_radius=float(radius), space=space,
                  name=label, source=source, notes=tuple(notes), trailer_footprints=trailer_fps, where=where,
                  given=given)
 

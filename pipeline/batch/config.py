@@ -160,7 +160,7 @@ class BatchConfig:
     def effective(self) -> dict:
         """The config as a batch config with every default filled in: each map's problems spelled out,
         the grid's noise, and every run option (:func:`~nhstab.execution.config.config_mapping`; the
-        options left to the robot, such as its margin and stabilizer, are left out). Loaded again, it
+        options left to the robot, such as its margin, planning space and stabilizer, are left out). Loaded again, it
         defines the same cells and seeds, and gives this same mapping."""
         maps = []
         for m in self.maps:

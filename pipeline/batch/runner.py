@@ -49,6 +49,7 @@ import threading
 import time
 import warnings
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 from .. import __version__
@@ -216,16 +217,94 @@ def _difference(stored: dict, config: BatchConfig) -> str:
     return "the trials it defines differ"
 
 
-def run_batch(config: BatchConfig, out_dir, workers: int = 1, scheduler: str | None = None, resume: bool = False,
-              progress: bool = True, retry_errors: bool = False) -> dict:
-    """Run every trial of ``config`` missing from the store in ``out_dir``. Returns counts: trials,
-    ran, already_stored, stored, wall_s, outcomes ({status: count} of this run's trials), errors
-    and first_error (this run's trials that failed by error, and the first one's id and message),
-    stored_errors (in the whole store) and transfer (the bytes shipped, see the module docstring).
-    With ``retry_errors`` (and ``resume``), the trials stored with an error are removed and run again.
+@dataclass(frozen=True)
+class BatchSummary:
+    """What one :func:`run_batch` call did: the counts of this invocation and of the whole store.
 
-    A KeyboardInterrupt stops the batch (see the module docstring) and propagates; the trials stored
-    until then stay stored."""
+    Attributes
+    ----------
+    trials : int
+        The trials of the config (cells x trials per cell).
+    ran : int
+        The trials this call ran (those missing from the store).
+    already_stored : int
+        The trials the store held before this call (``trials - ran``).
+    stored : int
+        The trials in the store after this call.
+    wall_s : float
+        Wall-clock time [s] this call spent running trials.
+    outcomes : dict
+        ``{status: count}`` of this call's trials (e.g. ``"reached"``, ``"collision"``, ``"error"``).
+    errors : int
+        This call's trials that failed by error (an exception, not an outcome).
+    first_error : tuple of (str, str) or None
+        The first of them: its trial id and message.
+    stored_errors : int
+        The trials stored with an error in the whole store.
+    transfer : dict
+        The bytes this call shipped: ``bundle_bytes`` (per map), ``bundle_copies``,
+        ``bundles_sent_bytes``, ``specs_sent_bytes``, ``records_received_bytes``, ``trials``,
+        ``spec_bytes_per_trial`` and ``record_bytes_per_trial`` (None when no trial ran).
+    """
+
+    trials: int
+    ran: int
+    already_stored: int
+    stored: int
+    wall_s: float
+    outcomes: dict
+    errors: int
+    first_error: tuple[str, str] | None
+    stored_errors: int
+    transfer: dict
+
+    def as_dict(self) -> dict:
+        """The summary as a plain dict with the attribute names as keys, in their order (JSON-ready
+        but for ``first_error``, a tuple)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def run_batch(config: BatchConfig, out_dir: str | os.PathLike, workers: int = 1, scheduler: str | None = None,
+              resume: bool = False, progress: bool = True, retry_errors: bool = False) -> BatchSummary:
+    """Run every trial of ``config`` missing from the store in ``out_dir``.
+
+    Each trial is committed to ``out_dir/trials.sqlite`` the moment it finishes; see the module
+    docstring for interruption, resumption and what travels to the workers.
+
+    Parameters
+    ----------
+    config : BatchConfig
+        The batch (:func:`nhstab.load_batch_config`).
+    out_dir : str or path-like
+        The batch folder; it holds the store ``trials.sqlite``.
+    workers : int
+        Local worker processes (1: the trials run in this process).
+    scheduler : str, optional
+        Address of a Dask distributed scheduler (e.g. ``"tcp://10.0.0.5:8786"``); ``workers`` is then
+        not used.
+    resume : bool
+        Continue the batch stored in ``out_dir`` (its config must match ``config``): run each missing
+        trial once.
+    progress : bool
+        Show a progress bar on stderr.
+    retry_errors : bool
+        With ``resume``: remove the trials stored with an error and run them again.
+
+    Returns
+    -------
+    BatchSummary
+        The counts of this call and of the store (``.as_dict()``: a plain dict).
+
+    Raises
+    ------
+    InputError
+        For a bad request: ``retry_errors`` without ``resume``, an ``out_dir`` that already holds a
+        store (without ``resume``) or another running batch, a stored batch that does not match
+        ``config``, an unreachable scheduler.
+    KeyboardInterrupt
+        On Ctrl-C (or :class:`BatchSignal` on SIGTERM and SIGHUP): the batch stops; the trials stored
+        until then stay stored.
+    """
     out_dir = Path(out_dir)
     client = None
     if retry_errors and not resume:
@@ -269,10 +348,9 @@ def run_batch(config: BatchConfig, out_dir, workers: int = 1, scheduler: str | N
                 _record_run(store, tally, "dask" if client is not None else "local",
                             scheduler if client is not None else workers, wall)
             errors = store.errors()
-            return {"trials": len(specs), "ran": len(todo), "already_stored": len(specs) - len(todo),
-                    "stored": store.count(), "wall_s": wall, "outcomes": dict(tally.outcomes),
-                    "errors": tally.errors, "first_error": tally.first_error, "stored_errors": len(errors),
-                    "transfer": tally.transfer()}
+            return BatchSummary(trials=len(specs), ran=len(todo), already_stored=len(specs) - len(todo),
+                                stored=store.count(), wall_s=wall, outcomes=dict(tally.outcomes), errors=tally.errors,
+                                first_error=tally.first_error, stored_errors=len(errors), transfer=tally.transfer())
     finally:
         if client is not None:
             client.close()

@@ -32,7 +32,8 @@ was given. The format::
     sensor: {range_m: 8.0, fov_deg: 360, rate_hz: 10, resolution_deg: 0.5}
     monitor: {rate_hz: 10, horizon_s: 8.0}
     planning: {planner: rrtconnect, time_limit_s: 2.0, margin: 0.3, space: reeds_shepp, guide: true, fit: false}
-                                      # margin: the robot's; auto plans with the error tube's clearance
+                                      # margin: the robot's; space: the robot's, else reeds_shepp (dubins:
+                                      # forward only); auto plans with the error tube's clearance
                                       # (nhstab.tubes); fit: an uncertified plan is changed until its tube
                                       # is certified (the margin it needs, other maneuvers), the best kept
     replan: {pause_s: 1.0, max_attempts: 3, max_replans: 10, budget_growth: 4.0, at_cusps: true,
@@ -209,7 +210,9 @@ class MonitorOptions:
 
 @dataclass(frozen=True)
 class PlanningOptions:
-    """The planner used for the first plan and every replan (see ``nhstab plan``). ``margin``: the
+    """The planner used for the first plan and every replan (see ``nhstab plan``). ``space``:
+    reeds_shepp (forward and reverse) or dubins (forward only); None for the robot's (``Robot.space``),
+    else reeds_shepp. ``margin``: the
     clearance every nominal keeps from the obstacles the robot knows of; None for the robot's
     (``Robot.margin``, see :mod:`nhstab.robot`); "auto" for the smallest margin whose error tube is
     certified clear (:func:`nhstab.tubes.plan_with_auto_margin`). ``guide``: the guided search (a grid
@@ -218,7 +221,7 @@ class PlanningOptions:
     keep the best (:func:`nhstab.tubes.fit_plan`)."""
 
     planner: str = "rrtconnect"
-    space: str = "reeds_shepp"
+    space: str | None = None                 # None: the robot's (Robot.planning_space)
     time_limit_s: float = 2.0
     margin: float | str | None = None
     turning_radius: float | None = None
@@ -228,7 +231,7 @@ class PlanningOptions:
     def validated(self) -> "PlanningOptions":
         if self.planner not in PLANNERS:
             raise InputError("planning.planner", "one of " + ", ".join(PLANNERS), self.planner)
-        if self.space not in SPACES:
+        if self.space is not None and self.space not in SPACES:
             raise InputError("planning.space", "one of " + ", ".join(SPACES), self.space)
         check_number("planning.time_limit_s", self.time_limit_s, 0.0, lo_open=True)
         if isinstance(self.margin, str):
@@ -524,7 +527,7 @@ def config_mapping(opts: RunOptions, robot=None) -> dict:
     """``opts`` as a run config (the ``nhstab run --config`` keys, without ``map``), every section with
     every key; plain data that YAML and JSON write. Keys left at None (the robot's) are left out,
     unless ``robot`` (a :class:`~nhstab.robot.Robot`) is given: then they are filled with its values
-    (planning.margin and turning_radius, controller.alpha, delta and gamma; max_gain with the
+    (planning.margin, turning_radius and space, controller.alpha, delta and gamma; max_gain with the
     frozen-time law's; every state's noise level). The sensor's angles are in radians as stored (``fov_rad``,
     ``resolution_rad``): a round trip through degrees could change the last bit. Read back by
     :func:`options_from_mapping`, it gives ``opts`` again (with the robot's values filled in)."""
@@ -538,7 +541,8 @@ def config_mapping(opts: RunOptions, robot=None) -> dict:
             max_gain=c.max_gain if c.max_gain is not None else MAX_GAIN),
             planning=replace(p, margin=p.margin if p.margin is not None else robot.margin,
                              turning_radius=p.turning_radius if p.turning_radius is not None
-                             else robot.turning_radius))
+                             else robot.turning_radius,
+                             space=p.space if p.space is not None else robot.planning_space))
     d = asdict(opts)
     out = {}
     for key in ("seed", "rate_hz", "substeps", "saturate", "headroom", "max_time_s"):

@@ -229,6 +229,8 @@ class CompositeRun:
         opts = check_run(m, robot, opts)
         if opts.planning.margin is None:
             opts = dataclasses.replace(opts, planning=dataclasses.replace(opts.planning, margin=robot.margin))
+        if opts.planning.space is None:
+            opts = dataclasses.replace(opts, planning=dataclasses.replace(opts.planning, space=robot.planning_space))
         self.opts = opts
         self.start, self.goal = start, goal
         #: the planning configuration of the start (x, y, theta, and a car_trailer's trailer headings)

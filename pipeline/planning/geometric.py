@@ -51,25 +51,26 @@ from ..collision import CollisionWorld
 from ..errors import InputError
 from ..geometry import Footprint, wrap_angle
 from ..limits import MAX_PLANNER_SEED, check_int
+from ..robot import DEFAULT_SPACE, SPACES
 from . import local_paths
 from .guide import Guide
 
 PLANNERS = ("rrtconnect", "rrt", "rrtstar", "informedrrtstar", "bitstar", "prmstar", "prm", "kpiece", "fmt")
-SPACES = ("reeds_shepp", "dubins")
 
 
 @dataclass(frozen=True)
 class PathOptions:
     """Options of the geometric planning stage.
 
-    space: "reeds_shepp" (forward and reverse) or "dubins" (forward only); turning_radius [m] > 0;
+    space: "reeds_shepp" (forward and reverse) or "dubins" (forward only); None: the robot's
+    (``Robot.space``, filled in by planning.plan), else reeds_shepp; turning_radius [m] > 0;
     planner: one of PLANNERS (default rrtconnect: fast first solution); time_limit_s > 0;
     seed: OMPL's RNG seed; margin [m]: obstacles inflated by it; resolution [m]: validity checking
     step along motions; simplify: OMPL's path simplification (shortcutting) after an OMPL search;
     guide: the guided search (a grid shortest path sets subgoals, see the module docstring).
     """
 
-    space: str = "reeds_shepp"
+    space: str | None = None                 # None: the robot's, else reeds_shepp (filled in by planning.plan)
     turning_radius: float | None = None      # None: the robot's (filled in by planning.plan)
     planner: str = "rrtconnect"
     time_limit_s: float = 1.0
@@ -80,11 +81,16 @@ class PathOptions:
     guide: bool = True
 
     def for_robot(self, robot) -> "PathOptions":
-        """These options with the robot's turning radius and margin where they are None."""
-        return replace(self, turning_radius=robot.turning_radius if self.turning_radius is None else self.turning_radius,
+        """These options with the robot's space (:attr:`Robot.planning_space`), turning radius and margin
+        where they are None."""
+        return replace(self, space=robot.planning_space if self.space is None else self.space,
+                       turning_radius=robot.turning_radius if self.turning_radius is None else self.turning_radius,
                        margin=robot.margin if self.margin is None else self.margin)
 
     def validated(self) -> "PathOptions":
+        """These options checked; a space left None (no robot filled it in) is :data:`DEFAULT_SPACE`."""
+        if self.space is None:
+            return replace(self, space=DEFAULT_SPACE).validated()
         if self.space not in SPACES:
             raise InputError("space", "one of " + ", ".join(SPACES), self.space)
         if self.planner not in PLANNERS:
@@ -144,10 +150,10 @@ def _planner(og, name: str, si):
 
 def make_space(opts: PathOptions, bounds):
     ob, _, _ = _ompl()
-    if opts.space == "reeds_shepp":
-        space = ob.ReedsSheppStateSpace(float(opts.turning_radius))
-    else:
+    if opts.space == "dubins":
         space = ob.DubinsStateSpace(float(opts.turning_radius), False)
+    else:                                      # reeds_shepp, also for a space left None
+        space = ob.ReedsSheppStateSpace(float(opts.turning_radius))
     b = ob.RealVectorBounds(2)
     b.setLow(0, bounds[0]); b.setHigh(0, bounds[2])   # noqa: E702
     b.setLow(1, bounds[1]); b.setHigh(1, bounds[3])   # noqa: E702

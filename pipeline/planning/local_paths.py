@@ -232,8 +232,10 @@ def dubins(start, goal, radius: float) -> list[tuple[str, float]]:
     return list(zip(word, seg))
 
 
-def local_path(space: str, start, goal, radius: float) -> list[tuple[str, float]]:
-    return reeds_shepp(start, goal, radius) if space == "reeds_shepp" else dubins(start, goal, radius)
+def local_path(space: str | None, start, goal, radius: float) -> list[tuple[str, float]]:
+    """The shortest local path from ``start`` to ``goal``: Dubins for ``space`` "dubins", else (reeds_shepp,
+    or None: the default space) Reeds-Shepp; (kind, signed length in radius units) per segment."""
+    return dubins(start, goal, radius) if space == "dubins" else reeds_shepp(start, goal, radius)
 
 
 def path_length(segments, radius: float) -> float:

@@ -753,7 +753,7 @@ def car_paths(world: CollisionWorld, fp: Footprint, model: Model, start, goal, o
         S, G = sides["start"], sides["goal"]
         if few is not None:          # the cheapest candidates only (those that got out first)
             S, G = S[:few], G[:few]
-        backwards = opts.space == "reeds_shepp" and len(G) > len(S)
+        backwards = opts.space != "dubins" and len(G) > len(S)
         A, B = (G, S) if backwards else (S, G)
         B = sorted(B, key=lambda c: -world.clearance(c.pose, fp)) if len(B) > 1 else B
         p = run_ompl(A[0].pose, B[0].pose, radius, budget, margin, [c.pose for c in A[1:]], [c.pose for c in B[1:]])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import sqlite3
 import subprocess
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from clitools import invoke
 from nhstab.batch.config import load_batch_config
 from nhstab.batch.report import wilson
 from nhstab.batch.runner import run_batch
@@ -165,7 +167,7 @@ def test_a_batch_killed_with_sigkill_and_resumed_runs_each_trial_once(tmp_path):
     with pytest.raises(InputError, match="--resume"):
         run_batch(load_batch_config(cfg_file), out, progress=False)
     counts = run_batch(load_batch_config(cfg_file), out, workers=2, resume=True, progress=False)
-    assert counts["ran"] == 12 - part and counts["stored"] == 12
+    assert counts.ran == 12 - part and counts.stored == 12
     run_batch(load_batch_config(cfg_file), tmp_path / "whole", workers=2, progress=False)
     assert records(db) == records(tmp_path / "whole" / "trials.sqlite")
 
@@ -428,7 +430,7 @@ def test_a_second_batch_on_the_same_folder_is_refused_while_one_runs(tmp_path):
             run_batch(cfg, out, resume=True, retry_errors=True, progress=False)
     with Store(out / "trials.sqlite") as s:
         assert s.trials() == before
-    assert run_batch(cfg, out, resume=True, progress=False)["already_stored"] == len(before)
+    assert run_batch(cfg, out, resume=True, progress=False).already_stored == len(before)
     # a process forked while the lock is held (a local worker) does not keep it once the batch lets go
     import multiprocessing as mp
 
@@ -476,3 +478,41 @@ def test_a_batch_of_two_trials_draws_its_figures_or_says_why_not(tmp_path):
     assert "noise level" in lines[1] and "(levels: 1)" in lines[1]
     html_text = (tmp_path / "b" / "report.html").read_text()
     assert "Figures left out." in html_text and html_text.count("<li>") == 2
+
+
+def test_run_batch_returns_a_frozen_summary_whose_counts_match_the_store(tmp_path):
+    """run_batch returns a BatchSummary (exported from nhstab, annotated in the signature): its counts
+    agree with the store it wrote, as_dict gives the plain dict of the same fields in order, and a
+    resume that finds every trial stored runs none."""
+    import dataclasses
+    import inspect
+
+    import nhstab
+    from nhstab.batch.runner import BatchSummary
+
+    assert nhstab.BatchSummary is BatchSummary
+    assert inspect.signature(nhstab.run_batch).return_annotation in (BatchSummary, "BatchSummary")
+    cfg = load_batch_config(_config(tmp_path, trials=1))
+    out = tmp_path / "b"
+    summary = run_batch(cfg, out, progress=False)
+    assert isinstance(summary, BatchSummary)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        summary.ran = 0
+    with Store(out / "trials.sqlite") as s:
+        statuses = [t["status"] for t in s.trials()]
+    d = summary.as_dict()
+    assert list(d) == ["trials", "ran", "already_stored", "stored", "wall_s", "outcomes", "errors", "first_error",
+                       "stored_errors", "transfer"]
+    assert d["trials"] == d["ran"] == d["stored"] == len(statuses) == cfg.n_trials() == 2
+    assert d["already_stored"] == 0 and d["wall_s"] > 0
+    assert d["outcomes"] == {k: statuses.count(k) for k in set(statuses)}
+    assert d["errors"] == d["stored_errors"] == statuses.count("error") == 0 and d["first_error"] is None
+    assert d["transfer"]["trials"] == 2 and d["transfer"]["records_received_bytes"] > 0
+    assert json.loads(json.dumps(d)) == d                       # plain data
+    again = run_batch(cfg, out, resume=True, progress=False)
+    assert (again.ran, again.already_stored, again.stored, again.outcomes) == (0, 2, 2, {})
+    assert again.transfer["spec_bytes_per_trial"] is None
+    res = invoke("batch", tmp_path / "batch.yaml", "--out", out, "--resume", "--workers", 1, "--no-progress")
+    assert res.exit_code == 0, res.output
+    assert re.fullmatch(rf"ran 0 trials in \d+\.\d s \(2 already stored\); 2 in {re.escape(str(out))}/trials.sqlite",
+                        res.stdout.splitlines()[0]), res.stdout

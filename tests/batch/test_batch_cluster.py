@@ -266,7 +266,7 @@ def test_local_workers_run_from_the_bundle_after_the_map_files_are_gone(small_ba
 
     bundle_module._LOADED.clear()                   # nor a map this process loaded: only the bundle
     counts = run_batch(config, copy / "two", workers=2, progress=False)
-    assert counts["errors"] == 0 and counts["outcomes"] and counts["transfer"]["bundle_copies"] == 0
+    assert counts.errors == 0 and counts.outcomes and counts.transfer["bundle_copies"] == 0
     assert records(copy / "two" / "trials.sqlite") == records(db)
 
 
@@ -433,7 +433,7 @@ def test_an_old_store_is_reported_replayed_from_the_files_or_refused_in_one_line
     assert not (tmp_path / "r2").exists() and not (tmp_path / "r3").exists()
     # the resume upgrades it: its maps table made and filled, the trials kept
     counts = run_batch(load_batch_config(cfg), old, resume=True, progress=False)
-    assert counts["ran"] == 0
+    assert counts.ran == 0
     with Store(old / "trials.sqlite") as s:
         assert s.schema == 2 and len(s.map_ids()) == 1 and s.count() == 2
 
@@ -533,8 +533,8 @@ def test_a_trial_that_kills_its_dask_worker_is_stored_as_an_error(tmp_path, monk
                           host="127.0.0.1") as cluster:
             counts = run_batch(load_batch_config(cfg), tmp_path / "b", scheduler=cluster.scheduler_address,
                                progress=False)
-    assert counts["errors"] == counts["ran"] == 1 and counts["outcomes"] == {"error": 1}
-    assert counts["first_error"][1].startswith("KilledWorker: the worker running it died")
+    assert counts.errors == counts.ran == 1 and counts.outcomes == {"error": 1}
+    assert counts.first_error[1].startswith("KilledWorker: the worker running it died")
     with Store(tmp_path / "b" / "trials.sqlite") as s:
         assert [t["status"] for t in s.trials()] == ["error"]
 

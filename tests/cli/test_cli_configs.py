@@ -82,7 +82,6 @@ def test_batch_print_config_with_trials_prints_what_runs(tmp_path):
     again = invoke("batch", tmp_path / "b.yaml", "--print-config")
     assert again.exit_code == 0 and again.stdout == res.stdout
     one_line(invoke("batch", "example:depot_robustness", "--trials", "0", "--print-config"), 2, "'--trials'")
-    one_line(invoke("batch", "example:depot_robustness"), 2, "'--out'")
 
 
 def test_batch_trials_override_runs_the_first_trials_of_the_full_batch(tmp_path):

@@ -37,12 +37,67 @@ def test_from_nav2_prints_the_robot_yaml_and_takes_a_model_and_wheelbase(tmp_pat
     assert "# model unicycle (given), where the planner suggests rwd_car" in res.stdout
 
 
-def test_a_dubins_car_is_told_to_plan_forward_only(tmp_path):
+def _dubin(tmp_path) -> Path:
     p = tmp_path / "dubin.yaml"
     p.write_text(CAR.read_text().replace('motion_model_for_search: "REEDS_SHEPP"', 'motion_model_for_search: "DUBIN"'))
-    res = invoke("robot", "from-nav2", p)
+    return p
+
+
+def test_a_dubins_car_is_written_with_its_space(tmp_path):
+    res = invoke("robot", "from-nav2", _dubin(tmp_path))
     assert res.exit_code == 0, res.output
-    assert "# forward only: plan with --space dubins" in res.stdout
+    assert "# forward only: space dubins, which nhstab plan and run use unless --space" in res.stdout
+    assert yaml.safe_load(res.stdout)["robot"]["space"] == "dubins"
+    out = tmp_path / "car.yaml"
+    assert invoke("robot", "from-nav2", _dubin(tmp_path), "-o", out).exit_code == 0
+    assert load_robot(out).space == "dubins"
+    assert yaml.safe_load(invoke("robot", "from-nav2", CAR).stdout)["robot"]["space"] == "reeds_shepp"
+
+
+def _speeds(folder: Path):
+    """The nominal's speed v [m/s] along a plan's trajectory.csv."""
+    import numpy as np
+
+    lines = (folder / "trajectory.csv").read_text().splitlines()
+    col = lines[0].split(",").index("v [m/s]")
+    return np.array([float(line.split(",")[col]) for line in lines[1:]])
+
+
+def test_plan_uses_the_robots_space_and_space_overrides_it(tmp_path):
+    """nhstab plan with the DUBIN car and no --space plans forward only (plan.json's path options say
+    dubins; no cusp, no negative speed in trajectory.csv); --space reeds_shepp plans in that space."""
+    import json
+
+    args = ("plan", "example:depot", "--robot-config", f"nav2:{_dubin(tmp_path)}", "--start", "10,4.3,0", "--goal",
+            "5,4.3,0", "--tube", "linear", "--no-figure")
+    res = invoke(*args, "--out", tmp_path / "d")
+    assert res.exit_code == 0, res.output
+    plan = json.loads((tmp_path / "d" / "plan.json").read_text())
+    assert plan["inputs"]["path_options"]["space"] == "dubins" and plan["metrics"]["cusps"] == 0
+    assert plan["inputs"]["robot"]["space"] == "dubins"
+    assert _speeds(tmp_path / "d").min() >= -1e-9
+    res = invoke(*args, "--space", "reeds_shepp", "--out", tmp_path / "rs")
+    assert res.exit_code == 0, res.output
+    plan = json.loads((tmp_path / "rs" / "plan.json").read_text())
+    assert plan["inputs"]["path_options"]["space"] == "reeds_shepp"
+    assert _speeds(tmp_path / "rs").min() < 0
+
+
+def test_run_uses_the_robots_space_unless_planning_space_is_given(tmp_path):
+    args = ("run", "example:depot", "--robot-config", f"nav2:{_dubin(tmp_path)}", "--start", "10,4.3,0", "--goal",
+            "5,4.3,0", "--print-config")
+    res = invoke(*args)
+    assert res.exit_code == 0, res.output
+    doc = yaml.safe_load(res.stdout)
+    assert doc["planning"]["space"] == "dubins" and doc["robot"]["space"] == "dubins"
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text("planning: {space: reeds_shepp}\n")
+    res = invoke(*args, "--config", cfg)
+    assert res.exit_code == 0, res.output
+    assert yaml.safe_load(res.stdout)["planning"]["space"] == "reeds_shepp"
+    res = invoke("run", "example:depot", "--robot-config", CAR, "--start", "10,4.3,0", "--goal", "5,4.3,0",
+                 "--print-config")
+    assert yaml.safe_load(res.stdout)["planning"]["space"] == "reeds_shepp"
 
 
 def test_bad_nav2_files_are_one_line_naming_the_key(tmp_path, monkeypatch):

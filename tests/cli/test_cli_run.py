@@ -10,6 +10,8 @@ from click.testing import CliRunner
 from nhstab.cli.main import cli
 from nhstab.execution import read_run_csv
 
+from tests.clitools import invoke, one_line
+
 ROOT = Path(__file__).resolve().parents[2]
 ROOM = str(ROOT / "maps/ours/cluttered_room.yaml")
 
@@ -136,3 +138,26 @@ def test_an_interrupted_run_keeps_what_was_computed_and_says_so(tmp_path, monkey
     csv = read_run_csv(out / "trajectory.csv")
     assert len(csv["t"]) == 200
     assert not [p for p in out.iterdir() if p.name.startswith(".")]
+
+
+def test_without_out_plan_run_and_batch_write_into_out_of_the_current_folder(tmp_path):
+    """No --out: plan, run and batch write into out/plan, out/run and out/batch of the current folder,
+    which the repository's .gitignore ignores (so the committed results/ are never the default); a
+    second batch into the same default folder is refused, naming --out."""
+    assert "/out/" in (ROOT / ".gitignore").read_text().splitlines()
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text(f"map: {ROOM}\nseed: 4\ncontroller: {{kind: open-loop}}\nnoise: {{scale: 0}}\n")
+    res = invoke("run", "--config", cfg, cwd=tmp_path)
+    assert res.exit_code in (0, 4), res.output
+    assert json.loads((tmp_path / "out" / "run" / "run.json").read_text())["inputs"]["options"]["seed"] == 4
+    res = invoke("plan", ROOM, "--tube", "linear", "--no-figure", cwd=tmp_path)
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "out" / "plan" / "plan.json").is_file()
+    batch = tmp_path / "batch.yaml"
+    batch.write_text(f"name: t\nroot_seed: 1\ntrials: 1\nmaps: [{{path: {ROOM}}}]\ncontrollers: [open-loop]\n"
+                     "run: {noise: {scale: 0}}\n")
+    res = invoke("batch", batch, "--workers", 1, "--no-progress", cwd=tmp_path)
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "out" / "batch" / "trials.sqlite").is_file()
+    one_line(invoke("batch", batch, "--workers", 1, "--no-progress", cwd=tmp_path), 2, "'--out'", "out/batch")
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["batch", "plan", "run"]

@@ -222,6 +222,8 @@ def test_the_cars_minimum_turning_radius_is_the_smac_planners(tmp_path, radius):
 def test_the_motion_model_gives_the_planning_space(tmp_path, motion, space):
     got = read_nav2_robot(_hybrid(tmp_path, motion_model_for_search=motion))
     assert got.robot.model.name == "rwd_car" and got.space == space
+    assert got.robot.space == space and got.robot.spec()["space"] == space      # the robot carries it
+    assert robot_from_spec(got.robot.spec()).space == space                     # and its YAML keeps it
     assert any(("Nav2 default" in line) == (motion is None) for line in got.lines if "SmacPlannerHybrid" in line)
 
 
@@ -389,3 +391,48 @@ def test_the_reference_page_names_every_key_the_reader_reads():
 
     text = (Path(__file__).resolve().parents[2] / "docs" / "reference" / "nav2.md").read_text()
     assert [k for k in NAV2_KEYS if f"`{k}`" not in text] == []
+
+
+# ---- the robot's planning space at work -----------------------------------------------------------
+def _dubin_car(tmp_path):
+    return read_nav2_robot(_hybrid(tmp_path, motion_model_for_search="DUBIN")).robot
+
+
+def test_a_dubin_robot_plans_forward_only_in_its_own_space_unless_the_options_say_otherwise(tmp_path):
+    """The Nav2 car with the DUBIN motion model, on the bundled depot (0.05 m cells), to a goal 5 m behind
+    its start with the same heading: with no space in the options it plans in its own, dubins: no
+    reverse interval in the path, v >= 0 along the nominal, no cusp, and no shorter than OMPL's
+    shortest Dubins path between the two poses (5 m + 2 pi R at R = 1 m: turn, drive back, turn). The
+    options' reeds_shepp overrides it: the path reverses and is shorter than any forward-only one."""
+    import nhstab
+    from nhstab.planning import path_length
+
+    rob = _dubin_car(tmp_path)
+    assert rob.space == "dubins" and rob.turning_radius == pytest.approx(1.0)      # 1.25 x R = 0.8 m
+    m = nhstab.load_map("example:depot")
+    start, goal = [10.0, 4.3, 0.0], [5.0, 4.3, 0.0]
+    dubins_lower = path_length(nhstab.PathOptions(space="dubins", turning_radius=rob.turning_radius), start, goal)
+    assert dubins_lower == pytest.approx(5.0 + 2 * math.pi * rob.turning_radius, abs=1e-9)
+    fwd = nhstab.plan(m, rob, start, goal, nhstab.PathOptions(seed=0))
+    assert fwd.ok, fwd.message
+    assert fwd.path.options.space == "dubins" and set(fwd.path.direction) == {1.0}
+    assert fwd.metrics["cusps"] == 0 and fwd.nominal.u[:, 0].min() >= -1e-9
+    assert fwd.metrics["length_m"] >= dubins_lower - 1e-6
+    both = nhstab.plan(m, rob, start, goal, nhstab.PathOptions(seed=0, space="reeds_shepp"))
+    assert both.ok, both.message
+    assert both.path.options.space == "reeds_shepp" and -1.0 in set(both.path.direction)
+    assert both.nominal.u[:, 0].min() < 0 and both.metrics["length_m"] < dubins_lower
+
+
+def test_a_robot_space_is_checked_and_the_default_robot_has_none(tmp_path):
+    from nhstab.robot import default_robot, make_robot
+
+    assert default_robot("rwd_car").space is None and "space" not in default_robot("rwd_car").spec()
+    assert default_robot("rwd_car").planning_space == "reeds_shepp"
+    assert make_robot("unicycle", space="dubins").planning_space == "dubins"
+    with pytest.raises(InputError) as err:
+        robot_from_spec({"model": "rwd_car", "space": "hilbert"})
+    assert err.value.argument == "robot.space"
+    with pytest.raises(InputError, match="reeds_shepp") as err:
+        robot_from_spec({"model": "car_trailer", "space": "dubins"})
+    assert err.value.argument == "robot.space"
