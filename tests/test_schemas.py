@@ -304,3 +304,14 @@ def test_reference_pages_list_every_schema_key_with_its_default():
     checked += _check_table(rows, s["maps"]["items"]["properties"], "batch-config maps")
     checked += _check_table(rows, s["grid"]["properties"], "batch-config grid")
     assert checked >= 120
+
+
+@pytest.mark.parametrize("args,kind", [(["run", "--config", "example:warehouse_replan", "--print-config"], "run-config"),
+                                       (["batch", "example:depot_robustness", "--print-config"], "batch-config")])
+def test_printed_effective_configs_satisfy_their_schemas(args, kind):
+    """What ``--print-config`` prints (every option with its default filled in) is a config of its format."""
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 0, res.output
+    data = yaml.safe_load(res.output)
+    assert isinstance(data, dict) and "controller" in (data if kind == "run-config" else data["run"])
+    assert _errors(kind, data) == []

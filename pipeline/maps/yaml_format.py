@@ -82,7 +82,7 @@ from ..limits import MAX_COORD_M, MAX_POLYGON_VERTICES, MAX_YAML_BYTES
 from ..robot import robot_from_spec
 from ..safe_io import check_keys, load_yaml, read_text
 from ..safe_io import yaml_type_name as _type_name
-from ..yaml_keys import schema, schema_keys
+from ..yaml_keys import schema, schema_keys, schema_required
 from .base import Circle, Map, MapError, OccupancyGrid, Polygon, Pose, Problem, Shape, box_polygon, polyline, ring_parts
 from .movingai import load_movingai_map, load_movingai_scenarios
 from .ros import load_ros_map
@@ -92,6 +92,7 @@ from .svg import load_benchmr_scenarios, load_benchmr_svg
 _TOP_KEYS = schema_keys("map")
 _BASE_KEYS = {name[len("base_"):]: schema_keys("map", "$defs", name)
               for name in schema("map")["$defs"] if name.startswith("base_")}
+_BASE_REQUIRED = {fmt: schema_required("map", "$defs", f"base_{fmt}") for fmt in _BASE_KEYS}
 #: each shape's schema by its key (polygon, line, circle, box)
 _SHAPES = {kind: spec["properties"][kind] for spec in schema("map")["$defs"]["shape"]["oneOf"]
            for kind in spec["properties"]}
@@ -209,10 +210,10 @@ class _Reader:
         if kind == "line":
             return self.line(spec, sub)
         if kind == "circle":
-            spec = self.mapping(spec, sub, tuple(_SHAPES["circle"]["properties"]), ("center", "radius"))
+            spec = self.mapping(spec, sub, tuple(_SHAPES["circle"]["properties"]), tuple(_SHAPES["circle"]["required"]))
             center = self.numbers(spec["center"], f"{sub}.center", 2, "[x, y]")
             return Circle(center, self.positive(spec["radius"], f"{sub}.radius"))
-        spec = self.mapping(spec, sub, tuple(_SHAPES["box"]["properties"]), ("center", "size"))
+        spec = self.mapping(spec, sub, tuple(_SHAPES["box"]["properties"]), tuple(_SHAPES["box"]["required"]))
         cx, cy = self.numbers(spec["center"], f"{sub}.center", 2, "[x, y]")
         length, width = self.numbers(spec["size"], f"{sub}.size", 2, "[length, width]")
         if length <= 0 or width <= 0:
@@ -328,7 +329,7 @@ class _Reader:
         fmt = value["format"]
         if not isinstance(fmt, str) or fmt not in _BASE_KEYS:
             raise self.err("base.format", f"one of {', '.join(_BASE_KEYS)}", fmt)
-        spec = self.mapping(value, "base", _BASE_KEYS[fmt], ("format", "path"))
+        spec = self.mapping(value, "base", _BASE_KEYS[fmt], _BASE_REQUIRED[fmt])
         rel = self.string(spec["path"], "base.path")
         scen_rel = self.string(spec["scenarios"], "base.scenarios") if "scenarios" in spec else None
         unknown = spec.get("unknown", "occupied")
