@@ -105,6 +105,10 @@ _PARAM_TEXT = {
 }
 
 
+#: the model parameters that are angle limits: positive, below pi/2 (nhstab.models.base.angle_limit)
+_ANGLE_PARAMS = ("max_steer", "jackknife_limit")
+
+
 def _footprint() -> dict:
     return {"oneOf": [
         _object({"radius": _number("the disc's radius [m]", 0, True, MAX_COORD_M)},
@@ -147,8 +151,24 @@ def _robot_defs() -> dict:
                                   "description": _describe(_PARAM_TEXT, f.name) + " (a single number is a list of one)"}
             elif f.name in LENGTH_PARAMS:
                 params[f.name] = _number(_describe(_PARAM_TEXT, f.name), 0, True, MAX_COORD_M, default=f.default)
+            elif f.name in _ANGLE_PARAMS:
+                params[f.name] = _number(_describe(_PARAM_TEXT, f.name), 0, True, math.pi / 2, True, default=f.default)
             else:
                 params[f.name] = _number(_describe(_PARAM_TEXT, f.name), 0, True, default=f.default)
+        # the model's built-in robot (its robot_defaults): defaults of the keys a description leaves out
+        defaults = cls.robot_defaults
+        params["footprint"] = {"default": defaults["footprint"], "description": f"the {name}'s default footprint"}
+        params["margin"] = {"default": defaults["margin"], "description": f"the {name}'s default margin [m]"}
+        params["stabilizer"] = {"default": defaults["stabilizer"],
+                                "description": f"the {name}'s default stabilizer parameters"}
+        rule, value = defaults["turning_radius"]
+        params["turning_radius"] = ({"default": value, "description": f"the {name}'s default [m]"} if rule == "fixed"
+                                    else {"description": f"the {name}'s default: {value:g} x its smallest turning "
+                                                         "radius"})
+        params["trailer_footprint"] = ({"default": defaults["trailer_footprint"],
+                                        "description": f"the {name}'s default trailer footprint"}
+                                       if "trailer_footprint" in defaults else
+                                       {"not": {}, "description": "only a model that tows trailers takes one"})
         conditions.append({"if": {"properties": {"model": {"const": name}}, "required": ["model"]},
                            "then": {"properties": params}})
     robot = {

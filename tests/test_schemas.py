@@ -104,8 +104,15 @@ def test_robot_keys_and_model_parameters_come_from_the_schema():
     assert set(by_model) == set(MODELS) == set(robot["properties"]["model"]["enum"])
     for name, cls in MODELS.items():
         params = {f.name: f.default for f in dataclasses.fields(cls) if f.init}
-        assert {k: v["default"] for k, v in by_model[name].items()} == \
+        assert {k: v["default"] for k, v in by_model[name].items() if k not in ROBOT_KEYS} == \
             {k: list(v) if isinstance(v, tuple) else v for k, v in params.items()}, name
+        built_in = cls.robot_defaults
+        assert by_model[name]["margin"]["default"] == built_in["margin"]
+        assert by_model[name]["footprint"]["default"] == built_in["footprint"]
+        assert by_model[name]["stabilizer"]["default"] == built_in["stabilizer"]
+        # a model without trailers takes no trailer_footprint (the loader refuses it too)
+        trailer = {"model": name, "trailer_footprint": {"radius": 1.0}}
+        assert bool(_errors("robot", trailer)) == ("trailer_footprint" not in built_in), name
 
 
 # ---- every bundled file satisfies its schema -------------------------------------------------------
@@ -176,6 +183,8 @@ INVALID = [
     ("robot", "model: rwd_car\nmax_speed: -1\n", "max_speed"),
     ("robot", "robot: {model: rwd_car, stabilizer: {gamma: 0.1}}\n", "stabilizer.gamma"),
     ("robot", "model: rwd_car\nmargin: 'a'\n", "margin"),
+    ("robot", "model: fwd_car\nmax_steer: 2.0\n", "max_steer"),
+    ("robot", "model: rwd_car\ntrailer_footprint: {radius: 1.0}\n", "trailer_footprint"),
     ("run-config", "bogus: 1\n", "bogus"),
     ("run-config", "planning: {planner: nope}\n", "planning.planner"),
     ("run-config", "rate_hz: 0\n", "rate_hz"),
@@ -288,7 +297,8 @@ def test_reference_pages_list_every_schema_key_with_its_default():
             by_model.setdefault(model, []).append(row)
     for cond in s["robot"]["allOf"]:
         name = cond["if"]["properties"]["model"]["const"]
-        checked += _check_table(by_model[name], cond["then"]["properties"], f"robot-yaml {name}", "parameter")
+        params = {k: v for k, v in cond["then"]["properties"].items() if k not in ROBOT_KEYS}
+        checked += _check_table(by_model[name], params, f"robot-yaml {name}", "parameter")
     # run configs: the top level and every section (the tube's on its own page)
     s = schema("run-config")["properties"]
     sections = _sections("run-config")
