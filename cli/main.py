@@ -125,6 +125,7 @@ def _register():
     from .plan import plan, sweep
     from .robot import robot_group
     from .run import run
+    from .schema import schema
     from .trailer import trailer
     from .tubes import tubes
 
@@ -142,6 +143,7 @@ def _register():
     cli.add_command(tubes)
     cli.add_command(robot_group)
     cli.add_command(export_group)
+    cli.add_command(schema)
 
 
 _register()

@@ -59,6 +59,7 @@ from .geometry import Footprint, is_simple_polygon, polygon_area
 from .limits import MAX_COORD_M, MAX_POLYGON_VERTICES
 from .models import MODELS, Model, make_model
 from .safe_io import read_yaml_mapping
+from .yaml_keys import schema_keys
 
 #: per-model defaults: footprint (a YAML footprint spec), planning margin [m], stabilizer, turning
 #: radius rule (("fixed", metres) or ("factor", multiple of the minimum turning radius))
@@ -66,13 +67,13 @@ from .safe_io import read_yaml_mapping
 #: footprint spec), planning margin [m], stabilizer, turning radius (("fixed", metres) or ("factor", times
 #: the model's smallest turning radius)), and a car_trailer's trailer footprint
 MODEL_DEFAULTS: dict[str, dict] = {name: cls.robot_defaults for name, cls in MODELS.items()}
-#: the robot keys other than the model's parameters
-ROBOT_KEYS = ("model", "footprint", "margin", "stabilizer", "turning_radius", "space", "name", "trailer_footprint")
+#: the robot keys other than the model's parameters (from the robot format's JSON Schema, nhstab.yaml_keys)
+ROBOT_KEYS = schema_keys("robot", "$defs", "robot")
 #: the planning spaces (OMPL state spaces): Reeds-Shepp paths drive forward and reverse, Dubins paths
 #: forward only; a robot's ``space`` is one of them, or None (the planner's default, :data:`DEFAULT_SPACE`)
 SPACES = ("reeds_shepp", "dubins")
 DEFAULT_SPACE = "reeds_shepp"
-STABILIZER_KEYS = ("alpha", "delta", "gamma", "end_strategy", "cusps")
+STABILIZER_KEYS = schema_keys("robot", "$defs", "stabilizer")
 #: the stabilizer keys that are numbers (end_strategy is one of the gain schedule's END_STRATEGIES, cusps
 #: one of its CUSP_HANDLING)
 STABILIZER_NUMBERS = ("alpha", "delta", "gamma")

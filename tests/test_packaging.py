@@ -175,6 +175,8 @@ def test_wheel_installs_one_import_name_and_runs_examples_from_anywhere(tmp_path
     assert (site / "nhstab" / "data" / "scenarios" / "depot_blocked_aisle.yaml").is_file()
     assert (site / "nhstab" / "data" / "nav2" / "depot.pgm").is_file()
     assert (site / "nhstab" / "data" / "configs" / "depot_robustness.yaml").is_file()    # example:NAME configs
+    assert {p.name for p in (site / "nhstab" / "schemas").glob("*.schema.json")} == \
+        {p.name for p in (ROOT / "pipeline" / "schemas").glob("*.schema.json")}            # the YAML formats' schemas
 
     work = tmp_path / "elsewhere"
     work.mkdir()

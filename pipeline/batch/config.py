@@ -61,11 +61,16 @@ from ..records import to_jsonable
 from ..robot import map_robot_where, resolve_robot, robot_from_spec
 from ..safe_io import read_yaml_mapping
 from ..tubes.fit import AUTO_MARGIN_START
+from ..yaml_keys import schema_keys, schema_required
 from .bundle import MapBundle
 
-_TOP = ("name", "root_seed", "trials", "maps", "robots", "robot", "controllers", "grid", "run")
-_MAP_KEYS = ("path", "problems", "cell_size")
-_GRID_KEYS = ("noise", "alpha", "delta", "gamma", "window")
+# the keys, from the batch config's JSON Schema (nhstab.yaml_keys): the top level, a map entry's, the grid's,
+# and the run block's (the run config's but map, robot, start, goal and seed)
+_TOP = schema_keys("batch-config")
+_REQUIRED = schema_required("batch-config")
+_MAP_KEYS = schema_keys("batch-config", "properties", "maps", "items")
+_GRID_KEYS = schema_keys("batch-config", "properties", "grid")
+_RUN_KEYS = frozenset(schema_keys("batch-config", "properties", "run"))
 _RUN_EXCLUDED = ("robot", "start", "goal", "seed")
 
 
@@ -236,7 +241,7 @@ def load_batch_config(path) -> BatchConfig:
     that bundle, exactly as every trial will load it, wherever it runs: a map that cannot travel
     (it names a base map or image by an absolute path) is refused here, naming ``maps[i].path``."""
     path = resolve_config_path(path, "CONFIG", "batch")
-    data = read_yaml_mapping(path, "CONFIG", "batch config (YAML)", keys=_TOP, required=("root_seed", "trials", "maps"))
+    data = read_yaml_mapping(path, "CONFIG", "batch config (YAML)", keys=_TOP, required=_REQUIRED)
     name = data.get("name", path.stem)
     if not isinstance(name, str) or not name:
         raise InputError("name", "a non-empty string", name)
@@ -319,13 +324,11 @@ def load_batch_config(path) -> BatchConfig:
         raise InputError("trials", f"at most {MAX_BATCH_TRIALS:,} trials in the batch (cells x trials)",
                          f"{cells:,} cells x {trials} = {cells * trials:,}")
     run = data.get("run", {}) or {}
-    allowed = {"rate_hz", "substeps", "saturate", "headroom", "max_time_s", "controller", "noise", "sensor",
-               "monitor", "planning", "replan", "tolerance", "tube"}
     if isinstance(run, dict):
         for key in run:
             if key in _RUN_EXCLUDED:
                 raise InputError(f"run.{key}", "set by the batch (maps, robots, trials), not in run", key)
-    base = options_from_mapping(run, allowed, prefix="run.")
+    base = options_from_mapping(run, _RUN_KEYS, prefix="run.")
     config = BatchConfig(name, root_seed, trials, maps, robots, controllers, grid, run, str(path), base)
     _check_trials(config, loaded, single)
     return config

@@ -54,7 +54,7 @@ Noise levels are given per state name; states not named get the robot's default 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -86,6 +86,7 @@ from ..robot import robot_from_spec
 from ..safe_io import read_yaml_mapping
 from ..sensing import MAX_BEAMS, SensorOptions
 from ..tubes.base import DEFAULT_DISCARDS, TUBE_KINDS, check_discards, rollouts_needed
+from ..yaml_keys import schema_keys
 from .controllers import ControllerOptions
 
 
@@ -385,7 +386,10 @@ class RunOptions:
 _SECTIONS = {"controller": ControllerOptions, "noise": NoiseOptions, "sensor": SensorOptions,
              "monitor": MonitorOptions, "planning": PlanningOptions, "replan": ReplanOptions,
              "tolerance": ToleranceOptions, "tube": TubeOptions}
-_TOP = {f.name for f in fields(RunOptions)} | {"map"}
+#: the run config's keys (from its JSON Schema, nhstab.yaml_keys, written from RunOptions and its sections)
+_TOP = set(schema_keys("run-config"))
+#: keys a section accepts as other names of its own (translated before the key check)
+_ALIASES = {"controller": ("type",), "sensor": ("fov_deg", "resolution_deg")}
 
 
 def check_pose(key: str, v):
@@ -400,7 +404,7 @@ def check_pose(key: str, v):
 def _noise(data: dict) -> NoiseOptions:
     if not isinstance(data, dict):
         raise InputError("noise", "a mapping", data)
-    allowed = {"scale", "initial", "sensor", "process", "impulses"}
+    allowed = set(schema_keys("run-config", "properties", "noise"))
     for key in data:
         if key not in allowed:
             raise InputError(f"noise.{key}", "one of " + ", ".join(sorted(allowed)), key)
@@ -431,7 +435,6 @@ def _noise(data: dict) -> NoiseOptions:
 
 
 def _section(name: str, data) -> object:
-    cls = _SECTIONS[name]
     if not isinstance(data, dict):
         raise InputError(name, "a mapping", data)
     data = dict(data)
@@ -440,7 +443,7 @@ def _section(name: str, data) -> object:
         _sensor_degrees(data)
     if name == "controller" and "kind" not in data and "type" in data:
         data["kind"] = data.pop("type")
-    names = {f.name for f in fields(cls)}
+    names = [k for k in schema_keys("run-config", "properties", name) if k not in _ALIASES.get(name, ())]
     for key in data:
         if key not in names:
             shown = sorted(n.replace("_rad", "_deg") if name == "sensor" and n in ("fov_rad", "resolution_rad")

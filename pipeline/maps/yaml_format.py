@@ -82,18 +82,20 @@ from ..limits import MAX_COORD_M, MAX_POLYGON_VERTICES, MAX_YAML_BYTES
 from ..robot import robot_from_spec
 from ..safe_io import check_keys, load_yaml, read_text
 from ..safe_io import yaml_type_name as _type_name
+from ..yaml_keys import schema, schema_keys, schema_required
 from .base import Circle, Map, MapError, OccupancyGrid, Polygon, Pose, Problem, Shape, box_polygon, polyline, ring_parts
 from .movingai import load_movingai_map, load_movingai_scenarios
 from .ros import load_ros_map
 from .svg import load_benchmr_scenarios, load_benchmr_svg
 
-_TOP_KEYS = ("name", "description", "bounds", "base", "obstacles", "unknown_obstacles", "start", "goal", "robot")
-_BASE_KEYS = {
-    "ros": ("format", "path", "unknown"),
-    "movingai": ("format", "path", "cell_size", "scenarios"),
-    "benchmr_svg": ("format", "path", "convex_hull", "scenarios"),
-    "nhstab": ("format", "path"),
-}
+# the keys, from the format's JSON Schema (nhstab.yaml_keys): the top level, each base format's, the shapes'
+_TOP_KEYS = schema_keys("map")
+_BASE_KEYS = {name[len("base_"):]: schema_keys("map", "$defs", name)
+              for name in schema("map")["$defs"] if name.startswith("base_")}
+_BASE_REQUIRED = {fmt: schema_required("map", "$defs", f"base_{fmt}") for fmt in _BASE_KEYS}
+#: each shape's schema by its key (polygon, line, circle, box)
+_SHAPES = {kind: spec["properties"][kind] for spec in schema("map")["$defs"]["shape"]["oneOf"]
+           for kind in spec["properties"]}
 #: how deep nhstab-format base maps may nest (a file that is its own base would recurse forever)
 _MAX_BASE_NESTING = 4
 _nesting = [0]
@@ -196,7 +198,7 @@ class _Reader:
 
     # -- shapes ------------------------------------------------------------------------------------
     def shape(self, item: Any, key: str) -> Shape:
-        kinds = ("polygon", "line", "circle", "box")
+        kinds = tuple(_SHAPES)
         if not isinstance(item, dict) or len(item) != 1:
             raise self.err(key, "a mapping with exactly one of the keys polygon, line, circle, box",
                            _type_name(item) if not isinstance(item, dict) else sorted(map(str, item)))
@@ -208,10 +210,10 @@ class _Reader:
         if kind == "line":
             return self.line(spec, sub)
         if kind == "circle":
-            spec = self.mapping(spec, sub, ("center", "radius"), ("center", "radius"))
+            spec = self.mapping(spec, sub, tuple(_SHAPES["circle"]["properties"]), tuple(_SHAPES["circle"]["required"]))
             center = self.numbers(spec["center"], f"{sub}.center", 2, "[x, y]")
             return Circle(center, self.positive(spec["radius"], f"{sub}.radius"))
-        spec = self.mapping(spec, sub, ("center", "size", "yaw"), ("center", "size"))
+        spec = self.mapping(spec, sub, tuple(_SHAPES["box"]["properties"]), tuple(_SHAPES["box"]["required"]))
         cx, cy = self.numbers(spec["center"], f"{sub}.center", 2, "[x, y]")
         length, width = self.numbers(spec["size"], f"{sub}.size", 2, "[length, width]")
         if length <= 0 or width <= 0:
@@ -327,7 +329,7 @@ class _Reader:
         fmt = value["format"]
         if not isinstance(fmt, str) or fmt not in _BASE_KEYS:
             raise self.err("base.format", f"one of {', '.join(_BASE_KEYS)}", fmt)
-        spec = self.mapping(value, "base", _BASE_KEYS[fmt], ("format", "path"))
+        spec = self.mapping(value, "base", _BASE_KEYS[fmt], _BASE_REQUIRED[fmt])
         rel = self.string(spec["path"], "base.path")
         scen_rel = self.string(spec["scenarios"], "base.scenarios") if "scenarios" in spec else None
         unknown = spec.get("unknown", "occupied")
