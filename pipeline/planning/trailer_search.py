@@ -57,7 +57,9 @@ rate within the limit and both bodies free by the margin.
 
 Budget
 ------
-The search stops at ``budget_s`` seconds or ``MAX_EXPANSIONS`` expansions; without a plan it reports
+The search stops at the first reading of its clock at or past ``budget_s`` seconds (read before each
+node's expansion after the root's, which always runs, and before each batch), or at
+``MAX_EXPANSIONS`` expansions; the time to build the grid heuristic counts. Without a plan it reports
 the node closest to the target (the trailer axle's distance and heading error, the heuristic there)
 and why the pieces tried were refused.
 """
@@ -296,14 +298,15 @@ def _trailer_poses(d: float, x: np.ndarray) -> np.ndarray:
 
 def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: float, speed: float, step_s: float,
                    hitch_cap: float, steer_cap: float, rate_cap: float, max_speed: float, budget_s: float,
-                   piece_margin: float | None = None, from_goal: bool = False) -> LatticeResult:
+                   piece_margin: float | None = None, from_goal: bool = False, clock=time.perf_counter) -> LatticeResult:
     """Search from full state ``x_start`` to ``x_goal`` (module docstring). ``margin``: every body's
     clearance along the primitives; ``piece_margin`` (default ``margin``) along the final piece.
     ``from_goal``: root the search at the goal and join the start with the chained-form piece (module
-    docstring: the motion reversed in time)."""
+    docstring: the motion reversed in time). ``clock``: the time in seconds the budget is counted on
+    (read before every batch of expansions and every final piece tried)."""
     if from_goal:
         x_start, x_goal = x_goal, x_start
-    started = time.perf_counter()
+    started = clock()
     model = robot.model
     if model.name != "car_trailer" or model.trailers != 1:
         raise InputError("robot", "a car_trailer with one trailer", getattr(model, "name", model))
@@ -442,8 +445,8 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
 
     found = None
     out_of_time = False
-    while heap and found is None:
-        if time.perf_counter() - started > budget_s:
+    while heap and found is None and not out_of_time:
+        if expansions and clock() - started >= budget_s:
             out_of_time = True
             break
         if expansions >= MAX_EXPANSIONS:
@@ -462,6 +465,9 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
             hn = heuristic(p1)
             if hn < closest[0]:
                 closest = (hn, ni)
+            if ni != 0 and clock() - started >= budget_s:
+                out_of_time = True
+                break
             if ni == 0 or (abs(float(x[3])) <= ANALYTIC_CALM_RAD and abs(float(wrap_angle(x[2] - x[4])))
                            <= ANALYTIC_CALM_RAD and aimed(p1, direction)):
                 piece = try_piece(x)
@@ -469,7 +475,7 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
                     found = (ni, piece)
                     break
             batch.append(ni)
-        if found is not None or not batch:
+        if found is not None or out_of_time or not batch:
             continue
         owner, tg, dr, ap = [], [], [], []
         for i in batch:
@@ -527,8 +533,8 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
             nodes.append((xe, knots[q, -1].copy(), gq, ni, knots[q]))
             heapq.heappush(heap, (gq + HEURISTIC_WEIGHT * heuristic(p1s[q, -1]), counter, len(nodes) - 1))
             counter += 1
-    elapsed = time.perf_counter() - started
-    info = {"search": "lattice", "expansions": expansions, "nodes": len(nodes), "analytic_tries": analytic_tries,
+    elapsed = clock() - started
+    info = {"search": "lattice", "budget_s": float(budget_s), "expansions": expansions, "nodes": len(nodes), "analytic_tries": analytic_tries,
             "search_time_s": elapsed, "grid_heuristic": use_grid, "heuristic_radius_m": r_h,
             "hitch_target_max_rad": float(top), **stats}
     if found is None:
