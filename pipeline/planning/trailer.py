@@ -150,7 +150,7 @@ TIGHT_DISC_FRACTION = 0.5
 TIGHT_GRID_M = 0.25
 #: the lattice search (nhstab.planning.trailer_search) keeps this much more than the margin (where the start
 #: and goal allow it), and drives at this fraction of the speed limit
-LATTICE_MARGIN_PAD = 0.03
+LATTICE_MARGIN_PAD = 0.005
 LATTICE_SPEED_FRACTION = 0.6
 #: the lattice search rooted at the tighter end gets this share of its budget, the other end the rest
 LATTICE_FIRST_SHARE = 0.6

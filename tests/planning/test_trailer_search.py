@@ -18,7 +18,13 @@ from nhstab.planning.trailer import (
     check_configuration,
     lattice_plan,
 )
-from nhstab.planning.trailer_search import grid_distance, inscribed_radius, integrate_primitives, lattice_search
+from nhstab.planning.trailer_search import (
+    grid_distance,
+    inscribed_radius,
+    integrate_primitives,
+    lattice_search,
+    straight_run,
+)
 from nhstab.robot import default_robot, resolve_robot
 from scipy.integrate import solve_ivp
 
@@ -231,3 +237,27 @@ def test_lattice_search_stops_at_its_budget(budget):
     assert budget <= res.info["search_time_s"] <= budget + 2 * clock.tick + 1e-12
     assert res.info["budget_s"] == budget
     assert 1 <= res.info["expansions"] <= round(budget / clock.tick) + 1
+
+
+def test_straight_run_stops_at_the_aisle_wall():
+    """Off a 1.5 S aisle the rig standing straight on the bay's axis leaves the free space before the
+    heuristic's 8 m: :func:`straight_run` returns the last step where both bodies keep the margin (shapely),
+    and one step more does not; behind the goal, the dock wall, it returns one step."""
+    m = load_map("example:trailer_dock_bay150_aisle150")
+    robot = resolve_robot(None, m.robot, "car_trailer")
+    world = CollisionWorld.from_map(m, "known")
+    g = m.goal.as_array()
+    xg = np.array([*g, 0.0, g[2]])
+    margin, step = 0.05, 0.25
+    ahead = straight_run(world, robot, xg, -1.0, margin, 8.0, step)
+    assert 1.5 <= ahead < 8.0
+    obstacles = _shapely_obstacles(m)
+
+    def clearance(s):
+        x = xg.copy()
+        x[:2] += s * np.array([math.cos(g[2]), math.sin(g[2])])
+        return min(poly.distance(obstacles) for poly in _bodies(robot, x))
+
+    assert clearance(ahead) >= margin - 1e-6
+    assert clearance(ahead + step) < margin + 1e-6
+    assert straight_run(world, robot, xg, 1.0, margin, 8.0, step) == step
