@@ -51,9 +51,20 @@ Where the paths fail
 Where no Reeds-Shepp path of the trailer at R1 leads to a usable nominal (aisles and dock bays that a
 circle of R1 does not fit), the lattice search over the whole rig (:mod:`nhstab.planning.
 trailer_search`: Hybrid A* with primitives integrated from the model, rooted at the tighter of start
-and goal, joined to the other with the chained-form piece) runs for ``LATTICE_BUDGET_FACTOR`` times
-the time limit, and :func:`lattice_nominal` makes its plan the same kind of nominal (the primitives'
-inputs integrated again with the tracker's RK4, the piece, the tail).
+and goal, joined to the other with the chained-form piece) plans, and :func:`lattice_nominal` makes
+its plan the same kind of nominal (the primitives' inputs integrated again with the tracker's RK4,
+the piece, the tail).
+
+Budget
+------
+The two phases share the time limit T, counted from the start of the call. :func:`tight_space`
+decides the order: when the largest free disc centred within R1 of the start's or the goal's
+trailer axle has a radius below ``TIGHT_DISC_FRACTION`` R1, the lattice search runs first with all
+of T and the Reeds-Shepp paths get what it leaves; otherwise the Reeds-Shepp paths run first with
+``REEDS_SHEPP_SHARE`` T (every attempt within what is left of it) and the lattice search gets the
+rest. No phase starts with less than ``MIN_PHASE_SHARE`` T left. Outside the budget: making a path
+found in time into a nominal, its clearance check and the gain schedule. The metrics record the
+order and each phase's budget (``search_budget_s``).
 
 Alternatives considered, and what they did on the loading dock
 ---------------------------------------------------------------
@@ -125,15 +136,22 @@ GOAL_RUN_HITCHES = 3.0
 #: the straight-ends combinations are ordered by Reeds-Shepp length plus this much per cusp [m]
 CUSP_COST_M = 10.0
 #: a path whose nominal fails is replaced by another one (OMPL over the map, the next seed), at most this
-#: many paths and while the time spent is below this factor times the planning budget
+#: many paths and while the Reeds-Shepp phase's budget lasts
 NOMINAL_ATTEMPTS = 4
-NOMINAL_BUDGET_FACTOR = 3.0
+#: the two search phases share the time limit: the trailer's Reeds-Shepp paths get this share of it when they
+#: run first, the lattice search everything left (module docstring, "Budget")
+REEDS_SHEPP_SHARE = 0.4
+#: a phase is not started with less than this share of the time limit left
+MIN_PHASE_SHARE = 0.05
+#: the space is tight for the Reeds-Shepp radius R1 (the lattice search runs first) when the largest free
+#: disc centred within R1 of the start's or the goal's trailer axle has a radius below this fraction of R1
+TIGHT_DISC_FRACTION = 0.5
+#: the free discs of that test are centred on a grid of this spacing [m]
+TIGHT_GRID_M = 0.25
 #: the lattice search (nhstab.planning.trailer_search) keeps this much more than the margin (where the start
 #: and goal allow it), and drives at this fraction of the speed limit
-LATTICE_MARGIN_PAD = 0.03
+LATTICE_MARGIN_PAD = 0.005
 LATTICE_SPEED_FRACTION = 0.6
-#: where the trailer's Reeds-Shepp paths fail, the lattice search runs for this factor times the time limit
-LATTICE_BUDGET_FACTOR = 5.0
 #: the lattice search rooted at the tighter end gets this share of its budget, the other end the rest
 LATTICE_FIRST_SHARE = 0.6
 #: the nominal's tail (the motion continued past the goal for the gain schedule's windows) [s]
@@ -285,7 +303,7 @@ def _search(world: CollisionWorld, robot, rig: TrailerRig, opts: PathOptions, x_
             continue
         rig.depart, rig.depart_dir = s1, math.copysign(1.0, float(np.dot(s1[:2] - ps[:2], [math.cos(ps[2]), math.sin(ps[2])])))
         rig.arrive, rig.arrive_dir = g1, math.copysign(1.0, float(np.dot(pg[:2] - g1[:2], [math.cos(pg[2]), math.sin(pg[2])])))
-        path = plan_path(world, rig.trailer_fp, s1, g1, replace(opts, time_limit_s=max(0.5 * budget, left / 2)
+        path = plan_path(world, rig.trailer_fp, s1, g1, replace(opts, time_limit_s=min(left, max(0.5 * budget, left / 2))
                                                                 if k < len(combos) - 1 else left), rig=rig)
         last = path
         if path.status == "exact":
@@ -298,7 +316,7 @@ def _search(world: CollisionWorld, robot, rig: TrailerRig, opts: PathOptions, x_
     rig.depart = rig.arrive = None
     left = budget - (time.perf_counter() - started)
     if left > 0.05 * budget or last is None:
-        path = plan_path(world, rig.trailer_fp, ps, pg, replace(opts, time_limit_s=max(left, 0.05 * budget)), rig=rig)
+        path = plan_path(world, rig.trailer_fp, ps, pg, replace(opts, time_limit_s=max(left, 1e-3)), rig=rig)
         return replace(path, planning_time_s=time.perf_counter() - started)
     return replace(last, planning_time_s=time.perf_counter() - started)
 
@@ -321,14 +339,17 @@ def lattice_plan(world: CollisionWorld, robot, path_opts: PathOptions, timing: T
     # and the chained-form piece joins the roomier end; then at the other end with what is left
     order = (True, False) if clearances["goal"] < clearances["start"] else (False, True)
     began = time.perf_counter()
-    messages = []
+    messages, given = [], []
     for k, from_goal in enumerate(order):
         left = budget - (time.perf_counter() - began)
+        if k > 0 and left <= 0.0:
+            break
+        given.append(LATTICE_FIRST_SHARE * budget if k == 0 else left)
         found = lattice_search(world, robot, x_start, x_goal, margin=search_margin, speed=speed, step_s=step_s,
                                hitch_cap=JACKKNIFE_FRACTION * float(model.jackknife_limit),
                                steer_cap=STEER_FRACTION * float(model.max_steer),
                                rate_cap=STEER_FRACTION * float(model.max_steer_rate), max_speed=max_speed,
-                               budget_s=LATTICE_FIRST_SHARE * budget if k == 0 else left,
+                               budget_s=given[-1],
                                piece_margin=max(margin, search_margin - 1e-3), from_goal=from_goal)
         messages.append(found.message)
         if found.found:
@@ -338,7 +359,7 @@ def lattice_plan(world: CollisionWorld, robot, path_opts: PathOptions, timing: T
     metrics = {"planner": path_opts.planner, "planner_used": "lattice", "planner_status": found.message,
                "planning_time_s": time.perf_counter() - started, "start_clearance_m": clearances["start"],
                "goal_clearance_m": clearances["goal"], "planned_body": "the whole rig (lattice search)",
-               "search_margin_m": search_margin, **{f"lattice_{k}": v for k, v in found.info.items()
+               "search_margin_m": search_margin, "lattice_budgets_s": given, **{f"lattice_{k}": v for k, v in found.info.items()
                                                       if not isinstance(v, np.ndarray)}}
     empty = GeometricPath("failed", found.message, np.array([trailer_pose(model, x_start)]),
                           np.array([trailer_pose(model, x_start)]), np.zeros(1), np.zeros(0), 0.0, 0,
@@ -764,6 +785,83 @@ class _PieceThenTracked:
         return out
 
 
+def tight_space(world: CollisionWorld, robot, x_start, x_goal, radius: float) -> tuple[bool, float]:
+    """Is the space tight for the trailer's Reeds-Shepp paths at ``radius``? The largest free disc (by the
+    world's conservative distance field) centred within ``radius`` of the start's and of the goal's
+    trailer axle, on a grid of ``TIGHT_GRID_M``; tight when the smaller of the two radii is below
+    ``TIGHT_DISC_FRACTION`` times ``radius`` (a turn of that radius needs about a disc of its diameter).
+    Returns (tight, that smaller radius [m])."""
+    fld = world.clearance_field()
+    if fld is None:
+        return False, math.inf
+    best = []
+    offsets = np.arange(-radius, radius + TIGHT_GRID_M / 2, TIGHT_GRID_M)
+    dx, dy = np.meshgrid(offsets, offsets)
+    near = np.hypot(dx, dy) <= radius
+    for x in (x_start, x_goal):
+        p = trailer_pose(robot.model, [x[0], x[1], x[2], x[-1]])
+        best.append(float(np.max(fld.at(p[0] + dx[near], p[1] + dy[near]))))
+    return min(best) < TIGHT_DISC_FRACTION * radius, min(best)
+
+
+def _reeds_shepp_phase(world, robot, rig, search: PathOptions, path_opts: PathOptions, timing_opts: TimingOptions,
+                       x_start, x_goal, run_up: float, clearances: dict, check_resolution: float, started: float,
+                       deadline: float):
+    """The trailer's Reeds-Shepp paths until ``deadline`` (a :func:`time.perf_counter` reading): up to
+    ``NOMINAL_ATTEMPTS`` paths, each searched with the time left and made a nominal. Returns the last
+    outcome (status, message, path, nominal, metrics) and the attempts' labels."""
+    model = robot.model
+    attempts: list = []
+    result = None
+    for k in range(NOMINAL_ATTEMPTS):
+        left = deadline - time.perf_counter()
+        if k > 0 and left < MIN_PHASE_SHARE * float(path_opts.time_limit_s):
+            break
+        # the first path from the guided search (if asked), the next ones from OMPL over the whole map with
+        # the next seeds: a path whose motion the rig cannot follow is replaced by another one
+        opts_k = replace(search, time_limit_s=max(left, 1e-3)) if k == 0 else replace(
+            search, time_limit_s=max(left, 1e-3), guide=False, seed=int(
+                np.random.SeedSequence([int(search.seed), 15, k]).generate_state(1)[0] % (2**31 - 2)))
+        path = _search(world, robot, rig, opts_k, x_start, x_goal, run_up)
+        metrics = {"planner": path_opts.planner, "planner_used": path.info.get("planner_used"),
+                   "planner_status": path.planner_status, "planning_time_s": time.perf_counter() - started,
+                   "validity_calls": path.validity_calls,
+                   "validity_us_per_state": 1e6 * path.validity_time_s / max(path.validity_calls, 1),
+                   "start_clearance_m": clearances["start"], "goal_clearance_m": clearances["goal"],
+                   "planned_body": "trailer 1 (its axle)", "hitch_angle_on_arcs_rad": rig.hitch_on_arcs}
+        if path.status != "exact":
+            tried = (f"{path_opts.planner} for the trailer's axle in the reeds_shepp space (turning radius "
+                     f"{path_opts.turning_radius:.3g} m, margin {path_opts.margin:.3g} m) for {opts_k.time_limit_s:g} s "
+                     f"with seed {opts_k.seed}")
+            result = ("no_path", f"no collision-free path found: tried {tried}; OMPL: {path.planner_status}", path,
+                      None, metrics)
+        else:
+            try:
+                nominal, tinfo = trailer_nominal(robot, path, timing_opts, world, path_opts.margin, x_start, x_goal)
+            except TrailerPlanningError as exc:
+                result = ("infeasible", f"the path was found but could not be made feasible for the car with a "
+                          f"trailer: {exc}", path, None, metrics)
+            else:
+                check = bodies.check_path(world, robot, nominal.x, margin=path_opts.margin, resolution=check_resolution)
+                metrics.update({
+                    "length_m": path.length, "cusps": path.cusps,
+                    "max_curvature_per_m": 1.0 / path_opts.turning_radius, "waypoints": len(path.waypoints), **tinfo,
+                    "min_clearance_m": check.min_clearance, "min_clearance_pose": check.min_clearance_pose,
+                    "min_clearance_body": ("car", "trailer 1")[check.min_clearance_body],
+                    "clearance_check_resolution_m": check_resolution, "clearance_samples": check.samples,
+                    "max_abs_inputs": np.max(np.abs(nominal.u), axis=0), "input_limits": model.input_limits()[:, 1],
+                })
+                if check.clear:
+                    result = ("ok", "", path, nominal, metrics)
+                    attempts.append("ok (guided)" if k == 0 and search.guide else f"ok (seed {opts_k.seed})")
+                    break
+                result = ("not_clear", f"the nominal comes within {check.min_clearance:.3g} m of an obstacle "
+                          f"(margin {path_opts.margin:.3g} m) with its {('car', 'trailer')[check.min_clearance_body]} at "
+                          f"{np.round(check.min_clearance_pose, 3).tolist()}", path, nominal, metrics)
+        attempts.append(f"{result[0]} ({'guided' if k == 0 and search.guide else f'seed {opts_k.seed}'})")
+    return result, attempts
+
+
 # ---------------------------------------------------------------------------------------------
 # planning
 # ---------------------------------------------------------------------------------------------
@@ -797,71 +895,52 @@ def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts
     search = replace(path_opts, margin=max(path_opts.margin, pad_margin))
     rig = TrailerRig(world, robot, search.margin, search)
     run_up = START_RUN_HITCHES * float(model.hitch_lengths[0])
-    budget = NOMINAL_BUDGET_FACTOR * float(path_opts.time_limit_s)
+    limit = float(path_opts.time_limit_s)
+    deadline = started + limit
+    tight, discs = tight_space(world, robot, x_start, x_goal, float(path_opts.turning_radius))
+    order = ("lattice", "reeds_shepp") if tight else ("reeds_shepp", "lattice")
+    budgets = {"reeds_shepp": 0.0, "lattice": 0.0}
     attempts: list = []
-    result = None
-    for k in range(NOMINAL_ATTEMPTS):
-        # the first path from the guided search (if asked), the next ones from OMPL over the whole map with
-        # the next seeds: a path whose motion the rig cannot follow is replaced by another one
-        opts_k = search if k == 0 else replace(search, guide=False, seed=int(
-            np.random.SeedSequence([int(search.seed), 15, k]).generate_state(1)[0] % (2**31 - 2)))
-        path = _search(world, robot, rig, opts_k, x_start, x_goal, run_up)
-        metrics = {"planner": path_opts.planner, "planner_used": path.info.get("planner_used"),
-                   "planner_status": path.planner_status, "planning_time_s": time.perf_counter() - started,
-                   "validity_calls": path.validity_calls,
-                   "validity_us_per_state": 1e6 * path.validity_time_s / max(path.validity_calls, 1),
-                   "start_clearance_m": clearances["start"], "goal_clearance_m": clearances["goal"],
-                   "planned_body": "trailer 1 (its axle)", "hitch_angle_on_arcs_rad": rig.hitch_on_arcs}
-        if path.status != "exact":
-            tried = (f"{path_opts.planner} for the trailer's axle in the reeds_shepp space (turning radius "
-                     f"{path_opts.turning_radius:.3g} m, margin {path_opts.margin:.3g} m) for {opts_k.time_limit_s:g} s "
-                     f"with seed {opts_k.seed}")
-            result = ("no_path", f"no collision-free path found: tried {tried}; OMPL: {path.planner_status}", path,
-                      None, metrics)
-        else:
-            try:
-                nominal, tinfo = trailer_nominal(robot, path, timing_opts, world, path_opts.margin, x_start, x_goal)
-            except TrailerPlanningError as exc:
-                result = ("infeasible", f"the path was found but could not be made feasible for the car with a "
-                          f"trailer: {exc}", path, None, metrics)
-            else:
-                check = bodies.check_path(world, robot, nominal.x, margin=path_opts.margin, resolution=check_resolution)
-                metrics.update({
-                    "length_m": path.length, "cusps": path.cusps,
-                    "max_curvature_per_m": 1.0 / path_opts.turning_radius, "waypoints": len(path.waypoints), **tinfo,
-                    "min_clearance_m": check.min_clearance, "min_clearance_pose": check.min_clearance_pose,
-                    "min_clearance_body": ("car", "trailer 1")[check.min_clearance_body],
-                    "clearance_check_resolution_m": check_resolution, "clearance_samples": check.samples,
-                    "max_abs_inputs": np.max(np.abs(nominal.u), axis=0), "input_limits": model.input_limits()[:, 1],
-                })
-                if check.clear:
-                    result = None
-                    break
-                result = ("not_clear", f"the nominal comes within {check.min_clearance:.3g} m of an obstacle "
-                          f"(margin {path_opts.margin:.3g} m) with its {('car', 'trailer')[check.min_clearance_body]} at "
-                          f"{np.round(check.min_clearance_pose, 3).tolist()}", path, nominal, metrics)
-        attempts.append(f"{result[0]} ({'guided' if k == 0 and search.guide else f'seed {opts_k.seed}'})")
-        if time.perf_counter() - started >= budget:
+    outcome: dict = {}
+    for k, phase in enumerate(order):
+        left = deadline - time.perf_counter()
+        if k > 0 and left < MIN_PHASE_SHARE * limit:
             break
-    if result is not None:
-        # the trailer's Reeds-Shepp paths failed: the search over the whole rig, with its own budget
-        left = LATTICE_BUDGET_FACTOR * float(path_opts.time_limit_s)
-        lattice = lattice_plan(world, robot, path_opts, timing_opts, x_start, x_goal, clearances, left,
-                                check_resolution, started)
-        attempts.append(f"{lattice[0]} (lattice)")
-        if lattice[0] == "ok":
-            result = None
-            _, _, path, nominal, metrics = lattice
-        elif result[0] == "no_path" or lattice[0] != "no_path":
-            result = (lattice[0], lattice[1] + f" (after the trailer's Reeds-Shepp paths: {result[1]})",
-                      *lattice[2:])
+        give = min(left, REEDS_SHEPP_SHARE * limit) if phase == "reeds_shepp" and k == 0 else max(left, 1e-3)
+        budgets[phase] = give
+        if phase == "reeds_shepp":
+            res, tried = _reeds_shepp_phase(world, robot, rig, search, path_opts, timing_opts, x_start, x_goal,
+                                            run_up, clearances, check_resolution, started, time.perf_counter() + give)
+            attempts += tried
+        else:
+            res = lattice_plan(world, robot, path_opts, timing_opts, x_start, x_goal, clearances, give,
+                               check_resolution, started)
+            attempts.append(f"{res[0]} (lattice)")
+        outcome[phase] = res
+        if res[0] == "ok":
+            break
+    result = None
+    last = outcome[list(outcome)[-1]]
+    if last[0] == "ok":
+        _, _, path, nominal, metrics = last
+    elif "lattice" in outcome and (outcome["lattice"][0] != "no_path" or "reeds_shepp" not in outcome
+                                   or outcome["reeds_shepp"][0] == "no_path"):
+        rs = outcome.get("reeds_shepp")
+        rs_note = (f"the trailer's Reeds-Shepp paths: {rs[1]}" if rs is not None else
+                   "the trailer's Reeds-Shepp paths not tried: the time limit was spent")
+        result = (outcome["lattice"][0], outcome["lattice"][1] + f" ({rs_note})", *outcome["lattice"][2:])
+    else:
+        result = outcome["reeds_shepp"]
+    metrics = last[4] if result is None else result[4]
+    metrics.update({"search_order": [p for p in order if p in outcome], "tight_space": tight,
+                    "free_disc_m": discs, "search_budget_s": dict(budgets), "time_limit_s": limit})
     if result is not None:
         status, message, path, nominal, metrics = result
         metrics.update({"time_to_nominal_s": time.perf_counter() - started, "path_attempts": attempts})
         if len(attempts) > 1:
             message += f" (after {len(attempts)} paths: " + ", ".join(attempts) + ")"
         return PlanResult(status, message, path, nominal, metrics=metrics)
-    metrics["path_attempts"] = attempts + ["ok"]
+    metrics["path_attempts"] = attempts
     try:
         schedule = compute_schedule(nominal, stab_opts)
     except SingularGramianError as exc:

@@ -33,7 +33,10 @@ cells of ``GRID_CELL_M``) from the target's trailer axle through the cells where
 trailer footprint's inscribed radius about its axle keeps the margin (less a cell's slack), and the
 obstacle-free Reeds-Shepp length of the trailer's axle at the radius d / tan(hitch_cap) (the
 trailer's curvature is tan(D) / d) to a pose ``PRE_GOAL_M`` before or beyond the target on its
-axis, plus that distance (on that stretch, near the axis: to the target itself). The exact join
+axis, or less where the rig standing straight on that axis would leave the free space
+(:func:`straight_run`: a dock bay off a narrow aisle; a side with less than ``PRE_GOAL_MIN_M`` of
+such room, a dock wall, is left out), plus that distance (on that stretch, near the axis: to the
+target itself). The exact join
 below needs that room. Duplicates are merged by cells of ``CELL_M`` (trailer axle position),
 ``HEADING_BINS`` (trailer heading), ``HITCH_BIN_RAD`` (hitch angle) and the direction.
 
@@ -57,7 +60,9 @@ rate within the limit and both bodies free by the margin.
 
 Budget
 ------
-The search stops at ``budget_s`` seconds or ``MAX_EXPANSIONS`` expansions; without a plan it reports
+The search stops at the first reading of its clock at or past ``budget_s`` seconds (read before each
+node's expansion after the root's, which always runs, and before each batch), or at
+``MAX_EXPANSIONS`` expansions; the time to build the grid heuristic counts. Without a plan it reports
 the node closest to the target (the trailer axle's distance and heading error, the heuristic there)
 and why the pieces tried were refused.
 """
@@ -115,6 +120,8 @@ GRID_CELL_M = 0.25
 #: the target, within PRE_GOAL_ZONE of its axis ([m], [rad] of heading), to the target itself
 PRE_GOAL_M = 8.0
 PRE_GOAL_ZONE = (1.0, 0.5)
+#: a side of the target's axis where the rig standing straight stays free for less than this [m] is left out
+PRE_GOAL_MIN_M = 4.0
 #: analytic expansion from nodes whose trailer axle is ANALYTIC_MIN_M to ANALYTIC_RANGE_M from the target's
 #: along its axis [m], moving towards it, within ANALYTIC_CONE (|across| / |along|) and ANALYTIC_HEADING_RAD,
 #: with steering and hitch angles within ANALYTIC_CALM_RAD, once per cell of ANALYTIC_CELL_M [m] and 0.1 rad
@@ -200,6 +207,26 @@ def grid_distance(world: CollisionWorld, robot, margin: float, goal_xy, cell: fl
     graph = coo_matrix((np.concatenate(wts), (src, dst)), shape=(rows * cols, rows * cols)).tocsr()
     dist = dijkstra(graph, indices=int(idx[gi, gj])).reshape(rows, cols)
     return dist, float(xmin), float(ymin)
+
+
+def straight_run(world: CollisionWorld, robot, x, sign: float, margin: float, longest: float,
+                 step: float = GRID_CELL_M) -> float:
+    """How far [m] (up to ``longest``, in steps of ``step``) the rig at state ``x``, standing straight
+    (hitch angle 0, the trailer's heading), can be moved back along that heading (``sign`` +1: the
+    poses before it, from which it arrives driving forward) or ahead (``sign`` -1) with both bodies
+    free by ``margin``; at least one step."""
+    d = float(robot.model.hitch_lengths[0])
+    th = float(x[4])
+    c, s_ = math.cos(th), math.sin(th)
+    dist = np.arange(1, int(math.floor(longest / step + 1e-9)) + 1) * step
+    if not len(dist):
+        return float(longest)
+    px, py = float(x[0]) - sign * dist * c, float(x[1]) - sign * dist * s_
+    car = np.column_stack([px, py, np.full(len(dist), th)])
+    trailer = np.column_stack([px - d * c, py - d * s_, np.full(len(dist), th)])
+    free = world.free_many(car, robot.footprints[0], margin) & world.free_many(trailer, robot.footprints[1], margin)
+    bad = np.flatnonzero(~free)
+    return float(dist[-1]) if not len(bad) else float(max(dist[bad[0] - 1] if bad[0] else step, step))
 
 
 class _Rhs:
@@ -296,14 +323,15 @@ def _trailer_poses(d: float, x: np.ndarray) -> np.ndarray:
 
 def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: float, speed: float, step_s: float,
                    hitch_cap: float, steer_cap: float, rate_cap: float, max_speed: float, budget_s: float,
-                   piece_margin: float | None = None, from_goal: bool = False) -> LatticeResult:
+                   piece_margin: float | None = None, from_goal: bool = False, clock=time.perf_counter) -> LatticeResult:
     """Search from full state ``x_start`` to ``x_goal`` (module docstring). ``margin``: every body's
     clearance along the primitives; ``piece_margin`` (default ``margin``) along the final piece.
     ``from_goal``: root the search at the goal and join the start with the chained-form piece (module
-    docstring: the motion reversed in time)."""
+    docstring: the motion reversed in time). ``clock``: the time in seconds the budget is counted on
+    (read before every batch of expansions and every final piece tried)."""
     if from_goal:
         x_start, x_goal = x_goal, x_start
-    started = time.perf_counter()
+    started = clock()
     model = robot.model
     if model.name != "car_trailer" or model.trailers != 1:
         raise InputError("robot", "a car_trailer with one trailer", getattr(model, "name", model))
@@ -324,9 +352,14 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
     cg, sg_ = math.cos(goal_p1[2]), math.sin(goal_p1[2])
     rs_cache: dict = {}
     # the poses the final piece starts from best: PRE_GOAL_M before the goal's trailer pose along its axis,
-    # for arriving forward, and beyond it, for arriving in reverse
-    pre = [np.array([goal_p1[0] - sgn * PRE_GOAL_M * cg, goal_p1[1] - sgn * PRE_GOAL_M * sg_, goal_p1[2]])
-           for sgn in (1.0, -1.0)]
+    # for arriving forward, and beyond it, for arriving in reverse, or as far as the rig standing straight on
+    # the axis stays free (a dock bay off a narrow aisle)
+    pre_m = [straight_run(world, robot, x_goal, sgn, margin, PRE_GOAL_M) for sgn in (1.0, -1.0)]
+    pre = [np.array([goal_p1[0] - sgn * run * cg, goal_p1[1] - sgn * run * sg_, goal_p1[2]])
+           for sgn, run in zip((1.0, -1.0), pre_m)]
+    # a side where the rig cannot stand straight for PRE_GOAL_MIN_M (a dock wall) leaves the exact join too
+    # little room: the heuristic leaves it out
+    sides = [i for i in (0, 1) if pre_m[i] >= PRE_GOAL_MIN_M] or [0, 1]
 
     def grid_h(p):
         j = np.clip(((p[..., 0] - gx0) // GRID_CELL_M).astype(int), 0, cols - 1)
@@ -354,10 +387,10 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
         # on the goal's axis between a pre-goal pose and the goal (within PRE_GOAL_ZONE of it): straight on
         dx, dy = p[0] - goal_p1[0], p[1] - goal_p1[1]
         along, across = cg * dx + sg_ * dy, -sg_ * dx + cg * dy
-        if (abs(along) <= PRE_GOAL_M and abs(across) <= PRE_GOAL_ZONE[0]
+        if ((-pre_m[0] <= along <= pre_m[1]) and abs(across) <= PRE_GOAL_ZONE[0]
                 and abs(float(wrap_angle(p[2] - goal_p1[2]))) <= PRE_GOAL_ZONE[1]):
             return rs_to(p, goal_p1)
-        return min(rs_to(p, pre[0]), rs_to(p, pre[1])) + PRE_GOAL_M
+        return min(rs_to(p, pre[i]) + pre_m[i] for i in sides)
 
     def heuristic(p):
         return max(rs_h(p), float(grid_h(p)) if use_grid else 0.0)
@@ -442,8 +475,8 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
 
     found = None
     out_of_time = False
-    while heap and found is None:
-        if time.perf_counter() - started > budget_s:
+    while heap and found is None and not out_of_time:
+        if expansions and clock() - started >= budget_s:
             out_of_time = True
             break
         if expansions >= MAX_EXPANSIONS:
@@ -462,6 +495,9 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
             hn = heuristic(p1)
             if hn < closest[0]:
                 closest = (hn, ni)
+            if ni != 0 and clock() - started >= budget_s:
+                out_of_time = True
+                break
             if ni == 0 or (abs(float(x[3])) <= ANALYTIC_CALM_RAD and abs(float(wrap_angle(x[2] - x[4])))
                            <= ANALYTIC_CALM_RAD and aimed(p1, direction)):
                 piece = try_piece(x)
@@ -469,7 +505,7 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
                     found = (ni, piece)
                     break
             batch.append(ni)
-        if found is not None or not batch:
+        if found is not None or out_of_time or not batch:
             continue
         owner, tg, dr, ap = [], [], [], []
         for i in batch:
@@ -527,8 +563,8 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
             nodes.append((xe, knots[q, -1].copy(), gq, ni, knots[q]))
             heapq.heappush(heap, (gq + HEURISTIC_WEIGHT * heuristic(p1s[q, -1]), counter, len(nodes) - 1))
             counter += 1
-    elapsed = time.perf_counter() - started
-    info = {"search": "lattice", "expansions": expansions, "nodes": len(nodes), "analytic_tries": analytic_tries,
+    elapsed = clock() - started
+    info = {"search": "lattice", "budget_s": float(budget_s), "expansions": expansions, "nodes": len(nodes), "analytic_tries": analytic_tries,
             "search_time_s": elapsed, "grid_heuristic": use_grid, "heuristic_radius_m": r_h,
             "hitch_target_max_rad": float(top), **stats}
     if found is None:

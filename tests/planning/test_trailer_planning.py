@@ -17,7 +17,7 @@ from nhstab.maps import load_map
 from nhstab.models import make_model
 from nhstab.nominal import Nominal
 from nhstab.planning import PathOptions, plan
-from nhstab.planning.trailer import TrailerRig
+from nhstab.planning.trailer import REEDS_SHEPP_SHARE, TrailerRig
 from nhstab.planning.trailer_charts import steer_trailer
 from nhstab.robot import default_robot, make_robot
 
@@ -70,6 +70,10 @@ def test_dock_plan_is_exact_feasible_and_clear(dock_plan):
     worst = min(min(poly.distance(obstacles) for poly in _bodies(robot, x)) for x in nom.x[::5])
     assert worst >= margin - 0.03          # samples every 0.1 s; the planner's own check runs every 5 cm
     assert res.metrics["min_clearance_m"] >= margin
+    # the open yard is not tight for the Reeds-Shepp radius: its paths run first, with their share of the limit
+    assert not res.metrics["tight_space"] and res.metrics["search_order"][0] == "reeds_shepp"
+    assert res.metrics["search_budget_s"]["reeds_shepp"] <= REEDS_SHEPP_SHARE * 2.0 + 1e-9
+    assert sum(res.metrics["search_budget_s"].values()) <= 2.0 + 1e-9
 
 
 def test_goal_trailer_heading_is_met(tmp_path):

@@ -11,8 +11,20 @@ from nhstab.collision import CollisionWorld
 from nhstab.maps import load_map
 from nhstab.planning import PathOptions, plan
 from nhstab.planning.timing import TimingOptions
-from nhstab.planning.trailer import JACKKNIFE_FRACTION, STEER_FRACTION, check_configuration, lattice_plan
-from nhstab.planning.trailer_search import grid_distance, inscribed_radius, integrate_primitives, lattice_search
+from nhstab.planning.trailer import (
+    JACKKNIFE_FRACTION,
+    LATTICE_FIRST_SHARE,
+    STEER_FRACTION,
+    check_configuration,
+    lattice_plan,
+)
+from nhstab.planning.trailer_search import (
+    grid_distance,
+    inscribed_radius,
+    integrate_primitives,
+    lattice_search,
+    straight_run,
+)
 from nhstab.robot import default_robot, resolve_robot
 from scipy.integrate import solve_ivp
 
@@ -164,7 +176,7 @@ def test_plan_reverses_into_the_dock_bay():
     that passes :func:`_check_nominal` and ends reversing."""
     m = load_map(BAYS)
     robot = resolve_robot(None, m.robot, "car_trailer")
-    res = plan(m, robot, m.start.as_array(), m.goal.as_array(), PathOptions(seed=0, time_limit_s=2.0))
+    res = plan(m, robot, m.start.as_array(), m.goal.as_array(), PathOptions(seed=0, time_limit_s=10.0))
     assert res.ok, res.message
     _check_nominal(m, robot, res.nominal)
     assert res.nominal.u[-5:, 0].max() < 0
@@ -179,9 +191,73 @@ def test_plan_reports_both_searches_when_neither_finds_a_path(tmp_path):
     p.write_text(text)
     m = load_map(p)
     robot = resolve_robot(None, m.robot, "car_trailer")
-    res = plan(m, robot, m.start.as_array(), m.goal.as_array(), PathOptions(seed=0, time_limit_s=0.3))
+    res = plan(m, robot, m.start.as_array(), m.goal.as_array(), PathOptions(seed=0, time_limit_s=2.0))
     assert res.status == "no_path"
     assert "lattice search (from the goal)" in res.message and "lattice search (from the start)" in res.message
     assert res.message.count("closest node: the trailer's axle") == 2
-    assert "after the trailer's Reeds-Shepp paths" in res.message
-    assert res.metrics["path_attempts"][-1] == "no_path (lattice)"
+    assert "the trailer's Reeds-Shepp paths" in res.message
+    # the aisle is tight for the Reeds-Shepp radius: the lattice search runs first
+    assert res.metrics["tight_space"] and res.metrics["search_order"][0] == "lattice"
+    assert res.metrics["path_attempts"][0] == "no_path (lattice)"
+    # the phases share the time limit; the lattice's first root gets its share of the lattice's budget, the
+    # second what the first left
+    budgets = res.metrics["search_budget_s"]
+    assert sum(budgets.values()) <= 2.0 + 1e-9 and budgets["lattice"] > 0.0
+    first, second = res.metrics["lattice_budgets_s"]
+    assert first == pytest.approx(LATTICE_FIRST_SHARE * budgets["lattice"], rel=1e-12)
+    assert 0.0 < second <= budgets["lattice"]
+
+
+class _Ticks:
+    """A clock that advances ``tick`` seconds at every reading (counts the search's readings)."""
+
+    def __init__(self, tick):
+        self.tick, self.now, self.readings = tick, 0.0, 0
+
+    def __call__(self):
+        self.now += self.tick
+        self.readings += 1
+        return self.now
+
+
+@pytest.mark.parametrize("budget", [0.05, 0.4])
+def test_lattice_search_stops_at_its_budget(budget):
+    """The search counts its budget on its clock: it stops at the first reading at or past the budget, so
+    the time it reports is within one reading of the budget, and it expands at most one node per reading
+    (the root's expansion, which always runs, without one)."""
+    m = load_map(BAYS)
+    robot = resolve_robot(None, m.robot, "car_trailer")
+    world = CollisionWorld.from_map(m, "known")
+    s, g = m.start.as_array(), m.goal.as_array()
+    xs, xg = np.array([*s, 0.0, s[2]]), np.array([*g, 0.0, g[2]])
+    clock = _Ticks(0.01)
+    res = lattice_search(world, robot, xs, xg, margin=0.2, speed=0.9, step_s=0.1, hitch_cap=0.8, steer_cap=0.54,
+                         rate_cap=0.9, max_speed=1.5, budget_s=budget, from_goal=True, clock=clock)
+    assert not res.found and f"the budget of {budget:.3g} s ran out" in res.message
+    assert budget <= res.info["search_time_s"] <= budget + 2 * clock.tick + 1e-12
+    assert res.info["budget_s"] == budget
+    assert 1 <= res.info["expansions"] <= round(budget / clock.tick) + 1
+
+
+def test_straight_run_stops_at_the_aisle_wall():
+    """Off a 1.5 S aisle the rig standing straight on the bay's axis leaves the free space before the
+    heuristic's 8 m: :func:`straight_run` returns the last step where both bodies keep the margin (shapely),
+    and one step more does not; behind the goal, the dock wall, it returns one step."""
+    m = load_map("example:trailer_dock_bay150_aisle150")
+    robot = resolve_robot(None, m.robot, "car_trailer")
+    world = CollisionWorld.from_map(m, "known")
+    g = m.goal.as_array()
+    xg = np.array([*g, 0.0, g[2]])
+    margin, step = 0.05, 0.25
+    ahead = straight_run(world, robot, xg, -1.0, margin, 8.0, step)
+    assert 1.5 <= ahead < 8.0
+    obstacles = _shapely_obstacles(m)
+
+    def clearance(s):
+        x = xg.copy()
+        x[:2] += s * np.array([math.cos(g[2]), math.sin(g[2])])
+        return min(poly.distance(obstacles) for poly in _bodies(robot, x))
+
+    assert clearance(ahead) >= margin - 1e-6
+    assert clearance(ahead + step) < margin + 1e-6
+    assert straight_run(world, robot, xg, 1.0, margin, 8.0, step) == step
