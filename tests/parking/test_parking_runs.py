@@ -11,7 +11,7 @@ The runs are whole ``nhstab run`` processes, two at a time: 14 maps x 2 seeds = 
 minutes on 2 cores when they plan; failed plans take longer, the run retries; each run also predicts
 its sampled error tube and checks the rest of its maneuver at every cusp); >= 95 % means at most 1
 failure. The committed parking study (results/parking/study/: every case of the suite, the gramian law
-and TVLQR, three noise levels, 50 trials per cell) is the larger sample.
+and TVLQR at noise x1, 50 trials per cell) is the larger sample.
 """
 
 from __future__ import annotations
