@@ -1,4 +1,4 @@
-"""Hostile and faulty input (issue 12): every promise holds.
+"""Hostile and faulty input: every promise holds.
 
 One regression test per class of failure found by trying nhstab as an adversarial user would. Each
 checks the documented exit code, one line on stderr, no traceback, and that nothing already there is

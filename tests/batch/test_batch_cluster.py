@@ -1,4 +1,4 @@
-"""Batches whose trials carry their map (issue 16): a real Dask cluster started elsewhere, the store
+"""Batches whose trials carry their map: a real Dask cluster started elsewhere, the store
 alone for reports and replays, map bundles as hostile input, errors said at the end of a batch.
 
 The cluster test starts ``dask scheduler`` and two ``dask worker`` processes in a folder of their

@@ -1,4 +1,4 @@
-"""The faster paths of issue 13 (a replan within 0.5 s) give the answers of the plain computations they
+"""The faster paths (a replan within 0.5 s) give the answers of the plain computations they
 replace: the exact car nominal evaluated at many times at once equals its pieces' own closed forms bit
 for bit; the gain schedule's largest gain norm is the largest SVD norm; the gramian pieces do not depend
 on how many intervals are integrated at once."""

@@ -1,4 +1,4 @@
-"""The cheap forms of a plan's outputs (issue 13, item 3) against the straightforward computations
+"""The cheap forms of a plan's outputs against the straightforward computations
 they replace: the CSV writers, the feasibility residual's multiple shooting and its scan, the map
 raster and the palette PNG."""
 

@@ -1,4 +1,4 @@
-"""The parking suite (issue 11 item 2): the closed forms against brute force, the generated maps
+"""The parking suite: the closed forms against brute force, the generated maps
 against their stated geometry, and the commands that make and measure them."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Real data is accepted (issue 11 item 5): polygons with repeated consecutive vertices or
+"""Real data is accepted: polygons with repeated consecutive vertices or
 zero-length edges in Bench-MR SVG worlds are cleaned and noted, not refused; poses of the wrong
 length given to the collision API raise an InputError naming the argument."""
 

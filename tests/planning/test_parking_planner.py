@@ -1,4 +1,4 @@
-"""The car planner where parking is hard (issue 11, items 3 and 4): exact maneuvers and nominals,
+"""The car planner where parking is hard: exact maneuvers and nominals,
 the unparking tree and the shuffle search, one rule for the search's padding and the start check,
 and plans on parking scenes built here and on the bundled parking suite, each re-checked
 independently (shapely on the obstacles, the model integrated under the nominal's inputs).
@@ -106,7 +106,7 @@ def test_local_segments_rebuild_the_local_path(v, space):
 # item 2: the search's padding never rejects a start the start check accepted
 # ---------------------------------------------------------------------------------------------
 def test_a_start_0_14_m_from_a_box_corner_plans_with_margin_0_1():
-    """The case of issue 11: a rwd_car 0.14 m clear of a shelf corner, margin 0.1 m."""
+    """A rwd_car 0.14 m clear of a shelf corner, margin 0.1 m."""
     robot = rwd(0.1)
     m = Map("shelf", (0.0, 0.0, 30.0, 20.0), obstacles=(box_polygon(12.0, 12.0, 4.0, 4.0),))
     d = 0.14 / math.sqrt(2)          # the car's front left corner (3.3, 0.9) 0.14 m from the box corner (10, 10)

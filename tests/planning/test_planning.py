@@ -116,7 +116,7 @@ def test_plan_cli_writes_files(tmp_path):
     doc = json.loads((tmp_path / "plan.json").read_text())
     assert doc["status"] == "ok" and doc["metrics"]["cusps"] >= 0
     assert doc["inputs"]["feasibility_residual_m"] < 1e-3
-    assert 0 < doc["timing"]["outputs_s"] < 60                  # what the benchmark reads (issue 13 item 3)
+    assert 0 < doc["timing"]["outputs_s"] < 60                  # what the benchmark reads
     header = (tmp_path / "trajectory.csv").read_text().splitlines()[0]
     assert header == "t [s],x [m],y [m],theta [rad],v [m/s],omega [rad/s]"
     assert (tmp_path / "plan.png").stat().st_size > 10_000
