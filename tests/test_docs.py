@@ -21,6 +21,7 @@ def _missing_docs_modules() -> list[str]:
     return [name for name in DOCS_MODULES if importlib.util.find_spec(name) is None]
 
 
+@pytest.mark.slow
 def test_the_docs_build_without_a_warning(tmp_path):
     """`sphinx-build -W --keep-going -b html docs OUT`, as docs/development.md says: -W makes every
     warning (a broken cross-reference, a docstring autodoc cannot parse, a page outside the toctree)

@@ -467,6 +467,7 @@ def _run(out, *extra):
     return invoke("run", M, "--seed", "1", "--max-time", "3", "--out", out, *extra)
 
 
+@pytest.mark.slow
 def test_a_run_over_an_earlier_one_never_mixes_them(tmp_path, monkeypatch):
     out = tmp_path / "run"
     res = _run(out, "--animate")
@@ -517,6 +518,7 @@ def test_files_of_the_user_in_an_output_folder_are_kept(tmp_path):
     assert (out / "run.json").read_text() == "{}" and (out / "notes.txt").read_text() == "mine"
 
 
+@pytest.mark.slow
 def test_a_report_leaves_no_figure_of_an_earlier_report(tmp_path):
     from nhstab.batch.config import load_batch_config
     from nhstab.batch.report import write_report

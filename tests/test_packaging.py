@@ -208,6 +208,7 @@ def _pip_has_python_option() -> bool:
     return (major, minor) >= (22, 3)
 
 
+@pytest.mark.slow
 def test_the_python_guide_example_runs(tmp_path):
     """The Python guide's example (docs/guide/python.md), executed as written (from another folder)."""
     text = (ROOT / "docs" / "guide" / "python.md").read_text()

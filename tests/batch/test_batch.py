@@ -317,6 +317,7 @@ def test_wilson_interval_matches_the_closed_form():
     assert lo0 == pytest.approx(0.0, abs=1e-12) and hi0 == pytest.approx(0.3903, abs=5e-4)
 
 
+@pytest.mark.slow
 def test_report_numbers_come_from_the_store(tmp_path):
     from nhstab.batch.report import write_report
 
@@ -342,6 +343,7 @@ def test_report_numbers_come_from_the_store(tmp_path):
         assert f"/ {ctrl} / noise 1 | 3 | {round(100 * k / 3)}%" in md
 
 
+@pytest.mark.slow
 def test_report_with_a_partial_gain_grid(tmp_path):
     """A grid that sets alpha only (delta and gamma the robot's) labels its cells and draws."""
     from nhstab.batch.report import write_report
@@ -353,6 +355,7 @@ def test_report_with_a_partial_gain_grid(tmp_path):
     assert "/ gramian a0.1 / noise 1 |" in md and "/ gramian a0.2 / noise 1 |" in md
 
 
+@pytest.mark.slow
 def test_a_past_window_batch_warns_once_and_trials_record_their_bound(tmp_path):
     from nhstab.errors import NotStabilizingWarning
 
@@ -413,6 +416,7 @@ def _started_then_sleep(started) -> None:
     time.sleep(30)
 
 
+@pytest.mark.slow
 def test_a_second_batch_on_the_same_folder_is_refused_while_one_runs(tmp_path):
     """Two `nhstab batch --resume` on one folder ran the same missing trials side by side (the store kept
     one copy of each, and each process reported trials the other had stored). While a batch runs, its
@@ -448,6 +452,7 @@ def test_a_second_batch_on_the_same_folder_is_refused_while_one_runs(tmp_path):
         child.join()
 
 
+@pytest.mark.slow
 def test_a_batch_of_two_trials_draws_its_figures_or_says_why_not(tmp_path):
     """trials: 2 (fewer than the 3 that percentiles take): the envelopes draw each trial's own ||e(t)||
     and the tubes the RMS over the two, every drawn axes with data; the figures a single controller
@@ -480,6 +485,7 @@ def test_a_batch_of_two_trials_draws_its_figures_or_says_why_not(tmp_path):
     assert "Figures left out." in html_text and html_text.count("<li>") == 2
 
 
+@pytest.mark.slow
 def test_run_batch_returns_a_frozen_summary_whose_counts_match_the_store(tmp_path):
     """run_batch returns a BatchSummary (exported from nhstab, annotated in the signature): its counts
     agree with the store it wrote, as_dict gives the plain dict of the same fields in order, and a

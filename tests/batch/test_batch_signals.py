@@ -58,6 +58,7 @@ def _alive(pid: int) -> bool:
     ("driver", "SIGINT"), ("driver", "SIGTERM"), ("driver", "SIGHUP"), ("driver", "SIGKILL"),
     ("timeout", "SIGTERM"),          # what `timeout` does: the driver first, then its process group
 ])
+@pytest.mark.slow
 def test_no_worker_outlives_a_signalled_batch(tmp_path, target, signame):
     sig = getattr(signal, signame)
     cfg = tmp_path / "batch.yaml"
@@ -98,6 +99,7 @@ def test_no_worker_outlives_a_signalled_batch(tmp_path, target, signame):
         proc.wait(timeout=10)
 
 
+@pytest.mark.slow
 def test_a_batch_started_under_nohup_keeps_running_through_sighup(tmp_path):
     """SIGHUP ignored when the batch starts (nohup) stays ignored, in the driver and in its workers: the
     batch completes and stores every trial."""

@@ -26,6 +26,7 @@ def _one_line_error(result, *needles):
         assert needle in lines[0], lines[0]
 
 
+@pytest.mark.slow
 def test_paper_single_case(runner, tmp_path):
     res = runner.invoke(cli, ["paper", "--case", "hilare-circle", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output

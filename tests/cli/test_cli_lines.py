@@ -166,6 +166,7 @@ def test_saturation_and_negative_clearance_lines_say_what_they_mean():
     assert certified_text(SimpleNamespace(certified_clearance=0.2)) == "certified clear by +0.200 m"
 
 
+@pytest.mark.slow
 def test_run_says_the_closest_it_came_to_an_obstacle(tmp_path):
     res = invoke("run", ROOM, "--out", tmp_path / "r")
     assert res.exit_code == 0, res.output

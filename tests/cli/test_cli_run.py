@@ -100,6 +100,7 @@ def test_config_file_gives_options_and_the_command_line_overrides(tmp_path):
     assert d["inputs"]["noise"]["scale"] == 0.0
 
 
+@pytest.mark.slow
 def test_run_writes_every_output_and_the_csv_has_units(tmp_path):
     out = tmp_path / "out"
     res = _invoke(ROOM, "--out", str(out), "--animate")

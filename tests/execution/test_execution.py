@@ -216,6 +216,7 @@ def test_measured_noise_has_the_configured_spread():
     assert np.allclose(sd, [0.05, 0.01, 0.02], rtol=0.1)
 
 
+@pytest.mark.slow
 def test_same_seed_same_run_json_except_timing(tmp_path):
     from nhstab.execution import write_run
 

@@ -22,6 +22,7 @@ from nhstab.robot import default_footprint, make_robot
 from nhstab.tubes.sampled import remaining_law, sampled_tube
 
 
+@pytest.mark.slow
 def test_require_certified_refuses_an_uncertified_plan_and_says_why(tmp_path):
     """A parallel slot of 1.0 x L1 at the map's 0.1 m margin: the plan's tube is not certified, so with
     --require-certified the robot never moves: exit code 5, run.json says not_certified with the plan, its
@@ -78,6 +79,7 @@ def test_run_refuses_bad_tube_flags_by_their_names(tmp_path, flags, needle):
 
 
 @pytest.mark.parametrize("name", ["parallel_rwd_car_120", "perpendicular_rwd_car_aisle160"])
+@pytest.mark.slow
 def test_cusp_replanning_triggers_exactly_where_the_rest_is_not_certified(name):
     """At every cusp the run predicts the rest of the maneuver's tube from the measured state. Recomputed
     here independently (the rest of the plan's law from the measured state, the rollouts starting at it

@@ -434,6 +434,7 @@ def test_disc_covers_contain_the_footprint_and_overhang_as_stated(per_width, siz
 
 
 @pytest.mark.parametrize("footprint", ["car", "disc"])
+@pytest.mark.slow
 def test_the_separating_axis_test_agrees_with_shapely(footprint):
     """_separated (the batched distances' contact test for convex shapes whose boxes meet) against
     shapely's ``intersects`` on 4000 random pairs of a rotated car or a disc with rotated rectangles,

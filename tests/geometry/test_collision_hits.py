@@ -28,6 +28,7 @@ def _shapely(shape):
 
 @pytest.mark.parametrize("fp", [Footprint.rectangle(1.2, 0.6, rear_overhang=0.3), Footprint.disc(0.35)],
                          ids=["rectangle", "disc"])
+@pytest.mark.slow
 def test_hits_name_the_obstacles_shapely_finds_overlapped(fp):
     """On random poses over a map of seven obstacles (known and unknown) and its bounds, the obstacles named are the
     ones whose shapely geometry the footprint overlaps by more than 1e-6 m (poses within 1e-6 m of

@@ -193,6 +193,7 @@ def test_map_robot_block_is_checked_strictly(tmp_path):
 
 # ---- honoured end to end ------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_plan_uses_the_described_car(tmp_path):
     """`nhstab plan --robot-config`: plan.json records the car as given; the nominal steers within its
     limit and turns no tighter than its radius rule allows; the path is clear of the obstacles by its
@@ -229,6 +230,7 @@ def test_plan_uses_the_described_car(tmp_path):
         assert min(placed.distance(o) for o in obstacles) >= 0.1 - 1e-6
 
 
+@pytest.mark.slow
 def test_execute_uses_the_described_car_in_the_plant(tmp_path):
     """The plant integrates the described car: theta' = tan(phi) v / L with L = 2.7 m (not 2.5),
     checked from trajectory.csv by finite differences; the run options' robot is what execute() uses
@@ -258,6 +260,7 @@ def test_execute_uses_the_described_car_in_the_plant(tmp_path):
     assert np.median(np.abs(dth[turning] - pred_25[turning])) > 5 * np.median(np.abs(dth[turning] - pred_27[turning]))
 
 
+@pytest.mark.slow
 def test_map_robot_block_is_used_by_plan(tmp_path):
     spec = yaml.safe_dump({"robot": USER_CAR}, default_flow_style=False)
     m_path = _write(tmp_path, "yard.yaml", OPEN_MAP + spec)

@@ -123,6 +123,7 @@ def test_plan_cli_writes_files(tmp_path):
     assert set(np.load(tmp_path / "trajectory.npz").files) == {"t", "x", "u"}
 
 
+@pytest.mark.slow
 def test_plan_cli_without_the_figure_skips_matplotlib(tmp_path):
     """--no-figure: every file but plan.png, and matplotlib's drawing stack (matplotlib.figure, the bulk
     of its import time) is never imported (a new process; the distance field of a vector map uses

@@ -283,6 +283,7 @@ def pose_pairs(draw):
 @pytest.mark.parametrize("name", ["rwd_car", "fwd_car"])
 @settings(max_examples=50, deadline=None)
 @given(pair=pose_pairs(), T=fl(2.0, 20.0))
+@pytest.mark.slow
 def test_steer_car_reaches_goal(name, pair, T):
     model = make_model(name)
     x0, xf = _car_state(name, *pair[0]), _car_state(name, *pair[1])

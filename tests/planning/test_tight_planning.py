@@ -176,6 +176,7 @@ def test_penetration_depth_of_a_line_is_exact():
         assert w2.clearance((x, 5.0, 0.0), CAR) == pytest.approx(-expected, abs=1e-12)
 
 
+@pytest.mark.slow
 def test_a_thin_obstacle_is_never_passed_between_checked_samples():
     """Motions sampled so that no footprint point moves more than delta between samples: wherever the
     checks find every sample free by delta/2 (and a millimetre), the motion sampled every 2 mm never

@@ -81,6 +81,7 @@ def test_phase_states_follow_integration(n, rng):
 
 @settings(max_examples=40, deadline=None)
 @given(data=st.data(), T=fl(0.5, 6.0))
+@pytest.mark.slow
 def test_steer_chained_five_reaches_goal(data, T):
     """Murray-Sastry phased sinusoids, n = 5: the plan ends at the target to 1e-6, in its closed form
     and by integrating the chained equations."""

@@ -91,6 +91,7 @@ def test_plan_cli_writes_the_plan_when_its_tube_diverges(tmp_path, margin):
         assert doc["inputs"]["path_options"]["margin"] == 0.02
 
 
+@pytest.mark.slow
 def test_where_the_linearised_loop_diverges_the_sampled_tube_shows_the_saturated_loop(tmp_path):
     """The same robot with the default tube (auto): the linearised loop diverges, but the loop that runs
     clips its inputs and stays bounded; the sampled tube says what it does, and why it was used."""
