@@ -20,16 +20,9 @@ from nhstab.planning import PathOptions, plan
 from nhstab.planning.trailer import REEDS_SHEPP_SHARE, TrailerRig
 from nhstab.planning.trailer_charts import steer_trailer
 from nhstab.robot import default_robot, make_robot
+from shapes import shapely_obstacles
 
 DOCK = "maps/trailer/loading_dock.yaml"
-
-
-def _shapely_obstacles(m):
-    shapes = [sg.Polygon(o.vertices) if hasattr(o, "vertices") else sg.Point(*o.center).buffer(o.radius, 256)
-              for o in m.obstacles]
-    xmin, ymin, xmax, ymax = m.bounds
-    shapes.append(sg.box(xmin - 1, ymin - 1, xmax + 1, ymax + 1).difference(sg.box(xmin, ymin, xmax, ymax)))
-    return sg.GeometryCollection(shapes)
 
 
 def _bodies(robot, x):
@@ -65,7 +58,7 @@ def test_dock_plan_is_exact_feasible_and_clear(dock_plan):
     # it reverses into the dock: the last part of the motion is in reverse, with at least one cusp
     assert res.metrics["cusps"] >= 1 and nom.u[-5:, 0].max() < 0
     # every body keeps the margin from every obstacle (shapely, at every sample)
-    obstacles = _shapely_obstacles(m)
+    obstacles = shapely_obstacles(m)
     margin = robot.margin
     worst = min(min(poly.distance(obstacles) for poly in _bodies(robot, x)) for x in nom.x[::5])
     assert worst >= margin - 0.03          # samples every 0.1 s; the planner's own check runs every 5 cm

@@ -27,6 +27,7 @@ from nhstab.planning.trailer_search import (
 )
 from nhstab.robot import default_robot, resolve_robot
 from scipy.integrate import solve_ivp
+from shapes import shapely_obstacles
 
 AISLE = "maps/trailer/tugger_aisle.yaml"
 BAYS = "maps/trailer/dock_bays.yaml"
@@ -104,14 +105,6 @@ def test_timeout_reports_the_closest_node():
     assert res.info["closest_m"] > 0.0 and res.info["expansions"] >= 1
 
 
-def _shapely_obstacles(m):
-    shapes = [sg.Polygon(o.vertices) if hasattr(o, "vertices") else sg.Point(*o.center).buffer(o.radius, 256)
-              for o in m.obstacles]
-    xmin, ymin, xmax, ymax = m.bounds
-    shapes.append(sg.box(xmin - 1, ymin - 1, xmax + 1, ymax + 1).difference(sg.box(xmin, ymin, xmax, ymax)))
-    return sg.GeometryCollection(shapes)
-
-
 def _bodies(robot, x):
     """The car's and the trailer's polygons at state x, placed here from the columns and the hitch length."""
     d = robot.model.hitch_lengths[0]
@@ -154,7 +147,7 @@ def _check_nominal(m, robot, nom):
     assert np.abs(model.hitch_angles(nom.x)).max() <= JACKKNIFE_FRACTION * model.jackknife_limit + 1e-6
     assert np.abs(nom.x[:, 3]).max() <= STEER_FRACTION * model.max_steer + 1e-6
     assert np.all(np.abs(nom.u[:, 0]) <= model.max_speed + 1e-9)
-    obstacles = _shapely_obstacles(m)
+    obstacles = shapely_obstacles(m)
     worst = min(min(poly.distance(obstacles) for poly in _bodies(robot, x)) for x in nom.x)
     assert worst >= robot.margin - 0.01
 
@@ -251,7 +244,7 @@ def test_straight_run_stops_at_the_aisle_wall():
     margin, step = 0.05, 0.25
     ahead = straight_run(world, robot, xg, -1.0, margin, 8.0, step)
     assert 1.5 <= ahead < 8.0
-    obstacles = _shapely_obstacles(m)
+    obstacles = shapely_obstacles(m)
 
     def clearance(s):
         x = xg.copy()
