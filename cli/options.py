@@ -111,6 +111,30 @@ def _nav2_file(robot_config) -> Path | None:
     return Path(text) if is_nav2_params(data) else None
 
 
+def effective_doc(m, map_path: str, robot, start, goal, robot_key: str = "robot",
+                  pose_names: tuple[str, str] = ("start", "goal")) -> dict:
+    """The head of an effective config (``--print-config`` of plan and run): the map as given, the
+    robot's full description and the start and goal configurations, the robot checked plannable and the
+    poses checked against it (errors name ``robot_key`` and ``pose_names``)."""
+    from nhstab.errors import InputError
+    from nhstab.planning import PLANNABLE
+
+    if robot.model.name not in PLANNABLE:
+        raise InputError(robot_key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)",
+                         robot.model.name)
+    start, goal = robot.configuration(start, pose_names[0]), robot.configuration(goal, pose_names[1])
+    return {"map": map_path, "robot": robot.spec(), "start": [float(v) for v in start],
+            "goal": [float(v) for v in goal]}
+
+
+def effective_yaml(header: str, doc: dict) -> str:
+    """An effective config as ``--print-config`` prints it: the ``# header`` line, then ``doc`` as YAML
+    in its own key order."""
+    import yaml
+
+    return f"# {header}\n" + yaml.safe_dump(doc, sort_keys=False)
+
+
 def echo_suite_write(result: dict, out_dir, check: bool, command: str) -> int:
     """Print what a suite's ``write_suite`` did (``nhstab parking suite``, ``nhstab trailer suite``): the files
     written, or with ``check`` whether the folder is what the command writes; the exit code."""

@@ -9,12 +9,14 @@ import click
 from nhstab.limits import DEFAULT_HEADROOM
 
 from .map import load, map_options, parse_pose, pose_keys
-from .options import cli_robot, out_option, robot_options
+from .options import cli_robot, effective_doc, effective_yaml, out_option, robot_options
 
 #: exit code when the request is valid but no plan was found within the budget
 EXIT_NO_PLAN = 3
 #: exit code when the plan is written but its tube could not be predicted
 EXIT_FAILURE = 1
+#: the control rate [Hz] the plan's error tube is predicted at (nhstab run's default)
+TUBE_RATE_HZ = 50.0
 #: exit code when interrupted (a Ctrl-C while the plan's files are written: they are completed first)
 EXIT_INTERRUPTED = 130
 
@@ -60,10 +62,13 @@ EXIT_INTERRUPTED = 130
 @out_option("plan", "trajectory.csv, trajectory.npz, tube.npz, plan.json and plan.png")
 @click.option("--figure/--no-figure", default=True, show_default=True,
               help="Draw plan.png (--no-figure: skip it and matplotlib's drawing stack, for scripted planning).")
+@click.option("--print-config", is_flag=True,
+              help="Print the effective plan configuration (YAML: the map, robot, start, goal and every option, its "
+                   "defaults filled in, in a run config's sections) and exit without planning.")
 @map_options
 def plan(map_file, robot, robot_config, start, goal, problem, planner, space, turning_radius, time_limit, seed, guide,
          margin, gains, fit, noise_scale, probability, tube_kind, confidence, headroom, max_speed, out_dir, figure,
-         cell_size, unknown):
+         print_config, cell_size, unknown):
     """Plan on MAP and write trajectory.csv, trajectory.npz, plan.json and plan.png into OUT (default out/plan).
 
     The robot (model, footprint, margin, turning radius, space, stabilizer) comes from --robot-config,
@@ -126,18 +131,26 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
     with user_keys(rob.stabilizer_keys()):        # the gain schedule's window against the nominal's time step
         StabilizerOptions(**rob.stabilizer.as_dict()).validated().check_step(TimingOptions().dt)
     with user_keys(names):
-        s = rob.configuration(s, "--start" if start is not None and problem is None else "start")
-        g = rob.configuration(g, "--goal" if goal is not None and problem is None else "goal")
+        pose_names = ("--start" if start is not None and problem is None else "start",
+                      "--goal" if goal is not None and problem is None else "goal")
+        s, g = rob.configuration(s, pose_names[0]), rob.configuration(g, pose_names[1])
         path_opts = PathOptions(space=space, turning_radius=turning_radius, planner=planner, time_limit_s=time_limit,
                                 seed=seed, margin=None if margin in (None, "auto") else margin, guide=guide)
         if margin is None:
             margin = rob.margin
         plan_robot = rob.with_model(derated(rob.model, headroom)) if headroom < 1.0 else rob
         path_opts = path_opts.for_robot(plan_robot)
+        if print_config:
+            click.echo(effective_plan_config(
+                m, str(map_file), rob, plan_robot, s, g, path_opts, margin=margin, gains=gains, fit=fit,
+                timing=TimingOptions(max_speed=max_speed), noise=NoiseOptions(scale=noise_scale), headroom=headroom,
+                tube={"kind": tube_kind, "probability": probability, "confidence": confidence}, figure=figure,
+                rate_hz=TUBE_RATE_HZ, pose_names=pose_names), nl=False)
+            return 0
         result, law, tube, extra = plan_and_tube(m, rob, s, g, path_opts, TimingOptions(max_speed=max_speed),
                                                  margin=margin, gains=gains, noise=NoiseOptions(scale=noise_scale),
                                                  probability=probability, plan_robot=plan_robot, tube_kind=tube_kind,
-                                                 confidence=confidence, fit=fit)
+                                                 confidence=confidence, fit=fit, rate_hz=TUBE_RATE_HZ)
     for key in ("margin_auto", "gains_auto", "fit"):
         if key in extra:
             click.echo(extra[key]["message"])
@@ -181,6 +194,71 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
                    f"(the default) leaves the feedback {100 * (1 - DEFAULT_HEADROOM):.0f} % of the limits")
     click.echo(f"wrote {out_dir}/trajectory.csv, trajectory.npz, tube.npz, plan.json" + (", plan.png" if figure else ""))
     return 0
+
+
+def effective_plan_config(m, map_path: str, robot, plan_robot, start, goal, path_opts, *, margin, gains: str,
+                          fit: bool, timing, noise, headroom: float, tube: dict, figure: bool, rate_hz: float,
+                          pose_names: tuple[str, str] = ("start", "goal")) -> str:
+    """What ``nhstab plan`` would plan with (YAML): the map, the robot's full description, start and goal,
+    then its options in a run config's sections with every default filled in (``path_opts`` already
+    given the robot's space, turning radius and margin): ``planning`` (the search; ``seed`` is OMPL's),
+    ``controller`` (the gain setting and the robot's alpha, delta, gamma the tube's gramian law uses),
+    ``headroom`` and ``max_speed`` (the nominal's top speed [m/s]), ``noise`` (the tube's, every state's
+    level), ``tube`` and ``rate_hz`` (the tube's control rate). Checked as the plan checks them before it
+    searches (the start and goal: inside the bounds, clear of the known obstacles by the margin)."""
+    import numpy as np
+    from nhstab.collision import CollisionWorld, check_poses
+    from nhstab.errors import InputError
+    from nhstab.execution.config import DEFAULT_NOISE
+    from nhstab.planning import check_map_budget
+    from nhstab.planning.trailer import check_configuration
+    from nhstab.tubes.fit import SEVERAL_BODIES
+
+    doc = effective_doc(m, map_path, robot, start, goal, pose_names=pose_names)
+    path_opts = path_opts.validated()
+    check_map_budget(m, path_opts.time_limit_s, path_opts.resolution)
+    if path_opts.turning_radius < plan_robot.min_turning_radius - 1e-9:
+        raise InputError("turning_radius", f"at least the {robot.model.name}'s minimum turning radius "
+                         f"{plan_robot.min_turning_radius:.4g} m", path_opts.turning_radius)
+    if robot.trailers and path_opts.space != "reeds_shepp":
+        raise InputError("space", "reeds_shepp (a car with a trailer reverses)", path_opts.space)
+    if gains not in ("default", "auto"):
+        raise InputError("--gains", "default or auto", gains)
+    if len(robot.footprints) > 1 and margin == "auto":
+        raise InputError("--margin", SEVERAL_BODIES, margin)
+    timing = timing.validated()
+    noise.validated(robot.state_names)
+    # the start and goal as the search takes them: inside the bounds, clear of the known obstacles, by the margin
+    world = CollisionWorld.from_map(m, "known")
+    for key in ("start", "goal"):
+        config = np.asarray(doc[key], dtype=float)
+        c = (check_configuration(m, robot, config, key, world) if robot.trailers else
+             check_poses(m, robot.footprint, {key: config[:3]}, world=world)[key])
+        if margin != "auto" and c <= path_opts.margin:
+            raise InputError(key, f"a pose at least the margin {path_opts.margin:.3g} m from the known obstacles",
+                             np.round(config, 4).tolist(), detail=f"clearance {c:.3g} m")
+    max_speed = timing.max_speed if timing.max_speed is not None else getattr(plan_robot.model, "max_speed", None)
+    levels = {k: {s: float(getattr(noise, k).get(s, DEFAULT_NOISE[k].get(s, 0.0))) for s in robot.state_names}
+              for k in ("initial", "sensor", "process")}
+    doc.update({
+        "headroom": float(headroom),
+        **({"max_speed": float(max_speed)} if max_speed is not None else {}),
+        "rate_hz": float(rate_hz),
+        "controller": {"kind": "gramian", "window": "future", "gains": gains,
+                       **{k: float(v) for k, v in robot.stabilizer.as_dict().items() if k in ("alpha", "delta", "gamma")}},
+        "noise": {"scale": float(noise.scale), "initial": {"distribution": noise.distribution, **levels["initial"]},
+                  "sensor": levels["sensor"], "process": levels["process"]},
+        "planning": {"planner": path_opts.planner, "space": path_opts.space,
+                     "time_limit_s": float(path_opts.time_limit_s), "seed": int(path_opts.seed),
+                     "margin": margin if margin == "auto" else float(path_opts.margin),
+                     "turning_radius": float(path_opts.turning_radius), "guide": bool(path_opts.guide),
+                     "fit": bool(fit)},
+        "tube": {"kind": tube["kind"], "probability": float(tube["probability"]),
+                 "confidence": float(tube["confidence"])},
+        "figure": bool(figure),
+    })
+    return effective_yaml("the effective plan configuration of nhstab plan: every option with its default filled in "
+                          "(sections as in a run config)", doc)
 
 
 def parse_margin(name: str, text):

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from .map import load, map_options, parse_pose, pose_keys
-from .options import cli_robot, out_option, robot_options
+from .options import cli_robot, effective_doc, effective_yaml, out_option, robot_options
 
 #: exit codes: the run ended but did not reach the goal (collision, replan failed, ...); no first plan; a
 #: plan refused because its error tube is not certified clear (--require-certified)
@@ -199,22 +199,14 @@ def effective_config(m, map_path: str, opts, robot, start, goal, robot_key: str 
                      pose_names: tuple[str, str] = ("start", "goal")) -> str:
     """The run config ``nhstab run`` would run (YAML): the map, the robot's full description, start,
     goal and every option with its defaults filled in; checked as a run checks it."""
-    import yaml
-    from nhstab.errors import InputError
     from nhstab.execution.config import config_mapping
     from nhstab.execution.runner import check_run
-    from nhstab.planning import PLANNABLE
 
-    if robot.model.name not in PLANNABLE:
-        raise InputError(robot_key, "one of " + ", ".join(PLANNABLE) + " (the robots nhstab plans for)",
-                         robot.model.name)
-    start, goal = robot.configuration(start, pose_names[0]), robot.configuration(goal, pose_names[1])
+    doc = effective_doc(m, map_path, robot, start, goal, robot_key, pose_names)
     check_run(m, robot, opts)
-    doc = {"map": map_path, "robot": robot.spec(), "start": [float(v) for v in start],
-           "goal": [float(v) for v in goal]}
     doc.update({k: v for k, v in config_mapping(opts, robot).items() if k not in doc})
-    return ("# the effective run config: every option with its default filled in (nhstab run --config FILE "
-            "runs it)\n" + yaml.safe_dump(doc, sort_keys=False))
+    return effective_yaml("the effective run config: every option with its default filled in (nhstab run --config "
+                          "FILE runs it)", doc)
 
 
 def execute_and_write(m, map_path: str, opts, robot, start, goal, out_dir: Path, animate: bool,

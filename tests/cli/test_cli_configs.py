@@ -1,5 +1,6 @@
 """The bundled run and batch configs (example:NAME), the effective configs (--print-config), --trials."""
 
+import json
 import sqlite3
 from pathlib import Path
 
@@ -97,3 +98,36 @@ def test_batch_trials_override_runs_the_first_trials_of_the_full_batch(tmp_path)
         db.close()
     assert len(rows) == 1 and rows[0][0].endswith("#0") and rows[0][1] == 0
     assert rows[0][2] == load_batch_config(cfg).seeds()[0]
+
+
+def test_plan_print_config_fills_every_default_as_the_plan_uses_it(tmp_path):
+    args = ("plan", "example:cluttered_room", "--headroom", "0.9", "--noise", "2", "--seed", "3")
+    res = invoke(*args, "--print-config", "--out", tmp_path / "p")
+    assert res.exit_code == 0, res.output
+    assert res.stdout.startswith("# the effective plan configuration") and not (tmp_path / "p").exists()
+    doc = yaml.safe_load(res.stdout)
+    rob = default_robot("unicycle")
+    assert doc["map"] == "example:cluttered_room" and doc["robot"]["model"] == "unicycle"
+    assert doc["headroom"] == 0.9 and doc["max_speed"] == pytest.approx(0.9 * rob.model.max_speed, rel=1e-12)
+    assert doc["controller"]["gains"] == "default" and doc["controller"]["alpha"] == rob.stabilizer.alpha
+    assert doc["noise"]["sensor"] == {s: DEFAULT_NOISE["sensor"].get(s, 0.0) for s in rob.state_names}
+    # the plan made with the same flags records the same options (plan.json: inputs, headroom, tube model)
+    res = invoke(*args, "--no-figure", "--out", tmp_path / "p")
+    assert res.exit_code == 0, res.output
+    rec = json.loads((tmp_path / "p" / "plan.json").read_text())
+    used = rec["inputs"]["path_options"]
+    assert {k: used[k] for k in ("planner", "space", "time_limit_s", "seed", "margin", "turning_radius", "guide")} \
+        == {k: v for k, v in doc["planning"].items() if k != "fit"}
+    assert rec["inputs"]["start"] == doc["start"] and rec["inputs"]["goal"] == doc["goal"]
+    assert rec["headroom"] == doc["headroom"] and rec["tube_model"]["rate_hz"] == doc["rate_hz"]
+    noise = rec["tube_model"]["noise"]
+    assert noise["scale"] == doc["noise"]["scale"] == 2.0
+    for kind in ("sensor", "process"):
+        assert {s: v * 2.0 for s, v in doc["noise"][kind].items()} == pytest.approx(noise[f"{kind}_by_state"])
+
+
+def test_plan_print_config_checks_what_the_plan_checks():
+    one_line(invoke("plan", "example:cluttered_room", "--turning-radius", "-1", "--print-config"), 2,
+             "'--turning-radius'")
+    one_line(invoke("plan", "example:cluttered_room", "--goal", "100,100,0", "--print-config"), 2, "'--goal'")
+    one_line(invoke("plan", "example:loading_dock", "--margin", "auto", "--print-config"), 2, "'--margin'")
