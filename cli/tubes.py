@@ -29,3 +29,21 @@ def study(out_dir, trials, root_seed, gains):
     files = write_study(out_dir, trials, root_seed, gains=gains, progress=lambda s: click.echo(s, err=True))
     click.echo(f"wrote {len(files)} files into {out_dir} (study.md, study.json, figures)")
     return 0
+
+
+@tubes.command()
+@click.argument("out_dir", metavar="DIR", type=click.Path(file_okay=False, exists=True, path_type=Path),
+                default=Path("results/tubes"))
+def redraw(out_dir):
+    """Redraw a study's report without rerunning its trials: study.md from DIR/study.json (default
+    results/tubes), and each case's plan figure (plan_ROBOT_MAP.png) from its first plan and tube made
+    again, drawn only when they are those study.json records (same cusps; length, duration, clearance and
+    tube clearance equal); one line says why each other figure is left as it is. The std and coverage
+    figures need the trials' series: nhstab tubes study draws them. Exit code 1 when a figure is left."""
+    from nhstab.batch.tube_study import redraw_study
+
+    files, left = redraw_study(out_dir, progress=lambda s: click.echo(s, err=True))
+    for line in left:
+        click.echo(line, err=True)
+    click.echo("wrote " + ", ".join(str(f) for f in files))
+    return 1 if left else 0

@@ -432,6 +432,65 @@ def gains_markdown(g: dict) -> list[str]:
     return lines
 
 
+def case_plan_figure(case: dict, run, res, tube):
+    """The plan figure of a study case (``plan_ROBOT_MAP.png``): its first plan with the gramian law's
+    tube at x1 noise."""
+    nom = res.nominal
+    title = (f"{case['map']}: {case['robot']}, margin auto {case['margin_m']:.3f} m; {tube.probability:g}-tube "
+             f"(gramian, x1): certified clearance {tube.certified_clearance:+.3f} m")
+    return plan_figure(run.m, nom.x[:, pose_columns(run.model)], np.sign(nom.u[:, 0]), run.fp, run.start, run.goal,
+                       title=title, tube=tube)
+
+
+#: how closely a first plan made again must match the one study.json records (relative, on its length,
+#: duration, clearance and tube clearance) for :func:`redraw_study` to draw it
+REDRAW_RTOL = 1e-9
+
+
+def redraw_study(out_dir, progress=None) -> tuple[list, list]:
+    """Redraw what a study's folder allows without its trials: study.md from study.json, and per case
+    the plan figure from the case's first plan made again with its tube (:func:`first_plan`, deterministic),
+    drawn only when they are the ones study.json records: the same cusps, and length, duration, nominal
+    clearance and the tube's certified clearance equal to :data:`REDRAW_RTOL` (the margin auto's rounds
+    may differ on the way). The std and coverage figures need the trials' series, which study.json does
+    not keep (``nhstab tubes study`` draws them). Returns (files written, one line per figure left and
+    why)."""
+    import json
+    from pathlib import Path
+
+    out_dir = Path(out_dir)
+    src = out_dir / "study.json"
+    try:
+        result = json.loads(src.read_text())
+        cases = result["cases"]
+        seed = int(result["plan_seed"])
+        study_markdown(result, result.get("gains"))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputError("DIR", "a folder with the study.json nhstab tubes study writes", str(out_dir),
+                         detail=f"{type(exc).__name__}: {exc}") from None
+    written, left = [], []
+    for case in cases:
+        robot, map_name = case["robot"], case["map"]
+        name = f"plan_{robot}_{map_name}.png"
+        run, attempt, res, law, margin, tube = first_plan(robot, map_name, seed=seed)
+        rec, met = case["plan"], res.metrics
+        now = {"cusps": met["cusps"], "length_m": met["length_m"], "duration_s": float(law.t_end - law.t0),
+               "min_clearance_m": met["min_clearance_m"], "certified_clearance_m": tube.certified_clearance}
+        then = {**{k: rec[k] for k in ("cusps", "length_m", "duration_s", "min_clearance_m")},
+                "certified_clearance_m": (case.get("margin_auto") or {}).get("certified_clearance_m")}
+        off = [k for k in now if then[k] is None or not np.isclose(now[k], then[k], rtol=REDRAW_RTOL, atol=0.0)]
+        if off:
+            left.append(f"{name} left: planned again, " + ", ".join(f"{k} {now[k]:.6g} (study.json: {then[k]:.6g})"
+                                                                    for k in off))
+            continue
+        if progress:
+            progress(f"{robot} {map_name}: the plan and tube study.json records ({rec['length_m']:.1f} m, "
+                     f"{rec['cusps']} cusp(s), certified clearance {tube.certified_clearance:+.3f} m)")
+        written.append(save_figure(case_plan_figure(case, run, res, tube), out_dir / name, dpi=80))
+    written.append(write_text(out_dir / "study.md", study_markdown(result, result.get("gains"))))
+    return written, left
+
+
 def write_study(out_dir, trials: int = TRIALS, root_seed: int = ROOT_SEED, gains: bool = True, progress=None,
                 cases=CASES) -> list:
     """Run the study (and the gains part) and write study.json, study.md and the figures."""
@@ -452,13 +511,8 @@ def write_study(out_dir, trials: int = TRIALS, root_seed: int = ROOT_SEED, gains
                                                    case["plan"]["cusp_times_s"]),
                                    out_dir / f"coverage_{robot}_{map_name}.png", dpi=80))
         run, res, tube = extra["plans"][(robot, map_name)]
-
-        nom = res.nominal
-        title = (f"{map_name}: {robot}, margin auto {case['margin_m']:.3f} m; {tube.probability:g}-tube (gramian, x1): "
-                 f"certified clearance {tube.certified_clearance:+.3f} m")
-        written.append(save_figure(plan_figure(run.m, nom.x[:, pose_columns(run.model)], np.sign(nom.u[:, 0]), run.fp,
-                                               run.start, run.goal, title=title, tube=tube),
-                                   out_dir / f"plan_{robot}_{map_name}.png", dpi=80))
+        written.append(save_figure(case_plan_figure(case, run, res, tube), out_dir / f"plan_{robot}_{map_name}.png",
+                                   dpi=80))
     if g is not None:
         result["gains"] = g
     written.append(write_json(out_dir / "study.json", result))

@@ -291,3 +291,34 @@ def test_batch_report_tube_figure_mixes_robots():
             for c in ("a", "b")]
     fig = tube_figure(trials, rows)
     assert fig is not None and sum(ax.get_visible() for ax in fig.axes) == 7
+
+
+def test_tubes_redraw_draws_the_recorded_plans_and_leaves_the_others(tmp_path):
+    """``nhstab tubes redraw``: the committed study's warehouse case planned again is the plan and tube
+    study.json records (to 1e-9), so its plan figure is drawn and study.md is rendered from study.json; the
+    same case recorded 1 m longer is left, with a line naming the figure and the length, and not drawn."""
+    from pathlib import Path
+
+    from nhstab.batch.tube_study import study_markdown
+    from PIL import Image
+
+    root = Path(__file__).resolve().parents[2]
+    doc = json.loads((root / "results/tubes/study.json").read_text())
+    doc["cases"] = [c for c in doc["cases"] if c["map"] == "warehouse_aisle_a2"]
+    doc.pop("gains")
+    wrong = json.loads(json.dumps(doc))
+    wrong["cases"][0]["plan"]["length_m"] += 1.0
+    name = "plan_rwd_car_warehouse_aisle_a2.png"
+    for folder, d in (("same", doc), ("wrong", wrong)):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "study.json").write_text(json.dumps(d))
+    res = CliRunner().invoke(cli, ["tubes", "redraw", str(tmp_path / "same")])
+    assert res.exit_code == 0, res.output
+    with Image.open(tmp_path / "same" / name) as img, Image.open(root / "results/tubes" / name) as committed:
+        assert img.size == committed.size
+    assert (tmp_path / "same" / "study.md").read_text() == study_markdown(doc)
+    res = CliRunner().invoke(cli, ["tubes", "redraw", str(tmp_path / "wrong")])
+    assert res.exit_code == 1, res.output
+    left = [ln for ln in res.stderr.splitlines() if " left: " in ln]
+    assert len(left) == 1 and left[0].startswith(name) and "length_m" in left[0]
+    assert not (tmp_path / "wrong" / name).exists() and (tmp_path / "wrong" / "study.md").exists()
