@@ -89,6 +89,8 @@ def figure(case, seed, budget, out_file):
     path = save_figure(fig, out_file if out_file is not None else Path(f"{name}.png"), dpi=90)
     if rec["status"] != "ok":
         click.echo(f"{name}, seed {seed}: no plan ({rec['status']}: {rec.get('message', '')}); drew the map into {path}")
+        if rec.get("likely_cause"):
+            click.echo(rec["likely_cause"])
         return 4
     click.echo(f"{name}, seed {seed}: plan of {rec['length_m']:.1f} m, {rec['cusps']} cusp(s) in {rec['time_s']:.1f} s; "
                f"wrote {path}")

@@ -216,9 +216,13 @@ def test_table_and_figure_commands_on_one_case(tmp_path):
     assert f"| {case} | turn |" in res.output and f"{row['planned']}/1" in res.output
     if not t["ok_within_budget"]:
         assert "## Why plans failed" in (tmp_path / "table.md").read_text()
+    if t["status"] == "no_path":            # the search found nothing: the record says why, likely
+        assert t["likely_cause"].startswith("likely cause: ") and t["likely_cause"] in (tmp_path / "table.md").read_text()
     png = tmp_path / "fig.png"
     res = CliRunner().invoke(cli, ["trailer", "figure", case, "--budget", "1", "--out", str(png)])
     assert res.exit_code in (0, 4), res.output
+    if res.exit_code == 4 and "(no_path:" in res.output:
+        assert res.output.splitlines()[-1].startswith("likely cause: ")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

@@ -121,6 +121,8 @@ def plan_case(name: str, seed: int, budget_s: float):
                    min_clearance_body=b, max_abs_hitch_rad=float(np.max(np.abs(robot.model.hitch_angles(x)))))
     if not res.ok:
         rec["message"] = " ".join(res.message.split())
+        if "likely_cause" in res.metrics:
+            rec["likely_cause"] = res.metrics["likely_cause"]["text"]
     return rec, m, robot, res
 
 
@@ -182,7 +184,8 @@ def table_markdown(result: dict) -> str:
         lines += ["## Why plans failed", ""]
         for name, t in failures:
             why = t.get("message") or f"ok, but {t['time_s']:.1f} s over the {result['budget_s']:g} s budget"
-            lines.append(f"- {name}, seed {t['seed']} ({t['time_s']:.1f} s): {t['status']}: {why}")
+            lines.append(f"- {name}, seed {t['seed']} ({t['time_s']:.1f} s): {t['status']}: {why}"
+                         + (f" ({t['likely_cause']})" if t.get("likely_cause") else ""))
         lines.append("")
     return "\n".join(lines)
 

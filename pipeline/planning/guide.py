@@ -231,7 +231,9 @@ def passage(world, fp: Footprint, start, goal, samples: int = 9) -> dict | None:
     ``margin_m``: the exact clearance of the inscribed disc where the way is narrowest, a value within
     about a cell of the true max-min (the start's and goal's own clearance bound it too: a start near a
     wall is the narrowest place). Returns {margin_m, at: [x, y], inscribed_radius_m,
-    connected: False when even touching obstacles (margin 0) there is no way}."""
+    connected: False when even touching obstacles (margin 0) there is no way, roomiest_m and
+    roomiest_at: the roomiest place the way can reach (the cell, among those joined to the start at that
+    margin, farthest from the obstacles by the field) and its distance to them, measured with FCL}."""
     from scipy import ndimage
 
     field = world.clearance_field()
@@ -275,12 +277,17 @@ def passage(world, fp: Footprint, start, goal, samples: int = 9) -> dict | None:
             hi = mid
     # the narrowest places: the cells below hi on a shortest way through the cells at least lo
     ok = joined(lo) == joined(lo)[s_cell]
+    # the roomiest place the way can reach: the cell of the way's region farthest from the obstacles
+    k_room = np.unravel_index(int(np.argmax(np.where(ok, clear, -np.inf))), clear.shape)
+    room_at = np.array([field.x0 + (k_room[1] + 0.5) * r, field.y0 + (k_room[0] + 0.5) * r, 0.0])
+    roomiest = {"roomiest_m": float(world.clearance(room_at, Footprint.disc(1e-6))) + 1e-6,
+                "roomiest_at": [float(room_at[0]), float(room_at[1])]}
     on_way = _grid_path(ok, s_cell, g_cell)
     ci, cj = on_way[:, 0], on_way[:, 1]
     narrow = clear[ci, cj] < hi
     ci, cj = ci[narrow], cj[narrow]
     if not len(ci):
-        return {"connected": True, "margin_m": math.inf, "inscribed_radius_m": radius}
+        return {"connected": True, "margin_m": math.inf, "inscribed_radius_m": radius, **roomiest}
     order = np.argsort(np.hypot(ci - s_cell[0], cj - s_cell[1]))
     pick = order[np.linspace(0, len(order) - 1, min(samples, len(order))).round().astype(int)]
     disc = Footprint.disc(radius) if radius > 0 else Footprint.disc(1e-6)
@@ -293,7 +300,7 @@ def passage(world, fp: Footprint, start, goal, samples: int = 9) -> dict | None:
         best.append((vals[j], around[j]))
     value, at = min(best)
     return {"connected": True, "margin_m": float(value), "at": [float(at[0]), float(at[1])],
-            "inscribed_radius_m": float(radius)}
+            "inscribed_radius_m": float(radius), **roomiest}
 
 
 def _grid_path(ok: np.ndarray, a, b) -> np.ndarray:

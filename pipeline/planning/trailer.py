@@ -106,6 +106,7 @@ from ..nominal import Nominal
 from . import local_paths
 from .cars import direction_reversals
 from .geometric import GeometricPath, PathOptions, densify, path_directions, plan_path
+from .guide import passage
 from .result import PlanResult, schedule_metrics
 from .timing import TimingOptions
 from .trailer_charts import steer_trailer
@@ -862,6 +863,102 @@ def _reeds_shepp_phase(world, robot, rig, search: PathOptions, path_opts: PathOp
     return result, attempts
 
 
+def swept_path(robot, r1: float) -> tuple[float, float, float]:
+    """(S, r_in, r_out) [m] of the rig's steady turn with the trailer's axle on a circle of radius ``r1``:
+    every body turns about one centre, at (0, R_i) in its own frame (R_1 = r1 for the trailer, the car's
+    rear axle at R_0 = hypot(r1, d)); r_out is the farthest point of any body from it, r_in the nearest
+    (0 when a body covers it), and the swept annulus is S = r_out - r_in wide (the estimate of
+    :mod:`nhstab.trailer_suite`, for any footprint: polygon vertices and edges, or discs)."""
+    from shapely.geometry import Point, Polygon
+
+    radii = (math.hypot(r1, float(robot.model.hitch_lengths[0])), float(r1))
+    r_in, r_out = math.inf, 0.0
+    for fp, radius in zip(robot.footprints, radii):
+        centre = Point(0.0, radius)
+        if fp.radius is not None:
+            r_out = max(r_out, radius + fp.radius)
+            r_in = min(r_in, max(radius - fp.radius, 0.0))
+        else:
+            v = np.asarray(fp.vertices, dtype=float)
+            r_out = max(r_out, float(np.max(np.hypot(v[:, 0], v[:, 1] - radius))))
+            r_in = min(r_in, float(Polygon(v).distance(centre)))
+    return r_out - r_in, r_in, r_out
+
+
+def rig_likely_cause(world: CollisionWorld, robot, x_start, x_goal, margin: float, turning_radius: float,
+                     budget_s: float, pad: float) -> dict:
+    """:func:`nhstab.planning.guide.likely_cause` for the rig: why its search found no path, in one line
+    with its numbers (``text``). For each body, the widest way from its start pose to its goal pose for
+    its inscribed disc (:func:`~nhstab.planning.guide.passage`); the body with the least room names the
+    known obstacles (no way), the footprint (the way is narrower than the body) or the margin (it fits
+    only with a smaller one; the search keeps ``pad`` more). Else the swept path: the roomiest place
+    the ways can reach holds no free disc as wide as the rig's tightest steady turn sweeps
+    (:func:`swept_path` at the model's smallest turning radius; a quarter turn's annulus holds such a
+    disc) plus the kept margin each side, so the rig cannot make that turn anywhere between start and
+    goal. Else the turning radius of the trailer's Reeds-Shepp paths or the budget."""
+    r_min = float(robot.model.min_turning_radius)
+    sweep = swept_path(robot, r_min)[0]
+    kept = margin + pad
+    out = {"margin_m": float(margin), "search_pad_m": float(pad), "turning_radius_m": float(turning_radius),
+           "budget_s": float(budget_s), "min_turning_radius_m": r_min, "swept_path_m": sweep}
+    names = ("car", "trailer") if robot.trailers == 1 else ("car",) + tuple(
+        f"trailer {k + 1}" for k in range(robot.trailers))
+    ends = robot.body_poses(np.stack([x_start, x_goal]))
+    tightest, infos = None, []
+    for b, fp in enumerate(robot.footprints):
+        info = passage(world, fp, ends[0, b], ends[1, b])
+        if info is None:
+            continue
+        infos.append(info)
+        room = info["inscribed_radius_m"] + info["margin_m"] if info["connected"] else -math.inf
+        if tightest is None or room < tightest[0]:
+            tightest = (room, b, info)
+    turn = (f"the turning radius {turning_radius:.3g} m of the trailer's paths (--turning-radius) or the budget "
+            f"{budget_s:g} s (--time-limit)")
+    if tightest is None:
+        out.update(cause="turning_radius_or_budget", text=f"likely cause: {turn}")
+        return out
+    _, b, info = tightest
+    body, r = names[b], info["inscribed_radius_m"]
+    width = "radius" if robot.footprints[b].radius is not None else "half-width"
+    out.update(body=body, inscribed_radius_m=r)
+    if not info["connected"] or r + info["margin_m"] <= 0:
+        out.update(cause="blocked", text=f"likely cause: the known obstacles: no way from start to goal is wide "
+                                         f"enough for the {body}'s {width} {r:.3g} m even touching them")
+        return out
+    fit, (x, y) = info["margin_m"], info.get("at", (math.nan, math.nan))
+    out.update(fits_margin_m=fit)
+    if math.isfinite(fit):
+        out.update(narrowest_at=[x, y], way_width_m=2.0 * (r + fit))
+    where = f"the widest way from start to goal, narrowest near ({x:.2f}, {y:.2f}),"
+    if fit < 0:
+        out.update(cause="footprint", text=f"likely cause: the footprint: {where} is {2 * (r + fit):.3g} m wide, less "
+                                           f"than the {body}'s {2 * r:.3g} m ({width} {r:.3g} m)")
+        return out
+    if fit < kept:
+        searched = f" (the search keeps {kept:.3g} m)" if pad > 0 else ""
+        below = max(0.0, math.floor((fit - pad) * 1000.0 + 1e-9) / 1000.0)
+        out.update(cause="margin", fits_below_m=below,
+                   text=f"likely cause: the margin: {where} keeps the {body} ({width} {r:.3g} m) {fit:.3f} m from the "
+                        f"obstacles, less than the margin {margin:.3g} m{searched}; it can fit only with --margin below "
+                        f"{below:.3f} m")
+        return out
+    room, (rx, ry) = max((i["roomiest_m"], i["roomiest_at"]) for i in infos)
+    out.update(roomiest_width_m=2.0 * room, roomiest_at=[rx, ry])
+    if 2.0 * room < sweep + 2.0 * kept:
+        out.update(cause="swept_path",
+                   text=f"likely cause: the rig's swept path: its tightest turn (the trailer's axle on {r_min:.3g} m) "
+                        f"sweeps {sweep:.2f} m, plus the {kept:.3g} m the search keeps each side, and the roomiest place "
+                        f"between start and goal, near ({rx:.2f}, {ry:.2f}), is {2 * room:.2f} m across: the rig "
+                        f"cannot make that turn anywhere on the way")
+    else:
+        out.update(cause="turning_radius_or_budget",
+                   text=f"likely cause: {turn}: the roomiest place between start and goal, near ({rx:.2f}, {ry:.2f}), "
+                        f"is {2 * room:.2f} m across, room for the {sweep:.2f} m the rig's tightest turn sweeps plus the "
+                        f"{kept:.3g} m the search keeps each side")
+    return out
+
+
 # ---------------------------------------------------------------------------------------------
 # planning
 # ---------------------------------------------------------------------------------------------
@@ -937,6 +1034,11 @@ def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts
     if result is not None:
         status, message, path, nominal, metrics = result
         metrics.update({"time_to_nominal_s": time.perf_counter() - started, "path_attempts": attempts})
+        if status == "no_path":     # the pad of the search that keeps the least (the lattice's, when it ran)
+            pad = (min(LATTICE_MARGIN_PAD, search.margin - path_opts.margin) if "lattice" in outcome
+                   else search.margin - path_opts.margin)
+            metrics["likely_cause"] = rig_likely_cause(world, robot, x_start, x_goal, path_opts.margin,
+                                                       float(path_opts.turning_radius), limit, max(pad, 0.0))
         if len(attempts) > 1:
             message += f" (after {len(attempts)} paths: " + ", ".join(attempts) + ")"
         return PlanResult(status, message, path, nominal, metrics=metrics)
