@@ -47,6 +47,17 @@ def clearance(world, robot, x) -> tuple[float, int]:
     return float(values[b]), b
 
 
+def configuration_clearance(world, robot, config) -> float:
+    """The robot's clearance at a planning configuration (x, y, theta[, theta1 .. thetaN]; the other
+    states 0): the world's clearance of its footprint, or the smallest over its bodies."""
+    config = np.asarray(config, dtype=float)
+    if len(robot.footprints) == 1:
+        return float(world.clearance(config[:3], robot.footprint))
+    x = np.zeros(robot.model.n)
+    x[robot.configuration_columns] = config
+    return clearance(world, robot, x)[0]
+
+
 def is_free(world, robot, x, margin: float = 0.0) -> bool:
     """Every body of state x keeps ``margin`` from the obstacles."""
     poses = robot.body_poses(np.asarray(x, dtype=float))

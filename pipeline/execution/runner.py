@@ -388,13 +388,13 @@ class CompositeRun:
                               + self.opts.noise.vector("process", names) ** 2 * pause)
         to = self.opts.tube
         try:
-            # a robot of several bodies: the tube is not certified (it would certify the car's body only)
-            certify = world and not self.multibody
+            # a robot of several bodies is certified body by body on rollouts (predict_tube)
+            certify = world
             tube = predict_tube(law, self.opts.noise, self.fp, self.robot_world if certify else None,
                                 rate_hz=self.opts.rate_hz, substeps=self.opts.substeps, model=self.model,
                                 initial_cov=initial, impulses=not self.plans, probability=to.probability,
                                 kind=to.kind if world else "linear", confidence=to.confidence,
-                                discards=to.discards)
+                                discards=to.discards, robot=self.robot)
         except NumericalError:
             if not world:
                 raise                  # choose_gains skips the setting
@@ -462,11 +462,7 @@ class CompositeRun:
 
     def _clearance(self, world: CollisionWorld, config) -> float:
         """The robot's clearance at a planning configuration (the smallest over its bodies)."""
-        if not self.multibody:
-            return world.clearance(config[:3], self.fp)
-        x = np.zeros(self.model.n)
-        x[self.robot.configuration_columns] = config
-        return bodies.clearance(world, self.robot, x)[0]
+        return bodies.configuration_clearance(world, self.robot, config)
 
     def _sense(self, x, t):
         scan = self.sensor.scan(x[self.pose_idx])
@@ -492,7 +488,7 @@ class CompositeRun:
             return None
         nom = rec.nominal
         i0, i1 = np.searchsorted(nom.t, [tau, tau + self.opts.monitor.horizon_s])
-        if self.multibody:          # every body, at the plan's margin (a tube covers one body only)
+        if self.multibody:          # every body, at the plan's margin (the tube reach is for one body)
             return self._conflict_bodies(rec, nom.x[max(i0 - 1, 0):i1 + 1])
         lo = max(i0 - 1, 0)
         poses = nom.x[lo:i1 + 1][:, self.pose_idx]

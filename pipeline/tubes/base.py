@@ -180,8 +180,16 @@ class Tube:
 
     @property
     def certified(self) -> bool | None:
-        """Whether the certified clearance is non-negative (None without a world)."""
-        return None if self.certified_clearance is None else bool(self.certified_clearance >= 0.0)
+        """Whether the certified clearance is non-negative (None without a world), and for a rig's
+        sampled tube, whether at most the discarded rollouts jackknifed."""
+        if self.certified_clearance is None:
+            return None
+        return bool(self.certified_clearance >= 0.0) and not self.jackknifes_beyond
+
+    @property
+    def jackknifes_beyond(self) -> bool:
+        """A rig's sampled tube: more rollouts jackknifed than the certificate leaves out."""
+        return self.certificate.get("jackknifes", 0) > self.certificate.get("discards", 0)
 
     def summary(self) -> dict:
         """The ``tube`` record of plan.json and run.json."""
@@ -282,6 +290,10 @@ def certified_text(tube, explain: bool = False) -> str:
     if tube.certified_clearance is None:
         return "clearance not certified (a robot of several bodies)"
     c = tube.certified_clearance
+    if tube.jackknifes_beyond:
+        cert = tube.certificate
+        return (f"NOT certified: {cert['jackknifes']} of {cert['rollouts']:,} rollouts jackknife (a hitch angle beyond "
+                f"{cert['jackknife_limit_rad']:g} rad; at most {cert.get('discards', 0)} may); tube clearance {c:+.3f} m")
     if c >= 0:
         return f"certified clear by {c:+.3f} m"
     text = f"NOT certified: tube clearance {c:+.3f} m"
@@ -316,6 +328,10 @@ def verdict(tube, world, fp: Footprint, margin: float | None = None, cap: float 
                            "nominal_clearance_m": tube.nominal_clearance_there, "reach_m": float(tube.reach[k])}
         if rc is not None:
             out["tightest"].update(rollout_clearance_m=rc["clearance_m"], rollout_displacement_m=rc["displacement_m"])
+            if "body" in rc:
+                out["tightest"]["body"] = "car" if rc["body"] == 0 else f"trailer {rc['body']}"
+    if tube.certificate.get("bodies"):
+        out.update(bodies=tube.certificate["bodies"], jackknifes=tube.certificate["jackknifes"])
         if tube.certified_clearance < 0 and rc is not None:
             a, b = rc["failing_times_index"]
             out.update(failing_samples=rc["failing_samples"], failing_times_s=[float(tube.t[a]), float(tube.t[b])],
@@ -354,7 +370,8 @@ def tube_line(tube, noise_scale: float | None = None, prefix: str = "tube") -> s
     t = v.get("tightest")
     if t:
         x, y, th = t["pose"][:3]
-        text += (f"; tightest at t = {t['time_s']:.2f} s, pose ({x:.2f}, {y:.2f}, {th:.2f} rad), where the plan keeps "
+        body = f" ({t['body']})" if "body" in t else ""
+        text += (f"; tightest at t = {t['time_s']:.2f} s{body}, pose ({x:.2f}, {y:.2f}, {th:.2f} rad), where the plan keeps "
                  f"{t['nominal_clearance_m']:.3f} m and " + (
                      f"a rollout moved {t['rollout_displacement_m']:.3f} m" if "rollout_displacement_m" in t
                      else f"the tube reaches {t['reach_m']:.3f} m"))

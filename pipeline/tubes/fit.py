@@ -8,6 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..bodies import configuration_clearance
 from ..collision import CollisionWorld
 from ..errors import InputError, NumericalError, PipelineError
 from ..execution.config import NoiseOptions
@@ -293,8 +294,8 @@ def choose_gains(nominal, defaults: dict, tube_of, window: str = "future", *,
 
 
 #: the refusal of ``margin: auto`` for a robot of several bodies (a car with trailers)
-SEVERAL_BODIES = ("a margin in metres for a robot of several bodies (the error tube's clearance is certified "
-                  "for one footprint; margin auto is for one-body robots)")
+SEVERAL_BODIES = ("a margin in metres for a robot of several bodies (margin auto grows one footprint's margin by "
+                  "the error tube's reach; it is for one-body robots)")
 
 
 def plan_and_tube(m, robot, start, goal, path_options, timing_options, *, margin="auto",
@@ -322,7 +323,7 @@ def plan_and_tube(m, robot, start, goal, path_options, timing_options, *, margin
     model, fp = plan_robot.model, robot.footprint
     noise = NoiseOptions() if noise is None else noise
     noise.validated(model.state_names)
-    several = len(robot.footprints) > 1           # a car with trailers: no certified clearance
+    several = len(robot.footprints) > 1           # a car with trailers: every body certified on rollouts
     if several and margin == "auto":
         raise InputError("--margin", SEVERAL_BODIES, margin)
     world = world or CollisionWorld.from_map(m, "known")
@@ -332,20 +333,20 @@ def plan_and_tube(m, robot, start, goal, path_options, timing_options, *, margin
                             "controller": "gramian, future window",
                             "initial_error": "the noise's initial error about the nominal's start"}}
     path_options = path_options.for_robot(plan_robot)
+    clear = [configuration_clearance(world, robot, p) for p in (start, goal)]
 
     def tube_of(law, certify=True):
         try:
-            tube = predict_tube(law, noise, fp, world if certify and not several else None, rate_hz=rate_hz,
+            tube = predict_tube(law, noise, fp, world if certify else None, rate_hz=rate_hz,
                                 substeps=substeps, model=robot.model, probability=probability,
-                                kind=tube_kind if certify else "linear", confidence=confidence)
+                                kind=tube_kind if certify else "linear", confidence=confidence, robot=robot)
         except NumericalError as exc:
             if not certify:
                 raise                       # choose_gains skips the setting
             extra["tube_error"] = str(exc)  # the plan stands; its tube could not be predicted
             return None
         if certify:
-            verdict(tube, None if several else world, fp, state["margin"],
-                    cap=None if several else min(world.clearance(np.asarray(p, dtype=float)[:3], fp) for p in (start, goal)))
+            verdict(tube, world if tube.certified is not None else None, fp, state["margin"], cap=min(clear))
         return tube
 
     state = {"margin": None}
@@ -363,7 +364,6 @@ def plan_and_tube(m, robot, start, goal, path_options, timing_options, *, margin
             law = build_law(result.nominal, ControllerOptions(kind="gramian"), defaults, result.schedule)
         return result, law
 
-    clear = [world.clearance(np.asarray(p, dtype=float)[:3], fp) for p in (start, goal)]
     if margin == "auto":
         result, law, tube, record = plan_with_auto_margin(plan_at, tube_of, world, fp, cap=min(clear) - 1e-3)
         extra["margin_auto"] = record

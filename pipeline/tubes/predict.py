@@ -25,7 +25,7 @@ from .sampled import linear_validity, sampled_tube
 def predict_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float = 50.0, substeps: int = 4,
                  model=None, probability: float = DEFAULT_PROBABILITY, initial_cov: np.ndarray | None = None,
                  t_end: float | None = None, impulses: bool = True, kind: str = "auto",
-                 confidence: float | None = None, discards: int = DEFAULT_DISCARDS) -> Tube:
+                 confidence: float | None = None, discards: int = DEFAULT_DISCARDS, robot=None) -> Tube:
     """The error tube of ``law`` (a FeedbackLaw) under ``noise`` (a NoiseOptions), see the module
     docstring. ``world``: the CollisionWorld of the obstacles to certify against (None: no certified
     clearance). ``model``: the real robot (input limits for the saturation probability; default the
@@ -37,7 +37,11 @@ def predict_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
     :func:`nhstab.tubes.sampled_tube`, with ``confidence`` and ``discards``), or "auto" (default): the linear tube
     where it holds (:func:`nhstab.tubes.linear_validity`: no input saturation to speak of and no
     interior stop), the sampled one elsewhere; the tube's ``certificate`` says which and why. With a
-    world the tube carries its :func:`verdict` (without the plan's margin; call it again with it)."""
+    world the tube carries its :func:`verdict` (without the plan's margin; call it again with it).
+
+    ``robot``: a :class:`nhstab.robot.Robot`; one of several bodies (a car and its trailers) is certified
+    body by body on rollouts (the linear tube covers the car's body only): with a world, "auto" takes
+    the sampled tube, and a "linear" tube is returned without a certified clearance."""
     check_probability("probability", probability)
     if kind not in TUBE_KINDS:
         raise InputError("tube", "one of " + ", ".join(TUBE_KINDS), kind)
@@ -46,6 +50,11 @@ def predict_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
     model = model or nominal_model
     names = model.state_names
     lin, why = None, "asked for"
+    multi = robot is not None and len(robot.footprints) > 1
+    if multi and world is not None and kind == "auto":
+        kind, why = "sampled", "a robot of several bodies: every body measured on rollouts of the run loop"
+    if multi and kind == "linear":
+        world = None                        # the linear tube's reach is the car's: no certificate for the rig
     if kind != "sampled":
         try:
             lin = _linear_tube(law, noise, footprint, None, rate_hz, substeps, model, probability, initial_cov,
@@ -77,7 +86,8 @@ def predict_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
     if not impulses:
         sample_noise = replace(sample_noise, impulses=())
     tube = sampled_tube(law, sample_noise, footprint, world, rate_hz=rate_hz, substeps=substeps, model=model,
-                        probability=probability, confidence=confidence, t_end=t_end, why=why, discards=discards)
+                        probability=probability, confidence=confidence, t_end=t_end, why=why, discards=discards,
+                        robot=robot if multi else None)
     if world is not None:
         verdict(tube, world, footprint)
     return tube

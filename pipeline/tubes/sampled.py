@@ -185,7 +185,7 @@ def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
                  model=None, probability: float = 0.997, confidence: float = DEFAULT_CONFIDENCE,
                  rollouts: int | None = None, seed_base: int = ROLLOUT_SEED_BASE, t_end: float | None = None,
                  keep_displacements: bool = False, keep_states: bool = False, x_start=None, why: str = "",
-                 discards: int = DEFAULT_DISCARDS):
+                 discards: int = DEFAULT_DISCARDS, robot=None):
     """The sampled error tube of ``law`` (a FeedbackLaw) under ``noise`` (a NoiseOptions): N rollouts of
     the run loop (N = :func:`rollouts_needed` (probability, confidence, discards) unless ``rollouts`` is
     given), the per-sample reach (the (r + 1)-th largest footprint displacement of the rollouts, r =
@@ -198,6 +198,13 @@ def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
     displacement per sample, (N, S), in ``tube.info["displacements"]``; ``keep_states``: every rollout's true
     states (N, S, n) in ``tube.info["states"]`` (for studies and tests). ``x_start``: the mean of the
     initial state (default the nominal's start): the rest of a maneuver from a measured state.
+
+    ``robot``: a :class:`nhstab.robot.Robot` of several bodies (a car and its trailers): every body is
+    displaced and measured (:func:`rollout_clearance` over every body's pose; a rollout's clearance is
+    the smallest over its bodies and samples), ``footprint`` is the car's, the reach at a sample the
+    largest of the bodies' reaches (``info["body_reach"]``: per body), and a rollout whose hitch angle
+    passes the model's jackknife limit at a sample is counted (``certificate["jackknifes"]``): the tube
+    is certified only when at most r rollouts jackknife. A one-body robot is the same as None.
 
     Raises :class:`NumericalError` when a rollout diverges (a non-finite state or input): the loop
     cannot be certified."""
@@ -222,6 +229,16 @@ def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
     S = len(sched.t)
     nominal_poses = sched.x0[:, idx]
     hull = hull_vertices(footprint)
+    multi = robot is not None and len(robot.footprints) > 1
+    if multi:
+        fps = tuple(robot.footprints)
+        B = len(fps)
+        hulls = [hull_vertices(f) for f in fps]
+        body_nominal = robot.body_poses(sched.x0)                 # (S, B, 3)
+        body_c, body_s = np.cos(body_nominal[..., 2]), np.sin(body_nominal[..., 2])
+        jack_limit = float(getattr(model, "jackknife_limit", math.inf))
+    else:
+        B = 1
     angles = list(model.angle_states)
     lim = model.input_limits()
     acc = {"reach": np.zeros(S), "pos": np.zeros(S), "head": np.zeros(S), "sum": np.zeros((S, n)),
@@ -229,10 +246,16 @@ def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
            "u_at": np.zeros((S - 1, m)), "sat_any": np.zeros(N, dtype=bool)}
     if r:
         acc["top"] = np.zeros((S, r + 1))       # each sample's r + 1 largest displacements so far
-    exact = world is not None and N * S * 8 * 4 <= EXACT_MEMORY_BYTES
-    D_all = np.empty((S, N)) if keep_displacements or exact else None          # time-major: one sample's rollouts
+    if multi:
+        acc["body_top"] = np.zeros((B, S, r + 1))   # per body: each sample's r + 1 largest displacements
+        acc["jack"] = np.zeros(N, dtype=bool)
+    exact = world is not None and B * N * S * 8 * 4 <= EXACT_MEMORY_BYTES
+    D_all = np.empty((S, N)) if keep_displacements or (exact and not multi) else None   # time-major
     X_all = np.empty((N, S, n)) if keep_states else None
-    P_all = np.empty((S, N, 3)) if exact else None
+    P_all = np.empty((S, N, 3)) if exact and not multi else None
+    # a robot of several bodies: body-major rows (body b, sample k) = row b * S + k
+    DB_all = np.empty((B * S, N)) if multi and exact else None
+    PB_all = np.empty((B * S, N, 3)) if multi and exact else None
     ix, iy, ith = idx
     nom_c, nom_s = np.cos(nominal_poses[:, 2]), np.sin(nominal_poses[:, 2])
 
@@ -253,26 +276,16 @@ def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
         dx, dy = E[ix], E[iy]
         r2 = dx * dx
         r2 += dy * dy
-        if hull is None:
-            D2 = r2
+        if multi:
+            D = _bodies_displacement(X, ks, rows)
+        elif hull is None:
+            D = np.sqrt(r2)
         else:
             dc = np.cos(X[ith])
             dc -= nom_c[ks][:, None]
             ds = np.sin(X[ith])
             ds -= nom_s[ks][:, None]
-            D2, tx, ty = None, np.empty_like(dx), np.empty_like(dx)
-            for bx, by in hull:                 # |(R - R0) b + dp|^2 at each hull vertex, the largest
-                np.multiply(dc, bx, out=tx)
-                tx -= ds * by
-                tx += dx
-                np.multiply(ds, bx, out=ty)
-                ty += dc * by
-                ty += dy
-                tx *= tx
-                ty *= ty
-                tx += ty
-                D2 = tx.copy() if D2 is None else np.maximum(D2, tx, out=D2)
-        D = np.sqrt(D2)                         # (b, Kc)
+            D = np.sqrt(_displacement2(hull, dx, dy, dc, ds))     # (b, Kc)
         acc["reach"][ks] = np.maximum(acc["reach"][ks], D.max(axis=1))
         if r:
             both = np.concatenate([acc["top"][ks], D], axis=1)
@@ -300,6 +313,32 @@ def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
             acc["u_at"][kc] += at.sum(axis=1)
             acc["sat_any"][rows] |= at.any(axis=(0, 2))
         block["k"] = []
+
+    def _bodies_displacement(X: np.ndarray, ks: np.ndarray, rows: slice) -> np.ndarray:
+        """Every body's displacement at the block's samples (per body into the accumulators and the
+        body-major arrays), and the largest over the bodies (b, Kc)."""
+        BP = robot.body_poses(np.moveaxis(X, 0, -1))             # (b, Kc, B, 3)
+        hitch = model.hitch_angles(np.moveaxis(X, 0, -1))        # (b, Kc, trailers)
+        acc["jack"][rows] |= (np.abs(hitch) > jack_limit).any(axis=(0, 2))
+        out = None
+        for j in range(B):
+            P = BP[:, :, j]
+            dx = P[..., 0] - body_nominal[ks, j, 0][:, None]
+            dy = P[..., 1] - body_nominal[ks, j, 1][:, None]
+            if hulls[j] is None:
+                Dj = np.hypot(dx, dy)
+            else:
+                dc = np.cos(P[..., 2]) - body_c[ks, j][:, None]
+                ds = np.sin(P[..., 2]) - body_s[ks, j][:, None]
+                Dj = np.sqrt(_displacement2(hulls[j], dx, dy, dc, ds))
+            both = np.concatenate([acc["body_top"][j, ks], Dj], axis=1)
+            acc["body_top"][j, ks] = np.partition(both, both.shape[1] - r - 1, axis=1)[:, -(r + 1):]
+            if DB_all is not None:
+                lo = j * S + ks[0]
+                DB_all[lo:lo + len(ks), rows] = Dj
+                PB_all[lo:lo + len(ks), rows] = P
+            out = Dj if out is None else np.maximum(out, Dj)
+        return out
 
     def observe(rows: slice, k: int, x: np.ndarray, u: np.ndarray | None = None) -> None:
         if block["rows"] != rows or block["x"] is None or block["x"].shape[2] != x.shape[0]:
@@ -347,7 +386,20 @@ def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
     reach = acc["top"].min(axis=1) if r else largest
     cert, k_cert, c_there, evals = (None, None, None, 0)
     exact_info = None
-    if world is not None and exact:
+    if multi:
+        body_reach = acc["body_top"].min(axis=2)               # (B, S): each body's (r + 1)-th largest
+        reach = body_reach.max(axis=0)
+    if multi and world is not None and exact:
+        exact_info = rollout_clearance(world, fps, PB_all, DB_all, body_nominal.transpose(1, 0, 2).reshape(-1, 3),
+                                       discards=r)
+        cert, k_cert, c_there, evals = (exact_info["clearance_m"], exact_info["sample"],
+                                        exact_info["nominal_clearance_m"], exact_info["evaluations"])
+    elif multi and world is not None:
+        # the largest displacement of each body bounds every rollout's clearance from below
+        per = [certified_clearance(world, fps[j], body_nominal[:, j], acc["body_top"][j].max(axis=1)) for j in range(B)]
+        cert, k_cert, c_there, evals = min(per, key=lambda v: v[0])
+        evals = sum(v[3] for v in per)
+    elif world is not None and exact:
         exact_info = rollout_clearance(world, footprint, P_all, D_all, nominal_poses, discards=r)
         cert, k_cert, c_there, evals = (exact_info["clearance_m"], exact_info["sample"],
                                         exact_info["nominal_clearance_m"], exact_info["evaluations"])
@@ -371,6 +423,12 @@ def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
                                  f"displacement at each sample with the same confidence")}
     if why:
         certificate["why"] = why
+    if multi:
+        jack = int(acc["jack"].sum())
+        certificate.update(bodies=B, jackknifes=jack, jackknife_limit_rad=jack_limit,
+                           clearance_bodies="the smallest over the car and its trailers")
+        certificate["statement"] += (f"; every body measured; {jack} of {N} rollouts jackknifed (a hitch angle "
+                                     f"beyond {jack_limit:g} rad), the tube is certified only if at most {r} did")
     info = {"pose_indices": idx, "period_s": T, "kind": "sampled", "rollouts": N, "hull": hull,
             "model": "the run loop itself: saturating law, RK4 plant under zero-order hold, the noise model "
                      "(nhstab.batch.vector.simulate_shared)"}
@@ -378,6 +436,8 @@ def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
         info["rollout_clearance"] = exact_info
     if r:
         info["largest_displacement"] = largest
+    if multi:
+        info["body_reach"] = body_reach
     if keep_displacements:
         info["displacements"] = D_all.T
     if X_all is not None:
@@ -385,6 +445,24 @@ def sampled_tube(law, noise, footprint: Footprint, world=None, *, rate_hz: float
     return Tube(probability, sched.t, nominal_poses, mean, cov, acc["pos"], acc["head"], reach, u_mean, u_std,
                 per_step, saturation, cert, k_cert, c_there, evals, tuple(model.state_names),
                 footprint.bounding_radius, info, kind="sampled", certificate=certificate)
+
+
+def _displacement2(hull: np.ndarray, dx: np.ndarray, dy: np.ndarray, dc: np.ndarray, ds: np.ndarray) -> np.ndarray:
+    """The squared displacement of a footprint moved by (dx, dy) with its heading's cosine and sine changed
+    by (dc, ds): |(R - R0) b + dp|^2 at each hull vertex b, the largest."""
+    D2, tx, ty = None, np.empty_like(dx), np.empty_like(dx)
+    for bx, by in hull:
+        np.multiply(dc, bx, out=tx)
+        tx -= ds * by
+        tx += dx
+        np.multiply(ds, bx, out=ty)
+        ty += dc * by
+        ty += dy
+        tx *= tx
+        ty *= ty
+        tx += ty
+        D2 = tx.copy() if D2 is None else np.maximum(D2, tx, out=D2)
+    return D2
 
 
 def rollout_clearance(world, fp: Footprint, poses: np.ndarray, D: np.ndarray, nominal: np.ndarray,
@@ -403,9 +481,13 @@ def rollout_clearance(world, fp: Footprint, poses: np.ndarray, D: np.ndarray, no
     clearance over the run); the smallest g_i over the N rollouts bounds the p-quantile of g with the
     scenario bound's confidence. It is at least min_k (c_k - reach_k) (the grown footprint's).
 
-    ``discards`` r > 0: the (r + 1)-th smallest g_i instead (:func:`_rollout_clearance_discarding`)."""
+    ``discards`` r > 0: the (r + 1)-th smallest g_i instead (:func:`_rollout_clearance_discarding`).
+
+    A robot of several bodies: ``fp`` a tuple of B footprints, and the rows of ``poses``, ``D`` and
+    ``nominal`` body-major, B blocks of S samples (row b * S + k: body b at sample k); g_i is then the
+    smallest over every body and sample, and the result's ``sample`` and ``body`` say where."""
     S, N = D.shape
-    if discards:
+    if discards or isinstance(fp, tuple):
         return _rollout_clearance_discarding(world, fp, poses, D, nominal, int(discards))
     c = world.clearance_many(nominal, fp)                              # (S,) exact
     lb = c[:, None] - D
@@ -464,9 +546,26 @@ def _rollout_clearance_discarding(world, fp: Footprint, poses: np.ndarray, D: np
     estimate until all its poses below it are measured); the search stops when no pose left has a bound
     below the (r + 1)-th smallest estimate, which is then exact: a pose not measured cannot lower any
     g_i below it. The failing samples (where the result is a contact) leave out the r rollouts with the
-    smallest clearances, as the certificate does."""
+    smallest clearances, as the certificate does. ``fp`` a tuple of B footprints: the rows are B
+    body-major blocks (see :func:`rollout_clearance`)."""
     S, N = D.shape
-    c = world.clearance_many(nominal, fp)
+    fps = fp if isinstance(fp, tuple) else (fp,)
+    B = len(fps)
+    if S % B:
+        raise InputError("poses", f"{B} blocks of rows, one per body", S)
+    Sb = S // B                                # samples per body
+
+    def measure(pts: np.ndarray, rows_of: np.ndarray) -> np.ndarray:
+        if B == 1:
+            return world.clearance_many(pts, fps[0])
+        body = rows_of // Sb
+        out = np.empty(len(pts))
+        for j in np.unique(body):
+            sel = body == j
+            out[sel] = world.clearance_many(pts[sel], fps[j])
+        return out
+
+    c = measure(nominal, np.arange(S))
     lb = c[:, None] - D
     order = np.argsort(lb, axis=None)
     flat_lb = lb.ravel()[order]
@@ -483,7 +582,7 @@ def _rollout_clearance_discarding(world, fp: Footprint, poses: np.ndarray, D: np
         if flat_lb[pos] >= thr and (thr >= 0.0 or flat_lb[pos] >= 0.0 or evaluations >= EXACT_CONTACT_EVALUATIONS):
             break
         take = order[pos:pos + batch]
-        vals = world.clearance_many(poses.reshape(-1, 3)[take], fp)
+        vals = measure(poses.reshape(-1, 3)[take], take // N)
         measured[take] = vals
         np.minimum.at(g, take % N, vals)
         evaluations += len(take)
@@ -499,9 +598,11 @@ def _rollout_clearance_discarding(world, fp: Footprint, poses: np.ndarray, D: np
     col = grid[:, i]
     k = int(np.nanargmin(col)) if np.isfinite(col).any() else int(np.argmin(lb[:, i]))
     top = np.partition(D, N - 1 - r, axis=1)[:, N - 1 - r]
-    out = {"clearance_m": value, "rollout": i, "sample": k, "nominal_clearance_m": float(c[k]),
+    out = {"clearance_m": value, "rollout": i, "sample": k % Sb, "nominal_clearance_m": float(c[k]),
            "displacement_m": float(D[k, i]), "evaluations": int(evaluations), "discards": r,
            "grown_footprint_clearance_m": float(np.min(c - top)), "exact": not bounded}
+    if B > 1:
+        out["body"] = int(k // Sb)
     if value < 0:
         left_out = np.argpartition(g, r)[:r]
         kept = grid.copy()
@@ -511,9 +612,20 @@ def _rollout_clearance_discarding(world, fp: Footprint, poses: np.ndarray, D: np
         bad = np.flatnonzero(np.isfinite(worst))
         if len(bad):
             complete = pos >= len(order) or flat_lb[min(pos, len(order) - 1)] >= 0.0
+            need = c[bad] - worst[bad]
+            if B > 1:               # per sample: the most any body needs, and the worst clearance
+                k_of = bad % Sb
+                samples = np.unique(k_of)
+                need_s = np.full(Sb, -np.inf)
+                worst_s = np.full(Sb, np.inf)
+                np.maximum.at(need_s, k_of, need)
+                np.minimum.at(worst_s, k_of, worst[bad])
+                bad, need, worst_bad = samples, need_s[samples], worst_s[samples]
+            else:
+                worst_bad = worst[bad]
             out.update(failing_samples=int(len(bad)), failing_times_index=[int(bad.min()), int(bad.max())],
-                       needed_clearance_m=float(np.max(c[bad] - worst[bad])), complete=bool(complete),
-                       failing_index=bad, failing_need_m=c[bad] - worst[bad], failing_worst_m=worst[bad])
+                       needed_clearance_m=float(np.max(need)), complete=bool(complete),
+                       failing_index=bad, failing_need_m=need, failing_worst_m=worst_bad)
     return out
 
 
