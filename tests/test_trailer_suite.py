@@ -245,6 +245,7 @@ def test_commands_refuse_bad_input_naming_the_option():
     ({"noise": [1.0, 0.0]}, "noise[1]"),
     ({"noise": []}, "noise"),
     ({"tvlqr": "yes"}, "tvlqr"),
+    ({"tube": 1}, "tube"),
     ({"gramian": {"alpha": [0.05, -1]}}, "gramian.alpha[1]"),
     ({"gramian": {"delta": ["ten"]}}, "gramian.delta[0]"),
     ({"gramian": {"gamma": [0.2]}}, "gramian.gamma[0]"),
@@ -355,7 +356,7 @@ def test_a_plan_record_and_figure_on_a_map_that_plans_today(tmp_path):
 @pytest.mark.slow
 def test_sweep_command_writes_its_report_whether_or_not_the_case_plans(tmp_path):
     cfg = tmp_path / "sweep.yaml"
-    cfg.write_text("cases: [trailer_dock_bay150_aisle200]\ntrials: 1\nnoise: [1.0]\ntvlqr: false\n"
+    cfg.write_text("cases: [trailer_dock_bay150_aisle200]\ntrials: 1\nnoise: [1.0]\ntvlqr: false\ntube: true\n"
                    "gramian: {end_strategy: [frozen]}\n")
     res = CliRunner().invoke(cli, ["trailer", "sweep", str(cfg), "--out", str(tmp_path / "out")])
     assert res.exit_code == 0, res.output
@@ -367,5 +368,12 @@ def test_sweep_command_writes_its_report_whether_or_not_the_case_plans(tmp_path)
         (cell,) = case["cells"]
         assert cell["end_strategy"] == "frozen" and cell["trials"] == 1
         assert sum(cell[k] for k in ("docked", "jackknife", "collision", "missed", "diverged")) == 1
+        # the cell's tube: the rig's sampled tube, certified exactly when its clearance is >= 0 and at most the
+        # discarded rollouts jackknifed; listed among the certified cells of the report when it is
+        tube = cell["tube"]
+        assert tube["kind"] == "sampled" and tube["rollouts"] == 2097 and tube["discards"] == 2
+        assert tube["certified"] == (tube["certified_clearance_m"] >= 0 and tube["jackknifes"] <= tube["discards"])
+        assert "## Cells whose tube is certified" in md
+        assert (f"- trailer_dock_bay150_aisle200, {TS.law_label(cell)}, x1: docked" in md) == tube["certified"]
     else:
         assert case["cells"] == [] and case["plan"]["reason"] in md and "no case planned" in md

@@ -19,7 +19,10 @@ bit-identical to ``nhstab run``'s tracking loop for the seeds of
 where a hitch angle is beyond the jackknife limit (**jackknife**) or a body overlaps an obstacle
 (**collision**, FCL, every body at every sample); otherwise it is **docked** when the trailer's axle and
 heading end within the run's goal tolerance (0.3 m, 0.2 rad), else it **missed** the goal; a trial
-whose loop diverges counts apart. A case that does not plan is a row with the reason, and no cells.
+whose loop diverges counts apart. With ``tube: true`` each cell also gets its error tube
+(:func:`cell_tube`: the rig's sampled tube, every body measured on the rollouts, jackknifes counted) and
+the report lists the cells whose tube is certified against the docking target. A case that does not
+plan is a row with the reason, and no cells.
 
 The results are JSON-ready; :func:`table_markdown` and :func:`sweep_markdown` write every number from
 them.
@@ -39,7 +42,7 @@ import numpy as np
 from .. import bodies
 from ..collision import CollisionWorld
 from ..control import END_STRATEGIES
-from ..errors import InputError, PipelineError
+from ..errors import InputError, NumericalError, PipelineError
 from ..examples import data_root
 from ..execution.config import RunOptions, check_number
 from ..execution.controllers import ControllerOptions, build_law
@@ -52,6 +55,7 @@ from ..report.plans import plan_figure
 from ..robot import robot_from_spec
 from ..safe_io import read_yaml_mapping
 from ..trailer_suite import read_suite_csv
+from ..tubes import predict_tube, verdict
 from .parking_study import first_plan, spawned_pool, stop_pool
 from .tube_study import trial_seeds
 from .vector import simulate_shared
@@ -209,10 +213,12 @@ def case_figure(name: str, seed: int = 0, budget_s: float = BUDGET_S):
 
 # ---- the sweep config --------------------------------------------------------------------------------------
 
-_TOP = ("name", "cases", "plan_seed", "root_seed", "trials", "noise", "tvlqr", "gramian")
+_TOP = ("name", "cases", "plan_seed", "root_seed", "trials", "noise", "tvlqr", "gramian", "tube")
 _GRAMIAN = ("alpha", "delta", "gamma", "end_strategy")
 #: the sweep's defaults where the config leaves a key out
-DEFAULTS = {"plan_seed": 0, "root_seed": 2026, "trials": 50, "noise": [0.5, 1.0, 2.0], "tvlqr": True}
+DEFAULTS = {"plan_seed": 0, "root_seed": 2026, "trials": 50, "noise": [0.5, 1.0, 2.0], "tvlqr": True, "tube": False}
+#: a cell's tube (``tube: true``): the run's default probability, its certificate's confidence and discards
+TARGET_DOCKED = 0.95
 
 
 def _values(key: str, v, check) -> list:
@@ -262,6 +268,9 @@ def check_sweep_config(data: dict) -> dict:
     tvlqr = data.get("tvlqr", DEFAULTS["tvlqr"])
     if not isinstance(tvlqr, bool):
         raise InputError("tvlqr", "true or false (TVLQR as the reference law)", tvlqr)
+    tube = data.get("tube", DEFAULTS["tube"])
+    if not isinstance(tube, bool):
+        raise InputError("tube", "true or false (each cell's error tube, every body certified on rollouts)", tube)
     gram = data.get("gramian", {}) or {}
     if not isinstance(gram, dict):
         raise InputError("gramian", "a mapping of alpha, delta, gamma, end_strategy lists", gram)
@@ -279,7 +288,7 @@ def check_sweep_config(data: dict) -> dict:
         raise InputError("trials", f"at most {MAX_BATCH_TRIALS:,} trials in the sweep (cases x laws x noise x trials)",
                          f"{len(rows)} x {laws} x {len(noise)} x {trials} = {total:,}")
     return {"name": name, "cases": [r["name"] for r in rows], "plan_seed": plan_seed, "root_seed": root_seed,
-            "trials": trials, "noise": noise, "tvlqr": tvlqr, "gramian": gramian}
+            "trials": trials, "noise": noise, "tvlqr": tvlqr, "gramian": gramian, "tube": tube}
 
 
 def load_sweep_config(path) -> dict:
@@ -388,14 +397,50 @@ def sweep_case(name: str, settings: dict, progress=None) -> dict:
         for level in settings["noise"]:
             noise = replace(run.opts.noise, scale=run.opts.noise.scale * level)
             out = trial_outcomes(run, fl, seeds, noise)
-            cells.append({**law, "noise": level, "max_gain_norm": fl.info.get("max_gain_norm"), **out,
-                          "wall_s": time.perf_counter() - t0})
+            cell = {**law, "noise": level, "max_gain_norm": fl.info.get("max_gain_norm"), **out}
+            if settings.get("tube"):
+                cell["tube"] = cell_tube(run, fl, noise, margin)
+            cell["wall_s"] = time.perf_counter() - t0
+            cells.append(cell)
             t0 = time.perf_counter()
             _say(progress, f"{name} {law_label(law)} x{level:g}: docked {out['docked']}/{out['trials']}, "
-                           f"jackknifes {out['jackknife']}, collisions {out['collision']}")
+                           f"jackknifes {out['jackknife']}, collisions {out['collision']}"
+                           + (f"; tube {tube_cell_text(cell['tube'])}" if "tube" in cell else ""))
     case["cells"] = cells
     case["wall_s"] = time.perf_counter() - started
     return case
+
+
+def cell_tube(run, law, noise, margin) -> dict:
+    """A cell's error tube: the sampled tube of the rig (every body measured on 2,097 rollouts of the run
+    loop under ``noise``, jackknifes counted; :func:`nhstab.tubes.predict_tube` with the robot) at the
+    run's probability and confidence, certified against the known obstacles, and its verdict."""
+    to = run.opts.tube
+    try:
+        tube = predict_tube(law, noise, run.fp, run.known, rate_hz=run.opts.rate_hz, substeps=run.opts.substeps,
+                            model=run.model, probability=to.probability, confidence=to.confidence,
+                            discards=to.discards, robot=run.robot)
+    except NumericalError as exc:
+        return {"error": " ".join(str(exc).split())}
+    cap = min(bodies.configuration_clearance(run.known, run.robot, p) for p in (run.start, run.goal))
+    v = verdict(tube, run.known, run.fp, margin, cap=cap)
+    cert = tube.certificate
+    return {"kind": tube.kind, "rollouts": cert.get("rollouts"), "discards": cert.get("discards"),
+            "probability": tube.probability, "confidence": cert.get("confidence"), "certified": tube.certified,
+            "certified_clearance_m": tube.certified_clearance, "jackknifes": cert.get("jackknifes"),
+            "max_reach_m": float(tube.reach.max()), "tightest": v.get("tightest"),
+            "needed_margin_m": v.get("needed_margin_m")}
+
+
+def tube_cell_text(t: dict) -> str:
+    """A cell's tube in a few words."""
+    if "error" in t:
+        return f"none ({t['error']})"
+    if t["certified_clearance_m"] is None:
+        return "not certified"
+    word = "certified" if t["certified"] else "**no**"
+    jack = t.get("jackknifes")
+    return f"{word} {t['certified_clearance_m']:+.3f} m" + (f", {jack} jackknifes" if jack else "")
 
 
 def _say(progress, text: str) -> None:
@@ -465,6 +510,14 @@ def run_sweep(settings: dict, progress=None, workers: int = 1) -> dict:
             "wall_s": time.perf_counter() - started}
 
 
+def _tube_setting(result: dict, key: str) -> str:
+    for c in result["cases"]:
+        for cell in c.get("cells", []):
+            if key in cell.get("tube", {}):
+                return f"{cell['tube'][key]:g}"
+    return "-"
+
+
 def sweep_markdown(result: dict) -> str:
     """The sweep as markdown, every number from ``result``."""
     s = result["settings"]
@@ -501,16 +554,33 @@ def sweep_markdown(result: dict) -> str:
             lines.append(f"- {law}: {'**yes**' if ok else 'no'}")
     else:
         lines.append("Not evaluated (no TVLQR cells, or no case planned).")
+    tubes = s.get("tube", False)
+    if tubes:
+        lines += ["", "## Cells whose tube is certified", "",
+                  f"Each cell's error tube (p = {_tube_setting(result, 'probability')}: the rig's sampled tube, every "
+                  "body measured with FCL on the rollouts, the discarded rollouts left out; certified when the "
+                  "certified clearance is at least 0 and no more rollouts jackknife than are left out). Target: "
+                  f"at least {100 * TARGET_DOCKED:g} % docked in every certified cell.", ""]
+        cert = [(c["case"], cell) for c in result["cases"] for cell in c.get("cells", [])
+                if cell.get("tube", {}).get("certified")]
+        if not cert:
+            lines.append("No cell's tube is certified.")
+        for case, cell in cert:
+            ok = cell["docked"] >= TARGET_DOCKED * cell["trials"]
+            lines.append(f"- {case}, {law_label(cell)}, x{cell['noise']:g}: docked {cell['docked']}/{cell['trials']} "
+                         f"({'meets' if ok else '**below**'} the target)")
     lines += ["", "## Per case", "", "| case | law | noise | docked | jackknifes | collisions | missed | diverged "
-              "| median max hitch [rad] |", "|---|---|---|---|---|---|---|---|---|"]
+              "| median max hitch [rad] |" + (" tube |" if tubes else ""),
+              "|---|---|---|---|---|---|---|---|---|" + ("---|" if tubes else "")]
     for c in result["cases"]:
         for cell in c.get("cells", []):
             if "error" in cell:
                 lines.append(f"| {c['case']} | {law_label(cell)} | x{cell['noise']:g} | no law: {cell['error']} "
-                             "| | | | | |")
+                             "| | | | | |" + (" |" if tubes else ""))
                 continue
             lines.append(f"| {c['case']} | {law_label(cell)} | x{cell['noise']:g} | {cell['docked']}/{cell['trials']} | "
                          f"{cell['jackknife']} | {cell['collision']} | {cell['missed']} | {cell['diverged']} | "
-                         f"{_f(cell['median_max_hitch_rad'], '.3f')} |")
+                         f"{_f(cell['median_max_hitch_rad'], '.3f')} |"
+                         + (f" {tube_cell_text(cell['tube'])} |" if tubes else ""))
     lines += ["", f"Wall time: {result['wall_s']:.0f} s.", ""]
     return "\n".join(lines)
