@@ -53,7 +53,12 @@ circle of R1 does not fit), the lattice search over the whole rig (:mod:`nhstab.
 trailer_search`: Hybrid A* with primitives integrated from the model, rooted at the tighter of start
 and goal, joined to the other with the chained-form piece) plans, and :func:`lattice_nominal` makes
 its plan the same kind of nominal (the primitives' inputs integrated again with the tracker's RK4,
-the piece, the tail).
+the piece, the tail). At each root the search runs on the rungs of ``LATTICE_RUNGS``: the plan's
+lattice at the plan's caps; where it expands every cell it reaches, the same with primitives cut at
+their first collision; where that exhausts too, the finer lattice with the hitch angle within
+``TIGHT_JACKKNIFE_FRACTION`` of the jackknife limit and the steering (and its rate) within
+``TIGHT_STEER_FRACTION`` of its limits: the rig turns as tight as the space needs, and the feedback
+keeps less room there. The nominal keeps the caps its plan was found at.
 
 Budget
 ------

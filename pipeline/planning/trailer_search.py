@@ -20,9 +20,22 @@ Checks
 ------
 A primitive is kept when at every integrated state the hitch angle is within ``hitch_cap``, the
 steering angle within ``steer_cap``, and both bodies (the car's and the trailer's footprints) are
-free by the margin: the collision world's :meth:`~nhstab.collision.CollisionWorld.free_many` on all
+free by the margin: the collision world's :meth:`~nhstab.collision.CollisionWorld.free_many` on the
 states of all primitives of a batch at once (its conservative distance field decides most poses
-vectorised, FCL the rest).
+vectorised, FCL the rest), in chunks of ``CHECK_CHUNK_STEPS`` knots so that no state past a
+primitive's first collision is checked. With ``cut_primitives``, a primitive that leaves the limits
+or collides is kept up to its last knot before that, when at least ``MIN_PRIMITIVE_STEPS`` knots
+long: it is then exactly the primitive of the same law with fewer knots (a knot's command depends
+on the states before it only), so the moves get shorter where the space is tight.
+
+Resolution
+----------
+``resolution`` 0 merges duplicates by the cells below; 1 (the finer lattice) divides the position
+cells and the hitch angle bins by ``FINE_DIVISOR``, has (``HITCH_LEVELS`` - 1) ``FINE_DIVISOR`` + 1
+hitch angle levels, and memoises the Reeds-Shepp heuristic on a lattice ``FINE_DIVISOR`` times finer.
+A search that ends without a plan and without reaching its budget or ``MAX_EXPANSIONS`` has expanded
+every cell it reached (``info["exhausted"]``): the caller may then try a finer search
+(:func:`nhstab.planning.trailer.lattice_plan`).
 
 Cost and heuristic
 ------------------
@@ -36,7 +49,8 @@ trailer's curvature is tan(D) / d) to a pose ``PRE_GOAL_M`` before or beyond the
 axis, or less where the rig standing straight on that axis would leave the free space
 (:func:`straight_run`: a dock bay off a narrow aisle; a side with less than ``PRE_GOAL_MIN_M`` of
 such room, a dock wall, is left out), plus that distance (on that stretch, near the axis: to the
-target itself). The exact join
+target itself). The Reeds-Shepp lengths are memoised on a lattice of ``RS_CELL_M`` and
+``RS_HEADING_BINS`` in the target's frame. The exact join
 below needs that room. Duplicates are merged by cells of ``CELL_M`` (trailer axle position),
 ``HEADING_BINS`` (trailer heading), ``HITCH_BIN_RAD`` (hitch angle) and the direction.
 
@@ -433,7 +447,7 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
     expansions = analytic_tries = 0
     refusals: dict = {}
     stats = {"primitives": 0, "states_checked": 0, "cut_by_limits": 0, "cut_by_car": 0, "cut_by_trailer": 0,
-             "refused_short": 0, "refused_grid": 0}
+             "refused_short": 0, "refused_grid": 0, "skipped_closed": 0}
     n_lev = len(levels)
     targets = np.tile(np.repeat(levels, 2), 1)
     dirs = np.tile([1.0, -1.0], n_lev)
@@ -561,6 +575,12 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
         first = np.where(limits_ok.all(axis=1), S, np.argmin(limits_ok, axis=1))
         stats["cut_by_limits"] += int(np.sum(first < S))
         p1s = _trailer_poses(d, states)
+        if not cut_primitives:
+            # a primitive that ends in a cell already expanded would be dropped: it is not checked
+            for q in range(len(states)):
+                if first[q] == S and key(p1s[q, -1], states[q, -1], int(dr[q])) in closed:
+                    first[q] = 0
+                    stats["skipped_closed"] += 1
         # in chunks of knots along the primitives, so that the states past a primitive's first collision are not
         # checked; a primitive shorter than MIN_PRIMITIVE_STEPS after the first chunk is dropped
         lo = 1
