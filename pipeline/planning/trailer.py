@@ -53,7 +53,12 @@ circle of R1 does not fit), the lattice search over the whole rig (:mod:`nhstab.
 trailer_search`: Hybrid A* with primitives integrated from the model, rooted at the tighter of start
 and goal, joined to the other with the chained-form piece) plans, and :func:`lattice_nominal` makes
 its plan the same kind of nominal (the primitives' inputs integrated again with the tracker's RK4,
-the piece, the tail).
+the piece, the tail). At each root the search runs on the rungs of ``LATTICE_RUNGS``: the plan's
+lattice at the plan's caps; where it expands every cell it reaches, the same with primitives cut at
+their first collision; where that exhausts too, the finer lattice with the hitch angle within
+``TIGHT_JACKKNIFE_FRACTION`` of the jackknife limit and the steering (and its rate) within
+``TIGHT_STEER_FRACTION`` of its limits: the rig turns as tight as the space needs, and the feedback
+keeps less room there. The nominal keeps the caps its plan was found at.
 
 Budget
 ------
@@ -116,6 +121,15 @@ from .trailer_search import PRIMITIVE_STEP_S, LatticeResult, lattice_search
 JACKKNIFE_FRACTION = 0.8
 #: and the steering angle within this fraction of its limit
 STEER_FRACTION = 0.9
+#: where the lattice search at those fractions expands every cell it reaches (a dock bay off a narrow aisle), its
+#: finer lattice plans within these fractions of the jackknife limit and of the steering and steering-rate limits
+#: (the space needs the rig's tighter turns; the feedback has less room)
+TIGHT_JACKKNIFE_FRACTION = 0.95
+TIGHT_STEER_FRACTION = 1.0
+#: the lattice search's rungs at each root: (resolution, primitives cut at their first collision, hitch angle and
+#: steering fractions); a rung runs only where the one before it expanded every cell it reached
+LATTICE_RUNGS = ((0, False, JACKKNIFE_FRACTION, STEER_FRACTION), (0, True, JACKKNIFE_FRACTION, STEER_FRACTION),
+                 (1, True, TIGHT_JACKKNIFE_FRACTION, TIGHT_STEER_FRACTION))
 #: the geometric search keeps this much more than the margin: the tracked motion leaves the path where
 #: its curvature jumps (the hitch angle follows gradually)
 MARGIN_PAD = 0.3
@@ -340,19 +354,29 @@ def lattice_plan(world: CollisionWorld, robot, path_opts: PathOptions, timing: T
     # and the chained-form piece joins the roomier end; then at the other end with what is left
     order = (True, False) if clearances["goal"] < clearances["start"] else (False, True)
     began = time.perf_counter()
-    messages, given = [], []
+    messages, given, runs = [], [], []
+    jk, mx, rate = float(model.jackknife_limit), float(model.max_steer), float(model.max_steer_rate)
     for k, from_goal in enumerate(order):
         left = budget - (time.perf_counter() - began)
         if k > 0 and left <= 0.0:
             break
-        given.append(LATTICE_FIRST_SHARE * budget if k == 0 else left)
-        found = lattice_search(world, robot, x_start, x_goal, margin=search_margin, speed=speed, step_s=step_s,
-                               hitch_cap=JACKKNIFE_FRACTION * float(model.jackknife_limit),
-                               steer_cap=STEER_FRACTION * float(model.max_steer),
-                               rate_cap=STEER_FRACTION * float(model.max_steer_rate), max_speed=max_speed,
-                               budget_s=given[-1],
-                               piece_margin=max(margin, search_margin - 1e-3), from_goal=from_goal)
-        messages.append(found.message)
+        root_budget = LATTICE_FIRST_SHARE * budget if k == 0 else left
+        root_began = time.perf_counter()
+        # the rungs of LATTICE_RUNGS in turn, each with what is left of this root's share, the next one only where
+        # the last expanded every cell it reached (the space needs more)
+        for rung, (resolution, cut, hitch_f, steer_f) in enumerate(LATTICE_RUNGS):
+            give = root_budget - (time.perf_counter() - root_began) if rung else root_budget
+            if give <= 0.0:
+                break
+            given.append(give)
+            runs.append(("goal" if from_goal else "start", rung))
+            found = lattice_search(world, robot, x_start, x_goal, margin=search_margin, speed=speed, step_s=step_s,
+                                   hitch_cap=hitch_f * jk, steer_cap=steer_f * mx, rate_cap=steer_f * rate,
+                                   max_speed=max_speed, budget_s=give, piece_margin=max(margin, search_margin - 1e-3),
+                                   from_goal=from_goal, resolution=resolution, cut_primitives=cut)
+            messages.append(found.message)
+            if found.found or not found.info["exhausted"]:
+                break
         if found.found:
             break
     if not found.found:
@@ -360,7 +384,8 @@ def lattice_plan(world: CollisionWorld, robot, path_opts: PathOptions, timing: T
     metrics = {"planner": path_opts.planner, "planner_used": "lattice", "planner_status": found.message,
                "planning_time_s": time.perf_counter() - started, "start_clearance_m": clearances["start"],
                "goal_clearance_m": clearances["goal"], "planned_body": "the whole rig (lattice search)",
-               "search_margin_m": search_margin, "lattice_budgets_s": given, **{f"lattice_{k}": v for k, v in found.info.items()
+               "search_margin_m": search_margin, "lattice_budgets_s": given,
+               "lattice_runs": [f"{root} {rung}" for root, rung in runs], **{f"lattice_{k}": v for k, v in found.info.items()
                                                       if not isinstance(v, np.ndarray)}}
     empty = GeometricPath("failed", found.message, np.array([trailer_pose(model, x_start)]),
                           np.array([trailer_pose(model, x_start)]), np.zeros(1), np.zeros(0), 0.0, 0,
@@ -382,8 +407,8 @@ def lattice_plan(world: CollisionWorld, robot, path_opts: PathOptions, timing: T
                          {"planner_used": "lattice"})
     check = bodies.check_path(world, robot, nominal.x, margin=margin, resolution=check_resolution)
     metrics.update({
-        "length_m": path.length, "cusps": cusps, "max_curvature_per_m": math.tan(JACKKNIFE_FRACTION * float(
-            model.jackknife_limit)) / float(model.hitch_lengths[0]), "waypoints": len(waypoints), **tinfo,
+        "length_m": path.length, "cusps": cusps, "max_curvature_per_m": math.tan(found.info["hitch_cap_rad"])
+        / float(model.hitch_lengths[0]), "waypoints": len(waypoints), **tinfo,
         "min_clearance_m": check.min_clearance, "min_clearance_pose": check.min_clearance_pose,
         "min_clearance_body": ("car", "trailer 1")[check.min_clearance_body],
         "clearance_check_resolution_m": check_resolution, "clearance_samples": check.samples,
@@ -680,8 +705,8 @@ def lattice_nominal(robot, found: LatticeResult, timing: TimingOptions, world: C
     except InputError as exc:
         raise TrailerPlanningError(f"the chained-form piece to the integrated state: {exc.expected}") from None
     end_error = float(np.abs(piece.final_error).max())
-    hitch_cap = JACKKNIFE_FRACTION * float(model.jackknife_limit)
-    steer_cap = STEER_FRACTION * float(model.max_steer)
+    hitch_cap = found.info.get("hitch_cap_rad", JACKKNIFE_FRACTION * float(model.jackknife_limit))
+    steer_cap = found.info.get("steer_cap_rad", STEER_FRACTION * float(model.max_steer))
     hitches = model.hitch_angles(x_track)[:, 0]
     if (piece.max_abs_phi > steer_cap + 1e-6 or piece.max_abs_hitch > hitch_cap + 1e-6
             or np.abs(hitches).max() > hitch_cap + 1e-6 or np.abs(x_track[:, 3]).max() > steer_cap + 1e-6

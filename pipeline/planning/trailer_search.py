@@ -20,9 +20,22 @@ Checks
 ------
 A primitive is kept when at every integrated state the hitch angle is within ``hitch_cap``, the
 steering angle within ``steer_cap``, and both bodies (the car's and the trailer's footprints) are
-free by the margin: the collision world's :meth:`~nhstab.collision.CollisionWorld.free_many` on all
+free by the margin: the collision world's :meth:`~nhstab.collision.CollisionWorld.free_many` on the
 states of all primitives of a batch at once (its conservative distance field decides most poses
-vectorised, FCL the rest).
+vectorised, FCL the rest), in chunks of ``CHECK_CHUNK_STEPS`` knots so that no state past a
+primitive's first collision is checked. With ``cut_primitives``, a primitive that leaves the limits
+or collides is kept up to its last knot before that, when at least ``MIN_PRIMITIVE_STEPS`` knots
+long: it is then exactly the primitive of the same law with fewer knots (a knot's command depends
+on the states before it only), so the moves get shorter where the space is tight.
+
+Resolution
+----------
+``resolution`` 0 merges duplicates by the cells below; 1 (the finer lattice) divides the position
+cells and the hitch angle bins by ``FINE_DIVISOR``, has (``HITCH_LEVELS`` - 1) ``FINE_DIVISOR`` + 1
+hitch angle levels, and memoises the Reeds-Shepp heuristic on a lattice ``FINE_DIVISOR`` times finer.
+A search that ends without a plan and without reaching its budget or ``MAX_EXPANSIONS`` has expanded
+every cell it reached (``info["exhausted"]``): the caller may then try a finer search
+(:func:`nhstab.planning.trailer.lattice_plan`).
 
 Cost and heuristic
 ------------------
@@ -36,7 +49,8 @@ trailer's curvature is tan(D) / d) to a pose ``PRE_GOAL_M`` before or beyond the
 axis, or less where the rig standing straight on that axis would leave the free space
 (:func:`straight_run`: a dock bay off a narrow aisle; a side with less than ``PRE_GOAL_MIN_M`` of
 such room, a dock wall, is left out), plus that distance (on that stretch, near the axis: to the
-target itself). The exact join
+target itself). The Reeds-Shepp lengths are memoised on a lattice of ``RS_CELL_M`` and
+``RS_HEADING_BINS`` in the target's frame. The exact join
 below needs that room. Duplicates are merged by cells of ``CELL_M`` (trailer axle position),
 ``HEADING_BINS`` (trailer heading), ``HITCH_BIN_RAD`` (hitch angle) and the direction.
 
@@ -90,6 +104,12 @@ PRIMITIVE_STEP_S = 0.1
 PRIMITIVE_STEPS = 12
 #: RK4 steps per knot interval in the search (every one of their states is checked)
 RK4_SUBSTEPS = 2
+#: a primitive that leaves the limits or collides is kept up to its last knot before that, when at least this
+#: many knot intervals long
+MIN_PRIMITIVE_STEPS = 3
+#: the states of a batch's primitives are checked in chunks of this many knot intervals (after the first
+#: MIN_PRIMITIVE_STEPS), a primitive's states past its first collision not at all
+CHECK_CHUNK_STEPS = 3
 #: the hitch angles the primitives aim at: this many levels (odd: straight is one) over +- this fraction of
 #: the smaller of hitch_cap and the hitch angle the car can hold in reverse at the steering cap
 HITCH_LEVELS = 5
@@ -107,6 +127,13 @@ BATCH_NODES = 16
 CELL_M = 0.5
 HEADING_BINS = 72
 HITCH_BIN_RAD = 0.2
+#: the Reeds-Shepp part of the heuristic is memoised on a lattice of this spacing [m] and heading bins per turn in
+#: the target's frame
+RS_CELL_M = 0.5
+RS_HEADING_BINS = 72
+#: the finer lattice (``resolution`` 1): the duplicate cells and the hitch angle bins divided by this, and
+#: (HITCH_LEVELS - 1) times this plus one hitch angle levels
+FINE_DIVISOR = 2
 #: cost factors: reversing per metre, per reversal [m], per radian of steering change over a primitive [m]
 REVERSE_FACTOR = 1.5
 CUSP_COST_M = 3.0
@@ -323,7 +350,9 @@ def _trailer_poses(d: float, x: np.ndarray) -> np.ndarray:
 
 def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: float, speed: float, step_s: float,
                    hitch_cap: float, steer_cap: float, rate_cap: float, max_speed: float, budget_s: float,
-                   piece_margin: float | None = None, from_goal: bool = False, clock=time.perf_counter) -> LatticeResult:
+                   piece_margin: float | None = None, from_goal: bool = False, resolution: int = 0,
+                   cut_primitives: bool = False,
+                   clock=time.perf_counter) -> LatticeResult:
     """Search from full state ``x_start`` to ``x_goal`` (module docstring). ``margin``: every body's
     clearance along the primitives; ``piece_margin`` (default ``margin``) along the final piece.
     ``from_goal``: root the search at the goal and join the start with the chained-form piece (module
@@ -344,7 +373,12 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
     # reverse at the steering cap, sin(D) / d <= tan(steer_cap) / L
     holdable = math.asin(min(1.0, d * math.tan(steer_cap) / L))
     top = HITCH_TARGET_FRACTION * min(hitch_cap, holdable)
-    levels = np.linspace(-top, top, HITCH_LEVELS)
+    if resolution not in (0, 1):
+        raise InputError("resolution", "0 (the lattice's cells) or 1 (finer: FINE_DIVISOR)", resolution)
+    div = FINE_DIVISOR if resolution else 1
+    cell_m, hitch_bin = CELL_M / div, HITCH_BIN_RAD / div
+    rs_cell, rs_bins = RS_CELL_M / div, RS_HEADING_BINS * div
+    levels = np.linspace(-top, top, (HITCH_LEVELS - 1) * div + 1)
     goal_p1 = _trailer_poses(d, x_goal)
     r_h = d / math.tan(hitch_cap)
     dist, gx0, gy0 = grid_distance(world, robot, margin, goal_p1[:2])
@@ -374,11 +408,11 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
         # bin (the same lattice for every target)
         c, s_ = math.cos(target[2]), math.sin(target[2])
         dx, dy = p[0] - target[0], p[1] - target[1]
-        q = (int(round((c * dx + s_ * dy) / CELL_M)), int(round((-s_ * dx + c * dy) / CELL_M)),
-             int(round(float(wrap_angle(p[2] - target[2])) / (2 * math.pi) * HEADING_BINS)))
+        q = (int(round((c * dx + s_ * dy) / rs_cell)), int(round((-s_ * dx + c * dy) / rs_cell)),
+             int(round(float(wrap_angle(p[2] - target[2])) / (2 * math.pi) * rs_bins)))
         v = rs_cache.get(q)
         if v is None:
-            a = (q[0] * CELL_M, q[1] * CELL_M, q[2] * 2 * math.pi / HEADING_BINS)
+            a = (q[0] * rs_cell, q[1] * rs_cell, q[2] * 2 * math.pi / rs_bins)
             v = local_paths.path_length(local_paths.reeds_shepp(a, (0.0, 0.0, 0.0), r_h), r_h)
             rs_cache[q] = v
         return v
@@ -396,9 +430,9 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
         return max(rs_h(p), float(grid_h(p)) if use_grid else 0.0)
 
     def key(p, x, direction):
-        return (int(math.floor(p[0] / CELL_M)), int(math.floor(p[1] / CELL_M)),
+        return (int(math.floor(p[0] / cell_m)), int(math.floor(p[1] / cell_m)),
                 int(math.floor(float(wrap_angle(p[2])) / (2 * math.pi) * HEADING_BINS)) % HEADING_BINS,
-                int(math.floor(float(wrap_angle(x[2] - x[4])) / HITCH_BIN_RAD)), direction)
+                int(math.floor(float(wrap_angle(x[2] - x[4])) / hitch_bin)), direction)
 
     # nodes: state, last input (v, omega), g, parent, knots of the primitive that reached it (M + 1, 2)
     nodes = [(x_start, np.zeros(2), 0.0, -1, None)]
@@ -412,7 +446,8 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
     closest = (h0, 0)
     expansions = analytic_tries = 0
     refusals: dict = {}
-    stats = {"primitives": 0, "states_checked": 0}
+    stats = {"primitives": 0, "states_checked": 0, "cut_by_limits": 0, "cut_by_car": 0, "cut_by_trailer": 0,
+             "refused_short": 0, "refused_grid": 0, "skipped_closed": 0}
     n_lev = len(levels)
     targets = np.tile(np.repeat(levels, 2), 1)
     dirs = np.tile([1.0, -1.0], n_lev)
@@ -526,47 +561,82 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
         if from_goal:
             u0[owner == 0, 0] = speed * dr[owner == 0]
         states, knots = integrate_primitives(model, x0, u0, tg, dr, speed=speed, steer_cap=steer_cap,
-                                             rate_cap=rate_cap, step_s=step_s, approach=ap, line=goal_p1, top=top)
+                                             rate_cap=rate_cap, step_s=step_s, steps=PRIMITIVE_STEPS,
+                                             approach=ap, line=goal_p1, top=top)
         stats["primitives"] += len(states)
+        substeps = (states.shape[1] - 1) // (knots.shape[1] - 1)
+        # every primitive is kept up to its last knot before the first state that leaves the limits or collides
+        # (a shorter primitive of the same law: a knot's command depends on the states before it only), when
+        # that is at least MIN_PRIMITIVE_STEPS knots long
         S = states.shape[1]
-        ok = (np.all(np.abs(wrap_angle(states[..., 2] - states[..., 4])) <= hitch_cap, axis=1)
-              & np.all(np.abs(states[..., 3]) <= steer_cap + 1e-9, axis=1))
+        idx = np.arange(S)
+        limits_ok = ((np.abs(wrap_angle(states[..., 2] - states[..., 4])) <= hitch_cap)
+                     & (np.abs(states[..., 3]) <= steer_cap + 1e-9))
+        first = np.where(limits_ok.all(axis=1), S, np.argmin(limits_ok, axis=1))
+        stats["cut_by_limits"] += int(np.sum(first < S))
         p1s = _trailer_poses(d, states)
+        if not cut_primitives:
+            # a primitive that ends in a cell already expanded would be dropped: it is not checked
+            for q in range(len(states)):
+                if first[q] == S and key(p1s[q, -1], states[q, -1], int(dr[q])) in closed:
+                    first[q] = 0
+                    stats["skipped_closed"] += 1
+        # in chunks of knots along the primitives, so that the states past a primitive's first collision are not
+        # checked; a primitive shorter than MIN_PRIMITIVE_STEPS after the first chunk is dropped
+        lo = 1
+        for hi in list(range(MIN_PRIMITIVE_STEPS, PRIMITIVE_STEPS, CHECK_CHUNK_STEPS)) + [PRIMITIVE_STEPS]:
+            hi_state = min(hi * substeps, S - 1)
+            for body, fp, poses in (("car", car_fp, states[..., :3]), ("trailer", trailer_fp, p1s)):
+                need = (idx[None, :] >= lo) & (idx[None, :] <= hi_state) & (idx[None, :] < first[:, None])
+                need &= (((first - 1) // substeps >= MIN_PRIMITIVE_STEPS) if cut_primitives else first == S)[:, None]
+                if not need.any():
+                    continue
+                stats["states_checked"] += int(need.sum())
+                free = np.ones(need.shape, dtype=bool)
+                free[need] = world.free_many(poses[need], fp, margin)
+                hit = np.where(free.all(axis=1), S, np.argmin(free, axis=1))
+                stats[f"cut_by_{body}"] += int(np.sum(hit < first))
+                first = np.minimum(first, hit)
+            lo = hi_state + 1
+        steps_ok = (first - 1) // substeps
+        ends = steps_ok * substeps
+        ok = steps_ok >= MIN_PRIMITIVE_STEPS
+        if not cut_primitives:
+            ok &= steps_ok >= PRIMITIVE_STEPS
+        stats["refused_short"] += int(np.sum(~ok))
+        rows_ = np.arange(len(states))
+        p_end = p1s[rows_, ends]
         if use_grid:
-            ok &= np.isfinite(grid_h(p1s[:, -1]))
-        if not ok.any():
-            continue
-        flat = states[ok, 1:].reshape(-1, 5)
-        stats["states_checked"] += len(flat)
-        car_free = world.free_many(flat[:, :3], car_fp, margin).reshape(int(ok.sum()), S - 1).all(axis=1)
-        sel = np.flatnonzero(ok)
-        ok[sel] = car_free
-        sel2 = np.flatnonzero(ok)
-        if len(sel2):
-            tr = p1s[sel2, 1:].reshape(-1, 3)
-            ok[sel2] = world.free_many(tr, trailer_fp, margin).reshape(len(sel2), S - 1).all(axis=1)
-        arc = np.hypot(*np.diff(p1s[..., :2], axis=1).transpose(2, 0, 1)).sum(axis=1)
+            reach = np.isfinite(grid_h(p_end))
+            stats["refused_grid"] += int(np.sum(ok & ~reach))
+            ok &= reach
+        seg = np.hypot(*np.diff(p1s[..., :2], axis=1).transpose(2, 0, 1))
+        cum = np.concatenate([np.zeros((len(states), 1)), np.cumsum(seg, axis=1)], axis=1)
+        arc = cum[rows_, ends]
         for q in np.flatnonzero(ok):
             ni = int(owner[q])
             x, u, g = nodes[ni][0], nodes[ni][1], nodes[ni][2]
             direction = int(np.sign(u[0]))
-            xe = states[q, -1]
+            xe = states[q, ends[q]]
             dq = int(dr[q])
             cost = arc[q] * (REVERSE_FACTOR if dq < 0 else 1.0) + STEER_CHANGE_COST_M * abs(float(xe[3] - x[3]))
             if direction != 0 and dq != direction:
                 cost += CUSP_COST_M
             gq = g + cost
-            kq = key(p1s[q, -1], xe, dq)
+            kq = key(p_end[q], xe, dq)
             if kq in closed or best_g.get(kq, math.inf) <= gq:
                 continue
             best_g[kq] = gq
-            nodes.append((xe, knots[q, -1].copy(), gq, ni, knots[q]))
-            heapq.heappush(heap, (gq + HEURISTIC_WEIGHT * heuristic(p1s[q, -1]), counter, len(nodes) - 1))
+            kn = knots[q, :steps_ok[q] + 1]
+            nodes.append((xe, kn[-1].copy(), gq, ni, kn))
+            heapq.heappush(heap, (gq + HEURISTIC_WEIGHT * heuristic(p_end[q]), counter, len(nodes) - 1))
             counter += 1
     elapsed = clock() - started
     info = {"search": "lattice", "budget_s": float(budget_s), "expansions": expansions, "nodes": len(nodes), "analytic_tries": analytic_tries,
             "search_time_s": elapsed, "grid_heuristic": use_grid, "heuristic_radius_m": r_h,
-            "hitch_target_max_rad": float(top), **stats}
+            "hitch_target_max_rad": float(top), "hitch_cap_rad": float(hitch_cap), "steer_cap_rad": float(steer_cap),
+            "resolution": resolution, "hitch_levels": len(levels), "cut_primitives": bool(cut_primitives),
+            "exhausted": bool(found is None and not out_of_time and expansions < MAX_EXPANSIONS), **stats}
     if found is None:
         hn, ni = closest
         xc = nodes[ni][0]
@@ -578,7 +648,9 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
                "expanded")
         refused = ", ".join(f"{n} {k}" for k, n in sorted(refusals.items())) or "none tried"
         target = "start" if from_goal else "goal"
-        msg = (f"lattice search ({'from the goal' if from_goal else 'from the start'}): no plan, {why} after "
+        how = (", cut primitives" if cut_primitives else "") + (", finer lattice" if resolution else "")
+        msg = (f"lattice search ({'from the goal' if from_goal else 'from the start'}{how}, hitch angle within "
+               f"{hitch_cap:.3g} rad, steering within {steer_cap:.3g} rad): no plan, {why} after "
                f"{expansions} expansions in {elapsed:.2f} s; closest node: the trailer's axle {off:.2f} m from the "
                f"{target}'s, heading off by {dth:.2f} rad, heuristic {hn:.2f} m; "
                f"final pieces refused: {refused}")

@@ -14,11 +14,16 @@ from nhstab.planning.timing import TimingOptions
 from nhstab.planning.trailer import (
     JACKKNIFE_FRACTION,
     LATTICE_FIRST_SHARE,
+    LATTICE_RUNGS,
     STEER_FRACTION,
+    TIGHT_JACKKNIFE_FRACTION,
+    TIGHT_STEER_FRACTION,
     check_configuration,
+    lattice_nominal,
     lattice_plan,
 )
 from nhstab.planning.trailer_search import (
+    MIN_PRIMITIVE_STEPS,
     grid_distance,
     inscribed_radius,
     integrate_primitives,
@@ -135,7 +140,7 @@ def tight_plan(request):
     return request.param, m, robot, status, message, nominal, metrics
 
 
-def _check_nominal(m, robot, nom):
+def _check_nominal(m, robot, nom, hitch_fraction=JACKKNIFE_FRACTION, steer_fraction=STEER_FRACTION):
     """Starts at the start, ends at the goal, a motion of the model (multiple shooting), the hitch angle
     within the planner's fraction of the jackknife limit, the steering within its cap, and every body
     at every sample clear of every obstacle by the margin (shapely, 1 cm tolerance)."""
@@ -144,8 +149,8 @@ def _check_nominal(m, robot, nom):
     np.testing.assert_allclose(nom.x[0], [*s, 0.0, s[2]], atol=1e-9)
     np.testing.assert_allclose(model.state_error(nom.x[-1], [*g, 0.0, g[2]]), 0.0, atol=1e-6)
     assert nom.feasibility_residual() < 1e-5
-    assert np.abs(model.hitch_angles(nom.x)).max() <= JACKKNIFE_FRACTION * model.jackknife_limit + 1e-6
-    assert np.abs(nom.x[:, 3]).max() <= STEER_FRACTION * model.max_steer + 1e-6
+    assert np.abs(model.hitch_angles(nom.x)).max() <= hitch_fraction * model.jackknife_limit + 1e-6
+    assert np.abs(nom.x[:, 3]).max() <= steer_fraction * model.max_steer + 1e-6
     assert np.all(np.abs(nom.u[:, 0]) <= model.max_speed + 1e-9)
     obstacles = shapely_obstacles(m)
     worst = min(min(poly.distance(obstacles) for poly in _bodies(robot, x)) for x in nom.x)
@@ -186,19 +191,24 @@ def test_plan_reports_both_searches_when_neither_finds_a_path(tmp_path):
     robot = resolve_robot(None, m.robot, "car_trailer")
     res = plan(m, robot, m.start.as_array(), m.goal.as_array(), PathOptions(seed=0, time_limit_s=2.0))
     assert res.status == "no_path"
-    assert "lattice search (from the goal)" in res.message and "lattice search (from the start)" in res.message
-    assert res.message.count("closest node: the trailer's axle") == 2
+    assert "lattice search (from the goal" in res.message and "lattice search (from the start" in res.message
+    runs = res.metrics["lattice_runs"]
+    assert runs[0] == "goal 0" and runs[-1].startswith("start") and len(runs) <= 2 * len(LATTICE_RUNGS)
+    assert res.message.count("closest node: the trailer's axle") == len(runs)
     assert "the trailer's Reeds-Shepp paths" in res.message
     # the aisle is tight for the Reeds-Shepp radius: the lattice search runs first
     assert res.metrics["tight_space"] and res.metrics["search_order"][0] == "lattice"
     assert res.metrics["path_attempts"][0] == "no_path (lattice)"
-    # the phases share the time limit; the lattice's first root gets its share of the lattice's budget, the
-    # second what the first left
+    # the phases share the time limit; the lattice's first root gets its share of the lattice's budget (its
+    # later rungs what the earlier left of it), the second root what the first left
     budgets = res.metrics["search_budget_s"]
     assert sum(budgets.values()) <= 2.0 + 1e-9 and budgets["lattice"] > 0.0
-    first, second = res.metrics["lattice_budgets_s"]
-    assert first == pytest.approx(LATTICE_FIRST_SHARE * budgets["lattice"], rel=1e-12)
-    assert 0.0 < second <= budgets["lattice"]
+    given = res.metrics["lattice_budgets_s"]
+    share = LATTICE_FIRST_SHARE * budgets["lattice"]
+    assert len(given) == len(runs) and given[0] == pytest.approx(share, rel=1e-12)
+    first = [g for g, r in zip(given, runs) if r.startswith("goal")]
+    assert all(0.0 < g < b for g, b in zip(first[1:], first)) and first[-1] <= share
+    assert 0.0 < given[-1] <= budgets["lattice"]
 
 
 class _Ticks:
@@ -254,3 +264,81 @@ def test_straight_run_stops_at_the_aisle_wall():
     assert clearance(ahead) >= margin - 1e-6
     assert clearance(ahead + step) < margin + 1e-6
     assert straight_run(world, robot, xg, 1.0, margin, 8.0, step) == step
+
+
+def test_a_cut_primitive_is_the_shorter_primitive(rng):
+    """The search keeps a primitive that collides up to its last knot before the collision: that prefix is
+    the primitive of the same law with fewer knots (a knot's command depends on the states before it only),
+    so the states and knots of a primitive of k knots are those of the full one's first k (to rounding)."""
+    model = default_robot("car_trailer").model
+    K = 8
+    x0 = np.column_stack([rng.uniform(-5, 5, K), rng.uniform(-5, 5, K), rng.uniform(-3, 3, K),
+                          rng.uniform(-0.4, 0.4, K), np.zeros(K)])
+    x0[:, 4] = x0[:, 2] - rng.uniform(-0.5, 0.5, K)
+    u0 = np.column_stack([rng.choice([-0.9, 0.9], K), np.zeros(K)])
+    targets, dirs = rng.uniform(-0.7, 0.7, K), rng.choice([-1.0, 1.0], K)
+    kw = dict(speed=0.9, steer_cap=0.54, rate_cap=0.9, step_s=0.1)
+    full, kfull = integrate_primitives(model, x0, u0, targets, dirs, steps=12, **kw)
+    sub = (full.shape[1] - 1) // 12
+    for k in (MIN_PRIMITIVE_STEPS, 7):
+        part, kpart = integrate_primitives(model, x0, u0, targets, dirs, steps=k, **kw)
+        np.testing.assert_allclose(part, full[:, :k * sub + 1], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(kpart, kfull[:, :k + 1], rtol=0, atol=1e-12)
+
+
+def _dock(name):
+    m = load_map(f"example:{name}")
+    robot = resolve_robot(None, m.robot, "car_trailer")
+    world = CollisionWorld.from_map(m, "known")
+    xs, xg, clearances = _configs(m, robot, world)
+    return m, robot, world, xs, xg, clearances
+
+
+def _rung_plan(name, rung, expansions):
+    """The lattice search on a suite case, rooted at the bay, on one rung of LATTICE_RUNGS, with a budget
+    counted in clock readings (one per expansion: machine-independent), and the nominal of its plan."""
+    m, robot, world, xs, xg, clearances = _dock(name)
+    model = robot.model
+    resolution, cut, hitch_f, steer_f = LATTICE_RUNGS[rung]
+    margin = robot.margin
+    res = lattice_search(world, robot, xs, xg, margin=margin + 0.005, speed=0.9, step_s=0.1,
+                         hitch_cap=hitch_f * model.jackknife_limit, steer_cap=steer_f * model.max_steer,
+                         rate_cap=steer_f * model.max_steer_rate, max_speed=1.5, budget_s=expansions * 0.01,
+                         piece_margin=margin + 0.004, from_goal=True, resolution=resolution, cut_primitives=cut,
+                         clock=_Ticks(0.01))
+    nom = None
+    if res.found:
+        nom, _ = lattice_nominal(robot, res, TimingOptions(), world, margin, xs, xg, 0.9)
+    return m, robot, res, nom
+
+
+def test_cut_primitives_reverse_into_a_bay_of_1_2_widths():
+    """A bay 1.2 x the rig's width off an aisle 1.5 x its swept path: on the plan's lattice the rig cannot
+    leave the bay (every cell it reaches is expanded, within a few hundred expansions); with primitives cut
+    at their first collision it can. The plan ends reversing into the bay and passes _check_nominal (every
+    body by shapely, the hitch angle within the plan's fraction of the jackknife limit)."""
+    name = "trailer_dock_bay120_aisle150"
+    _, _, coarse, _ = _rung_plan(name, 0, 3000)
+    assert not coarse.found and coarse.info["exhausted"] and coarse.info["expansions"] < 500
+    assert "every reachable cell was expanded" in coarse.message
+    m, robot, res, nom = _rung_plan(name, 1, 3000)
+    assert res.found and res.info["cut_primitives"], res.message
+    _check_nominal(m, robot, nom)
+    assert nom.u[-5:, 0].max() < 0
+
+
+@pytest.mark.slow
+def test_the_tight_rung_reverses_into_a_bay_off_a_1_2_swept_path_aisle():
+    """A bay 1.5 x the rig's width off an aisle 1.2 x its swept path: both rungs at the plan's caps expand
+    every cell they reach; the finer lattice at the tight caps plans. Its nominal passes _check_nominal at
+    the tight fractions: every body clear by the margin (shapely), the hitch angle within 0.95 of the
+    jackknife limit (so never past it), the steering within its limit."""
+    name = "trailer_dock_bay150_aisle120"
+    for rung in (0, 1):
+        _, _, res, _ = _rung_plan(name, rung, 3000)
+        assert not res.found and res.info["exhausted"], res.message
+    m, robot, res, nom = _rung_plan(name, 2, 20000)
+    assert res.found and res.info["resolution"] == 1, res.message
+    _check_nominal(m, robot, nom, TIGHT_JACKKNIFE_FRACTION, TIGHT_STEER_FRACTION)
+    assert np.abs(robot.model.hitch_angles(nom.x)).max() < robot.model.jackknife_limit
+    assert nom.u[-5:, 0].max() < 0
