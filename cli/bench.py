@@ -66,6 +66,8 @@ SUBCOMMANDS = {
     "polygons": "Polygon checks up to the accepted maximum of 10,000 vertices: GEOS simplicity test, footprint "
                 "parser, YAML map load and collision world, raster fill, on a star and a comb of long teeth at "
                 "1,250-10,000 vertices, with scaling exponents and the vectorised pairwise baseline.",
+    "trailer": "Planning on the trailer suite's cases at 1.2x widths and above: plans within 10 s over 3 seeds and the "
+               "median time, against the trailer-axle search alone (a few minutes).",
     "geometry": "2-D geometry against shapely on real maps: each operation the library hands to shapely against "
                 "the hand-written numpy baseline, each it keeps against the shapely construction, with the ratio "
                 "and the largest difference between the answers.",
@@ -87,6 +89,10 @@ EXTRA_OPTIONS = {
         click.option("--auto-repeats", type=int, default=None, help="Plan-and-tube pairs per auto-tube row (default 3)."),
         click.option("--baseline-rollouts", type=int, default=None,
                      help="Rollouts of the sampled tube's baseline, extrapolated to N (default 40)."),
+    ],
+    "trailer": [
+        click.option("--seeds", type=int, default=None, help="Seeds per case (default 3)."),
+        click.option("--budget", "budget_s", type=float, default=None, help="Planning budget per call [s] (default 10)."),
     ],
     "polygons": [
         click.option("--size", "sizes", type=click.IntRange(6, 10_000), multiple=True,

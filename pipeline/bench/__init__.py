@@ -16,7 +16,7 @@ from ..errors import InputError
 from .gains import hilare_sinusoid  # noqa: F401  (used by tests and the batch benchmark)
 
 #: benchmark name -> module (in the order ``nhstab bench`` runs them)
-_MODULES = ("startup", "gains", "collision", "planning", "parking", "run", "batch", "tube", "polygons", "geometry")
+_MODULES = ("startup", "gains", "collision", "planning", "parking", "run", "batch", "tube", "polygons", "geometry", "trailer")
 
 
 def _fn(name: str):

@@ -988,10 +988,12 @@ def rig_likely_cause(world: CollisionWorld, robot, x_start, x_goal, margin: floa
 # planning
 # ---------------------------------------------------------------------------------------------
 def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts: TimingOptions,
-                 stab_opts: StabilizerOptions, check_resolution: float = 0.05, world: CollisionWorld | None = None):
+                 stab_opts: StabilizerOptions, check_resolution: float = 0.05, world: CollisionWorld | None = None,
+                 searches: tuple | None = None):
     """:func:`nhstab.planning.plan` for a car_trailer with one trailer (module docstring). ``start`` and
     ``goal``: poses (x, y, theta) with the trailer in line, configurations (x, y, theta, theta1), or
-    full states."""
+    full states. ``searches``: the searches to run, a subset of ("reeds_shepp", "lattice") (default both,
+    in the order the space asks for; one alone gets the whole budget: ``nhstab bench trailer``'s baseline)."""
     model = robot.model
     if model.trailers != 1:
         raise InputError("robot", "a car_trailer with one trailer (nhstab plans N = 1; the model itself takes "
@@ -1021,6 +1023,10 @@ def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts
     deadline = started + limit
     tight, discs = tight_space(world, robot, x_start, x_goal, float(path_opts.turning_radius))
     order = ("lattice", "reeds_shepp") if tight else ("reeds_shepp", "lattice")
+    if searches is not None:
+        if not searches or any(p not in order for p in searches):
+            raise InputError("searches", "a subset of reeds_shepp, lattice", searches)
+        order = tuple(p for p in order if p in searches)
     budgets = {"reeds_shepp": 0.0, "lattice": 0.0}
     attempts: list = []
     outcome: dict = {}
@@ -1028,7 +1034,8 @@ def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts
         left = deadline - time.perf_counter()
         if k > 0 and left < MIN_PHASE_SHARE * limit:
             break
-        give = min(left, REEDS_SHEPP_SHARE * limit) if phase == "reeds_shepp" and k == 0 else max(left, 1e-3)
+        give = (min(left, REEDS_SHEPP_SHARE * limit) if phase == "reeds_shepp" and k == 0 and len(order) > 1
+                else max(left, 1e-3))
         budgets[phase] = give
         if phase == "reeds_shepp":
             res, tried = _reeds_shepp_phase(world, robot, rig, search, path_opts, timing_opts, x_start, x_goal,
