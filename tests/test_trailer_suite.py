@@ -246,6 +246,7 @@ def test_commands_refuse_bad_input_naming_the_option():
     ({"noise": []}, "noise"),
     ({"tvlqr": "yes"}, "tvlqr"),
     ({"tube": 1}, "tube"),
+    ({"time_limit_s": 0}, "time_limit_s"),
     ({"gramian": {"alpha": [0.05, -1]}}, "gramian.alpha[1]"),
     ({"gramian": {"delta": ["ten"]}}, "gramian.delta[0]"),
     ({"gramian": {"gamma": [0.2]}}, "gramian.gamma[0]"),

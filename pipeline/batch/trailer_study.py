@@ -9,7 +9,7 @@ FCL at every sample of the nominal) and its largest hitch angle. A plan **succee
 "ok" and the call returned within the budget. A case that does not plan is a row with the reasons.
 
 **Sweep** (:func:`run_sweep`, configured by a YAML file, :func:`load_sweep_config`). For every case, ONE
-plan: the first plan of ``nhstab run example:NAME --seed PLAN_SEED`` (the run's own first planning call,
+plan: the first plan of ``nhstab run example:NAME --seed PLAN_SEED --time-limit TIME_LIMIT_S`` (the run's own first planning call,
 retried as the run retries it: :func:`nhstab.batch.parking_study.first_plan`). On that nominal, per law
 (TVLQR with Q = I, R = I; the gramian law at every combination of the config's alpha, delta, gamma and
 end strategy) and noise level (a multiple of ``nhstab run``'s default initial error, sensor noise and
@@ -44,7 +44,7 @@ from ..collision import CollisionWorld
 from ..control import END_STRATEGIES
 from ..errors import InputError, NumericalError, PipelineError
 from ..examples import data_root
-from ..execution.config import RunOptions, check_number
+from ..execution.config import PlanningOptions, RunOptions, check_number
 from ..execution.controllers import ControllerOptions, build_law
 from ..execution.runner import final_errors
 from ..limits import MAX_BATCH_TRIALS, MAX_GAMMA, MAX_NOISE_SCALE, MAX_SEED, MAX_STUDY_TRIALS, check_int
@@ -213,10 +213,10 @@ def case_figure(name: str, seed: int = 0, budget_s: float = BUDGET_S):
 
 # ---- the sweep config --------------------------------------------------------------------------------------
 
-_TOP = ("name", "cases", "plan_seed", "root_seed", "trials", "noise", "tvlqr", "gramian", "tube")
+_TOP = ("name", "cases", "plan_seed", "root_seed", "time_limit_s", "trials", "noise", "tvlqr", "gramian", "tube")
 _GRAMIAN = ("alpha", "delta", "gamma", "end_strategy")
 #: the sweep's defaults where the config leaves a key out
-DEFAULTS = {"plan_seed": 0, "root_seed": 2026, "trials": 50, "noise": [0.5, 1.0, 2.0], "tvlqr": True, "tube": False}
+DEFAULTS = {"plan_seed": 0, "root_seed": 2026, "time_limit_s": 2.0, "trials": 50, "noise": [0.5, 1.0, 2.0], "tvlqr": True, "tube": False}
 #: a cell's tube (``tube: true``): the run's default probability, its certificate's confidence and discards
 TARGET_DOCKED = 0.95
 
@@ -261,6 +261,7 @@ def check_sweep_config(data: dict) -> dict:
     rows = check_cases(data.get("cases"), "cases")
     plan_seed = check_int("plan_seed", data.get("plan_seed", DEFAULTS["plan_seed"]), 0, MAX_SEED, "a seed")
     root_seed = check_int("root_seed", data.get("root_seed", DEFAULTS["root_seed"]), 0, MAX_SEED - 1, "a seed")
+    time_limit_s = check_number("time_limit_s", data.get("time_limit_s", DEFAULTS["time_limit_s"]), 0.0, lo_open=True)
     trials = check_int("trials", data.get("trials", DEFAULTS["trials"]), 1, MAX_STUDY_TRIALS,
                        "a number of trials per cell")
     noise = _values("noise", data.get("noise", DEFAULTS["noise"]),
@@ -288,6 +289,7 @@ def check_sweep_config(data: dict) -> dict:
         raise InputError("trials", f"at most {MAX_BATCH_TRIALS:,} trials in the sweep (cases x laws x noise x trials)",
                          f"{len(rows)} x {laws} x {len(noise)} x {trials} = {total:,}")
     return {"name": name, "cases": [r["name"] for r in rows], "plan_seed": plan_seed, "root_seed": root_seed,
+            "time_limit_s": time_limit_s,
             "trials": trials, "noise": noise, "tvlqr": tvlqr, "gramian": gramian, "tube": tube}
 
 
@@ -364,7 +366,9 @@ def sweep_case(name: str, settings: dict, progress=None) -> dict:
     started = time.perf_counter()
     case = {"case": name}
     try:
-        run, attempts, result, law0, margin, _ = first_plan(name, RunOptions(seed=settings["plan_seed"]))
+        opts = RunOptions(seed=settings["plan_seed"],
+                          planning=PlanningOptions(time_limit_s=settings.get("time_limit_s", DEFAULTS["time_limit_s"])))
+        run, attempts, result, law0, margin, _ = first_plan(name, opts)
     except PipelineError as exc:
         case.update(plan={"found": False, "reason": " ".join(str(exc).split())}, cells=[],
                     plan_wall_s=time.perf_counter() - started)
@@ -524,7 +528,8 @@ def sweep_markdown(result: dict) -> str:
     tol = result["tolerance"]
     lines = ["# The trailer suite: feedback laws under noise", "",
              f"Produced by `nhstab trailer sweep` (nhstab.batch.trailer_study), config `{s['name']}`: per case one plan "
-             f"(the first plan of `nhstab run example:NAME --seed {s['plan_seed']}`), then per law and noise level "
+             f"(the first plan of `nhstab run example:NAME --seed {s['plan_seed']} --time-limit "
+             f"{s.get('time_limit_s', DEFAULTS['time_limit_s']):g}`), then per law and noise level "
              f"{s['trials']} trials of the run loop (seeds spawned from {s['root_seed']}). Jackknife = a hitch angle "
              "beyond the limit before any collision; collision = a body overlaps an obstacle (FCL, every sample); "
              f"docked = neither, and the trailer's axle within {tol['position_m']:g} m and {tol['heading_rad']:g} rad "
