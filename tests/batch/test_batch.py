@@ -122,24 +122,39 @@ def test_store_records_a_trial_once(tmp_path):
         assert s.db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
 
 
+@pytest.fixture(scope="module")
+def three_trials(tmp_path_factory):
+    """The 3-trial batch of _config (two cells, 6 trials), run once with one worker and once with two;
+    returns the config file and the two output folders. The tests below only read these folders (the
+    report test writes its report into a copy)."""
+    d = tmp_path_factory.mktemp("three")
+    cfg_file = _config(d)
+    cfg = load_batch_config(cfg_file)
+    run_batch(cfg, d / "one", workers=1, progress=False)
+    run_batch(cfg, d / "two", workers=2, progress=False)
+    return cfg_file, d / "one", d / "two"
+
+
 @pytest.mark.slow
-def test_one_worker_two_workers_and_dask_give_identical_trials(tmp_path):
-    cfg = load_batch_config(_config(tmp_path))
-    run_batch(cfg, tmp_path / "one", workers=1, progress=False)
-    run_batch(cfg, tmp_path / "two", workers=2, progress=False)
+def test_one_worker_two_workers_and_dask_give_identical_trials(three_trials):
+    cfg_file, one_dir, two_dir = three_trials
+    cfg = load_batch_config(cfg_file)
     from distributed import LocalCluster
 
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                       dashboard_address=None) as cluster:
-        run_batch(cfg, tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False)
-    one = records(tmp_path / "one" / "trials.sqlite")
+        run_batch(cfg, cfg_file.parent / "dask", scheduler=cluster.scheduler_address, progress=False)
+    one = records(one_dir / "trials.sqlite")
     assert len(one) == 6
-    assert one == records(tmp_path / "two" / "trials.sqlite") == records(tmp_path / "dask" / "trials.sqlite")
+    assert one == records(two_dir / "trials.sqlite") == records(cfg_file.parent / "dask" / "trials.sqlite")
 
 
 @pytest.mark.slow
-def test_a_batch_killed_with_sigkill_and_resumed_runs_each_trial_once(tmp_path):
-    cfg_file = _config(tmp_path, trials=6)
+def test_a_batch_killed_with_sigkill_and_resumed_runs_each_trial_once(tmp_path, three_trials):
+    """The 3-trial batch (6 trials) killed with SIGKILL once at least 3 trials are stored and before it
+    ends, then resumed with two workers: it runs only the missing trials, and its store equals the
+    uninterrupted batch's (the shared two-worker run of the same config), trial for trial."""
+    cfg_file = _config(tmp_path)
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "cli.main", "batch", str(cfg_file), "--out", str(out), "--workers", "1",
            "--no-progress"]
@@ -163,21 +178,24 @@ def test_a_batch_killed_with_sigkill_and_resumed_runs_each_trial_once(tmp_path):
     proc.wait()
     with Store(db) as s:
         part = s.count()
-    assert 3 <= part < 12
+    assert 3 <= part < 6
     with pytest.raises(InputError, match="--resume"):
         run_batch(load_batch_config(cfg_file), out, progress=False)
     counts = run_batch(load_batch_config(cfg_file), out, workers=2, resume=True, progress=False)
-    assert counts.ran == 12 - part and counts.stored == 12
-    run_batch(load_batch_config(cfg_file), tmp_path / "whole", workers=2, progress=False)
-    assert records(db) == records(tmp_path / "whole" / "trials.sqlite")
+    assert counts.ran == 6 - part and counts.stored == 6
+    assert records(db) == records(three_trials[2] / "trials.sqlite")
 
 
 @pytest.fixture(scope="module")
-def uninterrupted(tmp_path_factory):
-    """The reference: the 4-trial batch of the Ctrl-C tests, run without interruption."""
-    d = tmp_path_factory.mktemp("whole")
-    run_batch(load_batch_config(_config(d, trials=CTRL_C_TRIALS)), d / "b", workers=2, progress=False)
-    return records(d / "b" / "trials.sqlite")
+def uninterrupted(three_trials):
+    """The reference: the 4-trial batch of the Ctrl-C tests, run without interruption. Trial k's id
+    (cell#k) and seed (child k of root_seed) do not depend on the number of trials, so these are the
+    first CTRL_C_TRIALS trials of each cell of the 3-trial batch run with two workers."""
+    _, _, two_dir = three_trials
+    whole = records(two_dir / "trials.sqlite")
+    ref = {k: v for k, v in whole.items() if int(k.rsplit("#", 1)[1]) < CTRL_C_TRIALS}
+    assert len(ref) == 2 * CTRL_C_TRIALS
+    return ref
 
 
 #: trials per cell of the Ctrl-C tests (two cells)
@@ -318,11 +336,14 @@ def test_wilson_interval_matches_the_closed_form():
 
 
 @pytest.mark.slow
-def test_report_numbers_come_from_the_store(tmp_path):
+def test_report_numbers_come_from_the_store(tmp_path, three_trials):
+    """The report of the 3-trial batch (gramian and open loop, run with two workers), written into a copy
+    of its folder."""
+    import shutil
+
     from nhstab.batch.report import write_report
 
-    cfg = load_batch_config(_config(tmp_path, trials=3, controllers=("gramian", "open-loop")))
-    run_batch(cfg, tmp_path / "b", workers=2, progress=False)
+    shutil.copytree(three_trials[2], tmp_path / "b")
     files = write_report(tmp_path / "b")
     names = {f.name for f in files}
     assert {"report.html", "report.md", "trials.csv", "rates.png", "envelopes.png"} <= names

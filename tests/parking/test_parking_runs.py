@@ -104,14 +104,21 @@ def verdict(name: str, out: Path) -> tuple[bool, str]:
     return True, f"parked {err_pos:.3f} m, {err_head:.3f} rad from the goal, clearance {check.min_clearance:.3f} m"
 
 
-@pytest.mark.slow
-def test_gramian_parks_without_touching_on_95_percent_of_runs(tmp_path):
+@pytest.fixture(scope="module")
+def suite_runs(tmp_path_factory):
+    """The 28 runs, once for the module: (name, seed, output folder, exit code) each."""
+    tmp_path = tmp_path_factory.mktemp("suite")
     jobs = [(name, seed, tmp_path / f"{name}-{seed}") for name in _cases() for seed in SEEDS]
-    assert len(jobs) == 28
     with ThreadPoolExecutor(max_workers=2) as pool:
         codes = list(pool.map(lambda j: _run(*j), jobs))
+    return [(name, seed, out, code) for (name, seed, out), code in zip(jobs, codes)]
+
+
+@pytest.mark.slow
+def test_gramian_parks_without_touching_on_95_percent_of_runs(suite_runs):
+    assert len(suite_runs) == 28
     results = []
-    for (name, seed, out), code in zip(jobs, codes):
+    for name, seed, out, code in suite_runs:
         ok, why = verdict(name, out)
         results.append((name, seed, code, ok, why))
         # the run's own exit code may not claim more than the recomputed verdict
@@ -122,12 +129,12 @@ def test_gramian_parks_without_touching_on_95_percent_of_runs(tmp_path):
 
 
 @pytest.mark.slow
-def test_verdict_recomputes_from_the_files(tmp_path):
-    """The checker on one quick run and on doctored copies of its trajectory: a pose moved into a
-    parked car is a collision, a last pose moved away is not parked."""
-    name = "angled60_rwd_car_aisle200"
-    out = tmp_path / "run"
-    code = _run(name, 0, out)
+def test_verdict_recomputes_from_the_files(tmp_path, suite_runs):
+    """The checker on one of the suite's runs (the rwd car into the 60-degree bay off the 1.5 x aisle,
+    seed 0) and on doctored copies of its trajectory: a pose moved into a parked car is a collision, a
+    last pose moved away is not parked."""
+    name = "angled60_rwd_car_aisle150"
+    out, code = next((o, c) for n, s, o, c in suite_runs if n == name and s == 0)
     ok, why = verdict(name, out)
     assert (code == 0) == ok, why
     if not ok:
