@@ -280,8 +280,9 @@ def test_bit_identical_to_the_composite_run_of_a_car_with_a_trailer():
     """The car with a trailer reversing into the loading dock (nothing to discover): the vectorised
     trials reproduce the run's log exactly (the plant's generic RK4 step on the model's rhs, the
     hitch angles among the wrapped angle states). The run's plan tube is the linear one: a robot of
-    several bodies only records its tube, so the log is the same with any tube kind, and the default
-    sampled tube (2,097 rollouts of the rig) took most of the run's time."""
+    several bodies' tube does not change its run (no cusp checks for it), so the log is the same with any
+    tube kind, and the default sampled tube (2,097 rollouts of the rig, every body measured) takes most
+    of the run's time."""
     from nhstab.maps import load_map
     from nhstab.robot import default_robot
 
