@@ -36,7 +36,14 @@ from .models import make_model
 from .nominal import Nominal
 from .records import save_figure, write_json, write_text
 from .report import subplots
-from .report.tracking import error_norm_comparison_figure, errors_figure, gramian_figure, inputs_figure, phase_figure
+from .report.tracking import (
+    error_norm_comparison_figure,
+    errors_figure,
+    gramian_figure,
+    inputs_figure,
+    norm_label,
+    phase_figure,
+)
 from .simulation import fit_decay_rate, simulate_tracking
 
 
@@ -345,7 +352,7 @@ def remark2_study(grid: dict | None = None) -> dict:
 
 
 def _remark2_figure(study: dict, runs: dict):
-    fig, axes = subplots(1, 2, figsize=(11.5, 4.2), layout="constrained")
+    fig, axes = subplots(1, 2, figsize=(11.5, 5.0), layout="constrained")
     ax = axes[0]
     colors = {0.5: "tab:blue", 1.0: "tab:orange", 2.0: "tab:green", 4.0: "tab:red"}
     for window, style, marker in (("future", "-", "o"), ("past", "--", "s")):
@@ -354,21 +361,21 @@ def _remark2_figure(study: dict, runs: dict):
                         key=lambda r: r["alpha"])
             if rs:
                 ax.semilogx([r["alpha"] for r in rs], [r["max_real_part"] for r in rs], style, marker=marker, ms=3,
-                            color=color, label=f"{window}, delta = {delta:g}")
-    ax.axhline(0.0, color="k", lw=0.8)
-    ax.set_xlabel("alpha")
+                            color=color, label=f"{window}, delta = {delta:g} s")
+    ax.axhline(0.0, color="k", lw=0.8, label="zero: stability limit")
+    ax.set_xlabel("alpha [1/s]")
     ax.set_ylabel("largest real part of eig(A - B K)  [1/s]")
     ax.set_title("Straight line, gamma = 1: future window (solid) stable, past window (dashed) unstable", fontsize=8)
-    ax.legend(fontsize=6, ncol=2)
+    ax.legend(fontsize=6, ncol=3, loc="upper center", bbox_to_anchor=(0.5, -0.14), borderaxespad=0.0)
     ax.grid(alpha=0.3)
     ax = axes[1]
     for name, (label, t, en, status) in runs.items():
         style = (0, (4, 3)) if "frozen" in label else "-"       # frozen-time lies on the future window here
         ax.semilogy(t, en, ls=style, lw=1.6 if style == "-" else 1.2, label=f"{label} ({status})")
     ax.set_xlabel("t [s]")
-    ax.set_ylabel("||e(t)||")
-    ax.set_title("Closed loop from the paper's Hilare initial error (-0.1, 0.2, 0.1)", fontsize=8)
-    ax.legend(fontsize=7)
+    ax.set_ylabel(norm_label(make_model("unicycle").state_units))
+    ax.set_title("Closed loop from the paper's Hilare initial error (-0.1 m, 0.2 m, 0.1 rad)", fontsize=8)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14), borderaxespad=0.0)
     ax.grid(alpha=0.3)
     return fig
 
@@ -398,8 +405,14 @@ def frozen_time_comparison(names, overrides: dict | None = None) -> list[dict]:
     return out
 
 
+def _state_units(name: str) -> tuple[str, ...]:
+    """The units of the states of case ``name``'s model."""
+    case = CASES[name]
+    return make_model(case.model, **case.model_params).state_units
+
+
 def _frozen_figure(frozen, series, norms):
-    fig, ax = subplots(figsize=(7.0, 4.0), layout="constrained")
+    fig, ax = subplots(figsize=(9.0, 4.0), layout="constrained")
     for j, (f, ser) in enumerate(zip(frozen, series)):
         if ser is None:
             continue
@@ -410,9 +423,10 @@ def _frozen_figure(frozen, series, norms):
         ax.semilogy(ser[0], ser[1], color=color, lw=1.2, ls=(0, (4, 3)),
                     label=f"{f['case']}, frozen-time ({f['status']})")
     ax.set_xlabel("t [s]")
-    ax.set_ylabel("||e(t)||")
+    drawn = [f["case"] for f, ser in zip(frozen, series) if ser is not None]
+    ax.set_ylabel(norm_label([u for name in drawn for u in _state_units(name)]))
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     ax.set_title("The causal frozen-time law (dashed) and the future window (solid), from the paper's initial "
                  "errors", fontsize=8)
     return fig
@@ -420,24 +434,31 @@ def _frozen_figure(frozen, series, norms):
 
 # ---- outputs ---------------------------------------------------------------------------------------------
 
-def _figures(summary: dict, out: Path) -> list[str]:
+def case_figures(summary: dict) -> dict:
+    """The figures of one case run by :func:`run_case` (its ``_run`` arrays): ``errors``, ``inputs``,
+    ``phase`` and ``gramian``, each a matplotlib figure with its axes in the model's units."""
     run = summary["_run"]["run"]
     schedule = summary["_run"]["schedule"]
     model = schedule.nominal.model
-    name = summary["case"]
-    tag = (f"{summary['title']}\nalpha = {summary['alpha']:g}, delta = {summary['delta']:g}, "
+    tag = (f"{summary['title']}\nalpha = {summary['alpha']:g} 1/s, delta = {summary['delta']:g} s, "
            f"gamma = {summary['gamma']:g}, {summary['window']} window: {summary['status']}")
-    files = []
     t0 = summary.get("t_start_s", 0.0)
-    figs = {
-        "errors": errors_figure(run.t, run.e, model.state_names, title=tag),
-        "inputs": inputs_figure(run.t, run.v, model.input_names, title=tag),
-        "phase": phase_figure(run.x_nominal, run.x, labels=model.state_names[:2], title=tag),
+    return {
+        "errors": errors_figure(run.t, run.e, model.state_names, model.state_units, title=tag),
+        "inputs": inputs_figure(run.t, run.v, model.input_names, model.input_units, title=tag),
+        "phase": phase_figure(run.x_nominal, run.x, labels=model.state_names[:2], units=model.state_units[:2],
+                              title=tag),
         "gramian": gramian_figure(schedule.t, schedule.H_eigenvalues[:, 0],
                                   np.linalg.norm(schedule.K, ord=2, axis=(1, 2)),
-                                  t_span=(t0, t0 + summary["duration_s"]), title=tag),
+                                  t_span=(t0, t0 + summary["duration_s"]), title=tag,
+                                  state_units=model.state_units, input_units=model.input_units),
     }
-    for kind, fig in figs.items():
+
+
+def _figures(summary: dict, out: Path) -> list[str]:
+    name = summary["case"]
+    files = []
+    for kind, fig in case_figures(summary).items():
         fname = f"{name}-{kind}.png"
         save_figure(fig, out / fname)
         files.append(fname)
@@ -625,7 +646,8 @@ def run_paper(out_dir, case_names: list[str] | None = None, overrides: dict | No
         save()
     pair = [norms[k] for k in ("fwd-car-parking", "fwd-car-parking-gamma1") if k in norms]
     if len(pair) == 2:
-        fig = error_norm_comparison_figure(pair, title="FWD car parallel parking: ||e(t)|| for gamma = 1/2 and 1")
+        fig = error_norm_comparison_figure(pair, title="FWD car parallel parking: ||e(t)|| for gamma = 1/2 and 1",
+                                           units=_state_units("fwd-car-parking"))
         save_figure(fig, out / "fwd-car-gamma-comparison.png")
         for s in summaries:
             if s["case"] in ("fwd-car-parking", "fwd-car-parking-gamma1"):

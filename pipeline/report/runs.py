@@ -12,6 +12,7 @@ from ..records import _atomic_write
 from . import subplots
 from .maps import draw_rig, map_figure, map_legend
 from .plans import draw_tube
+from .tracking import error_axis_label, unit_groups, with_unit
 
 MODE_TEXT = ("tracking", "stopped: replanning", "done")
 PLAN_COLORS = ("tab:orange", "tab:purple", "tab:cyan", "tab:olive", "tab:brown", "tab:pink")
@@ -172,22 +173,6 @@ def _zoom(ax, result, pad: float = 6.0):
         ax.set_ylim(max(lo[1], ymin), min(hi[1], ymax))
 
 
-#: the quantity a state of each unit is, on the tracking figure's axes
-_UNIT_NAMES = {"m": "position error", "rad": "heading / angle error", "": "error"}
-
-
-def _unit_groups(names, units) -> list[tuple[str, list[int]]]:
-    """Indices of ``names`` grouped by unit, in first-appearance order: [(unit, [i, ...]), ...]."""
-    groups: dict = {}
-    for i, _ in enumerate(names):
-        groups.setdefault(units[i] if i < len(units) else "", []).append(i)
-    return list(groups.items())
-
-
-def _with_unit(text: str, unit: str) -> str:
-    return f"{text} [{unit or '-'}]"
-
-
 def run_tracking_figure(result):
     """The tracking error and the inputs against time, one panel per unit: the position error's size on
     a log scale, the state errors by unit (position in m, heading and other angles in rad) and the
@@ -195,8 +180,8 @@ def run_tracking_figure(result):
     lg, model = result.log, result.model
     t = lg["t"]
     e = model.state_error(lg["x"], lg["x0"])
-    state_groups = _unit_groups(model.state_names, model.state_units)
-    input_groups = _unit_groups(model.input_names, model.input_units)
+    state_groups = unit_groups(model.state_names, model.state_units)
+    input_groups = unit_groups(model.input_names, model.input_units)
     n_panels = 1 + len(state_groups) + len(input_groups)
     fig, axes = subplots(n_panels, 1, figsize=(8.5, 1.75 * n_panels + 0.8), sharex=True, layout="constrained")
     pos = [i for i, (s, u) in enumerate(zip(model.state_names, model.state_units)) if u == "m" and s in ("x", "y")]
@@ -211,8 +196,7 @@ def run_tracking_figure(result):
         for i in idx:
             axes[k].plot(t, e[:, i], lw=0.9, label=f"e_{model.state_names[i]}")
         axes[k].axhline(0.0, color="0.6", lw=0.6)
-        what = "heading error" if [model.state_names[i] for i in idx] == ["theta"] else _UNIT_NAMES.get(unit, "error")
-        axes[k].set_ylabel(_with_unit(what, unit))
+        axes[k].set_ylabel(error_axis_label([model.state_names[i] for i in idx], unit))
         k += 1
     for unit, idx in input_groups:
         for i in idx:
@@ -220,7 +204,7 @@ def run_tracking_figure(result):
             line, = axes[k].plot(t, lg["u"][:, i], lw=0.9, label=f"{s} applied")
             axes[k].plot(t, lg["u0"][:, i], lw=0.9, ls="--", color="k" if len(idx) == 1 else line.get_color(),
                          zorder=3, label=f"{s} nominal")
-        axes[k].set_ylabel(_with_unit("input " + ", ".join(model.input_names[i] for i in idx), unit))
+        axes[k].set_ylabel(with_unit("input " + ", ".join(model.input_names[i] for i in idx), unit))
         k += 1
     axes[-1].set_xlabel("t [s]")
     for ax in axes:
