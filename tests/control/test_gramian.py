@@ -11,7 +11,7 @@ from reference import reference_H, transition, window_gramian
 
 
 def heisenberg_line_H(t, alpha, delta, weight=6.0):
-    """Closed form of H_c(t, t+delta) on x0 = (0, t, 0), u0 = (0, 1) (NOTES.md item 5).
+    """Closed form of H_c(t, t+delta) on x0 = (0, t, 0), u0 = (0, 1) (docs/theory/control-law.md, conventions).
 
     A = 0, Phi = I, B(tau) = [[1,0],[0,1],[tau,0]]; with c = w alpha and s = tau - t:
     I_k = int_0^delta s^k exp(-c s) ds, H11 = H22 = I0, H13 = t I0 + I1, H33 = t^2 I0 + 2 t I1 + I2,
@@ -222,7 +222,7 @@ def _lyap_terms(nom, s, idx, cw):
 
 
 def test_corrected_dPc_identity_hilare_sinusoid():
-    """NOTES.md item 1: dP_c/dt = -6a P - P A - A^T P + P [B B^T - e^{-6 a d} Phi B_d B_d^T Phi^T] P,
+    """The weighted Riccati equation (docs/theory/control-law.md, weighting): dP_c/dt = -6a P - P A - A^T P + P [B B^T - e^{-6 a d} Phi B_d B_d^T Phi^T] P,
     with Phi = Phi(t, t+delta), B_d = B(t+delta); against finite differences of P_c (rel < 1e-5)."""
     alpha, delta = 0.1, 1.0
     nom = hilare_sinusoid(2 * np.pi + delta, hz=1000.0)
@@ -386,7 +386,7 @@ def test_mismatched_shapes_refused():
         Nominal.from_samples(model, t[::-1], np.zeros((51, 3)), np.zeros((51, 2)))
 
 
-# ---- the guarantee (NOTES.md item 8) and the removed past-window uses (item 7) ----------------------------
+# ---- the 3 alpha guarantee and the removed past-window uses (Remark 2) ------------------------
 
 def test_rate_bound_is_3_alpha_and_the_printed_rate_is_reported_beside_it():
     nom = hilare_sinusoid(2 * np.pi + 1.0, hz=200.0)

@@ -1,4 +1,4 @@
-"""The paper's simulations reproduced (NOTES.md), and the simulator itself."""
+"""The paper's simulations reproduced (docs/theory/control-law.md), and the simulator itself."""
 
 import json
 
@@ -45,7 +45,7 @@ def test_fwd_car_gamma_half_converges_after_transient(paper):
     assert c["gamma"] == 0.5 and c["status"] == "converged"
     assert c["final_error_norm"] < 5e-2 * c["initial_error_norm"]
     assert c["decay_rate_fit"] >= c["rate_bound"]
-    # NOTES.md: the error grows to about 1.7 before decaying; H_c comes within ~5e-6 of singular
+    # the error grows to about 1.7 before decaying; H_c comes within ~5e-6 of singular
     assert 1.4 < c["max_error_norm"] < 2.0
     assert 3e-6 < c["h_min_eigenvalue"] < 8e-6
     assert c["p_M"] > 1e5
@@ -105,7 +105,7 @@ def test_linearised_rate_is_at_least_the_bound_for_small_errors():
     assert fit_decay_rate(run.t, en) > d["rate_bound"] > d["rate_bound_printed"]
 
 
-# ---- the 3 alpha guarantee on every case (NOTES.md item 8) --------------------------------------------
+# ---- the 3 alpha guarantee on every case (docs/theory/control-law.md) ----------------------------------------
 
 @pytest.mark.parametrize("name", ["heisenberg-line", "hilare-sinusoid", "hilare-circle", "fwd-car-parking",
                                   "fwd-car-parking-gamma1", "remark2-line", "remark2-line-frozen-time"])
@@ -137,17 +137,17 @@ def test_summary_reports_the_3_alpha_bound_and_the_printed_one(paper):
     assert "| 0.3 | yes (" in row
 
 
-# ---- Remark 2 (NOTES.md item 7) ---------------------------------------------------------------------------
+# ---- Remark 2 (docs/theory/control-law.md) -----------------------------------------------------------------------
 
-NOTES_ITEM_7 = [  # (alpha, delta, window, real parts printed in NOTES.md), gamma = 1
+REMARK2_CASES = [  # (alpha, delta, window, real parts of the straight line's closed-loop eigenvalues), gamma = 1
     (0.1, 1.0, "past", (-4.51, -0.73, 1.09)), (0.2, 2.0, "past", (-1.44, -0.12, 0.45)),
     (1.0, 1.0, "past", (-0.95, -0.02, 0.52)), (0.1, 1.0, "future", (-2.31, -2.31, -1.33)),
     (0.2, 2.0, "future", (-1.70, -1.70, -1.32)), (1.0, 1.0, "future", (-6.21, -6.21, -6.02)),
 ]
 
 
-@pytest.mark.parametrize("alpha,delta,window,real_parts", NOTES_ITEM_7)
-def test_remark2_closed_form_reproduces_the_notes(alpha, delta, window, real_parts):
+@pytest.mark.parametrize("alpha,delta,window,real_parts", REMARK2_CASES)
+def test_remark2_closed_form_reproduces_the_eigenvalues(alpha, delta, window, real_parts):
     ev = remark2_eigenvalues(alpha, delta, 1.0, window)
     np.testing.assert_allclose(np.sort(ev.real), real_parts, atol=0.006)
 
