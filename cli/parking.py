@@ -165,7 +165,8 @@ def study(out_dir, trials, mc_factor, maps, noise, controllers, root_seed, plan_
             files.append(save_figure(tube_figure(curves, result, case["map"]), out_dir / f"tube_{case['map']}.png",
                                      dpi=80))
     tg = result["targets"]
-    click.echo("targets: " + "; ".join(f"{k} {'met' if t['met'] else 'NOT met'} ({len(t['failing'])} failing)"
-                                        for k, t in tg.items()))
+    click.echo("targets: " + "; ".join(
+        f"{k} not evaluated (no cell at x{result['criteria']['target_noise']:g})" if not t.get("evaluated", True)
+        else f"{k} {'met' if t['met'] else 'NOT met'} ({len(t['failing'])} failing)" for k, t in tg.items()))
     click.echo(f"wrote {len(files)} files into {out_dir} (study.md, study.json, figures) in {result['wall_s']:.0f} s")
     return 0
