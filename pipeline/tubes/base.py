@@ -290,8 +290,8 @@ def certified_text(tube, explain: bool = False) -> str:
     if tube.certified_clearance is None:
         return "clearance not certified (a robot of several bodies)"
     c = tube.certified_clearance
-    if tube.jackknifes_beyond:
-        cert = tube.certificate
+    cert = getattr(tube, "certificate", None) or {}
+    if cert.get("jackknifes", 0) > cert.get("discards", 0):
         return (f"NOT certified: {cert['jackknifes']} of {cert['rollouts']:,} rollouts jackknife (a hitch angle beyond "
                 f"{cert['jackknife_limit_rad']:g} rad; at most {cert.get('discards', 0)} may); tube clearance {c:+.3f} m")
     if c >= 0:
@@ -330,8 +330,6 @@ def verdict(tube, world, fp: Footprint, margin: float | None = None, cap: float 
             out["tightest"].update(rollout_clearance_m=rc["clearance_m"], rollout_displacement_m=rc["displacement_m"])
             if "body" in rc:
                 out["tightest"]["body"] = "car" if rc["body"] == 0 else f"trailer {rc['body']}"
-    if tube.certificate.get("bodies"):
-        out.update(bodies=tube.certificate["bodies"], jackknifes=tube.certificate["jackknifes"])
         if tube.certified_clearance < 0 and rc is not None:
             a, b = rc["failing_times_index"]
             out.update(failing_samples=rc["failing_samples"], failing_times_s=[float(tube.t[a]), float(tube.t[b])],
@@ -347,6 +345,8 @@ def verdict(tube, world, fp: Footprint, margin: float | None = None, cap: float 
         if cap is not None and "needed_margin_m" in out and out["needed_margin_m"] > cap:
             out["beyond_start_or_goal"] = {"clearance_m": float(cap), "note": "the margin it needs is more than the "
                                            "start's or goal's own clearance: no plan between them keeps it"}
+    if tube.certificate.get("bodies"):
+        out.update(bodies=tube.certificate["bodies"], jackknifes=tube.certificate["jackknifes"])
     tube.info["verdict"] = out
     return out
 
