@@ -7,8 +7,8 @@ makes (:func:`nhstab.planning.plan`, search budget ``budget_s``: the Reeds-Shepp
 axle and the lattice search over the whole rig, in the order the space asks for), and in turn the
 **baseline**: the trailer-axle search alone with the whole budget (RRT-Connect in the Reeds-Shepp space
 of the trailer's axle, joined with the exact chained-form steering: the planner a competent engineer
-writes first for a car with a trailer, and nhstab's before the lattice search), both timed on the wall
-clock of the whole call.
+writes first for a car with a trailer, and the search nhstab tries first where the space allows),
+both timed on the wall clock of the whole call.
 
 Targets (the trailer suite's): a plan within 10 s for at least 95 % of the (case, seed) pairs, and a
 median time to it under 2 s.

@@ -57,41 +57,34 @@ def _legend_beside(ax):
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
 
 
-def errors_figure(t, e, state_names, state_units=(), title=None):
-    """The paper's 'errors e versus time', one panel per unit of the states."""
-    groups = unit_groups(state_names, state_units)
+def _unit_panels(t, values, names, units, line_label, axis_label, zero_label, title):
+    """One panel per unit of ``names`` (values (T, len(names)) against t), each line labelled
+    ``line_label(name)``, the panel's axis ``axis_label(names on it, unit)``, a zero line, the legend beside."""
+    groups = unit_groups(names, units)
     fig, axes = subplots(len(groups), 1, figsize=(7.4, 1.9 * len(groups) + 1.0), sharex=True, layout="constrained",
                          squeeze=False)
     axes = axes[:, 0]
     for ax, (unit, idx) in zip(axes, groups):
         for i in idx:
-            ax.plot(t, e[:, i], lw=1.1, label=f"e_{state_names[i]}")
-        ax.axhline(0.0, color="0.6", lw=0.6, label="zero error")
-        ax.set_ylabel(error_axis_label([state_names[i] for i in idx], unit))
+            ax.plot(t, values[:, i], lw=1.1, label=line_label(names[i]))
+        ax.axhline(0.0, color="0.6", lw=0.6, label=zero_label)
+        ax.set_ylabel(axis_label([names[i] for i in idx], unit))
         ax.grid(alpha=0.3)
         _legend_beside(ax)
     axes[-1].set_xlabel("t [s]")
     _title(fig, title)
     return fig
+
+
+def errors_figure(t, e, state_names, state_units=(), title=None):
+    """The paper's 'errors e versus time', one panel per unit of the states."""
+    return _unit_panels(t, e, state_names, state_units, lambda s: f"e_{s}", error_axis_label, "zero error", title)
 
 
 def inputs_figure(t, v, input_names, input_units=(), title=None):
     """The paper's 'error inputs v = u - u0 versus time', one panel per unit of the inputs."""
-    groups = unit_groups(input_names, input_units)
-    fig, axes = subplots(len(groups), 1, figsize=(7.4, 1.9 * len(groups) + 1.0), sharex=True, layout="constrained",
-                         squeeze=False)
-    axes = axes[:, 0]
-    for ax, (unit, idx) in zip(axes, groups):
-        for i in idx:
-            s = input_names[i]
-            ax.plot(t, v[:, i], lw=1.1, label=f"{s} - nominal {s}")
-        ax.axhline(0.0, color="0.6", lw=0.6, label="zero")
-        ax.set_ylabel(with_unit("input error " + ", ".join(input_names[i] for i in idx), unit))
-        ax.grid(alpha=0.3)
-        _legend_beside(ax)
-    axes[-1].set_xlabel("t [s]")
-    _title(fig, title)
-    return fig
+    return _unit_panels(t, v, input_names, input_units, lambda s: f"{s} - nominal {s}",
+                        lambda on, unit: with_unit("input error " + ", ".join(on), unit), "zero", title)
 
 
 def phase_figure(x_nominal, x_actual, labels=("x1", "x2"), units=("", ""), title=None):
