@@ -378,3 +378,46 @@ def test_sweep_command_writes_its_report_whether_or_not_the_case_plans(tmp_path)
         assert (f"- trailer_dock_bay150_aisle200, {TS.law_label(cell)}, x1: docked" in md) == tube["certified"]
     else:
         assert case["cells"] == [] and case["plan"]["reason"] in md and "no case planned" in md
+
+
+@pytest.mark.slow
+def test_a_setting_with_the_same_gains_is_run_once_and_says_so(tmp_path):
+    """On a trailer plan the nominal carries its own continuation past its end, so the frozen and extend end
+    strategies give the same gains bit for bit: the sweep runs that law once, the second setting's cells say
+    whose they are, and they equal the trials of that law built and simulated here on its own. A setting with
+    other gains (another alpha) is run."""
+    cfg = tmp_path / "sweep.yaml"
+    cfg.write_text("cases: [trailer_turn_150]\ntrials: 3\nnoise: [1.0]\ntvlqr: false\n"
+                   "gramian: {alpha: [0.05, 0.1], delta: [10.0], end_strategy: [frozen, extend]}\n")
+    res = CliRunner().invoke(cli, ["trailer", "sweep", str(cfg), "--out", str(tmp_path / "out")])
+    assert res.exit_code == 0, res.output
+    data = json.loads((tmp_path / "out" / "sweep.json").read_text())
+    md = (tmp_path / "out" / "sweep.md").read_text()
+    (case,) = data["cases"]
+    assert case["plan"]["found"]
+    by = {TS.law_label(c): c for c in case["cells"]}
+    assert set(by) == {f"gramian a={a} d=10 g=1 {e}" for a in ("0.05", "0.1") for e in ("frozen", "extend")}
+    for a in ("0.05", "0.1"):
+        frozen, extend = by[f"gramian a={a} d=10 g=1 frozen"], by[f"gramian a={a} d=10 g=1 extend"]
+        assert "same_gains_as" not in frozen and extend["same_gains_as"] == TS.law_label(frozen)
+        assert extend["per_trial"] == frozen["per_trial"] and extend["end_strategy"] == "extend"
+        assert f"- trailer_turn_150: gramian a={a} d=10 g=1 extend = gramian a={a} d=10 g=1 frozen" in md
+    assert "same_gains_as" not in by["gramian a=0.1 d=10 g=1 frozen"]      # other gains: run
+    # the extend law on its own: its gains equal the frozen law's, and its trials are the cell's
+    from dataclasses import replace
+
+    from nhstab.batch.parking_study import first_plan
+    from nhstab.batch.tube_study import trial_seeds
+    from nhstab.execution import RunOptions
+    from nhstab.execution.config import PlanningOptions
+
+    run, _, result, _, _, _ = first_plan("trailer_turn_150", RunOptions(seed=0, planning=PlanningOptions(time_limit_s=2.0)))
+    laws = {e: TS.build_sweep_law(run, result, {"controller": "gramian", "alpha": 0.05, "delta": 10.0, "gamma": 1.0,
+                                                "end_strategy": e}) for e in ("frozen", "extend")}
+    assert TS.same_gains(laws["frozen"], laws["extend"])
+    assert laws["extend"].schedule.diagnostics["end"].startswith("none: every window fits")
+    other = TS.build_sweep_law(run, result, {"controller": "gramian", "alpha": 0.1, "delta": 10.0, "gamma": 1.0,
+                                             "end_strategy": "frozen"})
+    assert not TS.same_gains(laws["frozen"], other)
+    out = TS.trial_outcomes(run, laws["extend"], trial_seeds(3, 2026), replace(run.opts.noise, scale=1.0))
+    assert out["per_trial"] == by["gramian a=0.05 d=10 g=1 extend"]["per_trial"]

@@ -389,6 +389,7 @@ def sweep_case(name: str, settings: dict, progress=None) -> dict:
                    f"({case['plan_wall_s']:.1f} s)")
     seeds = trial_seeds(settings["trials"], settings["root_seed"])
     cells = []
+    built = []          # (label, law) of the laws built so far: a law with the same gains is run once
     for law in laws(settings, run.stab_defaults):
         t0 = time.perf_counter()
         try:
@@ -397,6 +398,16 @@ def sweep_case(name: str, settings: dict, progress=None) -> dict:
             for level in settings["noise"]:
                 cells.append({**law, "noise": level, "error": " ".join(str(exc).split())})
             _say(progress, f"{name} {law_label(law)}: no law ({exc})")
+            continue
+        twin = next((lb for lb, other in built if same_gains(fl, other)), None)
+        built.append((law_label(law), fl))
+        if twin is not None:
+            # the same gains along the same nominal: the same trials and tube, seed for seed
+            done = {c["noise"]: c for c in cells if "error" not in c and law_label(c) == twin}
+            for level in settings["noise"]:
+                cells.append({**done[level], **law, "same_gains_as": twin, "wall_s": 0.0})
+            _say(progress, f"{name} {law_label(law)}: the same gains as {twin} on this plan"
+                           + (f" ({end_note(fl)})" if end_note(fl) else "") + "; its cells are that law's")
             continue
         for level in settings["noise"]:
             noise = replace(run.opts.noise, scale=run.opts.noise.scale * level)
@@ -413,6 +424,20 @@ def sweep_case(name: str, settings: dict, progress=None) -> dict:
     case["cells"] = cells
     case["wall_s"] = time.perf_counter() - started
     return case
+
+
+def same_gains(a, b) -> bool:
+    """Whether two feedback laws are the same law: kind, grid, nominal and gains equal bit for bit (their
+    trials and tubes are then equal seed for seed)."""
+    return (a.kind == b.kind and np.array_equal(a.t, b.t) and np.array_equal(a.K, b.K)
+            and np.array_equal(a.nominal.x, b.nominal.x) and np.array_equal(a.nominal.u, b.nominal.u))
+
+
+def end_note(law) -> str:
+    """Why a gramian law's end strategy did not matter, when its schedule says so ('' otherwise)."""
+    sch = getattr(law, "schedule", None)
+    end = (sch.diagnostics.get("end", "") if sch is not None else "") or ""
+    return end if end.startswith("none") else ""
 
 
 def cell_tube(run, law, noise, margin) -> dict:
@@ -551,6 +576,16 @@ def sweep_markdown(result: dict) -> str:
     for r in sorted(result["totals"], key=lambda r: (r["noise"], r["law"] != "tvlqr", r["law"])):
         lines.append(f"| {r['law']} | x{r['noise']:g} | {r['cases']} | {r['docked']}/{r['trials']} | {r['jackknife']} | "
                      f"{r['collision']} | {r['missed']} | {r['diverged']} |")
+    twins = sorted({(c["case"], law_label(cell), cell["same_gains_as"]) for c in result["cases"]
+                    for cell in c.get("cells", []) if cell.get("same_gains_as")})
+    if twins:
+        lines += ["", "## Laws that are the same law on a plan", "",
+                  "Two settings whose gains along a case's nominal are equal bit for bit are one law there: the "
+                  "sweep runs it once, and the second setting's cells repeat the first's (same seeds, same "
+                  "trials). On a plan whose nominal carries its own continuation past its end (the trailer "
+                  "planner's), every gramian window is whole, so the end strategy does not apply.", ""]
+        for case, lb, twin in twins:
+            lines.append(f"- {case}: {lb} = {twin}")
     lines += ["", "## Gramian laws against TVLQR", "",
               "A law matches or beats TVLQR when, at every noise level, it has no more jackknifes and no more "
               "collisions than TVLQR over the same cases and seeds.", ""]

@@ -639,8 +639,14 @@ def _with_tail(nominal: Nominal, tail: Nominal, opts: StabilizerOptions) -> Gain
     N = len(nom.t)
     schedule = GainSchedule(t=nom.t.copy(), H=full.H[:N], P=full.P[:N], K=full.K[:N],
                             H_eigenvalues=full.H_eigenvalues[:N], gamma=full.gamma[:N], options=opts, nominal=nom)
+    tail_s = float(t_ext[-1] - T)
     schedule.diagnostics = {**full.diagnostics, "grid_points": N, "duration_s": T,
-                            "tail_s": float(t_ext[-1] - T), **schedule.diagnose(lyapunov=False)}
+                            "tail_s": tail_s, **schedule.diagnose(lyapunov=False)}
+    if tail_s >= float(opts.delta) - 1e-9 * h:
+        # the joined nominal's end strategy acted past T only, on windows that are not kept
+        schedule.diagnostics["end"] = (f"none: every window fits (the nominal's own continuation covers "
+                                       f"delta = {float(opts.delta):g} s past its end)")
+        schedule.diagnostics["sliding_window_until_s"] = T
     return schedule
 
 

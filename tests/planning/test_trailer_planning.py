@@ -2,6 +2,7 @@
 checked independently (the model integrated under u0, every body against the map with shapely);
 the gain schedule's tail; bad requests."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -132,6 +133,11 @@ def test_tail_keeps_the_reversing_gramian_law(rng):
     tailed = compute_schedule(nom, opts)
     assert tailed.diagnostics["tail_s"] == pytest.approx(delta, abs=0.02)
     np.testing.assert_allclose(tailed.K[0], frozen.K[0], rtol=1e-6, atol=1e-9)   # the same where windows are whole
+    # the tail covers delta: every window on the plan's grid is whole, and the end strategy does not act there
+    assert tailed.diagnostics["end"].startswith("none: every window fits")
+    assert tailed.diagnostics["sliding_window_until_s"] == t[-1]
+    extended = compute_schedule(nom, dataclasses.replace(opts, end_strategy="extend"))
+    assert np.array_equal(extended.K, tailed.K)
     seeds = list(range(16))
     finals = {}
     for name, sch in (("frozen", frozen), ("tail", tailed)):
