@@ -400,7 +400,8 @@ def test_a_setting_with_the_same_gains_is_run_once_and_says_so(tmp_path):
     for a in ("0.05", "0.1"):
         frozen, extend = by[f"gramian a={a} d=10 g=1 frozen"], by[f"gramian a={a} d=10 g=1 extend"]
         assert "same_gains_as" not in frozen and extend["same_gains_as"] == TS.law_label(frozen)
-        assert extend["per_trial"] == frozen["per_trial"] and extend["end_strategy"] == "extend"
+        assert "per_trial" not in extend and extend["end_strategy"] == "extend"
+        assert all(extend[k] == frozen[k] for k in ("docked", "jackknife", "collision", "missed", "diverged"))
         assert f"- trailer_turn_150: gramian a={a} d=10 g=1 extend = gramian a={a} d=10 g=1 frozen" in md
     assert "same_gains_as" not in by["gramian a=0.1 d=10 g=1 frozen"]      # other gains: run
     # the extend law on its own: its gains equal the frozen law's, and its trials are the cell's
@@ -420,4 +421,5 @@ def test_a_setting_with_the_same_gains_is_run_once_and_says_so(tmp_path):
                                              "end_strategy": "frozen"})
     assert not TS.same_gains(laws["frozen"], other)
     out = TS.trial_outcomes(run, laws["extend"], trial_seeds(3, 2026), replace(run.opts.noise, scale=1.0))
-    assert out["per_trial"] == by["gramian a=0.05 d=10 g=1 extend"]["per_trial"]
+    assert out["per_trial"] == by["gramian a=0.05 d=10 g=1 frozen"]["per_trial"]
+    assert all(out[k] == by["gramian a=0.05 d=10 g=1 extend"][k] for k in ("docked", "jackknife", "collision"))

@@ -405,7 +405,9 @@ def sweep_case(name: str, settings: dict, progress=None) -> dict:
             # the same gains along the same nominal: the same trials and tube, seed for seed
             done = {c["noise"]: c for c in cells if "error" not in c and law_label(c) == twin}
             for level in settings["noise"]:
-                cells.append({**done[level], **law, "same_gains_as": twin, "wall_s": 0.0})
+                # the counts repeat the twin's; its per-trial outcomes are not stored twice
+                cells.append({**{k: v for k, v in done[level].items() if k != "per_trial"}, **law,
+                              "same_gains_as": twin, "wall_s": 0.0})
             _say(progress, f"{name} {law_label(law)}: the same gains as {twin} on this plan"
                            + (f" ({end_note(fl)})" if end_note(fl) else "") + "; its cells are that law's")
             continue
