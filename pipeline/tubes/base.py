@@ -330,7 +330,10 @@ def verdict(tube, world, fp: Footprint, margin: float | None = None, cap: float 
             out["tightest"].update(rollout_clearance_m=rc["clearance_m"], rollout_displacement_m=rc["displacement_m"])
             if "body" in rc:
                 out["tightest"]["body"] = "car" if rc["body"] == 0 else f"trailer {rc['body']}"
-        if tube.certified_clearance < 0 and rc is not None:
+        # the exact certificate names the failing samples when it measured a rollout pose inside an
+        # obstacle; a negative clearance from its lower bound alone (the rollouts' measurements cut short)
+        # names none, and the samples where the reach meets an obstacle are used instead
+        if tube.certified_clearance < 0 and rc is not None and "failing_times_index" in rc:
             a, b = rc["failing_times_index"]
             out.update(failing_samples=rc["failing_samples"], failing_times_s=[float(tube.t[a]), float(tube.t[b])],
                        needed_margin_m=rc["needed_clearance_m"])
