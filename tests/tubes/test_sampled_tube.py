@@ -265,3 +265,34 @@ def test_interior_stops_are_the_rests_between_motions():
     assert len(stops) == 1
     a, b = stops[0]
     assert a == pytest.approx(3.0, abs=0.021) and b == pytest.approx(3.48, abs=0.021)
+
+
+def test_a_negative_clearance_without_measured_failing_samples_takes_them_from_the_reach():
+    """The exact certificate names the failing samples when it measured a rollout pose inside an obstacle.
+    When its negative clearance comes from its lower bound alone (the measurements cut short, as on a loop
+    that diverges) it names none; the verdict then takes the samples where the reach meets an obstacle
+    (failing_samples), and does not fail. Here: the car along a wall at four times the default noise, its
+    certificate's failing samples removed."""
+    from nhstab.collision import CollisionWorld
+    from nhstab.robot import default_robot
+    from nhstab.tubes.base import failing_samples, verdict
+
+    robot = default_robot("rwd_car")
+    model = robot.model
+    t = np.arange(0.0, 8.0 + 1e-9, 0.02)
+    nom = Nominal.from_samples(model, t, np.column_stack([3.0 + 1.0 * t, 0 * t + 2.0, 0 * t, 0 * t]),
+                               np.column_stack([1.0 + 0 * t, 0 * t]))
+    law = build_law(nom, ControllerOptions(kind="gramian"), robot.stabilizer.as_dict())
+    m = Map("wall", (0.0, 0.0, 18.0, 6.0), obstacles=(box_polygon(9.0, 3.65, 14.0, 0.3),))
+    world = CollisionWorld.from_map(m, "known")
+    tube = sampled_tube(law, NoiseOptions(scale=4.0), robot.footprint, world, model=model, rollouts=60)
+    assert tube.certified_clearance < 0
+    rc = tube.info["rollout_clearance"]
+    for k in ("failing_samples", "failing_times_index", "needed_clearance_m", "failing_index", "failing_need_m",
+              "failing_worst_m"):
+        rc.pop(k, None)
+    v = verdict(tube, world, robot.footprint, 0.1)
+    idx, _ = failing_samples(world, robot.footprint, tube.poses, tube.reach)
+    assert len(idx) > 0 and v["failing_samples"] == len(idx)
+    assert v["failing_times_s"] == [float(tube.t[idx].min()), float(tube.t[idx].max())]
+    assert v["needed_margin_m"] == pytest.approx(float(tube.reach[idx].max()), abs=1e-12)
