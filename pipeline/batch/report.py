@@ -182,6 +182,14 @@ def _label(row) -> str:
 
 # ---- figures ---------------------------------------------------------------------------------------
 
+def _legend_outside(ax, fontsize: float, handles_labels=None) -> None:
+    """The legend to the right of the axes, outside them (the constrained layout makes room): never over
+    a curve or a marker."""
+    handles, labels = handles_labels if handles_labels is not None else ax.get_legend_handles_labels()
+    if handles:
+        ax.legend(handles, labels, fontsize=fontsize, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+
+
 
 
 def rates_figure(rows):
@@ -199,7 +207,7 @@ def rates_figure(rows):
     ax.set_xlabel("rate over trials")
     ax.invert_yaxis()
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="lower right")
+    _legend_outside(ax, 7)
     ax.set_title("Success, collision and margin-violation rates per cell", fontsize=9)
     return fig
 
@@ -270,7 +278,7 @@ def envelope_figure(trials, rows):
         few = "" if len(series) >= PERCENTILE_TRIALS else f"; fewer than {PERCENTILE_TRIALS}: each trial drawn"
         ax.set_title(_label(row) + f"  ({len(series)} trial{'s' if len(series) != 1 else ''}{few})", fontsize=8)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=6, loc="upper right")
+        _legend_outside(ax, 6)
     axes[-1, 0].set_xlabel("t [s] (while following the first plan)")
     return fig
 
@@ -312,7 +320,7 @@ def tube_figure(trials, rows):
             ax.grid(alpha=0.3)
             if c == 0:
                 ax.set_ylabel(_label(row) + f" ({len(series)} trial{'s' if len(series) != 1 else ''})", fontsize=6)
-        axes[i, 0].legend(fontsize=6, loc="upper right")
+        _legend_outside(axes[i, n - 1], 6, axes[i, 0].get_legend_handles_labels())   # right of the row
     for ax in axes[-1]:
         ax.set_xlabel("t [s] (first plan)")
     return fig
@@ -403,7 +411,7 @@ def paired_figure(trials):
     ax.set_xlabel("baseline: min executed clearance [m]")
     ax.set_ylabel(f"{ref}: min executed clearance [m] (same seed)")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=6)
+    _legend_outside(ax, 6)
     ax.set_title(f"Same seeds, two controllers (above the diagonal: {ref} kept more room)", fontsize=8)
     return fig
 
@@ -462,7 +470,7 @@ def noise_figure(rows):
     ax.set_ylabel("success rate (Wilson 95%)")
     ax.set_ylim(-0.02, 1.02)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    _legend_outside(ax, 7)
     return fig
 
 

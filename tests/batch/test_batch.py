@@ -497,6 +497,19 @@ def test_a_batch_of_two_trials_draws_its_figures_or_says_why_not(tmp_path):
             assert points and min(points) > 10, (ax.get_title(), points)
     env = envelope_figure(trials, rows)
     assert [ln.get_label() for ln in env.axes[0].get_lines()][:2] == ["trial 1", "trial 2"]
+    # every legend sits outside every drawn axes: it covers no curve, marker or error bar
+    from nhstab.batch.report import rates_figure
+
+    for fig in (rates_figure(rows), env, tube_figure(trials, rows)):
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        legends = [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
+        assert legends
+        for lg in legends:
+            box = lg.get_window_extent(renderer)
+            for ax in fig.axes:
+                if ax.get_visible():
+                    assert not box.overlaps(ax.get_window_extent(renderer)), ax.get_title()
     md = (tmp_path / "b" / "report.md").read_text().splitlines()
     start = md.index("**Figures left out.**")
     lines = [ln for ln in md[start + 1:] if ln.startswith("- ")]
