@@ -354,15 +354,19 @@ def test_a_plan_record_and_figure_on_a_map_that_plans_today(tmp_path):
     assert rec["min_clearance_m"] <= by_hand + 1e-3 and rec["min_clearance_m"] >= 0.3 - 1e-6   # the map's margin
 
 
-@pytest.mark.slow
-def test_sweep_command_writes_its_report_whether_or_not_the_case_plans(tmp_path):
+def _sweep(tmp_path, config: str) -> tuple[dict, str]:
+    """`nhstab trailer sweep` on the config text, into tmp_path/out: (sweep.json, sweep.md)."""
     cfg = tmp_path / "sweep.yaml"
-    cfg.write_text("cases: [trailer_dock_bay150_aisle200]\ntrials: 1\nnoise: [1.0]\ntvlqr: false\ntube: true\n"
-                   "gramian: {end_strategy: [frozen]}\n")
+    cfg.write_text(config)
     res = CliRunner().invoke(cli, ["trailer", "sweep", str(cfg), "--out", str(tmp_path / "out")])
     assert res.exit_code == 0, res.output
-    data = json.loads((tmp_path / "out" / "sweep.json").read_text())
-    md = (tmp_path / "out" / "sweep.md").read_text()
+    return json.loads((tmp_path / "out" / "sweep.json").read_text()), (tmp_path / "out" / "sweep.md").read_text()
+
+
+@pytest.mark.slow
+def test_sweep_command_writes_its_report_whether_or_not_the_case_plans(tmp_path):
+    data, md = _sweep(tmp_path, "cases: [trailer_dock_bay150_aisle200]\ntrials: 1\nnoise: [1.0]\ntvlqr: false\n"
+                                "tube: true\ngramian: {end_strategy: [frozen]}\n")
     (case,) = data["cases"]
     assert data["cases_planned"] == int(case["plan"]["found"])
     if case["plan"]["found"]:
@@ -386,13 +390,8 @@ def test_a_setting_with_the_same_gains_is_run_once_and_says_so(tmp_path):
     strategies give the same gains bit for bit: the sweep runs that law once, the second setting's cells say
     whose they are, and they equal the trials of that law built and simulated here on its own. A setting with
     other gains (another alpha) is run."""
-    cfg = tmp_path / "sweep.yaml"
-    cfg.write_text("cases: [trailer_turn_150]\ntrials: 3\nnoise: [1.0]\ntvlqr: false\n"
-                   "gramian: {alpha: [0.05, 0.1], delta: [10.0], end_strategy: [frozen, extend]}\n")
-    res = CliRunner().invoke(cli, ["trailer", "sweep", str(cfg), "--out", str(tmp_path / "out")])
-    assert res.exit_code == 0, res.output
-    data = json.loads((tmp_path / "out" / "sweep.json").read_text())
-    md = (tmp_path / "out" / "sweep.md").read_text()
+    data, md = _sweep(tmp_path, "cases: [trailer_turn_150]\ntrials: 3\nnoise: [1.0]\ntvlqr: false\n"
+                                "gramian: {alpha: [0.05, 0.1], delta: [10.0], end_strategy: [frozen, extend]}\n")
     (case,) = data["cases"]
     assert case["plan"]["found"]
     by = {TS.law_label(c): c for c in case["cells"]}

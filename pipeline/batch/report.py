@@ -190,8 +190,6 @@ def _legend_outside(ax, fontsize: float, handles_labels=None) -> None:
         ax.legend(handles, labels, fontsize=fontsize, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
 
 
-
-
 def rates_figure(rows):
     fig, ax = subplots(figsize=(9, 0.45 * len(rows) + 1.6), layout="constrained")
     y = np.arange(len(rows))

@@ -408,8 +408,9 @@ def sweep_case(name: str, settings: dict, progress=None) -> dict:
                 # the counts repeat the twin's; its per-trial outcomes are not stored twice
                 cells.append({**{k: v for k, v in done[level].items() if k != "per_trial"}, **law,
                               "same_gains_as": twin, "wall_s": 0.0})
+            why = end_note(fl)
             _say(progress, f"{name} {law_label(law)}: the same gains as {twin} on this plan"
-                           + (f" ({end_note(fl)})" if end_note(fl) else "") + "; its cells are that law's")
+                           + (f" ({why})" if why else "") + "; its cells are that law's")
             continue
         for level in settings["noise"]:
             noise = replace(run.opts.noise, scale=run.opts.noise.scale * level)

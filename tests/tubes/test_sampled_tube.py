@@ -190,14 +190,9 @@ def test_rollouts_are_the_run_loop_bit_for_bit():
     assert not np.array_equal(other, r.log["x"])
 
 
-@pytest.mark.parametrize("discards", [0, 2])
-@pytest.mark.parametrize("scale", [1.0, 4.0])
-def test_the_certified_clearance_is_the_rollouts_smallest_clearance(scale, discards):
-    """The sampled tube's certified clearance is the (r + 1)-th smallest of the rollouts' own smallest FCL
-    clearances (r = 0: the smallest of any rollout at any control sample), found by branch and bound: equal
-    to measuring every rollout pose (a car along a wall, 60 rollouts, at the default noise (clear) and four
-    times it (touching)); its reach the (r + 1)-th largest displacement at each sample; with the needed
-    clearance of each failing sample the nominal's minus its worst rollout's, the r rollouts left out."""
+def _car_along_a_wall():
+    """The rwd_car driving 8 s at 1 m/s along a wall 0.3 m thick whose near side is 1.5 m from its path,
+    under the gramian law: (robot, model, law, known world)."""
     from nhstab.collision import CollisionWorld
     from nhstab.robot import default_robot
 
@@ -209,6 +204,18 @@ def test_the_certified_clearance_is_the_rollouts_smallest_clearance(scale, disca
     law = build_law(nom, ControllerOptions(kind="gramian"), robot.stabilizer.as_dict())
     m = Map("wall", (0.0, 0.0, 18.0, 6.0), obstacles=(box_polygon(9.0, 3.65, 14.0, 0.3),))
     world = CollisionWorld.from_map(m, "known")
+    return robot, model, law, world
+
+
+@pytest.mark.parametrize("discards", [0, 2])
+@pytest.mark.parametrize("scale", [1.0, 4.0])
+def test_the_certified_clearance_is_the_rollouts_smallest_clearance(scale, discards):
+    """The sampled tube's certified clearance is the (r + 1)-th smallest of the rollouts' own smallest FCL
+    clearances (r = 0: the smallest of any rollout at any control sample), found by branch and bound: equal
+    to measuring every rollout pose (a car along a wall, 60 rollouts, at the default noise (clear) and four
+    times it (touching)); its reach the (r + 1)-th largest displacement at each sample; with the needed
+    clearance of each failing sample the nominal's minus its worst rollout's, the r rollouts left out."""
+    robot, model, law, world = _car_along_a_wall()
     tube = sampled_tube(law, NoiseOptions(scale=scale), robot.footprint, world, model=model, rollouts=60,
                         keep_states=True, keep_displacements=True, discards=discards)
     assert tube.certificate["discards"] == discards
@@ -273,18 +280,9 @@ def test_a_negative_clearance_without_measured_failing_samples_takes_them_from_t
     that diverges) it names none; the verdict then takes the samples where the reach meets an obstacle
     (failing_samples), and does not fail. Here: the car along a wall at four times the default noise, its
     certificate's failing samples removed."""
-    from nhstab.collision import CollisionWorld
-    from nhstab.robot import default_robot
     from nhstab.tubes.base import failing_samples, verdict
 
-    robot = default_robot("rwd_car")
-    model = robot.model
-    t = np.arange(0.0, 8.0 + 1e-9, 0.02)
-    nom = Nominal.from_samples(model, t, np.column_stack([3.0 + 1.0 * t, 0 * t + 2.0, 0 * t, 0 * t]),
-                               np.column_stack([1.0 + 0 * t, 0 * t]))
-    law = build_law(nom, ControllerOptions(kind="gramian"), robot.stabilizer.as_dict())
-    m = Map("wall", (0.0, 0.0, 18.0, 6.0), obstacles=(box_polygon(9.0, 3.65, 14.0, 0.3),))
-    world = CollisionWorld.from_map(m, "known")
+    robot, model, law, world = _car_along_a_wall()
     tube = sampled_tube(law, NoiseOptions(scale=4.0), robot.footprint, world, model=model, rollouts=60)
     assert tube.certified_clearance < 0
     rc = tube.info["rollout_clearance"]
