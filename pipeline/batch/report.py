@@ -182,6 +182,14 @@ def _label(row) -> str:
 
 # ---- figures ---------------------------------------------------------------------------------------
 
+def _state_unit(name: str) -> str:
+    """The unit of a built-in model's state (every model that has the name gives it this unit): x, y in
+    m; theta, theta_i (a trailer's heading) and phi (a steering angle) in rad; else none (heisenberg)."""
+    if name in ("x", "y"):
+        return "m"
+    return "rad" if name == "phi" or name.startswith("theta") else ""
+
+
 def _legend_outside(ax, fontsize: float, handles_labels=None) -> None:
     """The legend to the right of the axes, outside them (the constrained layout makes room): never over
     a curve or a marker."""
@@ -314,10 +322,11 @@ def tube_figure(trials, rows):
             ax.plot(t[keep], np.sqrt(np.nanmean(E[:, keep, c] ** 2, axis=0)), color="k", lw=1.0, label="observed RMS")
             ax.plot(t[keep], np.sqrt(np.nanmean(P[:, keep, c], axis=0)), color="tab:blue", lw=1.0, ls="--",
                     label="predicted RMS (tube)")
-            ax.set_title(f"e_{name}", fontsize=8)
+            unit = _state_unit(name)
+            ax.set_title((_label(row) + f" ({len(series)} trial{'s' if len(series) != 1 else ''})\n" if c == 0 else "\n")
+                         + f"e_{name}", fontsize=7, loc="left")
+            ax.set_ylabel(f"RMS e_{name}" + (f" [{unit}]" if unit else " [-]"), fontsize=7)
             ax.grid(alpha=0.3)
-            if c == 0:
-                ax.set_ylabel(_label(row) + f" ({len(series)} trial{'s' if len(series) != 1 else ''})", fontsize=6)
         _legend_outside(axes[i, n - 1], 6, axes[i, 0].get_legend_handles_labels())   # right of the row
     for ax in axes[-1]:
         ax.set_xlabel("t [s] (first plan)")
@@ -410,7 +419,7 @@ def paired_figure(trials):
     ax.set_ylabel(f"{ref}: min executed clearance [m] (same seed)")
     ax.grid(alpha=0.3)
     _legend_outside(ax, 6)
-    ax.set_title(f"Same seeds, two controllers (above the diagonal: {ref} kept more room)", fontsize=8)
+    ax.set_title(f"Same seeds, two controllers\n(above the diagonal: {ref} kept more room)", fontsize=8)
     return fig
 
 
