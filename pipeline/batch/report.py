@@ -368,14 +368,23 @@ def distributions_figure(trials, rows):
             data.append(vals if vals else [np.nan])
         ax.boxplot(data, orientation="horizontal", widths=0.6, showfliers=True, flierprops={"markersize": 3})
         if key == "min_clearance_m":
-            margins = {_m(t, "margin_m") for t in trials if _m(t, "margin_m") is not None}
-            for mg in margins:
-                ax.axvline(mg, color="tab:orange", ls="--", lw=0.8)
-            ax.axvline(0.0, color="tab:red", lw=0.8)
+            margins = sorted({_m(t, "margin_m") for t in trials if _m(t, "margin_m") is not None})
+            for i, mg in enumerate(margins):
+                ax.axvline(mg, color="tab:orange", ls="--", lw=0.8,
+                           label=None if i else "planning margin" + ("s (per map)" if len(margins) > 1 else ""))
+            ax.axvline(0.0, color="tab:red", lw=0.8, label="contact (clearance 0)")
         ax.set_title(title, fontsize=8)
         ax.grid(alpha=0.3)
     axes[0].set_yticks(np.arange(1, len(rows) + 1), [_label(r) for r in rows], fontsize=7)
     axes[0].invert_yaxis()
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles, labels = axes[0].get_legend_handles_labels()
+    handles += [Patch(facecolor="none", edgecolor="k"), Line2D([], [], color="tab:orange"),
+                Line2D([], [], color="k", marker="o", ls="none", markersize=3, markerfacecolor="none")]
+    labels += ["trials' middle half (quartiles)", "median", "beyond 1.5 x the box (whiskers end there)"]
+    _legend_outside(axes[-1], 6, (handles, labels))
     return fig
 
 

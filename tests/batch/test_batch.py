@@ -498,9 +498,13 @@ def test_a_batch_of_two_trials_draws_its_figures_or_says_why_not(tmp_path):
     env = envelope_figure(trials, rows)
     assert [ln.get_label() for ln in env.axes[0].get_lines()][:2] == ["trial 1", "trial 2"]
     # every legend sits outside every drawn axes: it covers no curve, marker or error bar
-    from nhstab.batch.report import rates_figure
+    from nhstab.batch.report import distributions_figure, rates_figure
 
-    for fig in (rates_figure(rows), env, tube_figure(trials, rows)):
+    dist = distributions_figure(trials, rows)
+    # the distributions' lines are named: the planning margin, contact, and how to read a box
+    names = {t.get_text() for t in dist.axes[-1].get_legend().get_texts()}
+    assert {"planning margin", "contact (clearance 0)", "median"} <= names
+    for fig in (rates_figure(rows), env, tube_figure(trials, rows), dist):
         fig.canvas.draw()
         renderer = fig.canvas.get_renderer()
         legends = [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
