@@ -183,8 +183,9 @@ def _label(row) -> str:
 # ---- figures ---------------------------------------------------------------------------------------
 
 def _state_unit(name: str) -> str:
-    """The unit of a built-in model's state (every model that has the name gives it this unit): x, y in
-    m; theta, theta_i (a trailer's heading) and phi (a steering angle) in rad; else none (heisenberg)."""
+    """The unit of a state by its name, for series stored before they carried the model's
+    ``state_units``: x, y in m; theta, theta_i (a trailer's heading) and phi (a steering angle) in rad;
+    else none (heisenberg)."""
     if name in ("x", "y"):
         return "m"
     return "rad" if name == "phi" or name.startswith("theta") else ""
@@ -304,6 +305,7 @@ def tube_figure(trials, rows):
     for i, row in enumerate(shown):
         series = [t["series"] for t in cells[row["cell"]] if (t.get("series") or {}).get("tube_std")]
         names = series[0]["state_names"]
+        units = series[0].get("state_units") or [_state_unit(name) for name in names]
         dt = series[0]["dt_s"]
         length = max(len(s["tube_std"]) for s in series)
         n = len(names)
@@ -317,12 +319,11 @@ def tube_figure(trials, rows):
         count = np.sum(np.isfinite(E[:, :, 0]), axis=0)
         keep = _kept(count, len(series))
         t = dt * np.arange(length)
-        for c, name in enumerate(names):
+        for c, (name, unit) in enumerate(zip(names, units)):
             ax = axes[i, c]
             ax.plot(t[keep], np.sqrt(np.nanmean(E[:, keep, c] ** 2, axis=0)), color="k", lw=1.0, label="observed RMS")
             ax.plot(t[keep], np.sqrt(np.nanmean(P[:, keep, c], axis=0)), color="tab:blue", lw=1.0, ls="--",
                     label="predicted RMS (tube)")
-            unit = _state_unit(name)
             ax.set_title((_label(row) + f" ({len(series)} trial{'s' if len(series) != 1 else ''})\n" if c == 0 else "\n")
                          + f"e_{name}", fontsize=7, loc="left")
             ax.set_ylabel(f"RMS e_{name}" + (f" [{unit}]" if unit else " [-]"), fontsize=7)

@@ -155,7 +155,7 @@ def _run(spec: dict, bundle=None) -> dict:
             if first.tube is not None:
                 # per state: the observed error and the first plan's predicted mean and std, same samples
                 k = np.arange(0, min(last, len(first.tube.t)), step)
-                series.update({"state_names": list(model.state_names),
+                series.update({"state_names": list(model.state_names), "state_units": list(model.state_units),
                                "error_by_state": model.state_error(lg["x"][k], lg["x0"][k]).tolist(),
                                "tube_mean": first.tube.mean[k].tolist(), "tube_std": first.tube.std[k].tolist()})
             schedule = first.law.schedule

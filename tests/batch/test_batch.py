@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from clitools import invoke
+from matplotlib.text import Text
 from nhstab.batch.config import load_batch_config
 from nhstab.batch.report import wilson
 from nhstab.batch.runner import run_batch
@@ -521,7 +522,8 @@ def test_a_batch_of_two_trials_draws_its_figures_or_says_why_not(tmp_path):
         fig.canvas.draw()
         renderer = fig.canvas.get_renderer()
         texts = [(ax, t) for ax in fig.axes if ax.get_visible()
-                 for t in (ax.title, ax._left_title, ax.xaxis.label, ax.yaxis.label) if t.get_text()]
+                 for t in [c for c in ax.get_children() if isinstance(c, Text)] + [ax.xaxis.label, ax.yaxis.label]
+                 if t.get_text()]
         boxes = [(ax, t.get_text(), t.get_window_extent(renderer)) for ax, t in texts]
         for ax, text, box in boxes:
             assert fig.bbox.x0 - 1 <= box.x0 and box.x1 <= fig.bbox.x1 + 1, text
@@ -530,6 +532,12 @@ def test_a_batch_of_two_trials_draws_its_figures_or_says_why_not(tmp_path):
                 assert other is ax or not box.overlaps(box2), (text, text2)
     tube_labels = [ax.get_ylabel() for ax in tube_figure(trials, rows).axes if ax.get_visible()]
     assert tube_labels[:3] == ["RMS e_x [m]", "RMS e_y [m]", "RMS e_theta [rad]"]
+    # the units come from the model, stored with the series; a store written before they were stored
+    # gets the same labels from the states' names
+    assert all(t["series"]["state_units"] == ["m", "m", "rad"] for t in trials if (t.get("series") or {}).get("tube_std"))
+    older = [{**t, "series": {k: v for k, v in t["series"].items() if k != "state_units"}} if t.get("series") else t
+             for t in trials]
+    assert [ax.get_ylabel() for ax in tube_figure(older, rows).axes if ax.get_visible()] == tube_labels
     md = (tmp_path / "b" / "report.md").read_text().splitlines()
     start = md.index("**Figures left out.**")
     lines = [ln for ln in md[start + 1:] if ln.startswith("- ")]
