@@ -104,7 +104,8 @@ def _numbers(option: str, text: str, what: str) -> list[float]:
               default=Path("results/parking/study"), show_default=True)
 @click.option("--trials", type=int, default=50, show_default=True, help="Trials per cell (1 to 5,000).")
 @click.option("--mc-factor", type=int, default=10, show_default=True,
-              help="The tube check's Monte Carlo: this many times the sampled tube's N rollouts per cell.")
+              help="The tube check's Monte Carlo: this many times the sampled tube's N rollouts per cell (with 1 "
+                   "no tube can be rebuilt from the runs, and the check's 'below' part is undetermined).")
 @click.option("--maps", "maps", multiple=True, metavar="NAME",
               help="Maps of the suite (repeat, or a comma list; default: all 28).")
 @click.option("--noise", default="0.5,1,2", show_default=True, help="Noise scales (comma list).")
