@@ -34,8 +34,9 @@ sensor noise and process disturbance), a **cell**:
 
    * **certificate coverage**: the fraction of the M runs whose own smallest FCL clearance over the
      samples is at least the tube's certified clearance (measured exactly where the bound c_k - D_k, c_k
-     FCL's clearance at the nominal pose, does not already show it): the whole-run claim of the sampled
-     tube's scenario bound, at least p;
+     FCL's clearance at the nominal pose, does not already show it, up to :data:`MAX_MEASURED` poses a
+     cell; runs left unmeasured beyond it are reported apart and can leave the check undetermined): the
+     whole-run claim of the sampled tube's scenario bound, at least p;
    * **coverage per sample**: the fraction of (run, sample) pairs with D_k <= reach_k, pooled (reach_k
      claims the p-quantile at each sample, not all samples at once: the fraction of runs inside at
      every sample, 83-94 % on the suite, is also recorded, and is not a claim of the tube);
@@ -117,7 +118,7 @@ TARGET_FULL, TARGET_TIGHT, FULL_FACTOR = 0.98, 0.90, 1.0
 #: the MC displacements are reduced this many samples at a time (np.partition copies a block)
 BLOCK = 128
 #: poses of the Monte Carlo measured with FCL at most per cell for the certificate's coverage
-MAX_MEASURED = 2_000_000
+MAX_MEASURED = 20_000_000
 #: the noise level the collision and success targets are read at
 TARGET_NOISE = 1.0
 
@@ -276,30 +277,37 @@ def mc_displacements(run, law, poses: np.ndarray, seeds, noise, nominal_clearanc
     """The footprint displacement (:func:`nhstab.tubes.displacement`) of M runs of the loop at
     every sample, as an (S, M) array (+inf for a run whose loop diverged), and a record: the runs that
     diverged, and with ``nominal_clearance`` (S,) and ``certified_clearance``, how many runs' own
-    smallest FCL clearance over the samples is below the certified clearance (exactly: the poses whose
-    lower bound c_k - D_k is below it are measured, at most :data:`MAX_MEASURED`; beyond, the runs left
-    unmeasured count as below: a lower bound of the certificate's coverage). ``poses`` (S, 3): the
-    nominal poses at the samples (the tube's)."""
+    smallest FCL clearance over the samples is below the certified clearance. Exactly: at each sample,
+    the poses whose lower bound c_k - D_k is below it are measured as the loop produces them, except
+    those of runs already found below; at most :data:`MAX_MEASURED` poses in all, beyond which the runs
+    left with an unmeasured pose are counted apart (``unmeasured_runs``: neither inside nor below, so
+    the certificate's coverage lies between two bounds). ``poses`` (S, 3): the nominal poses at the
+    samples (the tube's)."""
     idx = pose_indices(run.model)
     hull = hull_vertices(run.fp)
     S, M = len(poses), len(seeds)
     Dt = np.empty((S, M))
     check = nominal_clearance is not None and certified_clearance is not None
-    found = {"runs": [], "poses": [], "count": 0, "unmeasured": np.zeros(M, dtype=bool)}
+    found = {"count": 0, "below": np.zeros(M, dtype=bool), "unmeasured": np.zeros(M, dtype=bool)}
 
     def observe(rows, k, x, u=None):
         P = x[:, idx]
         D = displacement(hull, P, poses[k])
         Dt[k, rows] = D
         if check:
-            sel = np.flatnonzero(nominal_clearance[k] - D < certified_clearance)
+            runs = rows.start + np.arange(len(D))
+            sel = np.flatnonzero((nominal_clearance[k] - D < certified_clearance) & ~found["below"][runs]
+                                 & np.isfinite(P).all(axis=1))
+            if not len(sel):
+                return
+            room = MAX_MEASURED - found["count"]
+            if room < len(sel):
+                found["unmeasured"][runs[sel[max(room, 0):]]] = True
+                sel = sel[:max(room, 0)]
             if len(sel):
-                if found["count"] + len(sel) <= MAX_MEASURED:
-                    found["runs"].append(rows.start + sel)
-                    found["poses"].append(P[sel].copy())
-                    found["count"] += len(sel)
-                else:
-                    found["unmeasured"][rows.start + sel] = True
+                c = run.known.clearance_many(P[sel], run.fp)
+                found["count"] += len(sel)
+                found["below"][runs[sel[c < certified_clearance]]] = True
 
     with np.errstate(over="ignore", invalid="ignore"):
         res = simulate_shared(law, seeds, noise, rate_hz=run.opts.rate_hz, substeps=run.opts.substeps,
@@ -311,14 +319,10 @@ def mc_displacements(run, law, poses: np.ndarray, seeds, noise, nominal_clearanc
         Dt[:, bad] = np.inf
     rec = {"diverged": int(bad.sum())}
     if check:
-        below = found["unmeasured"] | bad
-        if found["count"]:
-            runs = np.concatenate(found["runs"])
-            ok = res.completed[runs]
-            c = run.known.clearance_many(np.concatenate(found["poses"])[ok], run.fp)
-            below[runs[ok][c < certified_clearance]] = True
+        below = found["below"] | bad
+        unmeasured = found["unmeasured"] & ~below
         rec.update(runs_below=int(below.sum()), measured=int(found["count"]),
-                   unmeasured_runs=int(found["unmeasured"].sum()), complete=not found["unmeasured"].any())
+                   unmeasured_runs=int(unmeasured.sum()), complete=not unmeasured.any())
     return Dt, rec
 
 
@@ -359,9 +363,13 @@ def probability_beta(p: float, rollouts: int, discards: int = 0) -> float:
 
 
 def tube_check(reach: np.ndarray, Dt: np.ndarray, p: float, t: np.ndarray, tightest: int | None = None,
-               runs_below: int | None = None, rollouts: int | None = None, discards: int = 0) -> tuple[dict, dict]:
+               runs_below: int | None = None, rollouts: int | None = None, discards: int = 0,
+               runs_unmeasured: int = 0) -> tuple[dict, dict]:
     """The tube check of one cell (see the module docstring): reach (S,) against the displacements
-    Dt (S, M) of M Monte Carlo runs. Returns (JSON record, per-sample curves)."""
+    Dt (S, M) of M Monte Carlo runs. ``runs_below``: the runs whose own smallest clearance is below the
+    certified one; ``runs_unmeasured``: runs not known either way (:func:`mc_displacements`' cap), with
+    which the certificate's coverage is a range and its check may be undetermined (None). Returns (JSON
+    record, per-sample curves)."""
     S, M = Dt.shape
     reach = np.asarray(reach, dtype=float)
     inside = Dt <= reach[:, None]
@@ -411,9 +419,13 @@ def tube_check(reach: np.ndarray, Dt: np.ndarray, p: float, t: np.ndarray, tight
         rec["below"]["chance_per_sample_if_correct"] = chance
         rec["below"]["expected_if_correct"] = chance * S
     if runs_below is not None:
-        k_ok = M - int(runs_below)
+        k_ok = M - int(runs_below) - int(runs_unmeasured)
         r2, lo2, hi2 = wilson(k_ok, M)
-        rec["certificate_coverage"] = {"inside": k_ok, "runs": M, "rate": r2, "wilson_lo": lo2, "wilson_hi": hi2}
+        rec["certificate_coverage"] = {"inside": k_ok, "runs": M, "rate": r2, "wilson_lo": lo2, "wilson_hi": hi2,
+                                       "unmeasured": int(runs_unmeasured)}
+        if runs_unmeasured:         # counted inside, the rate's upper end
+            r4, lo4, hi4 = wilson(k_ok + int(runs_unmeasured), M)
+            rec["certificate_coverage"].update(rate_if_unmeasured_inside=r4, wilson_hi_if_unmeasured_inside=hi4)
     pooled = int(round(float(per_sample.sum()) * M))
     r3, lo3, hi3 = wilson(pooled, S * M)
     rec["coverage_per_sample"] = {"inside": pooled, "samples": S * M, "rate": r3, "wilson_lo": lo3, "wilson_hi": hi3,
@@ -425,16 +437,24 @@ def tube_check(reach: np.ndarray, Dt: np.ndarray, p: float, t: np.ndarray, tight
     rec["below"]["allowed_fraction"] = beta
     cert_ok = True
     if "certificate_coverage" in rec:
-        cert_ok = bool(rec["certificate_coverage"]["wilson_hi"] >= p)
+        cc = rec["certificate_coverage"]
+        cert_ok = bool(cc["wilson_hi"] >= p)
+        if not cert_ok and cc["unmeasured"] and cc["wilson_hi_if_unmeasured_inside"] >= p:
+            cert_ok = None          # the unmeasured runs decide it: undetermined
     passes = {"certificate_coverage": cert_ok,
               "coverage_per_sample": bool(hi3 >= p),
               "conservatism_at_tightest": bool(at is None or at <= CONSERVATISM_MAX),
               "below": bool(beta is None or below.mean() <= beta)}
-    passes["all"] = all(passes.values())
+    passes["all"] = all(v is True for v in passes.values())
     rec["conservatism"]["p95_within"] = bool(cons["p95"] is not None and cons["p95"] <= CONSERVATISM_MAX)
     rec["passes"] = passes
     curves = {"q": q, "q_lo": qlo, "q_hi": qhi, "coverage_t": per_sample, "ratio": ratio}
     return rec, curves
+
+
+def failed_checks(passes: dict) -> list[str]:
+    """The names of a tube check's failed parts; a part left undetermined (None) says so."""
+    return [k if v is False else f"{k} undetermined" for k, v in passes.items() if k != "all" and v is not True]
 
 
 # ---- a map ---------------------------------------------------------------------------------------------
@@ -528,7 +548,8 @@ def study_map(row: dict, settings: dict, progress=None) -> tuple[dict, dict]:
                                           c_nom, tube.certified_clearance)
                 rec, cur = tube_check(tube.reach, Dt, p, tube.t, tube.certified_index, mc.get("runs_below"),
                                       tube.certificate.get("rollouts") if tube.kind == "sampled" else None,
-                                      tube.certificate.get("discards", 0) if tube.kind == "sampled" else 0)
+                                      tube.certificate.get("discards", 0) if tube.kind == "sampled" else 0,
+                                      runs_unmeasured=mc.get("unmeasured_runs", 0))
                 del Dt
                 rec["monte_carlo"] = mc
                 cell["tube_check"] = rec
@@ -721,8 +742,7 @@ def targets(result: dict) -> dict:
             if tc is None:
                 tub["failing"].append({**key, "reason": "no tube: " + tb.get("error", "")})
             elif not tc["passes"]["all"]:
-                tub["failing"].append({**key, "reason": ", ".join(k for k, v in tc["passes"].items()
-                                                                  if k != "all" and not v)})
+                tub["failing"].append({**key, "reason": ", ".join(failed_checks(tc["passes"]))})
     for t in (col, suc, tub):
         t["met"] = bool(t["evaluated"] and not t["failing"])
     return {"no_collision_when_certified": col, "success": suc, "tubes_pass": tub}
@@ -796,7 +816,9 @@ def study_markdown(result: dict) -> str:
         f"M = {result['mc_factor']} x N = {result['mc_runs']} further runs (seeds spawned from "
         f"{result['mc_root_seed']}) and their footprint displacement at every sample.", "",
         f"Tube check: **cert.** = the fraction of runs whose own smallest FCL clearance over the samples is at least "
-        f"the certified clearance (the sampled tube's whole-run claim; Wilson 95 %); **per sample** = the fraction of "
+        f"the certified clearance (the sampled tube's whole-run claim; Wilson 95 %; runs whose clearance was not measured, "
+        f"{MAX_MEASURED:,} poses a cell at most, are named apart and counted outside, and the check is undetermined when "
+        f"they decide it); **per sample** = the fraction of "
         f"(run, sample) pairs whose displacement is within the reach (the reach's per-sample claim); 'all samples' = "
         f"runs within the reach at every sample at once (not a claim of the tube: recorded to show the difference); "
         f"**conservatism** = reach / MC {p:g}-quantile per sample (samples with quantile >= "
@@ -864,11 +886,12 @@ def study_markdown(result: dict) -> str:
                     continue
                 cv, cons, bl = tc["coverage"], tc["conservatism"], tc["below"]
                 cc, ps = tc.get("certificate_coverage"), tc["coverage_per_sample"]
-                fails = [k for k, v in tc["passes"].items() if k != "all" and not v]
+                fails = failed_checks(tc["passes"])
                 exp = bl.get("expected_if_correct")
                 lines.append(
                     f"| {case['map']} | {c['controller']} | {c['tube']['kind']} | "
                     + (f"{_pct(cc['rate'], 2)} [{_pct(cc['wilson_lo'], 2)}, {_pct(cc['wilson_hi'], 2)}]" if cc else "-")
+                    + (f" (+{cc['unmeasured']} runs unmeasured)" if cc and cc.get("unmeasured") else "")
                     + f" | {_pct(ps['rate'], 2)} | {_pct(cv['rate'], 1)} | {_f(cons['median'], '.2f')} / "
                     f"{_f(cons['p95'], '.2f')} / {_f(cons['max'], '.2f')} | {_f(cons['at_tightest'], '.2f')} | {bl['samples']}"
                     + (f" [{exp:.1f}]" if exp is not None else "") + " | "

@@ -182,6 +182,14 @@ def _label(row) -> str:
 
 # ---- figures ---------------------------------------------------------------------------------------
 
+def _state_unit(name: str) -> str:
+    """The unit of a built-in model's state (every model that has the name gives it this unit): x, y in
+    m; theta, theta_i (a trailer's heading) and phi (a steering angle) in rad; else none (heisenberg)."""
+    if name in ("x", "y"):
+        return "m"
+    return "rad" if name == "phi" or name.startswith("theta") else ""
+
+
 def _legend_outside(ax, fontsize: float, handles_labels=None) -> None:
     """The legend to the right of the axes, outside them (the constrained layout makes room): never over
     a curve or a marker."""
@@ -314,10 +322,11 @@ def tube_figure(trials, rows):
             ax.plot(t[keep], np.sqrt(np.nanmean(E[:, keep, c] ** 2, axis=0)), color="k", lw=1.0, label="observed RMS")
             ax.plot(t[keep], np.sqrt(np.nanmean(P[:, keep, c], axis=0)), color="tab:blue", lw=1.0, ls="--",
                     label="predicted RMS (tube)")
-            ax.set_title(f"e_{name}", fontsize=8)
+            unit = _state_unit(name)
+            ax.set_title((_label(row) + f" ({len(series)} trial{'s' if len(series) != 1 else ''})\n" if c == 0 else "\n")
+                         + f"e_{name}", fontsize=7, loc="left")
+            ax.set_ylabel(f"RMS e_{name}" + (f" [{unit}]" if unit else " [-]"), fontsize=7)
             ax.grid(alpha=0.3)
-            if c == 0:
-                ax.set_ylabel(_label(row) + f" ({len(series)} trial{'s' if len(series) != 1 else ''})", fontsize=6)
         _legend_outside(axes[i, n - 1], 6, axes[i, 0].get_legend_handles_labels())   # right of the row
     for ax in axes[-1]:
         ax.set_xlabel("t [s] (first plan)")
@@ -359,14 +368,23 @@ def distributions_figure(trials, rows):
             data.append(vals if vals else [np.nan])
         ax.boxplot(data, orientation="horizontal", widths=0.6, showfliers=True, flierprops={"markersize": 3})
         if key == "min_clearance_m":
-            margins = {_m(t, "margin_m") for t in trials if _m(t, "margin_m") is not None}
-            for mg in margins:
-                ax.axvline(mg, color="tab:orange", ls="--", lw=0.8)
-            ax.axvline(0.0, color="tab:red", lw=0.8)
+            margins = sorted({_m(t, "margin_m") for t in trials if _m(t, "margin_m") is not None})
+            for i, mg in enumerate(margins):
+                ax.axvline(mg, color="tab:orange", ls="--", lw=0.8,
+                           label=None if i else "planning margin" + ("s (per map)" if len(margins) > 1 else ""))
+            ax.axvline(0.0, color="tab:red", lw=0.8, label="contact (clearance 0)")
         ax.set_title(title, fontsize=8)
         ax.grid(alpha=0.3)
     axes[0].set_yticks(np.arange(1, len(rows) + 1), [_label(r) for r in rows], fontsize=7)
     axes[0].invert_yaxis()
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles, labels = axes[0].get_legend_handles_labels()
+    handles += [Patch(facecolor="none", edgecolor="k"), Line2D([], [], color="tab:orange"),
+                Line2D([], [], color="k", marker="o", ls="none", markersize=3, markerfacecolor="none")]
+    labels += ["trials' middle half (quartiles)", "median", "beyond 1.5 x the box (whiskers end there)"]
+    _legend_outside(axes[-1], 6, (handles, labels))
     return fig
 
 
@@ -410,7 +428,7 @@ def paired_figure(trials):
     ax.set_ylabel(f"{ref}: min executed clearance [m] (same seed)")
     ax.grid(alpha=0.3)
     _legend_outside(ax, 6)
-    ax.set_title(f"Same seeds, two controllers (above the diagonal: {ref} kept more room)", fontsize=8)
+    ax.set_title(f"Same seeds, two controllers\n(above the diagonal: {ref} kept more room)", fontsize=8)
     return fig
 
 

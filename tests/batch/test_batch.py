@@ -498,9 +498,13 @@ def test_a_batch_of_two_trials_draws_its_figures_or_says_why_not(tmp_path):
     env = envelope_figure(trials, rows)
     assert [ln.get_label() for ln in env.axes[0].get_lines()][:2] == ["trial 1", "trial 2"]
     # every legend sits outside every drawn axes: it covers no curve, marker or error bar
-    from nhstab.batch.report import rates_figure
+    from nhstab.batch.report import distributions_figure, rates_figure
 
-    for fig in (rates_figure(rows), env, tube_figure(trials, rows)):
+    dist = distributions_figure(trials, rows)
+    # the distributions' lines are named: the planning margin, contact, and how to read a box
+    names = {t.get_text() for t in dist.axes[-1].get_legend().get_texts()}
+    assert {"planning margin", "contact (clearance 0)", "median"} <= names
+    for fig in (rates_figure(rows), env, tube_figure(trials, rows), dist):
         fig.canvas.draw()
         renderer = fig.canvas.get_renderer()
         legends = [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
@@ -510,6 +514,22 @@ def test_a_batch_of_two_trials_draws_its_figures_or_says_why_not(tmp_path):
             for ax in fig.axes:
                 if ax.get_visible():
                     assert not box.overlaps(ax.get_window_extent(renderer)), ax.get_title()
+    # every title and axis label lies inside the figure and clear of every other axes' title and labels
+    # (long cell names once ran into the next row as tiny rotated y labels); the tube rows' y labels
+    # carry their state's unit
+    for fig in (rates_figure(rows), env, tube_figure(trials, rows)):
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        texts = [(ax, t) for ax in fig.axes if ax.get_visible()
+                 for t in (ax.title, ax._left_title, ax.xaxis.label, ax.yaxis.label) if t.get_text()]
+        boxes = [(ax, t.get_text(), t.get_window_extent(renderer)) for ax, t in texts]
+        for ax, text, box in boxes:
+            assert fig.bbox.x0 - 1 <= box.x0 and box.x1 <= fig.bbox.x1 + 1, text
+            assert fig.bbox.y0 - 1 <= box.y0 and box.y1 <= fig.bbox.y1 + 1, text
+            for other, text2, box2 in boxes:
+                assert other is ax or not box.overlaps(box2), (text, text2)
+    tube_labels = [ax.get_ylabel() for ax in tube_figure(trials, rows).axes if ax.get_visible()]
+    assert tube_labels[:3] == ["RMS e_x [m]", "RMS e_y [m]", "RMS e_theta [rad]"]
     md = (tmp_path / "b" / "report.md").read_text().splitlines()
     start = md.index("**Figures left out.**")
     lines = [ln for ln in md[start + 1:] if ln.startswith("- ")]

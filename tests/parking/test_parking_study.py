@@ -64,7 +64,7 @@ def recomputed():
     poses = mc.x[:, :, idx]
     D = displacement(hull_vertices(run.fp), poses, tube.poses[None])           # (M, S)
     return {"tube": tube, "collided": collided, "reached": reached, "D": D, "poses": poses, "M": M,
-            "length_m": result.metrics["length_m"]}
+            "length_m": result.metrics["length_m"], "run": run, "law": law, "noise": noise}
 
 
 def _cell(result):
@@ -162,6 +162,58 @@ def test_tube_check_on_synthetic_draws_is_the_brute_force_one():
     assert rec["conservatism"]["at_tightest"] == pytest.approx(1.1)
     # 6 of 40 samples below, more than beta = 0.997^998 = 5 % of them
     assert not rec["passes"]["below"] and not rec["passes"]["all"]
+
+
+def test_the_certificate_check_with_runs_left_unmeasured_is_a_range(recomputed, monkeypatch):
+    """Under a cap on the poses measured, the runs found below the certified clearance are truly below
+    (by brute force over every pose whose bound does not clear it), every truly-below run is found or
+    left unmeasured, and the coverage's two ends bracket the exact one."""
+    import nhstab.batch.parking_study as PS
+    from nhstab.batch.tube_study import trial_seeds
+
+    tube, D, M, poses = recomputed["tube"], recomputed["D"], recomputed["M"], recomputed["poses"]
+    run, law, noise = recomputed["run"], recomputed["law"], recomputed["noise"]
+    cert = tube.certified_clearance
+    world, fp = _world()
+    c_nom = world.clearance_many(tube.poses, fp)
+    i, k = np.nonzero(c_nom[None] - D < cert)
+    below_true = set(np.unique(i[world.clearance_many(poses[i, k], fp) < cert]).tolist())
+    assert len(i) > 200                         # enough candidate poses for a cap to bite
+    monkeypatch.setattr(PS, "MAX_MEASURED", len(i) // 3)
+    Dt, rec = PS.mc_displacements(run, law, tube.poses, trial_seeds(M, ROOT_SEED + 1), noise, c_nom, cert)
+    np.testing.assert_allclose(Dt, D.T, rtol=0, atol=1e-12)     # the displacements do not depend on the cap
+    assert rec["measured"] == len(i) // 3 and not rec["complete"] and rec["unmeasured_runs"] > 0
+    # the exact count lies between the found and the found plus the unmeasured
+    assert rec["runs_below"] <= len(below_true) <= rec["runs_below"] + rec["unmeasured_runs"]
+    # without the cap: the exact count, complete
+    monkeypatch.setattr(PS, "MAX_MEASURED", len(i))
+    _, full = PS.mc_displacements(run, law, tube.poses, trial_seeds(M, ROOT_SEED + 1), noise, c_nom, cert)
+    assert full["complete"] and full["unmeasured_runs"] == 0 and full["runs_below"] == len(below_true)
+    assert full["measured"] <= len(i)           # a run found below is not measured further
+
+
+@pytest.mark.parametrize("below, unmeasured, verdict", [(0, 0, True), (0, 40, None), (40, 1, False)])
+def test_the_certificate_check_is_undetermined_when_unmeasured_runs_decide_it(below, unmeasured, verdict):
+    from nhstab.batch.parking_study import failed_checks, tube_check
+    from nhstab.batch.report import wilson
+
+    rng = np.random.default_rng(5)
+    S, M, p = 10, 4000, 0.997
+    Dt = np.abs(rng.standard_normal((S, M))) * 0.1
+    reach = 1.5 * np.quantile(Dt, p, axis=1, method="inverted_cdf")
+    rec, _ = tube_check(reach, Dt, p, 0.02 * np.arange(S), tightest=2, runs_below=below, rollouts=2097,
+                        discards=2, runs_unmeasured=unmeasured)
+    cc = rec["certificate_coverage"]
+    assert cc["inside"] == M - below - unmeasured and cc["unmeasured"] == unmeasured
+    assert cc["wilson_hi"] == pytest.approx(wilson(M - below - unmeasured, M)[2])
+    assert rec["passes"]["certificate_coverage"] is verdict
+    assert rec["passes"]["all"] == (verdict is True and all(v for key, v in rec["passes"].items()
+                                                            if key not in ("all", "certificate_coverage")))
+    if verdict is None:
+        assert cc["wilson_hi_if_unmeasured_inside"] == pytest.approx(wilson(M - below, M)[2])
+        assert "certificate_coverage undetermined" in failed_checks(rec["passes"])
+    if verdict is False:
+        assert "certificate_coverage" in failed_checks(rec["passes"])
 
 
 def test_quantile_interval_covers_at_its_level():
