@@ -12,8 +12,8 @@ from .options import stabilizer_options
 #: numpy; tests/cli/test_cli_lines.py checks them against nhstab.robot.MODEL_DEFAULTS)
 DEFAULTS_HELP = ("unicycle alpha 0.2, delta 2; rwd_car alpha 0.1, delta 6, end-strategy extend, cusps split; "
                  "fwd_car alpha 0.2, delta 3, end-strategy extend, cusps split; heisenberg alpha 1, delta 1; "
-                 "car_trailer alpha 0.05, delta 10; gamma 1, window future, and else end-strategy frozen, cusps "
-                 "across")
+                 "car_trailer alpha 0.02, delta 15, gamma 2; else gamma 1, window future, end-strategy frozen, "
+                 "cusps across")
 
 
 def _parse_params(items) -> dict:

@@ -391,7 +391,7 @@ def test_a_setting_with_the_same_gains_is_run_once_and_says_so(tmp_path):
     whose they are, and they equal the trials of that law built and simulated here on its own. A setting with
     other gains (another alpha) is run."""
     data, md = _sweep(tmp_path, "cases: [trailer_turn_150]\ntrials: 3\nnoise: [1.0]\ntvlqr: false\n"
-                                "gramian: {alpha: [0.05, 0.1], delta: [10.0], end_strategy: [frozen, extend]}\n")
+                                "gramian: {alpha: [0.05, 0.1], delta: [10.0], gamma: [1.0], end_strategy: [frozen, extend]}\n")
     (case,) = data["cases"]
     assert case["plan"]["found"]
     by = {TS.law_label(c): c for c in case["cells"]}

@@ -70,14 +70,15 @@ def _hitch_lengths(value) -> tuple[float, ...]:
 @dataclass(frozen=True)
 class CarTrailer(Model):
     # the rwd_car towing a 2.5 x 1.8 m trailer whose axle is 3 m behind the hitch; the turning radius
-    # is the trailer's axle path's (the planned point), 3.5 times its smallest steady turn: the hitch
-    # angle changes only gradually, and on those arcs the steady steering angle is half its limit
-    # (nhstab.planning.trailer). Its end strategy stays frozen, with which its defaults were chosen.
+    # is the trailer's axle path's (the planned point), 5 times its smallest steady turn: the hitch
+    # angle changes only gradually, and on those arcs the steady steering angle is under half its limit
+    # (nhstab.planning.trailer). Its stabilizer defaults are the trailer suite's law sweep's best
+    # (docs/guide/trailer.md); on the trailer planner's plans the end strategy does not act.
     robot_defaults: ClassVar[dict] = {
         "footprint": {"rectangle": {"length": 4.2, "width": 1.8, "rear_overhang": 0.9}},
         "trailer_footprint": {"rectangle": {"length": 2.5, "width": 1.8, "rear_overhang": 1.0}},
         "margin": 0.3,
-        "stabilizer": {"alpha": 0.05, "delta": 10.0, "gamma": 1.0, "end_strategy": "frozen"},
+        "stabilizer": {"alpha": 0.02, "delta": 15.0, "gamma": 2.0, "end_strategy": "frozen"},
         "turning_radius": ("factor", 5.0),
     }
     #: the car's noise (phi's as a car's), and each trailer heading's as the car's heading
