@@ -433,7 +433,8 @@ def subsampled_reaches(Dt: np.ndarray, N: int, r: int, p: float, subsamples: int
 
 def tube_check(reach: np.ndarray, Dt: np.ndarray, p: float, t: np.ndarray, tightest: int | None = None,
                runs_below: int | None = None, rollouts: int | None = None, discards: int = 0,
-               runs_unmeasured: int = 0, subsamples: int = SUBSAMPLES) -> tuple[dict, dict]:
+               runs_unmeasured: int = 0, subsamples: int = SUBSAMPLES,
+               nominal_clearance: np.ndarray | None = None) -> tuple[dict, dict]:
     """The tube check of one cell (see the module docstring): reach (S,) against the displacements
     Dt (S, M) of M Monte Carlo runs. ``runs_below``: the runs whose own smallest clearance is below the
     certified one; ``runs_unmeasured``: runs not known either way (:func:`mc_displacements`' cap), with
@@ -510,10 +511,14 @@ def tube_check(reach: np.ndarray, Dt: np.ndarray, p: float, t: np.ndarray, tight
         raise ValueError(f"{subsamples} rebuilt tubes cannot resolve the level {BELOW_LEVEL:g}")
     if rollouts is not None and int(rollouts) < M:
         # the null: how often tubes of N of these same runs are below, sample by sample
-        fr, tight = np.empty(int(subsamples)), np.empty(int(subsamples))
+        fr, tight, own = np.empty(int(subsamples)), np.empty(int(subsamples)), np.full(int(subsamples), np.nan)
+        gap = None if nominal_clearance is None or not use.any() else np.asarray(nominal_clearance, dtype=float)
         for b, (rb, lb) in enumerate(subsampled_reaches(Dt, int(rollouts), int(discards), p, int(subsamples))):
             fr[b] = np.mean(rb < lb)
             tight[b] = rb[tightest] / q[tightest] if at is not None else np.nan
+            if gap is not None:         # the rebuilt tube's own tightest sample (by its reach), as a tube picks it
+                kb = int(np.argmin(np.where(use, gap - rb, np.inf)))
+                own[b] = rb[kb] / q[kb]
         p_value = (1 + int(np.sum(fr >= fraction))) / (len(fr) + 1)
         below_ok = bool(p_value > BELOW_LEVEL)
         rec["below"]["subsampled"] = {
@@ -523,6 +528,13 @@ def tube_check(reach: np.ndarray, Dt: np.ndarray, p: float, t: np.ndarray, tight
             "p_value": float(p_value),
             "conservatism_at_tightest_median": None if at is None else float(np.median(tight)),
             "conservatism_at_tightest_over_max": None if at is None else float(np.mean(tight > CONSERVATISM_MAX))}
+        if gap is not None:
+            k_own = int(np.argmin(np.where(use, gap - reach, np.inf)))
+            rec["below"]["subsampled"]["own_tightest"] = {
+                "rule": "argmin over the samples of nominal clearance - reach (samples with q >= 1 mm)",
+                "median": float(np.median(own)), "p95": float(np.percentile(own, 95)),
+                "over_max": float(np.mean(own > CONSERVATISM_MAX)),
+                "cell_index": k_own, "cell": float(reach[k_own] / q[k_own])}
     cert_ok = True
     if "certificate_coverage" in rec:
         cc = rec["certificate_coverage"]
@@ -637,7 +649,7 @@ def study_map(row: dict, settings: dict, progress=None) -> tuple[dict, dict]:
                 rec, cur = tube_check(tube.reach, Dt, p, tube.t, tube.certified_index, mc.get("runs_below"),
                                       tube.certificate.get("rollouts") if tube.kind == "sampled" else None,
                                       tube.certificate.get("discards", 0) if tube.kind == "sampled" else 0,
-                                      runs_unmeasured=mc.get("unmeasured_runs", 0))
+                                      runs_unmeasured=mc.get("unmeasured_runs", 0), nominal_clearance=c_nom)
                 del Dt
                 rec["monte_carlo"] = mc
                 cell["tube_check"] = rec
@@ -884,6 +896,32 @@ def not_certified_text(tb: dict) -> str:
     return "; ".join(parts)
 
 
+def _conservatism_context(result: dict, failing: dict) -> str:
+    """For a cell that fails on its conservatism at the tightest sample: what tubes rebuilt from the
+    Monte Carlo's runs give there, and at their own tightest samples ('' when not recorded)."""
+    if "conservatism_at_tightest" not in failing.get("reason", ""):
+        return ""
+    for case in result["cases"]:
+        if case["map"] != failing["map"]:
+            continue
+        for c in case.get("cells", []):
+            if c["controller"] != failing["controller"] or c["noise"] != failing["noise"]:
+                continue
+            tc = c.get("tube_check") or {}
+            sub = (tc.get("below") or {}).get("subsampled") or {}
+            if sub.get("conservatism_at_tightest_median") is None:
+                return ""
+            text = (f" ({tc['conservatism']['at_tightest']:.2f}; tubes rebuilt from the Monte Carlo's runs: median "
+                    f"{sub['conservatism_at_tightest_median']:.2f} at this sample, "
+                    f"{_pct(sub['conservatism_at_tightest_over_max'])} of them over {CONSERVATISM_MAX:g}")
+            own = sub.get("own_tightest")
+            if own:
+                text += (f"; at their own tightest samples median {own['median']:.2f}, "
+                         f"{_pct(own['over_max'])} over {CONSERVATISM_MAX:g}")
+            return text + ")"
+    return ""
+
+
 def study_markdown(result: dict) -> str:
     """study.md: every number read from ``result``."""
     p = result["probability"]
@@ -1022,7 +1060,7 @@ def study_markdown(result: dict) -> str:
                                  f"{f['collisions']} collided, {f['missed_goal']} missed the goal, "
                                  f"{f['diverged']} diverged)")
             else:
-                lines.append(f"  - {where}: {f['reason']}")
+                lines.append(f"  - {where}: {f['reason']}" + _conservatism_context(result, f))
     lines += ["", "## Cost", "",
               f"Whole study: {result['wall_s']:.0f} s wall with {result['workers']} worker(s) on {result['cpu_count']} "
               "core(s). Per map: planning and the cells (tube, trials, Monte Carlo), in seconds.", "",

@@ -359,3 +359,41 @@ def test_below_chance_is_the_order_statistics_integral(r):
     assert abs(freq - got) <= 3.5 * np.sqrt(got * (1 - got) / K) + 1e-3
     assert probability_beta(0.997, 2097, 2) == pytest.approx(binom.cdf(2, 2097, 0.003), rel=1e-12)
     assert probability_beta(0.997, 998, 0) == pytest.approx(0.997 ** 998, rel=1e-12)
+
+
+def test_rebuilt_tubes_read_at_their_own_tightest_samples():
+    """With the nominal's clearance, each rebuilt tube is also read where its own reach comes closest to
+    the obstacles (argmin of clearance - reach over the samples with a quantile of at least 1 mm), as
+    a tube picks its tightest sample; a failing cell's line in study.md quotes both readings."""
+    from nhstab.batch.parking_study import (QUANTILE_FLOOR_M, SUBSAMPLES, _conservatism_context,
+                                            quantile_indices, subsampled_reaches, tube_check)
+
+    rng = np.random.default_rng(8)
+    S, N, r, p = 50, 300, 2, 0.997
+    M = 10 * N
+    Dt = np.abs(rng.standard_normal((S, M))) * np.linspace(0.02, 0.3, S)[:, None]
+    Dt[0] = 0.0                                     # a sample whose quantile is under the floor
+    c_nom = np.linspace(1.0, 0.5, S)
+    c_nom[0] = -5.0                                 # ... is never picked, however tight
+    reach = np.sort(Dt[:, :N], axis=1)[:, N - r - 1] * 1.3
+    rec, _ = tube_check(reach, Dt, p, 0.1 * np.arange(S), tightest=S - 1, rollouts=N, discards=r,
+                        nominal_clearance=c_nom)
+    q = np.sort(Dt, axis=1)[:, quantile_indices(M, p)[0] - 1]
+    use = q >= QUANTILE_FLOOR_M
+    own = []
+    for rb, _ in subsampled_reaches(Dt, N, r, p, SUBSAMPLES):
+        k = int(np.argmin(np.where(use, c_nom - rb, np.inf)))
+        assert k != 0
+        own.append(rb[k] / q[k])
+    got = rec["below"]["subsampled"]["own_tightest"]
+    assert got["median"] == pytest.approx(np.median(own), rel=1e-12)
+    assert got["over_max"] == pytest.approx(np.mean(np.array(own) > 1.25))
+    k_cell = int(np.argmin(np.where(use, c_nom - reach, np.inf)))
+    assert got["cell_index"] == k_cell and got["cell"] == pytest.approx(reach[k_cell] / q[k_cell])
+    # the line of a cell failing on its conservatism
+    result = {"cases": [{"map": "m", "cells": [{"controller": "gramian", "noise": 1.0, "tube_check": rec}]}]}
+    line = _conservatism_context(result, {"map": "m", "controller": "gramian", "noise": 1.0,
+                                          "reason": "conservatism_at_tightest"})
+    assert f"median {rec['below']['subsampled']['conservatism_at_tightest_median']:.2f} at this sample" in line
+    assert f"at their own tightest samples median {got['median']:.2f}" in line
+    assert _conservatism_context(result, {"map": "m", "controller": "gramian", "noise": 1.0, "reason": "below"}) == ""
