@@ -896,6 +896,16 @@ def not_certified_text(tb: dict) -> str:
     return "; ".join(parts)
 
 
+def _conservatism_by_chance(result: dict):
+    """(expected count, cells): the sum over the cells of the share of their rebuilt tubes over the
+    conservatism limit at their own tightest samples, and how many cells have that reading; None
+    when none has."""
+    shares = [c["tube_check"]["below"]["subsampled"]["own_tightest"]["over_max"]
+              for case in result["cases"] for c in case.get("cells", [])
+              if ((((c.get("tube_check") or {}).get("below") or {}).get("subsampled") or {}).get("own_tightest"))]
+    return (float(sum(shares)), len(shares)) if shares else None
+
+
 def _conservatism_context(result: dict, failing: dict) -> str:
     """For a cell that fails on its conservatism at the tightest sample: what tubes rebuilt from the
     Monte Carlo's runs give there, and at their own tightest samples ('' when not recorded)."""
@@ -1048,6 +1058,12 @@ def study_markdown(result: dict) -> str:
         t = tg[key]
         state = "not evaluated" if not t["evaluated"] else ("**met**" if t["met"] else "**NOT met**")
         lines.append(f"- {t['text']}: {state} ({t['checked']} cells checked, {len(t['failing'])} failing)")
+        if key == "tubes_pass":
+            chance = _conservatism_by_chance(result)
+            if chance is not None:
+                lines.append(f"  - by chance: tubes rebuilt from each cell's Monte Carlo runs, read at their own "
+                             f"tightest samples, exceed the conservatism limit {CONSERVATISM_MAX:g} in {chance[0]:.1f} "
+                             f"of these {chance[1]} cells on average (what tubes of N rollouts of these same loops give)")
         for f in t["failing"]:
             where = f"{f['map']}, {f['controller']}, x{f['noise']:g}"
             if key == "no_collision_when_certified":

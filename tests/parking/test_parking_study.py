@@ -397,3 +397,9 @@ def test_rebuilt_tubes_read_at_their_own_tightest_samples():
     assert f"median {rec['below']['subsampled']['conservatism_at_tightest_median']:.2f} at this sample" in line
     assert f"at their own tightest samples median {got['median']:.2f}" in line
     assert _conservatism_context(result, {"map": "m", "controller": "gramian", "noise": 1.0, "reason": "below"}) == ""
+    from nhstab.batch.parking_study import _conservatism_by_chance
+
+    twice = {"cases": result["cases"] + [{"map": "n", "cells": [{"controller": "tvlqr", "noise": 1.0, "tube_check": rec}]}]}
+    assert _conservatism_by_chance(twice) == (pytest.approx(2 * got["over_max"]), 2)
+    assert _conservatism_by_chance({"cases": [{"map": "n", "cells": [{"controller": "tvlqr", "noise": 1.0,
+                                                                    "tube_check": None}]}]}) is None
