@@ -64,6 +64,52 @@ def table(cases, seeds, budget, out_dir):
     return 0
 
 
+@trailer.command("reach")
+@click.argument("maps", nargs=-1, metavar="[MAP]...")
+@click.option("--margin", type=float, default=None, help="Clearance every body keeps [m] (default: the map robot's).")
+@click.option("--budget", type=float, default=60.0, show_default=True, help="Wall time per map [s].")
+@click.option("--cell", "cell_m", type=float, default=0.1, show_default=True,
+              help="Grid cell of the last trailer's axle position [m].")
+@click.option("--angle", "angle_deg", type=float, default=2.0, show_default=True,
+              help="Grid bin of its heading and of every hitch angle [deg].")
+@click.option("--steer-levels", type=int, default=9, show_default=True,
+              help="Steering angles per move, spread evenly over +-max_steer.")
+@click.option("--step", "step_m", type=float, default=0.2, show_default=True, help="Length of a move [m].")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Also write reach.md and reach.json into this folder.")
+def reach(maps, margin, budget, cell_m, angle_deg, steer_levels, step_m, out_dir):
+    """Can the rig get from start to goal at all? For each MAP (a map file or example:NAME with a
+    car_trailer robot: block; default: every case of the trailer suite), every configuration the rig
+    reaches from its start and from its goal, breadth first on a grid, with moves at a steering angle
+    set at rest (nhstab.planning.rig_reach). Prints per map: disconnected (one end's configurations ran
+    out: no path at this grid), connected (a cell reached from both ends) or undecided (the budget ran
+    out first)."""
+    import json
+    import math
+
+    from nhstab.batch.trailer_study import reach_markdown, reach_table
+    from nhstab.execution.config import check_number
+    from nhstab.limits import check_int
+    from nhstab.records import to_jsonable, write_text
+
+    check_number("--budget", budget, 0.0, lo_open=True)
+    check_number("--cell", cell_m, 0.0, lo_open=True)
+    check_number("--angle", angle_deg, 0.0, lo_open=True)
+    check_number("--step", step_m, 0.0, lo_open=True)
+    check_int("--steer-levels", steer_levels, 1, 201, "a number of steering angles")
+    if margin is not None:
+        check_number("--margin", margin, 0.0)
+    result = reach_table(list(maps), margin, budget, progress=lambda s: click.echo(s, err=True), cell_m=cell_m,
+                         angle_rad=math.radians(angle_deg), steer_levels=steer_levels, step_m=step_m)
+    text = reach_markdown(result)
+    click.echo(text)
+    if out_dir is not None:
+        files = [write_text(out_dir / "reach.md", text),
+                 write_text(out_dir / "reach.json", json.dumps(to_jsonable(result), indent=1) + "\n")]
+        click.echo("wrote " + ", ".join(str(f) for f in files))
+    return 0
+
+
 @trailer.command("figure")
 @click.argument("case")
 @click.option("--seed", type=int, default=0, show_default=True, help="The plan's seed.")

@@ -194,6 +194,58 @@ def table_markdown(result: dict) -> str:
     return "\n".join(lines)
 
 
+def reach_table(maps, margin: float | None = None, budget_s: float = 60.0, progress=None, **grid) -> dict:
+    """:func:`nhstab.planning.rig_reach.rig_reach` between the start and goal of each map (a path or
+    example:NAME; default: every case of the trailer suite) with the rig of its ``robot:`` block, keeping
+    ``margin`` (default: the robot's). ``grid``: cell_m, angle_rad, steer_levels, step_m."""
+    from ..planning.rig_reach import reach_text, rest_state, rig_reach
+
+    names = list(maps) if maps else [f"example:{r['name']}" for r in suite_rows()]
+    if margin is not None:
+        margin = check_number("margin", margin, 0.0)
+    rows = []
+    for name in names:
+        m = load_map(name)
+        if m.robot is None:
+            raise InputError(f"{name}: robot", "a robot: block with a car_trailer", None)
+        robot = robot_from_spec(m.robot, source="map")
+        if not robot.trailers:
+            raise InputError(f"{name}: robot.model", "car_trailer (a car with trailers)", robot.model.name)
+        world = CollisionWorld.from_map(m, "known")
+        kept = robot.margin if margin is None else margin
+        xs = rest_state(robot.model, robot.configuration(m.start.as_array(), "start"))
+        xg = rest_state(robot.model, robot.configuration(m.goal.as_array(), "goal"))
+        r = rig_reach(world, robot, xs, xg, kept, budget_s=budget_s, **grid)
+        rows.append({"map": name, **r, "text": reach_text(r)})
+        if progress is not None:
+            progress(f"{name}: {rows[-1]['text']} ({r['wall_s']:.1f} s)")
+    return {"table": "can the rig get from start to goal (nhstab.planning.rig_reach)", "budget_s": budget_s,
+            "margin_m": margin, "rows": rows}
+
+
+def reach_markdown(result: dict) -> str:
+    """The reach table as markdown, every number from ``result``."""
+    lines = ["# The rig's reach: can it get from start to goal at all?", "",
+             "Produced by `nhstab trailer reach` (nhstab.planning.rig_reach): per map, every configuration the rig "
+             "reaches from its start and from its goal, on a grid, breadth first from both ends, with moves of a fixed "
+             "length at a steering angle set at rest (so any steering rate will do), each hitch angle within the "
+             "jackknife limit and every body free by the margin (FCL). **disconnected**: the configurations one "
+             "end reaches ran out, none reached from the other (at this grid: evidence, not a proof); "
+             "**connected**: a grid cell was reached from both; **undecided**: the budget of "
+             f"{result['budget_s']:g} s ran out first.", "",
+             "| map | margin [m] | verdict | cells from start / goal | farthest from start / goal [m] | grid "
+             "| wall [s] |",
+             "|---|---|---|---|---|---|---|"]
+    for r in result["rows"]:
+        grid = (f"{r['cell_m']:g} m, {math.degrees(r['angle_rad']):g} deg, {r['steer_levels']} steering levels, "
+                f"{r['step_m']:g} m moves")
+        verdict = r["verdict"] + (f" ({r['closed_end']} closed)" if r["closed_end"] else "")
+        lines.append(f"| {r['map']} | {r['margin_m']:g} | {verdict} | {r['start']['cells']} / {r['goal']['cells']} | "
+                     f"{r['start']['farthest_m']:.2f} / {r['goal']['farthest_m']:.2f} | {grid} | {r['wall_s']:.1f} |")
+    lines += ["", *[f"- {r['map']}: {r['text']}" for r in result["rows"]], ""]
+    return "\n".join(lines)
+
+
 def case_figure(name: str, seed: int = 0, budget_s: float = BUDGET_S):
     """The case's map, its start and goal rigs, and the plan of ``seed`` (every body along it), or the
     map alone with why there is no plan in the title. Returns (figure, plan record)."""
