@@ -50,6 +50,7 @@ from ..execution.runner import final_errors
 from ..limits import MAX_BATCH_TRIALS, MAX_GAMMA, MAX_NOISE_SCALE, MAX_SEED, MAX_STUDY_TRIALS, check_int
 from ..maps import load_map
 from ..planning import PathOptions, plan
+from ..planning.rig_reach import reach_text, rest_state, rig_reach
 from ..report.maps import map_figure
 from ..report.plans import plan_figure
 from ..robot import robot_from_spec
@@ -198,8 +199,6 @@ def reach_table(maps, margin: float | None = None, budget_s: float = 60.0, progr
     """:func:`nhstab.planning.rig_reach.rig_reach` between the start and goal of each map (a path or
     example:NAME; default: every case of the trailer suite) with the rig of its ``robot:`` block, keeping
     ``margin`` (default: the robot's). ``grid``: cell_m, angle_rad, steer_levels, step_m."""
-    from ..planning.rig_reach import reach_text, rest_state, rig_reach
-
     names = list(maps) if maps else [f"example:{r['name']}" for r in suite_rows()]
     if margin is not None:
         margin = check_number("margin", margin, 0.0)
