@@ -38,12 +38,15 @@ def _cases(values) -> list[str]:
               help="Cases of the suite (repeat, or a comma list; default: all).")
 @click.option("--seeds", type=int, default=3, show_default=True, help="Seeds 0 .. N-1 per case.")
 @click.option("--budget", type=float, default=10.0, show_default=True, help="Search budget per plan [s].")
+@click.option("--reach-budget", type=float, default=60.0, show_default=True,
+              help="Wall time of `nhstab trailer reach` on each case without a plan [s]; 0 skips it.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Also write table.md and table.json into this folder.")
-def table(cases, seeds, budget, out_dir):
+def table(cases, seeds, budget, reach_budget, out_dir):
     """Plan every case of the suite over seeds and print per case: plans found within the budget,
     median search time, cusps, smallest clearance over every body, largest hitch angle (see
-    nhstab.batch.trailer_study)."""
+    nhstab.batch.trailer_study); for each case without a plan, whether any plan can exist there
+    (`nhstab trailer reach`)."""
     import json
 
     from nhstab.batch.trailer_study import check_cases, plan_table, table_markdown
@@ -54,7 +57,9 @@ def table(cases, seeds, budget, out_dir):
     check_cases(_cases(cases), "--cases")
     check_int("--seeds", seeds, 1, 1000, "a number of seeds per case")
     check_number("--budget", budget, 0.0, lo_open=True)
-    result = plan_table(_cases(cases), seeds, budget, progress=lambda s: click.echo(s, err=True))
+    check_number("--reach-budget", reach_budget, 0.0)
+    result = plan_table(_cases(cases), seeds, budget, progress=lambda s: click.echo(s, err=True),
+                        reach_budget_s=reach_budget)
     text = table_markdown(result)
     click.echo(text)
     if out_dir is not None:

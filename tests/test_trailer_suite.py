@@ -226,9 +226,28 @@ def test_table_and_figure_commands_on_one_case(tmp_path):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_table_says_whether_a_plan_can_exist_where_none_was_found(tmp_path):
+    # the 1.1 W bay off the 1.2 S aisle plans with no budget, and its goal is closed (nhstab trailer reach):
+    # the table says so; with --reach-budget 0 it does not ask
+    case = "trailer_dock_bay110_aisle120"
+    res = CliRunner().invoke(cli, ["trailer", "table", "--cases", case, "--seeds", "1", "--budget", "0.5",
+                                   "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    (row,) = json.loads((tmp_path / "table.json").read_text())["rows"]
+    assert row["planned"] == 0
+    assert row["reach"]["verdict"] == "disconnected" and row["reach"]["closed_end"] == "goal"
+    text = (tmp_path / "table.md").read_text()
+    assert "## Can any plan exist where none was found?" in text and row["reach"]["text"] in text
+    res = CliRunner().invoke(cli, ["trailer", "table", "--cases", case, "--seeds", "1", "--budget", "0.5",
+                                   "--reach-budget", "0", "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    assert "reach" not in json.loads((tmp_path / "table.json").read_text())["rows"][0]
+
+
 def test_commands_refuse_bad_input_naming_the_option():
     for args, key in ((["table", "--cases", "nope"], "--cases[0]"), (["figure", "nope"], "CASE"),
                       (["table", "--seeds", "0"], "--seeds"), (["table", "--budget", "0"], "--budget"),
+                      (["table", "--reach-budget", "-1"], "--reach-budget"),
                       (["figure", "trailer_turn_120", "--budget", "-1"], "--budget"),
                       (["figure", "trailer_turn_120", "--seed", "-1"], "--seed")):
         res = CliRunner().invoke(cli, ["trailer", *args])

@@ -63,6 +63,8 @@ from .vector import simulate_shared
 
 #: the table's search budget per plan [s] and seeds per case
 BUDGET_S = 10.0
+#: the wall time of the reach search (nhstab.planning.rig_reach) on a case of the table without a plan [s]
+REACH_BUDGET_S = 60.0
 SEEDS = 3
 
 
@@ -131,11 +133,16 @@ def plan_case(name: str, seed: int, budget_s: float):
     return rec, m, robot, res
 
 
-def plan_table(cases=None, seeds: int = SEEDS, budget_s: float = BUDGET_S, progress=None) -> dict:
-    """Plan every case of the suite (or ``cases``) over seeds 0 .. seeds-1 (module docstring)."""
+def plan_table(cases=None, seeds: int = SEEDS, budget_s: float = BUDGET_S, progress=None,
+               reach_budget_s: float = REACH_BUDGET_S) -> dict:
+    """Plan every case of the suite (or ``cases``) over seeds 0 .. seeds-1 (module docstring). A case
+    that no seed planned within the budget also gets :func:`reach_table`'s verdict (the default grid,
+    the map's margin, ``reach_budget_s`` of wall time; 0: not asked) in its row's ``reach``: whether
+    any plan can exist there."""
     rows_csv = check_cases(cases)
     seeds = check_int("seeds", seeds, 1, 1000, "a number of seeds per case")
     budget_s = check_number("budget", budget_s, 0.0, lo_open=True)
+    reach_budget_s = check_number("reach_budget", reach_budget_s, 0.0)
     rows = []
     for spec in rows_csv:
         trials = []
@@ -159,7 +166,9 @@ def plan_table(cases=None, seeds: int = SEEDS, budget_s: float = BUDGET_S, progr
                      "median_time_s": med("time_s"), "median_cusps": med("cusps"),
                      "min_clearance_m": min((t["min_clearance_m"] for t in ok), default=None),
                      "max_abs_hitch_rad": max((t["max_abs_hitch_rad"] for t in ok), default=None)})
-    return {"table": "trailer suite plans", "seeds": seeds, "budget_s": budget_s,
+        if not ok and reach_budget_s > 0:
+            rows[-1]["reach"] = reach_table([f"example:{spec['name']}"], None, reach_budget_s, progress)["rows"][0]
+    return {"table": "trailer suite plans", "seeds": seeds, "budget_s": budget_s, "reach_budget_s": reach_budget_s,
             "planner": "nhstab.planning.plan with the map's rig, PathOptions(time_limit_s=budget, seed)",
             "rows": rows, "cases_planned": sum(1 for r in rows if r["planned"] > 0), "cases": len(rows)}
 
@@ -191,6 +200,15 @@ def table_markdown(result: dict) -> str:
             why = t.get("message") or f"ok, but {t['time_s']:.1f} s over the {result['budget_s']:g} s budget"
             lines.append(f"- {name}, seed {t['seed']} ({t['time_s']:.1f} s): {t['status']}: {why}"
                          + (f" ({t['likely_cause']})" if t.get("likely_cause") else ""))
+        lines.append("")
+    reached = [r for r in result["rows"] if r.get("reach")]
+    if reached:
+        lines += ["## Can any plan exist where none was found?", "",
+                  "Per case without a plan, `nhstab trailer reach` on its map (nhstab.planning.rig_reach; the default "
+                  f"grid, the map's margin, {result['reach_budget_s']:g} s): disconnected = every configuration one "
+                  "end reaches was expanded and none came from the other end (no plan at this grid); undecided = "
+                  "the budget ran out first (see how far each end got).", ""]
+        lines += [f"- {r['name']}: {r['reach']['text']}" for r in reached]
         lines.append("")
     return "\n".join(lines)
 
