@@ -26,7 +26,7 @@ two configurations in it differ by less than its size). An end is **closed** whe
 has been expanded and none was reached from the other end: then no sequence of these moves joins start
 and goal at this resolution (``disconnected``). A grid search is evidence, not a proof: a finer grid,
 more steering levels or shorter moves can join what a coarser one did not. The budget is wall time, read
-between layers; a search that runs out of it is ``undecided``.
+between layers; a search that runs out of it, or reaches :data:`MAX_CELLS`, is ``undecided``.
 """
 
 from __future__ import annotations
@@ -47,6 +47,9 @@ CELL_M = 0.1
 ANGLE_RAD = math.radians(2.0)
 STEER_LEVELS = 9
 STEP_M = 0.2
+#: the most cells both ends may hold together (memory: about 200 bytes a cell); the search stops there
+#: undecided, as at its budget
+MAX_CELLS = 4_000_000
 
 
 def _check(key: str, value, lo: float, hi: float, integer: bool = False):
@@ -61,14 +64,15 @@ def _check(key: str, value, lo: float, hi: float, integer: bool = False):
 
 def rig_reach(world, robot, x_start, x_goal, margin: float, *, cell_m: float = CELL_M, angle_rad: float = ANGLE_RAD,
               steer_levels: int = STEER_LEVELS, step_m: float = STEP_M, budget_s: float = 60.0,
-              clock=time.perf_counter) -> dict:
+              max_cells: int = MAX_CELLS, clock=time.perf_counter) -> dict:
     """The search of the module docstring between full states ``x_start`` and ``x_goal`` (the model's
     state order, e.g. from :func:`rest_state`; the steering angle in them is ignored). Returns a dict:
     ``verdict`` ("connected", "disconnected" or "undecided"), ``closed_end`` (the end whose cells ran
     out, for "disconnected"), per end the cells reached, the layers grown, the least distance of its
     last trailer's axle from the other end's (``closest_m``) and the largest from its own
     (``farthest_m``), ``travel_m`` (the moves of both ends to the meeting cell, for "connected"), the
-    resolution and the wall time."""
+    resolution, the wall time and, for "undecided", what stopped it (``stopped``: "budget" or "cells",
+    at ``max_cells`` cells of both ends together, checked between layers)."""
     model = robot.model
     if not getattr(robot, "trailers", 0):
         raise InputError("robot", "a car with at least one trailer", getattr(model, "name", model))
@@ -77,6 +81,7 @@ def rig_reach(world, robot, x_start, x_goal, margin: float, *, cell_m: float = C
     steer_levels = _check("steer_levels", steer_levels, 1, 201, integer=True)
     step_m = _check("step_m", step_m, 1e-3, 10.0)
     budget_s = _check("budget_s", budget_s, 0.0, 1e7)
+    max_cells = _check("max_cells", max_cells, 1, 1e9, integer=True)
     started = clock()
     heads = list(model.heading_columns)
     steer_col = list(model.state_names).index("phi")
@@ -156,7 +161,7 @@ def rig_reach(world, robot, x_start, x_goal, margin: float, *, cell_m: float = C
             e["farthest_m"] = max(e["farthest_m"], float(own.max()))
         return meet
 
-    verdict, closed, travel = "undecided", None, None
+    verdict, closed, travel, stopped = "undecided", None, None, None
     if ends[0]["seen"] & ends[1]["seen"]:
         verdict, travel = "connected", 0.0
     while verdict == "undecided":
@@ -165,13 +170,17 @@ def rig_reach(world, robot, x_start, x_goal, margin: float, *, cell_m: float = C
             verdict, closed = "disconnected", empty[0]["name"]
             break
         if clock() - started >= budget_s:
+            stopped = "budget"
+            break
+        if len(ends[0]["seen"]) + len(ends[1]["seen"]) >= max_cells:
+            stopped = "cells"
             break
         # the end with the smaller frontier grows by one layer of moves
         e = min(ends, key=lambda q: len(q["frontier"]))
         if grow(e, ends[1] if e is ends[0] else ends[0]) is not None:
             verdict = "connected"
             travel = (ends[0]["layers"] + ends[1]["layers"]) * step_m
-    out = {"verdict": verdict, "closed_end": closed, "travel_m": travel,
+    out = {"verdict": verdict, "closed_end": closed, "travel_m": travel, "stopped": stopped, "max_cells": max_cells,
            "cell_m": cell_m, "angle_rad": angle_rad, "steer_levels": steer_levels, "step_m": step_m,
            "margin_m": float(margin), "budget_s": budget_s, "wall_s": clock() - started}
     for e in ends:
@@ -194,7 +203,9 @@ def reach_text(r: dict) -> str:
                 f"the other end's), none reached from the other end ({res})")
     ends = "; ".join(f"from the {k}, {r[k]['cells']} cells, its last trailer's axle up to {r[k]['farthest_m']:.2f} m "
                      f"away" for k in ("start", "goal"))
-    return f"undecided: the budget of {r['budget_s']:g} s ran out before the ends met or one was closed ({ends}; {res})"
+    why = (f"the cap of {r['max_cells']:,} cells was reached" if r.get("stopped") == "cells"
+           else f"the budget of {r['budget_s']:g} s ran out")
+    return f"undecided: {why} before the ends met or one was closed ({ends}; {res})"
 
 
 def rest_state(model, configuration) -> np.ndarray:

@@ -10,7 +10,7 @@ import yaml
 from nhstab.collision import CollisionWorld
 from nhstab.errors import InputError
 from nhstab.maps import load_map
-from nhstab.planning.rig_reach import rest_state, rig_reach
+from nhstab.planning.rig_reach import reach_text, rest_state, rig_reach
 from nhstab.robot import robot_from_spec
 
 from tests.clitools import invoke, one_line
@@ -78,8 +78,13 @@ def test_a_larger_margin_closes_the_chamber_tighter(tmp_path):
 
 def test_no_budget_is_undecided_and_bad_grids_name_their_key(tmp_path):
     _, world, robot, (xs, xg) = _corridor(tmp_path, 19.2, second_chamber=True)
-    assert rig_reach(world, robot, xs, xg, 0.05, budget_s=0.0)["verdict"] == "undecided"
-    for key, value in (("cell_m", 0.0), ("angle_rad", math.nan), ("steer_levels", 2.5), ("step_m", -1.0)):
+    r = rig_reach(world, robot, xs, xg, 0.05, budget_s=0.0)
+    assert r["verdict"] == "undecided" and r["stopped"] == "budget"
+    r = rig_reach(world, robot, xs, xg, 0.05, max_cells=50)        # memory's guard: a cap on the cells
+    assert r["verdict"] == "undecided" and r["stopped"] == "cells"
+    assert 50 <= r["start"]["cells"] + r["goal"]["cells"] and "cap of 50 cells" in reach_text(r)
+    for key, value in (("cell_m", 0.0), ("angle_rad", math.nan), ("steer_levels", 2.5), ("step_m", -1.0),
+                       ("max_cells", 0)):
         with pytest.raises(InputError) as exc:
             rig_reach(world, robot, xs, xg, 0.05, **{key: value})
         assert key in str(exc.value)
