@@ -980,7 +980,7 @@ def rig_likely_cause(world: CollisionWorld, robot, x_start, x_goal, margin: floa
         out.update(cause="turning_radius_or_budget",
                    text=f"likely cause: {turn}: the roomiest place between start and goal, near ({rx:.2f}, {ry:.2f}), "
                         f"is {2 * room:.2f} m across, room for the {sweep:.2f} m the rig's tightest turn sweeps plus the "
-                        f"{kept:.3g} m the search keeps each side")
+                        f"{kept:.3g} m the search keeps each side (whether any plan exists: nhstab trailer reach MAP)")
     return out
 
 
