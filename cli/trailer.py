@@ -29,6 +29,20 @@ def suite(out_dir, check):
     return echo_suite_write(write_suite(out_dir, check=check), out_dir, check, "trailer")
 
 
+def _print_and_write(text: str, result: dict, out_dir, stem: str) -> int:
+    """Print the markdown ``text``; with ``out_dir``, also write it as STEM.md and ``result`` as STEM.json."""
+    import json
+
+    from nhstab.records import to_jsonable, write_text
+
+    click.echo(text)
+    if out_dir is not None:
+        files = [write_text(out_dir / f"{stem}.md", text),
+                 write_text(out_dir / f"{stem}.json", json.dumps(to_jsonable(result), indent=1) + "\n")]
+        click.echo("wrote " + ", ".join(str(f) for f in files))
+    return 0
+
+
 def _cases(values) -> list[str]:
     return [s.strip() for v in values for s in v.split(",") if s.strip()]
 
@@ -47,12 +61,10 @@ def table(cases, seeds, budget, reach_budget, out_dir):
     median search time, cusps, smallest clearance over every body, largest hitch angle (see
     nhstab.batch.trailer_study); for each case without a plan, whether any plan can exist there
     (`nhstab trailer reach`)."""
-    import json
 
     from nhstab.batch.trailer_study import check_cases, plan_table, table_markdown
     from nhstab.execution.config import check_number
     from nhstab.limits import check_int
-    from nhstab.records import to_jsonable, write_text
 
     check_cases(_cases(cases), "--cases")
     check_int("--seeds", seeds, 1, 1000, "a number of seeds per case")
@@ -61,12 +73,7 @@ def table(cases, seeds, budget, reach_budget, out_dir):
     result = plan_table(_cases(cases), seeds, budget, progress=lambda s: click.echo(s, err=True),
                         reach_budget_s=reach_budget)
     text = table_markdown(result)
-    click.echo(text)
-    if out_dir is not None:
-        files = [write_text(out_dir / "table.md", text),
-                 write_text(out_dir / "table.json", json.dumps(to_jsonable(result), indent=1) + "\n")]
-        click.echo("wrote " + ", ".join(str(f) for f in files))
-    return 0
+    return _print_and_write(text, result, out_dir, "table")
 
 
 @trailer.command("reach")
@@ -87,15 +94,13 @@ def reach(maps, margin, budget, cell_m, angle_deg, steer_levels, step_m, out_dir
     car_trailer robot: block; default: every case of the trailer suite), every configuration the rig
     reaches from its start and from its goal, breadth first on a grid, with moves at a steering angle
     set at rest (nhstab.planning.rig_reach). Prints per map: disconnected (one end's configurations ran
-    out: no path at this grid), connected (a cell reached from both ends) or undecided (the budget ran
-    out first)."""
-    import json
+    out: no path at this grid), connected (a cell reached from both ends) or undecided (the budget, or the
+    cap of 4,000,000 cells, ran out first)."""
     import math
 
     from nhstab.batch.trailer_study import reach_markdown, reach_table
     from nhstab.execution.config import check_number
     from nhstab.limits import check_int
-    from nhstab.records import to_jsonable, write_text
 
     check_number("--budget", budget, 0.0, lo_open=True)
     check_number("--cell", cell_m, 0.0, lo_open=True)
@@ -107,12 +112,7 @@ def reach(maps, margin, budget, cell_m, angle_deg, steer_levels, step_m, out_dir
     result = reach_table(list(maps), margin, budget, progress=lambda s: click.echo(s, err=True), cell_m=cell_m,
                          angle_rad=math.radians(angle_deg), steer_levels=steer_levels, step_m=step_m)
     text = reach_markdown(result)
-    click.echo(text)
-    if out_dir is not None:
-        files = [write_text(out_dir / "reach.md", text),
-                 write_text(out_dir / "reach.json", json.dumps(to_jsonable(result), indent=1) + "\n")]
-        click.echo("wrote " + ", ".join(str(f) for f in files))
-    return 0
+    return _print_and_write(text, result, out_dir, "reach")
 
 
 @trailer.command("figure")
