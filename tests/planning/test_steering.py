@@ -273,7 +273,9 @@ def test_chained_rhs_vectorised():
 def pose_pairs(draw):
     p0 = np.array([draw(fl(-5, 5)), draw(fl(-5, 5))])
     th0 = draw(fl(-math.pi, math.pi))
-    r, ang = draw(fl(0.0, 2.0)), draw(fl(-math.pi, math.pi))
+    # no move at all, or at least a nanometre: between them (moves such as 1e-158 m, whose squares
+    # underflow) the steering is exact, but the independent check's DOP853 fails on its error norm (0 / 0)
+    r, ang = draw(st.one_of(st.just(0.0), fl(1e-9, 2.0))), draw(fl(-math.pi, math.pi))
     pf = p0 + r * np.array([math.cos(ang), math.sin(ang)])
     thf = th0 + draw(fl(-0.8, 0.8))
     phi0, phif = draw(fl(-0.3, 0.3)), draw(fl(-0.3, 0.3))
