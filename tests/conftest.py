@@ -1,8 +1,17 @@
+import os
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import settings
+
+# Hypothesis draws its examples from a seed fixed per test (derandomize) and keeps no example database,
+# so that every run of the suite tests the same cases and a failure is reproducible. For a random
+# exploration: HYPOTHESIS_PROFILE=explore.
+settings.register_profile("nhstab", derandomize=True, database=None, print_blob=True)
+settings.register_profile("explore", print_blob=True)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "nhstab"))
 
 TESTS = Path(__file__).parent
 # the tests' shared helpers (nominals.py) import as top-level modules from any test folder
