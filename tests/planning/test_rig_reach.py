@@ -119,3 +119,32 @@ def test_cli_reach_writes_its_table_and_refuses_bad_arguments(tmp_path):
     one_line(invoke("trailer", "reach", path, "--step", "0"), 2, "--step")
     one_line(invoke("trailer", "reach", path, "--steer-levels", "0"), 2, "--steer-levels")
     one_line(invoke("trailer", "reach", "example:parking_lot"), 2, "car_trailer")
+
+
+def test_a_dolly_and_a_trailer_are_searched_as_the_model_has_them(tmp_path):
+    # two trailers: the cells are the last trailer's axle, its heading and both hitch angles; straight
+    # moves in open space join ends 1.0 m apart (within a cell: at most one more move)
+    rig = {**RIG, "hitch_lengths": [1.5, 3.0],
+           "trailer_footprint": [{"rectangle": {"length": 1.2, "width": 1.8, "rear_overhang": 0.6}},
+                                 {"rectangle": {"length": 2.5, "width": 1.8, "rear_overhang": 1.0}}]}
+    data = {"name": "dolly", "bounds": [0.0, -10.0, 40.0, 10.0], "obstacles": [],
+            "start": [12.05, 0.0, 0.0], "goal": [13.05, 0.0, 0.0], "robot": rig}
+    path = tmp_path / "dolly.yaml"
+    path.write_text(yaml.safe_dump(data))
+    m = load_map(str(path))
+    robot = robot_from_spec(m.robot, source="map")
+    assert robot.trailers == 2
+    world = CollisionWorld.from_map(m, "known")
+    xs, xg = (rest_state(robot.model, robot.configuration(p.as_array(), k)) for p, k in ((m.start, "start"),
+                                                                                         (m.goal, "goal")))
+    assert xs.shape == (robot.model.n,) == (6,)
+    r = rig_reach(world, robot, xs, xg, 0.05, steer_levels=1, budget_s=60.0)
+    assert r["verdict"] == "connected" and 1.0 - 1e-9 <= r["travel_m"] <= 1.2 + 1e-9
+    # a wall across the way closes the start's end
+    data["obstacles"] = [{"box": {"center": [12.55 + 3.3 + 0.3, 0.0], "size": [0.2, 8.0], "yaw": 0.0}}]
+    data["goal"] = [26.0, 0.0, 0.0]
+    path.write_text(yaml.safe_dump(data))
+    m = load_map(str(path))
+    xg = rest_state(robot.model, robot.configuration(m.goal.as_array(), "goal"))
+    r = rig_reach(CollisionWorld.from_map(m, "known"), robot, xs, xg, 0.05, steer_levels=1, budget_s=60.0)
+    assert r["verdict"] == "disconnected"
