@@ -100,13 +100,16 @@ def reach(maps, margin, budget, cell_m, angle_deg, steer_levels, step_m, out_dir
 
     from nhstab.batch.trailer_study import reach_markdown, reach_table
     from nhstab.execution.config import check_number
-    from nhstab.limits import check_int
+    from nhstab.limits import check_int, check_range
+    from nhstab.planning.rig_reach import MAX_STEER_LEVELS, RANGES
 
+    # the library's ranges, named by the options (the angle in degrees)
     check_number("--budget", budget, 0.0, lo_open=True)
-    check_number("--cell", cell_m, 0.0, lo_open=True)
-    check_number("--angle", angle_deg, 0.0, lo_open=True)
-    check_number("--step", step_m, 0.0, lo_open=True)
-    check_int("--steer-levels", steer_levels, 1, 201, "a number of steering angles")
+    check_range("--budget", budget, *RANGES["budget_s"], "s")
+    check_range("--cell", cell_m, *RANGES["cell_m"], "m")
+    check_range("--angle", angle_deg, *(math.degrees(a) for a in RANGES["angle_rad"]), "deg")
+    check_range("--step", step_m, *RANGES["step_m"], "m")
+    check_int("--steer-levels", steer_levels, 1, MAX_STEER_LEVELS, "a number of steering angles")
     if margin is not None:
         check_number("--margin", margin, 0.0)
     result = reach_table(list(maps), margin, budget, progress=lambda s: click.echo(s, err=True), cell_m=cell_m,

@@ -39,6 +39,7 @@ import numpy as np
 from .. import bodies
 from ..errors import InputError
 from ..geometry import wrap_angle
+from ..limits import check_int, check_range
 
 #: the longest RK4 substep of a move [m of the car's rear axle]; every substep's configuration is checked
 SUBSTEP_M = 0.05
@@ -50,16 +51,9 @@ STEP_M = 0.2
 #: the most cells both ends may hold together (memory: about 200 bytes a cell); the search stops there
 #: undecided, as at its budget
 MAX_CELLS = 4_000_000
-
-
-def _check(key: str, value, lo: float, hi: float, integer: bool = False):
-    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
-    ok = ok and math.isfinite(float(value)) and lo <= float(value) <= hi
-    if ok and integer:
-        ok = float(value).is_integer()
-    if not ok:
-        raise InputError(key, f"{'an integer' if integer else 'a number'} in [{lo:g}, {hi:g}]", value)
-    return int(value) if integer else float(value)
+#: the ranges rig_reach accepts: (low, high) per argument
+RANGES = {"cell_m": (1e-3, 10.0), "angle_rad": (1e-4, 1.0), "step_m": (1e-3, 10.0), "budget_s": (0.0, 1e7)}
+MAX_STEER_LEVELS = 201
 
 
 def rig_reach(world, robot, x_start, x_goal, margin: float, *, cell_m: float = CELL_M, angle_rad: float = ANGLE_RAD,
@@ -76,12 +70,12 @@ def rig_reach(world, robot, x_start, x_goal, margin: float, *, cell_m: float = C
     model = robot.model
     if not getattr(robot, "trailers", 0):
         raise InputError("robot", "a car with at least one trailer", getattr(model, "name", model))
-    cell_m = _check("cell_m", cell_m, 1e-3, 10.0)
-    angle_rad = _check("angle_rad", angle_rad, 1e-4, 1.0)
-    steer_levels = _check("steer_levels", steer_levels, 1, 201, integer=True)
-    step_m = _check("step_m", step_m, 1e-3, 10.0)
-    budget_s = _check("budget_s", budget_s, 0.0, 1e7)
-    max_cells = _check("max_cells", max_cells, 1, 1e9, integer=True)
+    cell_m = check_range("cell_m", cell_m, *RANGES["cell_m"], "m")
+    angle_rad = check_range("angle_rad", angle_rad, *RANGES["angle_rad"], "rad")
+    step_m = check_range("step_m", step_m, *RANGES["step_m"], "m")
+    budget_s = check_range("budget_s", budget_s, *RANGES["budget_s"], "s")
+    steer_levels = check_int("steer_levels", steer_levels, 1, MAX_STEER_LEVELS, "a number of steering angles")
+    max_cells = check_int("max_cells", max_cells, 1, 10**9, "a number of cells")
     started = clock()
     heads = list(model.heading_columns)
     steer_col = list(model.state_names).index("phi")

@@ -117,6 +117,10 @@ def test_cli_reach_writes_its_table_and_refuses_bad_arguments(tmp_path):
     assert res.exit_code == 0, res.output
     assert "disconnected (start closed)" in (out / "reach.md").read_text()
     one_line(invoke("trailer", "reach", path, "--step", "0"), 2, "--step")
+    # the library's ranges, named by the options; the angle in degrees
+    one_line(invoke("trailer", "reach", path, "--cell", "100"), 2, "--cell", "[0.001, 10] m")
+    one_line(invoke("trailer", "reach", path, "--angle", "1000"), 2, "--angle", "57.2958] deg")
+    one_line(invoke("trailer", "reach", path, "--budget", "1e300"), 2, "--budget")
     one_line(invoke("trailer", "reach", path, "--steer-levels", "0"), 2, "--steer-levels")
     one_line(invoke("trailer", "reach", "example:parking_lot"), 2, "car_trailer")
 
