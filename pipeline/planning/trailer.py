@@ -55,10 +55,11 @@ and goal, joined to the other with the chained-form piece) plans, and :func:`lat
 its plan the same kind of nominal (the primitives' inputs integrated again with the tracker's RK4,
 the piece, the tail). At each root the search runs on the rungs of ``LATTICE_RUNGS``: the plan's
 lattice at the plan's caps; where it expands every cell it reaches, the same with primitives cut at
-their first collision; where that exhausts too, the finer lattice with the hitch angle within
-``TIGHT_JACKKNIFE_FRACTION`` of the jackknife limit and the steering (and its rate) within
-``TIGHT_STEER_FRACTION`` of its limits: the rig turns as tight as the space needs, and the feedback
-keeps less room there. The nominal keeps the caps its plan was found at.
+their first collision; where that exhausts too, the stop-and-steer primitives (the rig stops, steers,
+drives a few tenths of a metre) with the hitch angle within ``TIGHT_JACKKNIFE_FRACTION`` of the
+jackknife limit and the steering (and its rate) within ``TIGHT_STEER_FRACTION`` of its limits; where
+that exhausts too, the finer lattice at those caps: the rig turns as tight as the space needs, and the
+feedback keeps less room there. The nominal keeps the caps its plan was found at.
 
 Budget
 ------
@@ -127,9 +128,11 @@ STEER_FRACTION = 0.9
 TIGHT_JACKKNIFE_FRACTION = 0.95
 TIGHT_STEER_FRACTION = 1.0
 #: the lattice search's rungs at each root: (resolution, primitives cut at their first collision, hitch angle and
-#: steering fractions); a rung runs only where the one before it expanded every cell it reached
-LATTICE_RUNGS = ((0, False, JACKKNIFE_FRACTION, STEER_FRACTION), (0, True, JACKKNIFE_FRACTION, STEER_FRACTION),
-                 (1, True, TIGHT_JACKKNIFE_FRACTION, TIGHT_STEER_FRACTION))
+#: steering fractions, primitives); a rung runs only where the one before it expanded every cell it reached
+LATTICE_RUNGS = ((0, False, JACKKNIFE_FRACTION, STEER_FRACTION, "hitch"),
+                 (0, True, JACKKNIFE_FRACTION, STEER_FRACTION, "hitch"),
+                 (0, False, TIGHT_JACKKNIFE_FRACTION, TIGHT_STEER_FRACTION, "steer"),
+                 (1, True, TIGHT_JACKKNIFE_FRACTION, TIGHT_STEER_FRACTION, "hitch"))
 #: the geometric search keeps this much more than the margin: the tracked motion leaves the path where
 #: its curvature jumps (the hitch angle follows gradually)
 MARGIN_PAD = 0.3
@@ -364,7 +367,7 @@ def lattice_plan(world: CollisionWorld, robot, path_opts: PathOptions, timing: T
         root_began = time.perf_counter()
         # the rungs of LATTICE_RUNGS in turn, each with what is left of this root's share, the next one only where
         # the last expanded every cell it reached (the space needs more)
-        for rung, (resolution, cut, hitch_f, steer_f) in enumerate(LATTICE_RUNGS):
+        for rung, (resolution, cut, hitch_f, steer_f, prims) in enumerate(LATTICE_RUNGS):
             give = root_budget - (time.perf_counter() - root_began) if rung else root_budget
             if give <= 0.0:
                 break
@@ -373,7 +376,8 @@ def lattice_plan(world: CollisionWorld, robot, path_opts: PathOptions, timing: T
             found = lattice_search(world, robot, x_start, x_goal, margin=search_margin, speed=speed, step_s=step_s,
                                    hitch_cap=hitch_f * jk, steer_cap=steer_f * mx, rate_cap=steer_f * rate,
                                    max_speed=max_speed, budget_s=give, piece_margin=max(margin, search_margin - 1e-3),
-                                   from_goal=from_goal, resolution=resolution, cut_primitives=cut)
+                                   from_goal=from_goal, resolution=resolution, cut_primitives=cut,
+                                   primitives=prims)
             messages.append(found.message)
             if found.found or not found.info["exhausted"]:
                 break

@@ -1,5 +1,6 @@
 """A Hybrid-A* search over the whole car-with-one-trailer rig, in (x, y, theta, theta1) with the steering
-angle carried along, for the spaces the trailer's Reeds-Shepp path cannot use (aisles, dock bays).
+angle carried along, for the spaces the trailer's Reeds-Shepp path cannot use (aisles, dock bays), with
+the hitch-angle law's primitives or, where those cannot leave a bay, stop-and-steer ones.
 
 Motion primitives
 -----------------
@@ -15,6 +16,24 @@ primitives of ``BATCH_NODES`` nodes at once; the nominal integrates the same kno
 grid (:func:`nhstab.planning.trailer.lattice_nominal`), so the plan is exactly a motion of the model.
 Nodes near the target's axis get one more primitive whose target hitch angle comes from the
 tracker's curvature law towards that straight line (``APPROACH_GAINS``).
+
+Stop-and-steer primitives
+-------------------------
+With ``primitives="steer"`` the search moves as a driver does in a tight bay: it stops, steers, drives.
+From a node, for each of ``STEER_LEVELS`` steering angles over +- the steering cap and each direction:
+unless the node is already moving that way at that angle, the speed falls to 0 over one knot interval,
+the steering angle goes to the level at rest (the rate ramps up over one interval, holds within the rate
+cap, ramps down over one; at rest only phi moves, phi' = omega, so the search sets it exactly), and the
+rig drives ``STEER_DRIVE_STEPS`` intervals (the first ramping up from rest); a node moving that way at
+that angle drives on at speed. The ramp to rest and the drive are integrated with RK4 and every state
+is checked as below (the drive's last state first). These knots are the plan's inputs like any other
+primitive's, so the nominal integrates them again exactly. Their duplicate cells are finer
+(``STEER_CELL_M``, ``STEER_HEADING_BINS``, ``STEER_HITCH_BIN_RAD``, without the direction), a reversal
+costs ``STEER_CUSP_COST_M`` and reversing no more than driving forward, and their heuristic, weighted
+``STEER_HEURISTIC_WEIGHT``, is how far the trailer's axle is from the straight line through the target's
+trailer axle along its heading (where the exact join below is tried), plus its heading error times the
+trailer's radius d / tan(hitch_cap), the hitch angle times d, and the distance beyond
+``ANALYTIC_RANGE_M`` along that line; at least the grid distance less ``ANALYTIC_RANGE_M``.
 
 Checks
 ------
@@ -165,6 +184,18 @@ APPROACH_CONE = 0.6
 APPROACH_HEADING_RAD = 0.8
 #: an upper bound on expansions, whatever the budget
 MAX_EXPANSIONS = 200_000
+#: the stop-and-steer primitives (``primitives="steer"``): this many steering levels over +- the steering cap
+#: (odd: straight is one), and knot intervals driven per primitive at the nominal's speed
+STEER_LEVELS = 9
+STEER_DRIVE_STEPS = 3
+#: their duplicate cells: trailer axle position [m], trailer heading bins per turn, hitch angle [rad]
+STEER_CELL_M = 0.1
+STEER_HEADING_BINS = 180
+STEER_HITCH_BIN_RAD = math.radians(2.0)
+#: their cost of a reversal [m] (no more than that of moving the trailer's axle 1 m: a bay needs reversals)
+STEER_CUSP_COST_M = 1.0
+#: their heuristic's weight: f = g + STEER_HEURISTIC_WEIGHT h
+STEER_HEURISTIC_WEIGHT = 3.0
 
 
 @dataclass
@@ -351,13 +382,15 @@ def _trailer_poses(d: float, x: np.ndarray) -> np.ndarray:
 def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: float, speed: float, step_s: float,
                    hitch_cap: float, steer_cap: float, rate_cap: float, max_speed: float, budget_s: float,
                    piece_margin: float | None = None, from_goal: bool = False, resolution: int = 0,
-                   cut_primitives: bool = False,
+                   cut_primitives: bool = False, primitives: str = "hitch",
                    clock=time.perf_counter) -> LatticeResult:
     """Search from full state ``x_start`` to ``x_goal`` (module docstring). ``margin``: every body's
     clearance along the primitives; ``piece_margin`` (default ``margin``) along the final piece.
     ``from_goal``: root the search at the goal and join the start with the chained-form piece (module
-    docstring: the motion reversed in time). ``clock``: the time in seconds the budget is counted on
-    (read before every batch of expansions and every final piece tried)."""
+    docstring: the motion reversed in time). ``primitives``: "hitch" (the hitch-angle law's primitives on
+    the lattice of ``resolution``, cut with ``cut_primitives``) or "steer" (the stop-and-steer primitives
+    on their own cells and heuristic, module docstring). ``clock``: the time in seconds the budget is
+    counted on (read before every batch of expansions and every final piece tried)."""
     if from_goal:
         x_start, x_goal = x_goal, x_start
     started = clock()
@@ -375,6 +408,9 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
     top = HITCH_TARGET_FRACTION * min(hitch_cap, holdable)
     if resolution not in (0, 1):
         raise InputError("resolution", "0 (the lattice's cells) or 1 (finer: FINE_DIVISOR)", resolution)
+    if primitives not in ("hitch", "steer"):
+        raise InputError("primitives", '"hitch" or "steer"', primitives)
+    steer = primitives == "steer"
     div = FINE_DIVISOR if resolution else 1
     cell_m, hitch_bin = CELL_M / div, HITCH_BIN_RAD / div
     rs_cell, rs_bins = RS_CELL_M / div, RS_HEADING_BINS * div
@@ -426,10 +462,27 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
             return rs_to(p, goal_p1)
         return min(rs_to(p, pre[i]) + pre_m[i] for i in sides)
 
-    def heuristic(p):
+    def axis_h(p, x):
+        # the stop-and-steer primitives' heuristic: how far the trailer's axle is from the target's axis, where
+        # the exact join is tried, plus its heading error and the hitch angle as lengths (the trailer's radius
+        # r_h and its hitch length), plus how far it is outside the join's range along the axis; at least the
+        # grid distance beyond that range
+        dx, dy = p[0] - goal_p1[0], p[1] - goal_p1[1]
+        along, across = cg * dx + sg_ * dy, -sg_ * dx + cg * dy
+        h = (abs(across) + r_h * abs(float(wrap_angle(p[2] - goal_p1[2]))) + d * abs(float(wrap_angle(x[2] - x[4])))
+             + max(0.0, abs(along) - ANALYTIC_RANGE_M))
+        return max(h, float(grid_h(p)) - ANALYTIC_RANGE_M) if use_grid else h
+
+    def heuristic(p, x):
+        if steer:
+            return axis_h(p, x)
         return max(rs_h(p), float(grid_h(p)) if use_grid else 0.0)
 
     def key(p, x, direction):
+        if steer:
+            return (int(math.floor(p[0] / STEER_CELL_M)), int(math.floor(p[1] / STEER_CELL_M)),
+                    int(math.floor(float(wrap_angle(p[2])) / (2 * math.pi) * STEER_HEADING_BINS)) % STEER_HEADING_BINS,
+                    int(math.floor(float(wrap_angle(x[2] - x[4])) / STEER_HITCH_BIN_RAD)))
         return (int(math.floor(p[0] / cell_m)), int(math.floor(p[1] / cell_m)),
                 int(math.floor(float(wrap_angle(p[2])) / (2 * math.pi) * HEADING_BINS)) % HEADING_BINS,
                 int(math.floor(float(wrap_angle(x[2] - x[4])) / hitch_bin)), direction)
@@ -439,8 +492,9 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
     # rooted at the goal, the root's primitives leave it at speed (the rig arrives at the goal moving, as
     # the chained-form piece makes it arrive); rooted at the start, the rig starts at rest
     best_g = {key(start_p1, x_start, 0): 0.0}
-    h0 = heuristic(start_p1)
-    heap = [(HEURISTIC_WEIGHT * h0, 0, 0)]
+    weight = STEER_HEURISTIC_WEIGHT if steer else HEURISTIC_WEIGHT
+    h0 = heuristic(start_p1, x_start)
+    heap = [(weight * h0, 0, 0)]
     counter = 1
     closed = set()
     closest = (h0, 0)
@@ -508,6 +562,118 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
             return None
         return piece
 
+    steer_levels = np.linspace(-steer_cap, steer_cap, STEER_LEVELS)
+
+    def steer_knots(u0, ramp: bool, phi0: float, level: float, v: float, cont: bool) -> np.ndarray:
+        """A stop-and-steer primitive's knots from the last input ``u0``: unless it continues the node's
+        motion (``cont``), the speed falls to 0 over one interval (``ramp``: the node was moving), the
+        steering goes from ``phi0`` to ``level`` at rest within the rate cap (the rate ramps up over one
+        interval, holds, ramps down over one), then the rig drives STEER_DRIVE_STEPS intervals at ``v``
+        (the first ramping up from rest)."""
+        seq = [u0]
+        if not cont:
+            if ramp:
+                seq.append((0.0, 0.0))
+            delta = level - phi0
+            m = int(math.ceil(abs(delta) / (rate_cap * step_s) - 1e-9))
+            if m:
+                w = delta / (step_s * m)
+                seq += [(0.0, w)] * m + [(0.0, 0.0)]
+        seq += [(v, 0.0)] * STEER_DRIVE_STEPS
+        return np.array(seq, dtype=float)
+
+    def expand_steer(batch):
+        """Every node of ``batch`` with the stop-and-steer primitives: each steering level, forward and
+        in reverse. At rest only the steering angle moves (phi' = omega), so it is set exactly; the
+        ramp to rest and the drive are integrated (RK4, every state checked)."""
+        nonlocal counter
+        n2 = 2 * len(steer_levels)
+        owner = np.repeat(np.array(batch), n2)
+        lev = np.tile(np.repeat(steer_levels, 2), len(batch))
+        dr = np.tile([1.0, -1.0], len(batch) * len(steer_levels))
+        x0 = np.array([nodes[i][0] for i in owner])
+        u0 = np.array([nodes[i][1] for i in owner])
+        if from_goal:
+            u0[owner == 0] = np.column_stack([speed * dr[owner == 0], np.zeros(int(np.sum(owner == 0)))])
+        moving = u0[:, 0] != 0.0
+        cont = moving & (np.sign(u0[:, 0]) == dr) & (np.abs(x0[:, 3] - lev) < 1e-9)
+        ramp = moving & ~cont
+        K = len(owner)
+        stats["primitives"] += K
+        xr = x0.copy()
+        ramp_states = None
+        if ramp.any():
+            kn = np.stack([u0[ramp], np.zeros((int(ramp.sum()), 2))], axis=1)
+            ramp_states = integrate_knots(model, x0[ramp], kn, step_s)
+            xr[ramp] = ramp_states[:, -1]
+        xr[~cont, 3] = lev[~cont]
+        dk = np.zeros((K, STEER_DRIVE_STEPS + 1, 2))
+        dk[:, 1:, 0] = (dr * speed)[:, None]
+        dk[cont, 0] = u0[cont]
+        drive = integrate_knots(model, xr, dk, step_s)
+        ends = drive[:, -1]
+        p_end = _trailer_poses(d, ends)
+        keys = [key(p_end[q], ends[q], 0) for q in range(K)]
+        ok = np.array([k not in closed for k in keys])
+        stats["skipped_closed"] += int(np.sum(~ok))
+        # the limits along the ramp and the drive (the steering levels are within the cap)
+        ok &= np.all(np.abs(wrap_angle(drive[..., 2] - drive[..., 4])) <= hitch_cap, axis=1)
+        ramp_ok = np.ones(K, dtype=bool)
+        if ramp_states is not None:
+            ramp_ok[ramp] = np.all(np.abs(wrap_angle(ramp_states[..., 2] - ramp_states[..., 4])) <= hitch_cap, axis=1)
+        lim = ok & ramp_ok
+        stats["cut_by_limits"] += int(np.sum(ok & ~lim))
+        ok = lim
+        p_drive = _trailer_poses(d, drive)
+        # the drive's end states first (most collisions show there), then the states before them
+        for span in (slice(-1, None), slice(1, -1)):
+            for body, fp, poses in (("car", car_fp, drive[:, span, :3]), ("trailer", trailer_fp, p_drive[:, span])):
+                sel = np.flatnonzero(ok)
+                if not len(sel) or not poses.shape[1]:
+                    break
+                flat = poses[sel].reshape(-1, 3)
+                stats["states_checked"] += len(flat)
+                free = world.free_many(flat, fp, margin).reshape(len(sel), -1).all(axis=1)
+                stats[f"cut_by_{body}"] += int(np.sum(~free))
+                ok[sel[~free]] = False
+        if ramp_states is not None:
+            rix = np.flatnonzero(ramp)
+            rsel = np.flatnonzero(ok[rix])
+            for body, fp in (("car", car_fp), ("trailer", trailer_fp)):
+                if not len(rsel):
+                    break
+                rs = ramp_states[rsel][:, 1:]
+                flat = (rs[..., :3] if body == "car" else _trailer_poses(d, rs)).reshape(-1, 3)
+                stats["states_checked"] += len(flat)
+                free = world.free_many(flat, fp, margin).reshape(len(rsel), -1).all(axis=1)
+                stats[f"cut_by_{body}"] += int(np.sum(~free))
+                ok[rix[rsel[~free]]] = False
+                rsel = rsel[free]
+        if use_grid:
+            reach = np.isfinite(grid_h(p_end))
+            stats["refused_grid"] += int(np.sum(ok & ~reach))
+            ok &= reach
+        arc = np.sum(np.hypot(*np.diff(p_drive[..., :2], axis=1).transpose(2, 0, 1)), axis=1)
+        if ramp_states is not None:
+            pr = _trailer_poses(d, ramp_states)
+            arc[ramp] += np.sum(np.hypot(*np.diff(pr[..., :2], axis=1).transpose(2, 0, 1)), axis=1)
+        for q in np.flatnonzero(ok):
+            ni = int(owner[q])
+            x, u, g = nodes[ni][0], u0[q], nodes[ni][2]
+            dq = int(dr[q])
+            cost = arc[q] + STEER_CHANGE_COST_M * abs(float(lev[q] - x[3]))
+            if u[0] != 0.0 and int(np.sign(u[0])) != dq:
+                cost += STEER_CUSP_COST_M
+            gq = g + cost
+            kq = keys[q]
+            if best_g.get(kq, math.inf) <= gq:
+                continue
+            best_g[kq] = gq
+            kn = steer_knots(u, bool(ramp[q]), float(x[3]), float(lev[q]), dq * speed, bool(cont[q]))
+            nodes.append((ends[q], kn[-1].copy(), gq, ni, kn))
+            heapq.heappush(heap, (gq + weight * heuristic(p_end[q], ends[q]), counter, len(nodes) - 1))
+            counter += 1
+
     found = None
     out_of_time = False
     while heap and found is None and not out_of_time:
@@ -527,7 +693,7 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
                 continue
             closed.add(k)
             expansions += 1
-            hn = heuristic(p1)
+            hn = heuristic(p1, x)
             if hn < closest[0]:
                 closest = (hn, ni)
             if ni != 0 and clock() - started >= budget_s:
@@ -541,6 +707,9 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
                     break
             batch.append(ni)
         if found is not None or out_of_time or not batch:
+            continue
+        if steer:
+            expand_steer(batch)
             continue
         owner, tg, dr, ap = [], [], [], []
         for i in batch:
@@ -629,13 +798,14 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
             best_g[kq] = gq
             kn = knots[q, :steps_ok[q] + 1]
             nodes.append((xe, kn[-1].copy(), gq, ni, kn))
-            heapq.heappush(heap, (gq + HEURISTIC_WEIGHT * heuristic(p_end[q]), counter, len(nodes) - 1))
+            heapq.heappush(heap, (gq + weight * heuristic(p_end[q], xe), counter, len(nodes) - 1))
             counter += 1
     elapsed = clock() - started
     info = {"search": "lattice", "budget_s": float(budget_s), "expansions": expansions, "nodes": len(nodes), "analytic_tries": analytic_tries,
             "search_time_s": elapsed, "grid_heuristic": use_grid, "heuristic_radius_m": r_h,
             "hitch_target_max_rad": float(top), "hitch_cap_rad": float(hitch_cap), "steer_cap_rad": float(steer_cap),
             "resolution": resolution, "hitch_levels": len(levels), "cut_primitives": bool(cut_primitives),
+            "primitive_kind": primitives,
             "exhausted": bool(found is None and not out_of_time and expansions < MAX_EXPANSIONS), **stats}
     if found is None:
         hn, ni = closest
@@ -648,7 +818,8 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
                "expanded")
         refused = ", ".join(f"{n} {k}" for k, n in sorted(refusals.items())) or "none tried"
         target = "start" if from_goal else "goal"
-        how = (", cut primitives" if cut_primitives else "") + (", finer lattice" if resolution else "")
+        how = (", stop-and-steer primitives" if steer else (", cut primitives" if cut_primitives else "")
+               + (", finer lattice" if resolution else ""))
         msg = (f"lattice search ({'from the goal' if from_goal else 'from the start'}{how}, hitch angle within "
                f"{hitch_cap:.3g} rad, steering within {steer_cap:.3g} rad): no plan, {why} after "
                f"{expansions} expansions in {elapsed:.2f} s; closest node: the trailer's axle {off:.2f} m from the "

@@ -299,13 +299,13 @@ def _rung_plan(name, rung, expansions):
     counted in clock readings (one per expansion: machine-independent), and the nominal of its plan."""
     m, robot, world, xs, xg, clearances = _dock(name)
     model = robot.model
-    resolution, cut, hitch_f, steer_f = LATTICE_RUNGS[rung]
+    resolution, cut, hitch_f, steer_f, prims = LATTICE_RUNGS[rung]
     margin = robot.margin
     res = lattice_search(world, robot, xs, xg, margin=margin + 0.005, speed=0.9, step_s=0.1,
                          hitch_cap=hitch_f * model.jackknife_limit, steer_cap=steer_f * model.max_steer,
                          rate_cap=steer_f * model.max_steer_rate, max_speed=1.5, budget_s=expansions * 0.01,
                          piece_margin=margin + 0.004, from_goal=True, resolution=resolution, cut_primitives=cut,
-                         clock=_Ticks(0.01))
+                         primitives=prims, clock=_Ticks(0.01))
     nom = None
     if res.found:
         nom, _ = lattice_nominal(robot, res, TimingOptions(), world, margin, xs, xg, 0.9)
@@ -337,8 +337,62 @@ def test_the_tight_rung_reverses_into_a_bay_off_a_1_2_swept_path_aisle():
     for rung in (0, 1):
         _, _, res, _ = _rung_plan(name, rung, 3000)
         assert not res.found and res.info["exhausted"], res.message
-    m, robot, res, nom = _rung_plan(name, 2, 20000)
+    m, robot, res, nom = _rung_plan(name, 3, 20000)
     assert res.found and res.info["resolution"] == 1, res.message
     _check_nominal(m, robot, nom, TIGHT_JACKKNIFE_FRACTION, TIGHT_STEER_FRACTION)
     assert np.abs(robot.model.hitch_angles(nom.x)).max() < robot.model.jackknife_limit
     assert nom.u[-5:, 0].max() < 0
+
+
+def _replay(model, x0, knots, step_s):
+    """The model written out here (_rhs) from x0 under inputs linear between ``knots``, DOP853 over each
+    interval: the state after the last knot."""
+    x = np.array(x0, dtype=float)
+    for k in range(len(knots) - 1):
+        u0, u1 = knots[k], knots[k + 1]
+        sol = solve_ivp(lambda t, y: _rhs(model, y, u0 + (t / step_s) * (u1 - u0)), (0.0, step_s), x,
+                        method="DOP853", rtol=1e-11, atol=1e-12)
+        x = sol.y[:, -1]
+    return x
+
+
+def _steer_rung():
+    rung = next(i for i, r in enumerate(LATTICE_RUNGS) if r[4] == "steer")
+    assert all(r[4] == "hitch" and not r[0] for r in LATTICE_RUNGS[:rung])   # after the coarse hitch-law rungs
+    return rung
+
+
+@pytest.mark.slow
+def test_stop_and_steer_rung_leaves_a_bay_off_a_1_2_swept_path_aisle():
+    """A bay 1.3 x the rig's width off an aisle 1.2 x its swept path, where no hitch-law rung planned within
+    20,000 expansions: the stop-and-steer rung plans. Its inputs steer only at rest (omega != 0 only where
+    v = 0) within the rate cap; replayed through the model written out here they end at the goal (the plan
+    is reversed in time from the bay); its nominal passes _check_nominal at the tight fractions and ends
+    reversing into the bay."""
+    name = "trailer_dock_bay130_aisle120"
+    m, robot, res, nom = _rung_plan(name, _steer_rung(), 12000)
+    assert res.found and res.info["primitive_kind"] == "steer", res.message
+    model = robot.model
+    kn = res.knots
+    steering = np.abs(kn[:, 1]) > 0
+    assert np.all(kn[steering, 0] == 0.0)
+    assert np.abs(kn[:, 1]).max() <= TIGHT_STEER_FRACTION * model.max_steer_rate + 1e-12
+    assert np.abs(kn[:, 0]).max() <= 0.9 + 1e-12
+    # the primitives' end, replayed: the goal (the search drove them away from it; the plan is that reversed)
+    _, _, xs, xg, _ = _dock(name)[1:]
+    end = _replay(model, res.states[0], kn, res.step_s)
+    np.testing.assert_allclose(model.state_error(end, xg), 0.0, atol=1e-6)
+    assert res.info["expansions"] < 12000
+    _check_nominal(m, robot, nom, TIGHT_JACKKNIFE_FRACTION, TIGHT_STEER_FRACTION)
+    assert nom.u[-5:, 0].max() < 0
+
+
+def test_stop_and_steer_rung_exhausts_a_closed_bay():
+    """The 1.1 W bay off the 1.2 S aisle, whose goal `nhstab trailer reach` finds closed at the maps' margin
+    (600 cells on its grid): the stop-and-steer rung, on a grid of the same cells (0.1 m, 2 degrees) with
+    moves of about 0.2-0.3 m, also expands every cell it reaches, within a few thousand expansions, without a
+    plan."""
+    _, _, res, _ = _rung_plan("trailer_dock_bay110_aisle120", _steer_rung(), 20000)
+    assert not res.found and res.info["exhausted"], res.message
+    assert res.info["expansions"] < 5000
+    assert "stop-and-steer primitives" in res.message and "every reachable cell was expanded" in res.message
