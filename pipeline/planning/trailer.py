@@ -68,7 +68,9 @@ decides the order: when the largest free disc centred within R1 of the start's o
 trailer axle has a radius below ``TIGHT_DISC_FRACTION`` R1, the lattice search runs first with all
 of T and the Reeds-Shepp paths get what it leaves; otherwise the Reeds-Shepp paths run first with
 ``REEDS_SHEPP_SHARE`` T (every attempt within what is left of it) and the lattice search gets the
-rest. No phase starts with less than ``MIN_PHASE_SHARE`` T left. Outside the budget: making a path
+rest. No phase starts with less than ``MIN_PHASE_SHARE`` T left. Within the lattice search the first
+root gets ``LATTICE_FIRST_SHARE`` of its budget, except that its stop-and-steer rung may run until
+``STEER_RUNG_SHARE`` of it has passed (:func:`lattice_plan`), and the other root the rest. Outside the budget: making a path
 found in time into a nominal, its clearance check and the gain schedule. The metrics record the
 order and each phase's budget (``search_budget_s``).
 
@@ -172,6 +174,10 @@ LATTICE_MARGIN_PAD = 0.005
 LATTICE_SPEED_FRACTION = 0.6
 #: the lattice search rooted at the tighter end gets this share of its budget, the other end the rest
 LATTICE_FIRST_SHARE = 0.6
+#: except that its stop-and-steer rung, which runs only where the rungs before it found that end enclosed (they
+#: expanded every cell they reached), may run until this share of the budget has passed: a search from the
+#: other end would have to find its way into that enclosure
+STEER_RUNG_SHARE = 0.9
 #: the nominal's tail (the motion continued past the goal for the gain schedule's windows) [s]
 TAIL_S = 20.0
 #: the final piece starts between the first and last of these distances from the goal (trailer's axle) [m]
@@ -368,7 +374,8 @@ def lattice_plan(world: CollisionWorld, robot, path_opts: PathOptions, timing: T
         # the rungs of LATTICE_RUNGS in turn, each with what is left of this root's share, the next one only where
         # the last expanded every cell it reached (the space needs more)
         for rung, (resolution, cut, hitch_f, steer_f, prims) in enumerate(LATTICE_RUNGS):
-            give = root_budget - (time.perf_counter() - root_began) if rung else root_budget
+            limit = max(root_budget, STEER_RUNG_SHARE * budget) if k == 0 and prims == "steer" else root_budget
+            give = limit - (time.perf_counter() - root_began) if rung else limit
             if give <= 0.0:
                 break
             given.append(give)

@@ -187,7 +187,7 @@ MAX_EXPANSIONS = 200_000
 #: the stop-and-steer primitives (``primitives="steer"``): this many steering levels over +- the steering cap
 #: (odd: straight is one), and knot intervals driven per primitive at the nominal's speed
 STEER_LEVELS = 9
-STEER_DRIVE_STEPS = 3
+STEER_DRIVE_STEPS = 4
 #: their duplicate cells: trailer axle position [m], trailer heading bins per turn, hitch angle [rad]
 STEER_CELL_M = 0.1
 STEER_HEADING_BINS = 180

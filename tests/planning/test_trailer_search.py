@@ -16,6 +16,7 @@ from nhstab.planning.trailer import (
     LATTICE_FIRST_SHARE,
     LATTICE_RUNGS,
     STEER_FRACTION,
+    STEER_RUNG_SHARE,
     TIGHT_JACKKNIFE_FRACTION,
     TIGHT_STEER_FRACTION,
     check_configuration,
@@ -390,9 +391,26 @@ def test_stop_and_steer_rung_leaves_a_bay_off_a_1_2_swept_path_aisle():
 def test_stop_and_steer_rung_exhausts_a_closed_bay():
     """The 1.1 W bay off the 1.2 S aisle, whose goal `nhstab trailer reach` finds closed at the maps' margin
     (600 cells on its grid): the stop-and-steer rung, on a grid of the same cells (0.1 m, 2 degrees) with
-    moves of about 0.2-0.3 m, also expands every cell it reaches, within a few thousand expansions, without a
+    moves of about 0.3 m, also expands every cell it reaches, within a few thousand expansions, without a
     plan."""
     _, _, res, _ = _rung_plan("trailer_dock_bay110_aisle120", _steer_rung(), 20000)
     assert not res.found and res.info["exhausted"], res.message
     assert res.info["expansions"] < 5000
     assert "stop-and-steer primitives" in res.message and "every reachable cell was expanded" in res.message
+
+
+def test_the_stop_and_steer_rung_keeps_the_budget_at_an_enclosed_end():
+    """Where the hitch-law rungs at the first root (the bay) expand every cell they reach, the stop-and-steer
+    rung there may run until STEER_RUNG_SHARE of the lattice's budget has passed, not only the first root's
+    LATTICE_FIRST_SHARE: the other root gets at most the rest (or nothing)."""
+    m, robot, world, xs, xg, clearances = _dock("trailer_dock_bay130_aisle120")
+    opts = PathOptions(seed=0).for_robot(robot).validated()
+    budget = 6.0
+    status, _, _, _, metrics = lattice_plan(world, robot, opts, TimingOptions(), xs, xg, clearances, budget=budget)
+    runs, given = metrics["lattice_runs"], metrics["lattice_budgets_s"]
+    assert status == "no_path" and runs[:3] == ["goal 0", "goal 1", "goal 2"]
+    # more than the whole root's share (the two rungs before it take well under the 1.8 s between the shares)
+    assert given[2] > LATTICE_FIRST_SHARE * budget
+    assert all(r.startswith("goal") for r in runs[:-1])
+    if runs[-1].startswith("start"):
+        assert given[-1] <= (1.0 - STEER_RUNG_SHARE) * budget + 1e-9
