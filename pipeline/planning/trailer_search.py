@@ -473,6 +473,14 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
              + max(0.0, abs(along) - ANALYTIC_RANGE_M))
         return max(h, float(grid_h(p)) - ANALYTIC_RANGE_M) if use_grid else h
 
+    def axis_h_many(p, x):
+        # axis_h on arrays (N, 3) and (N, 5)
+        dx, dy = p[:, 0] - goal_p1[0], p[:, 1] - goal_p1[1]
+        along, across = cg * dx + sg_ * dy, -sg_ * dx + cg * dy
+        h = (np.abs(across) + r_h * np.abs(wrap_angle(p[:, 2] - goal_p1[2])) + d * np.abs(wrap_angle(x[:, 2] - x[:, 4]))
+             + np.maximum(0.0, np.abs(along) - ANALYTIC_RANGE_M))
+        return np.maximum(h, grid_h(p) - ANALYTIC_RANGE_M) if use_grid else h
+
     def heuristic(p, x):
         if steer:
             return axis_h(p, x)
@@ -501,7 +509,7 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
     expansions = analytic_tries = 0
     refusals: dict = {}
     stats = {"primitives": 0, "states_checked": 0, "cut_by_limits": 0, "cut_by_car": 0, "cut_by_trailer": 0,
-             "refused_short": 0, "refused_grid": 0, "skipped_closed": 0}
+             "refused_short": 0, "refused_grid": 0, "skipped_closed": 0, "skipped_dearer": 0}
     n_lev = len(levels)
     targets = np.tile(np.repeat(levels, 2), 1)
     dirs = np.tile([1.0, -1.0], n_lev)
@@ -613,7 +621,11 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
         drive = integrate_knots(model, xr, dk, step_s)
         ends = drive[:, -1]
         p_end = _trailer_poses(d, ends)
-        keys = [key(p_end[q], ends[q], 0) for q in range(K)]
+        keys = list(zip(np.floor(p_end[:, 0] / STEER_CELL_M).astype(int).tolist(),
+                        np.floor(p_end[:, 1] / STEER_CELL_M).astype(int).tolist(),
+                        (np.floor(wrap_angle(p_end[:, 2]) / (2 * math.pi) * STEER_HEADING_BINS).astype(int)
+                         % STEER_HEADING_BINS).tolist(),
+                        np.floor(wrap_angle(ends[:, 2] - ends[:, 4]) / STEER_HITCH_BIN_RAD).astype(int).tolist()))
         ok = np.array([k not in closed for k in keys])
         stats["skipped_closed"] += int(np.sum(~ok))
         # the limits along the ramp and the drive (the steering levels are within the cap)
@@ -625,6 +637,22 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
         stats["cut_by_limits"] += int(np.sum(ok & ~lim))
         ok = lim
         p_drive = _trailer_poses(d, drive)
+        if use_grid:
+            reach = np.isfinite(grid_h(p_end))
+            stats["refused_grid"] += int(np.sum(ok & ~reach))
+            ok &= reach
+        # the cost, known before the checks: a motion to a cell already reached as cheaply is not checked
+        arc = np.sum(np.hypot(*np.diff(p_drive[..., :2], axis=1).transpose(2, 0, 1)), axis=1)
+        if ramp_states is not None:
+            pr = _trailer_poses(d, ramp_states)
+            arc[ramp] += np.sum(np.hypot(*np.diff(pr[..., :2], axis=1).transpose(2, 0, 1)), axis=1)
+        g_par = np.array([nodes[i][2] for i in owner])
+        cusp = (u0[:, 0] != 0.0) & (np.sign(u0[:, 0]) != dr)
+        gqs = g_par + arc + STEER_CHANGE_COST_M * np.abs(lev - x0[:, 3]) + STEER_CUSP_COST_M * cusp
+        for q in np.flatnonzero(ok):
+            if best_g.get(keys[q], math.inf) <= gqs[q]:
+                ok[q] = False
+                stats["skipped_dearer"] += 1
         # the drive's end states first (most collisions show there), then the states before them
         for span in (slice(-1, None), slice(1, -1)):
             for body, fp, poses in (("car", car_fp, drive[:, span, :3]), ("trailer", trailer_fp, p_drive[:, span])):
@@ -649,29 +677,21 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
                 stats[f"cut_by_{body}"] += int(np.sum(~free))
                 ok[rix[rsel[~free]]] = False
                 rsel = rsel[free]
-        if use_grid:
-            reach = np.isfinite(grid_h(p_end))
-            stats["refused_grid"] += int(np.sum(ok & ~reach))
-            ok &= reach
-        arc = np.sum(np.hypot(*np.diff(p_drive[..., :2], axis=1).transpose(2, 0, 1)), axis=1)
-        if ramp_states is not None:
-            pr = _trailer_poses(d, ramp_states)
-            arc[ramp] += np.sum(np.hypot(*np.diff(pr[..., :2], axis=1).transpose(2, 0, 1)), axis=1)
+        hs = np.zeros(K)
+        if ok.any():
+            hs[ok] = axis_h_many(p_end[ok], ends[ok])
         for q in np.flatnonzero(ok):
             ni = int(owner[q])
-            x, u, g = nodes[ni][0], u0[q], nodes[ni][2]
+            x, u = nodes[ni][0], u0[q]
             dq = int(dr[q])
-            cost = arc[q] + STEER_CHANGE_COST_M * abs(float(lev[q] - x[3]))
-            if u[0] != 0.0 and int(np.sign(u[0])) != dq:
-                cost += STEER_CUSP_COST_M
-            gq = g + cost
+            gq = float(gqs[q])
             kq = keys[q]
             if best_g.get(kq, math.inf) <= gq:
                 continue
             best_g[kq] = gq
             kn = steer_knots(u, bool(ramp[q]), float(x[3]), float(lev[q]), dq * speed, bool(cont[q]))
             nodes.append((ends[q], kn[-1].copy(), gq, ni, kn))
-            heapq.heappush(heap, (gq + weight * heuristic(p_end[q], ends[q]), counter, len(nodes) - 1))
+            heapq.heappush(heap, (gq + weight * float(hs[q]), counter, len(nodes) - 1))
             counter += 1
 
     found = None
