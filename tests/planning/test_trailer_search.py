@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import shapely.geometry as sg
 from nhstab.collision import CollisionWorld
+from nhstab.errors import InputError
 from nhstab.maps import load_map
 from nhstab.planning import PathOptions, plan
 from nhstab.planning.timing import TimingOptions
@@ -414,3 +415,12 @@ def test_the_stop_and_steer_rung_keeps_the_budget_at_an_enclosed_end():
     assert all(r.startswith("goal") for r in runs[:-1])
     if runs[-1].startswith("start"):
         assert given[-1] <= (1.0 - STEER_RUNG_SHARE) * budget + 1e-9
+
+
+def test_an_unknown_primitive_kind_is_refused():
+    """lattice_search names its `primitives` argument, what it takes and what it was given."""
+    m, robot, world, xs, xg, _ = _dock("trailer_dock_bay150_aisle150")
+    with pytest.raises(InputError) as err:
+        lattice_search(world, robot, xs, xg, margin=0.05, speed=0.9, step_s=0.1, hitch_cap=0.8, steer_cap=0.54,
+                       rate_cap=0.9, max_speed=1.5, budget_s=1.0, primitives="spiral")
+    assert err.value.argument == "primitives" and "steer" in err.value.expected and err.value.got == "spiral"
