@@ -364,6 +364,7 @@ def lattice_plan(world: CollisionWorld, robot, path_opts: PathOptions, timing: T
     order = (True, False) if clearances["goal"] < clearances["start"] else (False, True)
     began = time.perf_counter()
     messages, given, runs = [], [], []
+    enclosed = None
     jk, mx, rate = float(model.jackknife_limit), float(model.max_steer), float(model.max_steer_rate)
     for k, from_goal in enumerate(order):
         left = budget - (time.perf_counter() - began)
@@ -386,6 +387,9 @@ def lattice_plan(world: CollisionWorld, robot, path_opts: PathOptions, timing: T
                                    from_goal=from_goal, resolution=resolution, cut_primitives=cut,
                                    primitives=prims)
             messages.append(found.message)
+            if prims == "steer" and found.info["exhausted"] and enclosed is None:
+                enclosed = {"end": "goal" if from_goal else "start", "expansions": int(found.info["expansions"]),
+                            "margin_m": float(search_margin)}
             if found.found or not found.info["exhausted"]:
                 break
         if found.found:
@@ -396,7 +400,8 @@ def lattice_plan(world: CollisionWorld, robot, path_opts: PathOptions, timing: T
                "planning_time_s": time.perf_counter() - started, "start_clearance_m": clearances["start"],
                "goal_clearance_m": clearances["goal"], "planned_body": "the whole rig (lattice search)",
                "search_margin_m": search_margin, "lattice_budgets_s": given,
-               "lattice_runs": [f"{root} {rung}" for root, rung in runs], **{f"lattice_{k}": v for k, v in found.info.items()
+               "lattice_runs": [f"{root} {rung}" for root, rung in runs], "lattice_enclosed": enclosed,
+               **{f"lattice_{k}": v for k, v in found.info.items()
                                                       if not isinstance(v, np.ndarray)}}
     empty = GeometricPath("failed", found.message, np.array([trailer_pose(model, x_start)]),
                           np.array([trailer_pose(model, x_start)]), np.zeros(1), np.zeros(0), 0.0, 0,
@@ -922,7 +927,7 @@ def swept_path(robot, r1: float) -> tuple[float, float, float]:
 
 
 def rig_likely_cause(world: CollisionWorld, robot, x_start, x_goal, margin: float, turning_radius: float,
-                     budget_s: float, pad: float) -> dict:
+                     budget_s: float, pad: float, enclosed: dict | None = None) -> dict:
     """:func:`nhstab.planning.guide.likely_cause` for the rig: why its search found no path, in one line
     with its numbers (``text``). For each body, the widest way from its start pose to its goal pose for
     its inscribed disc (:func:`~nhstab.planning.guide.passage`); the body with the least room names the
@@ -931,7 +936,9 @@ def rig_likely_cause(world: CollisionWorld, robot, x_start, x_goal, margin: floa
     the ways can reach holds no free disc as wide as the rig's tightest steady turn sweeps
     (:func:`swept_path` at the model's smallest turning radius; a quarter turn's annulus holds such a
     disc) plus the kept margin each side, so the rig cannot make that turn anywhere between start and
-    goal. Else the turning radius of the trailer's Reeds-Shepp paths or the budget."""
+    goal. Else, when the lattice's stop-and-steer search expanded every configuration it reached from one
+    end (``enclosed``: the ``lattice_enclosed`` metric of :func:`lattice_plan`), that end is enclosed at
+    the margin. Else the turning radius of the trailer's Reeds-Shepp paths or the budget."""
     r_min = float(robot.model.min_turning_radius)
     sweep = swept_path(robot, r_min)[0]
     kept = margin + pad
@@ -987,6 +994,14 @@ def rig_likely_cause(world: CollisionWorld, robot, x_start, x_goal, margin: floa
                         f"sweeps {sweep:.2f} m, plus the {kept:.3g} m the search keeps each side, and the roomiest place "
                         f"between start and goal, near ({rx:.2f}, {ry:.2f}), is {2 * room:.2f} m across: the rig "
                         f"cannot make that turn anywhere on the way")
+    elif enclosed is not None:
+        end = enclosed["end"]
+        out.update(cause="enclosed", enclosed_end=end,
+                   text=f"likely cause: the {end} is enclosed: the lattice's stop-and-steer search expanded every "
+                        f"configuration of the rig it reached from the {end} ({enclosed['expansions']} expansions, "
+                        f"keeping {enclosed['margin_m']:.3g} m) without a way to the "
+                        f"{'start' if end == 'goal' else 'goal'}; a smaller --margin may open it (whether any plan "
+                        f"exists: nhstab trailer reach MAP)")
     else:
         out.update(cause="turning_radius_or_budget",
                    text=f"likely cause: {turn}: the roomiest place between start and goal, near ({rx:.2f}, {ry:.2f}), "
@@ -1081,7 +1096,8 @@ def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts
             pad = (min(LATTICE_MARGIN_PAD, search.margin - path_opts.margin) if "lattice" in outcome
                    else search.margin - path_opts.margin)
             metrics["likely_cause"] = rig_likely_cause(world, robot, x_start, x_goal, path_opts.margin,
-                                                       float(path_opts.turning_radius), limit, max(pad, 0.0))
+                                                       float(path_opts.turning_radius), limit, max(pad, 0.0),
+                                                       metrics.get("lattice_enclosed"))
         if len(attempts) > 1:
             message += f" (after {len(attempts)} paths: " + ", ".join(attempts) + ")"
         return PlanResult(status, message, path, nominal, metrics=metrics)

@@ -127,3 +127,27 @@ def test_run_without_a_first_plan_for_the_rig_says_why(tmp_path):
     assert len(causes) == 1 and causes[0].startswith("likely cause: the known obstacles: no way from start to goal")
     run = json.loads((tmp_path / "r" / "run.json").read_text())
     assert run["plans"][0]["attempts"][-1]["likely_cause"]["cause"] == "blocked"
+
+
+def test_a_closed_dock_bay_is_named_enclosed():
+    """The suite's 1.1 W bay off the 1.2 S aisle, whose goal `nhstab trailer reach` finds closed at the maps'
+    margin: plan() at that margin finds no path, the lattice's stop-and-steer rung at the goal expands every
+    configuration it reaches (`lattice_enclosed`), and the likely cause names the goal as enclosed, with the
+    margin the search kept; the same bay's roomier neighbour off the 2 S aisle plans (the cause is the space)."""
+    from nhstab.planning import PathOptions, plan
+
+    m = load_map("example:trailer_dock_bay110_aisle120")
+    robot = robot_from_spec(m.robot, source="map")
+    res = plan(m, robot, m.start.as_array(), m.goal.as_array(), PathOptions(time_limit_s=4.0, seed=0))
+    assert res.status == "no_path"
+    enclosed = res.metrics["lattice_enclosed"]
+    assert enclosed["end"] == "goal" and enclosed["expansions"] > 0
+    assert enclosed["margin_m"] == pytest.approx(robot.margin + 0.005)
+    cause = res.metrics["likely_cause"]
+    assert cause["cause"] == "enclosed" and cause["enclosed_end"] == "goal"
+    assert re.match(r"likely cause: the goal is enclosed: .* \(\d+ expansions, keeping 0\.055 m\) without a way to "
+                    r"the start", cause["text"])
+    m2 = load_map("example:trailer_dock_bay110_aisle200")
+    ok = plan(m2, robot_from_spec(m2.robot, source="map"), m2.start.as_array(), m2.goal.as_array(),
+              PathOptions(time_limit_s=10.0, seed=0))
+    assert ok.status == "ok", ok.message
