@@ -64,12 +64,13 @@ def table(cases, seeds, budget, reach_budget, out_dir):
 
     from nhstab.batch.trailer_study import check_cases, plan_table, table_markdown
     from nhstab.execution.config import check_number
-    from nhstab.limits import check_int
+    from nhstab.limits import check_int, check_range
+    from nhstab.planning.rig_reach import RANGES
 
     check_cases(_cases(cases), "--cases")
     check_int("--seeds", seeds, 1, 1000, "a number of seeds per case")
     check_number("--budget", budget, 0.0, lo_open=True)
-    check_number("--reach-budget", reach_budget, 0.0)
+    check_range("--reach-budget", reach_budget, *RANGES["budget_s"], "s")
     result = plan_table(_cases(cases), seeds, budget, progress=lambda s: click.echo(s, err=True),
                         reach_budget_s=reach_budget)
     text = table_markdown(result)

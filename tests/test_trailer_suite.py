@@ -248,10 +248,18 @@ def test_commands_refuse_bad_input_naming_the_option():
     for args, key in ((["table", "--cases", "nope"], "--cases[0]"), (["figure", "nope"], "CASE"),
                       (["table", "--seeds", "0"], "--seeds"), (["table", "--budget", "0"], "--budget"),
                       (["table", "--reach-budget", "-1"], "--reach-budget"),
+                      # refused before any plan (the reach search's own range), not after the table's plans
+                      (["table", "--reach-budget", "1e300"], "--reach-budget"),
                       (["figure", "trailer_turn_120", "--budget", "-1"], "--budget"),
                       (["figure", "trailer_turn_120", "--seed", "-1"], "--seed")):
         res = CliRunner().invoke(cli, ["trailer", *args])
         assert res.exit_code == 2 and f"'{key}'" in res.output, res.output
+    # the library refuses it before planning too (a plan would take seconds; this returns at once)
+    for bad in (1e300, -1.0, math.nan):
+        with pytest.raises(InputError) as err:
+            TS.plan_table(["trailer_turn_120"], 1, 10.0, progress=lambda s: pytest.fail("planned: " + s),
+                          reach_budget_s=bad)
+        assert err.value.argument == "reach_budget"
 
 
 # ---- the sweep config -----------------------------------------------------------------------------------------

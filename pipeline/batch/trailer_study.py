@@ -47,10 +47,10 @@ from ..examples import data_root
 from ..execution.config import PlanningOptions, RunOptions, check_number
 from ..execution.controllers import ControllerOptions, build_law
 from ..execution.runner import final_errors
-from ..limits import MAX_BATCH_TRIALS, MAX_GAMMA, MAX_NOISE_SCALE, MAX_SEED, MAX_STUDY_TRIALS, check_int
+from ..limits import MAX_BATCH_TRIALS, MAX_GAMMA, MAX_NOISE_SCALE, MAX_SEED, MAX_STUDY_TRIALS, check_int, check_range
 from ..maps import load_map
 from ..planning import PathOptions, plan
-from ..planning.rig_reach import reach_text, rest_state, rig_reach
+from ..planning.rig_reach import RANGES, reach_text, rest_state, rig_reach
 from ..report.maps import map_figure
 from ..report.plans import plan_figure
 from ..robot import robot_from_spec
@@ -142,7 +142,8 @@ def plan_table(cases=None, seeds: int = SEEDS, budget_s: float = BUDGET_S, progr
     rows_csv = check_cases(cases)
     seeds = check_int("seeds", seeds, 1, 1000, "a number of seeds per case")
     budget_s = check_number("budget", budget_s, 0.0, lo_open=True)
-    reach_budget_s = check_number("reach_budget", reach_budget_s, 0.0)
+    # checked before any plan, with the reach search's own range: nothing planned is lost to it
+    reach_budget_s = check_range("reach_budget", reach_budget_s, *RANGES["budget_s"], "s")
     rows = []
     for spec in rows_csv:
         trials = []

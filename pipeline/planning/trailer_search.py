@@ -463,18 +463,10 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
         return min(rs_to(p, pre[i]) + pre_m[i] for i in sides)
 
     def axis_h(p, x):
-        # the stop-and-steer primitives' heuristic: how far the trailer's axle is from the target's axis, where
-        # the exact join is tried, plus its heading error and the hitch angle as lengths (the trailer's radius
-        # r_h and its hitch length), plus how far it is outside the join's range along the axis; at least the
-        # grid distance beyond that range
-        dx, dy = p[0] - goal_p1[0], p[1] - goal_p1[1]
-        along, across = cg * dx + sg_ * dy, -sg_ * dx + cg * dy
-        h = (abs(across) + r_h * abs(float(wrap_angle(p[2] - goal_p1[2]))) + d * abs(float(wrap_angle(x[2] - x[4])))
-             + max(0.0, abs(along) - ANALYTIC_RANGE_M))
-        return max(h, float(grid_h(p)) - ANALYTIC_RANGE_M) if use_grid else h
-
-    def axis_h_many(p, x):
-        # axis_h on arrays (N, 3) and (N, 5)
+        # the stop-and-steer primitives' heuristic at trailer poses p (N, 3) of states x (N, 5): how far the
+        # trailer's axle is from the target's axis, where the exact join is tried, plus its heading error and
+        # the hitch angle as lengths (the trailer's radius r_h and its hitch length), plus how far it is outside
+        # the join's range along the axis; at least the grid distance beyond that range
         dx, dy = p[:, 0] - goal_p1[0], p[:, 1] - goal_p1[1]
         along, across = cg * dx + sg_ * dy, -sg_ * dx + cg * dy
         h = (np.abs(across) + r_h * np.abs(wrap_angle(p[:, 2] - goal_p1[2])) + d * np.abs(wrap_angle(x[:, 2] - x[:, 4]))
@@ -483,14 +475,20 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
 
     def heuristic(p, x):
         if steer:
-            return axis_h(p, x)
+            return float(axis_h(p[None], x[None])[0])
         return max(rs_h(p), float(grid_h(p)) if use_grid else 0.0)
+
+    def steer_keys(p, x) -> list:
+        # the stop-and-steer primitives' cells of trailer poses p (N, 3) of states x (N, 5) (no direction)
+        return list(zip(np.floor(p[:, 0] / STEER_CELL_M).astype(int).tolist(),
+                        np.floor(p[:, 1] / STEER_CELL_M).astype(int).tolist(),
+                        (np.floor(wrap_angle(p[:, 2]) / (2 * math.pi) * STEER_HEADING_BINS).astype(int)
+                         % STEER_HEADING_BINS).tolist(),
+                        np.floor(wrap_angle(x[:, 2] - x[:, 4]) / STEER_HITCH_BIN_RAD).astype(int).tolist()))
 
     def key(p, x, direction):
         if steer:
-            return (int(math.floor(p[0] / STEER_CELL_M)), int(math.floor(p[1] / STEER_CELL_M)),
-                    int(math.floor(float(wrap_angle(p[2])) / (2 * math.pi) * STEER_HEADING_BINS)) % STEER_HEADING_BINS,
-                    int(math.floor(float(wrap_angle(x[2] - x[4])) / STEER_HITCH_BIN_RAD)))
+            return steer_keys(p[None], x[None])[0]
         return (int(math.floor(p[0] / cell_m)), int(math.floor(p[1] / cell_m)),
                 int(math.floor(float(wrap_angle(p[2])) / (2 * math.pi) * HEADING_BINS)) % HEADING_BINS,
                 int(math.floor(float(wrap_angle(x[2] - x[4])) / hitch_bin)), direction)
@@ -621,11 +619,7 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
         drive = integrate_knots(model, xr, dk, step_s)
         ends = drive[:, -1]
         p_end = _trailer_poses(d, ends)
-        keys = list(zip(np.floor(p_end[:, 0] / STEER_CELL_M).astype(int).tolist(),
-                        np.floor(p_end[:, 1] / STEER_CELL_M).astype(int).tolist(),
-                        (np.floor(wrap_angle(p_end[:, 2]) / (2 * math.pi) * STEER_HEADING_BINS).astype(int)
-                         % STEER_HEADING_BINS).tolist(),
-                        np.floor(wrap_angle(ends[:, 2] - ends[:, 4]) / STEER_HITCH_BIN_RAD).astype(int).tolist()))
+        keys = steer_keys(p_end, ends)
         ok = np.array([k not in closed for k in keys])
         stats["skipped_closed"] += int(np.sum(~ok))
         # the limits along the ramp and the drive (the steering levels are within the cap)
@@ -653,33 +647,28 @@ def lattice_search(world: CollisionWorld, robot, x_start, x_goal, *, margin: flo
             if best_g.get(keys[q], math.inf) <= gqs[q]:
                 ok[q] = False
                 stats["skipped_dearer"] += 1
-        # the drive's end states first (most collisions show there), then the states before them
-        for span in (slice(-1, None), slice(1, -1)):
-            for body, fp, poses in (("car", car_fp, drive[:, span, :3]), ("trailer", trailer_fp, p_drive[:, span])):
-                sel = np.flatnonzero(ok)
-                if not len(sel) or not poses.shape[1]:
-                    break
-                flat = poses[sel].reshape(-1, 3)
+        def check(rows, states):
+            # the primitives ``rows`` still kept, at their ``states`` (len(rows), S, 5): car, then trailer
+            for body, fp in (("car", car_fp), ("trailer", trailer_fp)):
+                sel = np.flatnonzero(ok[rows])
+                if not len(sel) or not states.shape[1]:
+                    return
+                st = states[sel]
+                flat = (st[..., :3] if body == "car" else _trailer_poses(d, st)).reshape(-1, 3)
                 stats["states_checked"] += len(flat)
                 free = world.free_many(flat, fp, margin).reshape(len(sel), -1).all(axis=1)
                 stats[f"cut_by_{body}"] += int(np.sum(~free))
-                ok[sel[~free]] = False
+                ok[rows[sel[~free]]] = False
+
+        # the drive's end states first (most collisions show there), then the states before them, then the ramps
+        every = np.arange(K)
+        check(every, drive[:, -1:])
+        check(every, drive[:, 1:-1])
         if ramp_states is not None:
-            rix = np.flatnonzero(ramp)
-            rsel = np.flatnonzero(ok[rix])
-            for body, fp in (("car", car_fp), ("trailer", trailer_fp)):
-                if not len(rsel):
-                    break
-                rs = ramp_states[rsel][:, 1:]
-                flat = (rs[..., :3] if body == "car" else _trailer_poses(d, rs)).reshape(-1, 3)
-                stats["states_checked"] += len(flat)
-                free = world.free_many(flat, fp, margin).reshape(len(rsel), -1).all(axis=1)
-                stats[f"cut_by_{body}"] += int(np.sum(~free))
-                ok[rix[rsel[~free]]] = False
-                rsel = rsel[free]
+            check(np.flatnonzero(ramp), ramp_states[:, 1:])
         hs = np.zeros(K)
         if ok.any():
-            hs[ok] = axis_h_many(p_end[ok], ends[ok])
+            hs[ok] = axis_h(p_end[ok], ends[ok])
         for q in np.flatnonzero(ok):
             ni = int(owner[q])
             x, u = nodes[ni][0], u0[q]
