@@ -48,6 +48,9 @@ EXIT_INTERRUPTED = 130
                    "allows) and other maneuvers, and keep the best (plan.json's fit lists every try).")
 @click.option("--noise", "noise_scale", type=float, default=1.0, show_default=True,
               help="Noise level the tube is predicted for (a multiple of nhstab run's default noise).")
+@click.option("--process-per", type=click.Choice(["second", "metre"]), default="second", show_default=True,
+              help="The tube's process disturbance acts per second (at rest too) or per metre travelled (none at "
+                   "rest), as nhstab run --process-per.")
 @click.option("--probability", type=float, default=0.997, show_default=True, help="Probability of the error tube.")
 @click.option("--tube", "tube_kind", type=click.Choice(["auto", "linear", "sampled"]), default="auto", show_default=True,
               help="The error tube: linear (the closed loop linearised along the nominal, per sample), sampled "
@@ -67,7 +70,8 @@ EXIT_INTERRUPTED = 130
                    "defaults filled in, in a run config's sections) and exit without planning.")
 @map_options
 def plan(map_file, robot, robot_config, start, goal, problem, planner, space, turning_radius, time_limit, seed, guide,
-         margin, gains, fit, noise_scale, probability, tube_kind, confidence, headroom, max_speed, out_dir, figure,
+         margin, gains, fit, noise_scale, process_per, probability, tube_kind, confidence, headroom, max_speed, out_dir,
+         figure,
          print_config, cell_size, unknown):
     """Plan on MAP and write trajectory.csv, trajectory.npz, plan.json and plan.png into OUT (default out/plan).
 
@@ -140,15 +144,16 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
             margin = rob.margin
         plan_robot = rob.with_model(derated(rob.model, headroom)) if headroom < 1.0 else rob
         path_opts = path_opts.for_robot(plan_robot)
+        tube_noise = NoiseOptions(scale=noise_scale, process_per=process_per)
         if print_config:
             click.echo(effective_plan_config(
                 m, str(map_file), rob, plan_robot, s, g, path_opts, margin=margin, gains=gains, fit=fit,
-                timing=TimingOptions(max_speed=max_speed), noise=NoiseOptions(scale=noise_scale), headroom=headroom,
+                timing=TimingOptions(max_speed=max_speed), noise=tube_noise, headroom=headroom,
                 tube={"kind": tube_kind, "probability": probability, "confidence": confidence}, figure=figure,
                 rate_hz=TUBE_RATE_HZ, pose_names=pose_names), nl=False)
             return 0
         result, law, tube, extra = plan_and_tube(m, rob, s, g, path_opts, TimingOptions(max_speed=max_speed),
-                                                 margin=margin, gains=gains, noise=NoiseOptions(scale=noise_scale),
+                                                 margin=margin, gains=gains, noise=tube_noise,
                                                  probability=probability, plan_robot=plan_robot, tube_kind=tube_kind,
                                                  confidence=confidence, fit=fit, rate_hz=TUBE_RATE_HZ)
     for key in ("margin_auto", "gains_auto", "fit"):
@@ -183,7 +188,7 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
         click.echo(f"wrote {out_dir}/trajectory.csv, trajectory.npz, plan.json" + (", plan.png" if figure else ""))
         click.echo(f"nhstab: no tube: {extra.get('tube_error', 'not predicted')}", err=True)
         return EXIT_FAILURE
-    click.echo(tube_line(tube, noise_scale))
+    click.echo(tube_line(tube, noise_scale, per_metre=process_per == "metre"))
     if headroom > DEFAULT_HEADROOM and tube.kind != "sampled" and tube.saturation["run_bound"] > 0.01:
         click.echo(f"note: planned with --headroom {headroom:g}, the nominal leaves the feedback little of the input "
                    f"limits: {saturation_text(tube.saturation['run_bound'])}; --headroom {DEFAULT_HEADROOM:g} (the "
@@ -247,7 +252,7 @@ def effective_plan_config(m, map_path: str, robot, plan_robot, start, goal, path
         "controller": {"kind": "gramian", "window": "future", "gains": gains,
                        **{k: float(v) for k, v in robot.stabilizer.as_dict().items() if k in ("alpha", "delta", "gamma")}},
         "noise": {"scale": float(noise.scale), "initial": {"distribution": noise.distribution, **levels["initial"]},
-                  "sensor": levels["sensor"], "process": levels["process"]},
+                  "sensor": levels["sensor"], "process": {"per": noise.process_per, **levels["process"]}},
         "planning": {"planner": path_opts.planner, "space": path_opts.space,
                      "time_limit_s": float(path_opts.time_limit_s), "seed": int(path_opts.seed),
                      "margin": margin if margin == "auto" else float(path_opts.margin),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -57,7 +58,11 @@ def parse_levels(name: str, text: str | None) -> dict | None:
               help="Multiply every noise level by this (0: noiseless; default 1).")
 @click.option("--initial-error", default=None, help="Initial error std per state, e.g. x=0.1,y=0.1,theta=0.05.")
 @click.option("--sensor-std", default=None, help="Measurement noise std per state, e.g. x=0.02,y=0.02,theta=0.01.")
-@click.option("--process-std", default=None, help="Process disturbance per state [unit/sqrt(s)].")
+@click.option("--process-std", default=None,
+              help="Process disturbance per state [unit/sqrt(s)], or [unit/sqrt(m)] with --process-per metre.")
+@click.option("--process-per", type=click.Choice(["second", "metre"]), default=None,
+              help="The process disturbance acts per second (default: at rest too) or per metre the robot "
+                   "travels (none at rest: wheel slip and ground, not a push) (noise.process.per).")
 @click.option("--seed", type=int, default=None, help="Root seed of the run (default 0).")
 @click.option("--planner", default=None, help="OMPL planner (default rrtconnect).")
 @click.option("--time-limit", type=float, default=None, help="Budget of each planning call [s] (default 2).")
@@ -92,8 +97,8 @@ def parse_levels(name: str, text: str | None) -> dict | None:
                    "defaults filled in) and exit without running; --config runs it as printed.")
 @map_options
 def run(map_file, config_file, robot, robot_config, start, goal, problem, controller, window, alpha, delta, gamma,
-        rate_hz, noise_scale, initial_error, sensor_std, process_std, seed, planner, time_limit, guide, margin, gains,
-        fit, tube_kind, probability, confidence, require_certified, cusp_replan, max_time,
+        rate_hz, noise_scale, initial_error, sensor_std, process_std, process_per, seed, planner, time_limit, guide,
+        margin, gains, fit, tube_kind, probability, confidence, require_certified, cusp_replan, max_time,
         out_dir, animate, print_config, cell_size, unknown):
     """Run the composite controller on MAP: plan, stabilize under noise, sense, monitor with FCL, replan.
 
@@ -155,6 +160,8 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
               (("initial", "--initial-error", initial_error), ("sensor", "--sensor-std", sensor_std),
                ("process", "--process-std", process_std))}
     noise = base.noise.merged(levels, noise_scale)
+    if process_per is not None:
+        noise = replace(noise, process_per=process_per)
     opts = merge(base, seed=seed, rate_hz=rate_hz, max_time_s=max_time, noise=noise,
                  controller__kind=controller, controller__window=window, controller__alpha=alpha,
                  controller__delta=delta, controller__gamma=gamma, controller__gains=gains, planning__planner=planner,

@@ -27,7 +27,7 @@ from pathlib import Path
 from .control import END_STRATEGIES, WINDOWS
 from .control.frozen import MAX_GAIN
 from .control.gramian import CUSP_HANDLING
-from .execution.config import DISTRIBUTIONS, RunOptions
+from .execution.config import DISTRIBUTIONS, PROCESS_PER, RunOptions
 from .execution.controllers import CONTROLLERS, GAINS
 from .limits import (
     MAX_BATCH_TRIALS,
@@ -310,7 +310,8 @@ _RUN_TEXT = {
         "scale": "multiplies every noise level (0: noiseless)",
         "initial": "initial-error std (uniform: half-width) by state name, and its distribution",
         "sensor": "measurement-noise std by state name", "process": "process-noise intensity by state name "
-                                                                    "[state unit / sqrt(s)]",
+                                                                    "[state unit / sqrt(s)], or per: metre "
+                                                                    "[state unit / sqrt(m)]",
         "impulses": "state jumps at given times: [{time: t, <state>: jump, ...}]",
     },
     "sensor": {
@@ -431,7 +432,10 @@ def _noise_section() -> dict:
         "initial": _levels(text["initial"], {"distribution": _enum(DISTRIBUTIONS, "the initial error's distribution",
                                                                    default=DISTRIBUTIONS[0])}),
         "sensor": _levels(text["sensor"]),
-        "process": _levels(text["process"]),
+        "process": _levels(text["process"], {"per": _enum(PROCESS_PER, "what the intensity is per: second (a "
+                                                           "disturbance in time, at rest too) or metre (in the "
+                                                           "distance travelled, none at rest)",
+                                                           default=PROCESS_PER[0])}),
         "impulses": {"type": "array", "items": {"type": "object", "properties": {"time": _number("[s]", 0)},
                                                 "required": ["time"], "additionalProperties": jump},
                      "description": text["impulses"]},

@@ -87,7 +87,7 @@ def test_the_format_references_name_every_key_the_loaders_accept():
     sections = {name: [f.name for f in fields(cls)] for name, cls in run_config._SECTIONS.items()}
     sections["controller"] = [f.name for f in fields(ControllerOptions)]
     sections["sensor"] = ["range_m", "fov_deg", "rate_hz", "resolution_deg", "mount"]   # degrees in files
-    sections["noise"] = ["scale", "initial", "sensor", "process", "impulses", "distribution"]
+    sections["noise"] = ["scale", "initial", "sensor", "process", "impulses", "distribution", "per"]
     missing += _keys_documented("run-config.md", [*run_config._TOP, *(k for name, keys in sections.items()
                                                                       if name != "tube" for k in keys)])
     missing += _keys_documented("tube-options.md", sections["tube"])

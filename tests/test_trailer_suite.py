@@ -273,6 +273,7 @@ def test_commands_refuse_bad_input_naming_the_option():
     ({"noise": []}, "noise"),
     ({"tvlqr": "yes"}, "tvlqr"),
     ({"tube": 1}, "tube"),
+    ({"process_per": "hour"}, "process_per"),
     ({"time_limit_s": 0}, "time_limit_s"),
     ({"gramian": {"alpha": [0.05, -1]}}, "gramian.alpha[1]"),
     ({"gramian": {"delta": ["ten"]}}, "gramian.delta[0]"),
@@ -292,6 +293,7 @@ def test_sweep_config_errors_name_the_key(config, key):
 def test_sweep_config_defaults_and_laws():
     s = TS.check_sweep_config({"gramian": {"alpha": [0.02, 0.05], "end_strategy": ["frozen", "extend"]}})
     assert s["cases"] == [r["name"] for r in TS.suite_rows()] and s["noise"] == [0.5, 1.0, 2.0] and s["trials"] == 50
+    assert s["process_per"] == "second" and TS.check_sweep_config({"process_per": "metre"})["process_per"] == "metre"
     defaults = robot_from_spec(T.rig_spec()).stabilizer.as_dict()
     laws = TS.laws(s, defaults)
     assert laws[0] == {"controller": "tvlqr"} and len(laws) == 1 + 2 * 2

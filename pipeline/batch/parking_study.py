@@ -723,6 +723,7 @@ def run_parking_study(trials: int = TRIALS, mc_factor: int = MC_FACTOR, maps=Non
     out = {"study": "parking", "probability": probability, "confidence": confidence, "rollouts": N,
            "discards": DEFAULT_DISCARDS, "mc_factor": mc_factor, "mc_runs": mc_factor * N, "trials": trials, "root_seed": root_seed,
            "mc_root_seed": root_seed + 1, "plan_seed": plan_seed, "controllers": ctrls, "noise_levels": levels,
+           "process_per": opts.noise.process_per,
            "tolerance": {"position_m": opts.tolerance.position_m, "heading_rad": opts.tolerance.heading_rad},
            "planning": {"margin": opts.planning.margin, "fit": opts.planning.fit, "headroom": opts.headroom,
                         "planner": opts.planning.planner,
@@ -951,7 +952,10 @@ def study_markdown(result: dict) -> str:
         f"obstacle at some sample (FCL), success = no collision and the end within {result['tolerance']['position_m']:g} m "
         f"and {result['tolerance']['heading_rad']:g} rad of the goal (Wilson 95 %); and the tube check: "
         f"M = {result['mc_factor']} x N = {result['mc_runs']} further runs (seeds spawned from "
-        f"{result['mc_root_seed']}) and their footprint displacement at every sample.", "",
+        f"{result['mc_root_seed']}) and their footprint displacement at every sample."
+        + (" **The process disturbance acts per metre the car travels** (`--process-per metre`: its default "
+           "intensities in unit / sqrt(m), none while the car stands), not per second as `nhstab run`'s default."
+           if result.get("process_per") == "metre" else ""), "",
         f"Tube check: **cert.** = the fraction of runs whose own smallest FCL clearance over the samples is at least "
         f"the certified clearance (the sampled tube's whole-run claim; Wilson 95 %; runs whose clearance was not measured, "
         f"{MAX_MEASURED:,} poses a cell at most, are named apart and counted outside, and the check is undetermined when "

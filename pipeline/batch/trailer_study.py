@@ -44,7 +44,7 @@ from ..collision import CollisionWorld
 from ..control import END_STRATEGIES
 from ..errors import InputError, NumericalError, PipelineError
 from ..examples import data_root
-from ..execution.config import PlanningOptions, RunOptions, check_number
+from ..execution.config import PROCESS_PER, NoiseOptions, PlanningOptions, RunOptions, check_number
 from ..execution.controllers import ControllerOptions, build_law
 from ..execution.runner import final_errors
 from ..limits import MAX_BATCH_TRIALS, MAX_GAMMA, MAX_NOISE_SCALE, MAX_SEED, MAX_STUDY_TRIALS, check_int, check_range
@@ -285,10 +285,12 @@ def case_figure(name: str, seed: int = 0, budget_s: float = BUDGET_S):
 
 # ---- the sweep config --------------------------------------------------------------------------------------
 
-_TOP = ("name", "cases", "plan_seed", "root_seed", "time_limit_s", "trials", "noise", "tvlqr", "gramian", "tube")
+_TOP = ("name", "cases", "plan_seed", "root_seed", "time_limit_s", "trials", "noise", "process_per", "tvlqr", "gramian",
+        "tube")
 _GRAMIAN = ("alpha", "delta", "gamma", "end_strategy")
 #: the sweep's defaults where the config leaves a key out
-DEFAULTS = {"plan_seed": 0, "root_seed": 2026, "time_limit_s": 2.0, "trials": 50, "noise": [0.5, 1.0, 2.0], "tvlqr": True, "tube": False}
+DEFAULTS = {"plan_seed": 0, "root_seed": 2026, "time_limit_s": 2.0, "trials": 50, "noise": [0.5, 1.0, 2.0],
+            "process_per": "second", "tvlqr": True, "tube": False}
 #: a cell's tube (``tube: true``): the run's default probability, its certificate's confidence and discards
 TARGET_DOCKED = 0.95
 
@@ -338,6 +340,10 @@ def check_sweep_config(data: dict) -> dict:
                        "a number of trials per cell")
     noise = _values("noise", data.get("noise", DEFAULTS["noise"]),
                     _number(0.0, MAX_NOISE_SCALE, True, f"a noise scale in (0, {MAX_NOISE_SCALE:g}]"))
+    process_per = data.get("process_per", DEFAULTS["process_per"])
+    if process_per not in PROCESS_PER:
+        raise InputError("process_per", "one of " + ", ".join(PROCESS_PER) + " (what the process disturbance acts per)",
+                         process_per)
     tvlqr = data.get("tvlqr", DEFAULTS["tvlqr"])
     if not isinstance(tvlqr, bool):
         raise InputError("tvlqr", "true or false (TVLQR as the reference law)", tvlqr)
@@ -362,7 +368,8 @@ def check_sweep_config(data: dict) -> dict:
                          f"{len(rows)} x {laws} x {len(noise)} x {trials} = {total:,}")
     return {"name": name, "cases": [r["name"] for r in rows], "plan_seed": plan_seed, "root_seed": root_seed,
             "time_limit_s": time_limit_s,
-            "trials": trials, "noise": noise, "tvlqr": tvlqr, "gramian": gramian, "tube": tube}
+            "trials": trials, "noise": noise, "process_per": process_per, "tvlqr": tvlqr, "gramian": gramian,
+            "tube": tube}
 
 
 def load_sweep_config(path) -> dict:
@@ -439,7 +446,8 @@ def sweep_case(name: str, settings: dict, progress=None) -> dict:
     case = {"case": name}
     try:
         opts = RunOptions(seed=settings["plan_seed"],
-                          planning=PlanningOptions(time_limit_s=settings.get("time_limit_s", DEFAULTS["time_limit_s"])))
+                          planning=PlanningOptions(time_limit_s=settings.get("time_limit_s", DEFAULTS["time_limit_s"])),
+                          noise=NoiseOptions(process_per=settings.get("process_per", DEFAULTS["process_per"])))
         run, attempts, result, law0, margin, _ = first_plan(name, opts)
     except PipelineError as exc:
         case.update(plan={"found": False, "reason": " ".join(str(exc).split())}, cells=[],
@@ -633,7 +641,9 @@ def sweep_markdown(result: dict) -> str:
              f"{s['trials']} trials of the run loop (seeds spawned from {s['root_seed']}). Jackknife = a hitch angle "
              "beyond the limit before any collision; collision = a body overlaps an obstacle (FCL, every sample); "
              f"docked = neither, and the trailer's axle within {tol['position_m']:g} m and {tol['heading_rad']:g} rad "
-             "of its goal.", "",
+             "of its goal."
+             + (" **The process disturbance acts per metre the rig travels** (`process_per: metre`: none while it "
+                "stands), not per second as `nhstab run`'s default." if s.get("process_per") == "metre" else ""), "",
              f"{result['cases_planned']} of {len(result['cases'])} cases planned.", "",
              "## Plans", "", "| case | plan | duration [s] | min clearance [m] |", "|---|---|---|---|"]
     for c in result["cases"]:

@@ -39,7 +39,7 @@ from numpy.random.bit_generator import ISeedSequence
 
 from ..control.interpolant import GridInterpolant
 from ..errors import InputError
-from ..execution.config import NoiseOptions
+from ..execution.config import NoiseOptions, distance_factor, position_states
 from ..execution.controllers import FeedbackLaw
 from ..execution.plant import Plant, _clip
 from ..execution.seeds import _SEED_STREAMS, seed_for
@@ -271,8 +271,8 @@ def simulate_shared(law: FeedbackLaw, seeds: Sequence[int], noise: NoiseOptions,
     rec = {"x": np.empty((Kn, S, n)), "y": np.empty((Kn, S, n)), "u": np.empty((Kn, S, m)),
            "e": np.empty((Kn, S, n))} if record else None
     streams = {"sigma0": noise.vector("initial", names), "sensor": noise.vector("sensor", names),
-               "process": noise.vector("process", names) * math.sqrt(T), "gaussian": noise.distribution == "gaussian",
-               "start": start}
+               "process": noise.process_step_std(names, T), "gaussian": noise.distribution == "gaussian",
+               "start": start, "per_metre": position_states(names) if noise.per_metre else None}
     plant = Plant(model, T, substeps)
     for lo in range(0, Kn, chunk):
         _run_chunk(law, plant, sh, streams, seeds[lo:lo + chunk], saturate, slice(lo, min(lo + chunk, Kn)), out, rec,
@@ -455,6 +455,10 @@ def _run_chunk(law: FeedbackLaw, plant: Plant, sh: _Shared, streams: dict, seeds
     sq_sum = np.zeros(Kc)
     sq_max = np.zeros(Kc)
     x, x_next, y, e_ctrl, e = (np.empty((n, Kc)) for _ in range(5))
+    per_metre = streams.get("per_metre")
+    if per_metre is not None:
+        ix, iy = per_metre
+        dx, dy = np.empty(Kc), np.empty(Kc)
     u = np.empty((m, Kc))
     rows_ctrl, rows_e = np.empty((Kc, n)), np.empty((Kc, n))      # trial-major copies: gain product, norm
     Ke = np.empty((Kc, m, 1))
@@ -495,7 +499,15 @@ def _run_chunk(law: FeedbackLaw, plant: Plant, sh: _Shared, streams: dict, seeds
                 np.copyto(seen_u, u.T)
                 on_states(rows, k, shown_x, shown_u)
             step(x, u, x_next)
-            np.add(x_next, noise.sample(1, b), out=x_next)
+            if per_metre is None:
+                np.add(x_next, noise.sample(1, b), out=x_next)
+            else:                    # std intensity * sqrt(distance moved), as the loop: dx * dx + dy * dy
+                np.subtract(x_next[ix], x[ix], out=dx)
+                np.subtract(x_next[iy], x[iy], out=dy)
+                np.multiply(dx, dx, out=dx)
+                np.multiply(dy, dy, out=dy)
+                np.add(dx, dy, out=dx)
+                np.add(x_next, noise.sample(1, b) * distance_factor(dx), out=x_next)
             for jump in sh.impulses[k]:
                 np.add(x_next, jump[:, None], out=x_next)
             if not (everyone and _all_finite(x_next)):

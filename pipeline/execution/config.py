@@ -27,7 +27,8 @@ was given. The format::
       scale: 1.0                      # multiplies every noise level below (0: noiseless)
       initial: {distribution: gaussian, x: 0.1, y: 0.1, theta: 0.05}   # std (uniform: half-width)
       sensor: {x: 0.02, y: 0.02, theta: 0.01}                          # measurement std per state
-      process: {x: 0.02, y: 0.02, theta: 0.01}                         # [unit / sqrt(s)]
+      process: {per: second, x: 0.02, y: 0.02, theta: 0.01}            # [unit / sqrt(s)]; per: metre makes
+                                      # it a disturbance per distance travelled [unit / sqrt(m)], none at rest
       impulses: [{time: 4.0, x: 0.0, y: 0.3}]                          # state jumps at given times
     sensor: {range_m: 8.0, fov_deg: 360, rate_hz: 10, resolution_deg: 0.5}
     monitor: {rate_hz: 10, horizon_s: 8.0}
@@ -103,6 +104,10 @@ def default_noise() -> dict:
 #: theta8 (car_trailer) as the car's heading
 DEFAULT_NOISE = default_noise()
 DISTRIBUTIONS = ("gaussian", "uniform")
+#: what the process disturbance's intensity is per: ``second`` (a Wiener process in time, [unit / sqrt(s)],
+#: acting at rest too) or ``metre`` (in the distance the robot's reference point travels, [unit / sqrt(m)]:
+#: the increment of a control period has std intensity * sqrt(distance moved in it), so none at rest)
+PROCESS_PER = ("second", "metre")
 
 
 def check_number(key: str, v, lo: float = -math.inf, lo_open: bool = False, integer: bool = False):
@@ -136,10 +141,25 @@ def _noise_number(key: str, value, most: float) -> float:
     return v
 
 
+def position_states(state_names) -> tuple[int, int]:
+    """The states whose move is the distance a per-metre process disturbance counts: x and y, or for a
+    model without them (the Heisenberg system) its first two states."""
+    names = list(state_names)
+    return (names.index("x"), names.index("y")) if "x" in names and "y" in names else (0, 1)
+
+
+def distance_factor(d2):
+    """sqrt of the distance moved in a control period (by :func:`position_states`), from its squared length
+    d2 (a float or an array): sqrt(sqrt(d2)), the factor of a per-metre process increment. The run loop and the vectorised engine
+    both compute d2 = dx * dx + dy * dy and this, so their increments are equal bit for bit."""
+    return np.sqrt(np.sqrt(d2))
+
+
 @dataclass(frozen=True)
 class NoiseOptions:
     """Noise levels by state name (see :data:`DEFAULT_NOISE`); ``scale`` multiplies all of them;
-    impulses: ((time, {state: jump}), ...)."""
+    impulses: ((time, {state: jump}), ...); ``process_per``: what the process intensity is per
+    (:data:`PROCESS_PER`)."""
 
     scale: float = 1.0
     distribution: str = "gaussian"
@@ -147,11 +167,14 @@ class NoiseOptions:
     sensor: dict = field(default_factory=dict)
     process: dict = field(default_factory=dict)
     impulses: tuple = ()
+    process_per: str = "second"
 
     def validated(self, state_names) -> "NoiseOptions":
         _noise_number("noise.scale", self.scale, MAX_NOISE_SCALE)
         if self.distribution not in DISTRIBUTIONS:
             raise InputError("noise.initial.distribution", "one of " + ", ".join(DISTRIBUTIONS), self.distribution)
+        if self.process_per not in PROCESS_PER:
+            raise InputError("noise.process.per", "one of " + ", ".join(PROCESS_PER), self.process_per)
         for kind in ("initial", "sensor", "process"):
             for name, v in getattr(self, kind).items():
                 if name not in state_names:
@@ -181,6 +204,18 @@ class NoiseOptions:
         given, defaults = getattr(self, kind), default_noise()[kind]
         return self.scale * np.array([float(given.get(s, defaults.get(s, 0.0))) for s in state_names])
 
+    @property
+    def per_metre(self) -> bool:
+        """The process disturbance acts per distance travelled (none at rest)."""
+        return self.process_per == "metre"
+
+    def process_step_std(self, state_names, period: float) -> np.ndarray:
+        """The process increment's std per state for one control period: intensity * sqrt(T) per second;
+        per metre the intensity itself, which the loop multiplies by sqrt of the distance moved in the
+        period (:func:`distance_factor`)."""
+        v = self.vector("process", state_names)
+        return v if self.per_metre else v * math.sqrt(period)
+
     def impulse_list(self, state_names) -> list[tuple[float, np.ndarray]]:
         return sorted(((float(t), self.scale * np.array([float(j.get(s, 0.0)) for s in state_names]))
                        for t, j in self.impulses), key=lambda item: item[0])      # stable: ties keep their order
@@ -189,7 +224,11 @@ class NoiseOptions:
         return {"scale": self.scale, "initial_distribution": self.distribution,
                 **{f"{k}_by_state": dict(zip(state_names, self.vector(k, state_names).tolist()))
                    for k in ("initial", "sensor", "process")},
-                "process_units": "state unit / sqrt(s) (Wiener increments added every control period)",
+                "process_per": self.process_per,
+                "process_units": ("state unit / sqrt(m) (increments added every control period, std the intensity "
+                                  "times sqrt of the distance the robot's position moved in it: none at rest)"
+                                  if self.per_metre else
+                                  "state unit / sqrt(s) (Wiener increments added every control period)"),
                 "impulses": [{"time": t, "jump": j.tolist()} for t, j in self.impulse_list(state_names)]}
 
 
@@ -419,6 +458,8 @@ def _noise(data: dict) -> NoiseOptions:
             section = dict(section)
             if kind == "initial" and "distribution" in section:
                 kw["distribution"] = section.pop("distribution")
+            if kind == "process" and "per" in section:
+                kw["process_per"] = section.pop("per")
             kw[kind] = section
     if "impulses" in data:
         items = data["impulses"]
@@ -565,7 +606,7 @@ def config_mapping(opts: RunOptions, robot=None) -> dict:
         levels = {k: {s: float(v.get(s, DEFAULT_NOISE[k].get(s, 0.0))) for s in robot.state_names}
                   for k, v in levels.items()}
     out["noise"] = {"scale": noise.scale, "initial": {"distribution": noise.distribution, **levels["initial"]},
-                    "sensor": levels["sensor"], "process": levels["process"],
+                    "sensor": levels["sensor"], "process": {"per": noise.process_per, **levels["process"]},
                     "impulses": [{"time": t, **j} for t, j in noise.impulses]}
     out["sensor"] = {**d["sensor"], "mount": list(d["sensor"]["mount"])}
     for key in ("monitor", "planning", "replan", "tolerance", "tube"):

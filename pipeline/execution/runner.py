@@ -63,7 +63,7 @@ from ..tubes.base import tube_line, verdict
 from ..tubes.fit import AUTO_MARGIN_START, SEVERAL_BODIES, choose_gains, fit_plan, plan_with_auto_margin
 from ..tubes.predict import predict_tube
 from ..tubes.sampled import cusp_stops, remaining_law, sampled_tube
-from .config import RunOptions
+from .config import RunOptions, distance_factor, position_states
 from .controllers import FeedbackLaw, build_law
 from .plant import Plant
 from .seeds import planner_seed, seed_for
@@ -251,7 +251,8 @@ class CompositeRun:
         self.rng_sensor = np.random.default_rng(seed_for(opts.seed, "sensor"))
         self.rng_process = np.random.default_rng(seed_for(opts.seed, "process"))
         self.sigma_sensor = opts.noise.vector("sensor", model.state_names)
-        self.sigma_process = opts.noise.vector("process", model.state_names) * math.sqrt(self.T)
+        self.sigma_process = opts.noise.process_step_std(model.state_names, self.T)
+        self.process_per_metre = opts.noise.per_metre
         self.impulses = opts.noise.impulse_list(model.state_names)
         lim = model.input_limits()
         self.u_lo, self.u_hi = lim[:, 0], lim[:, 1]
@@ -384,8 +385,10 @@ class CompositeRun:
             # a replan after a conflict starts where the robot stood still for the pause; one at a cusp
             # starts at once (the robot does not wait for it)
             pause = 0.0 if self._replan_at_cusp else self.opts.replan.pause_s
+            # (a disturbance per metre travelled does not act while the robot stands)
+            still = 0.0 if self.opts.noise.per_metre else pause
             initial = np.diag(self.opts.noise.vector("sensor", names) ** 2
-                              + self.opts.noise.vector("process", names) ** 2 * pause)
+                              + self.opts.noise.vector("process", names) ** 2 * still)
         to = self.opts.tube
         try:
             # a robot of several bodies is certified body by body on rollouts (predict_tube)
@@ -425,8 +428,13 @@ class CompositeRun:
 
     def _advance(self, x, u, t):
         """The true state one period later: plant, disturbance, impulses; collision check."""
-        x = self.plant.step(x, u)
-        x = x + self.sigma_process * self.rng_process.standard_normal(self.model.n)
+        x_new = self.plant.step(x, u)
+        w = self.sigma_process * self.rng_process.standard_normal(self.model.n)
+        if self.process_per_metre:      # std intensity * sqrt(distance the position moved this period)
+            ix, iy = position_states(self.model.state_names)
+            dx, dy = x_new[ix] - x[ix], x_new[iy] - x[iy]
+            w = w * distance_factor(dx * dx + dy * dy)
+        x = x_new + w
         t_next = (self.k + 1) * self.T
         while self.impulses and self.impulses[0][0] < t_next - 1e-12:
             x = x + self.impulses.pop(0)[1]
@@ -707,7 +715,8 @@ class CompositeRun:
         if tube is None:
             line = f"plan {rec.id}: no error tube (the closed loop diverges under the law): NOT certified"
         else:
-            line = tube_line(tube, self.opts.noise.scale, prefix=f"plan {rec.id} tube")
+            line = tube_line(tube, self.opts.noise.scale, prefix=f"plan {rec.id} tube",
+                             per_metre=self.opts.noise.per_metre)
         rec.verdict_line = line
         if self.notify is not None:
             self.notify(line)

@@ -354,9 +354,10 @@ def verdict(tube, world, fp: Footprint, margin: float | None = None, cap: float 
     return out
 
 
-def tube_line(tube, noise_scale: float | None = None, prefix: str = "tube") -> str:
+def tube_line(tube, noise_scale: float | None = None, prefix: str = "tube", per_metre: bool = False) -> str:
     """One line for a user: certified or not, at which probability, which tube, where it is tightest and
-    what would certify it (from :func:`verdict`, which must have run)."""
+    what would certify it (from :func:`verdict`, which must have run). ``per_metre``: the noise's process
+    disturbance acts per metre travelled (the line says so)."""
     v = tube.info.get("verdict") or {}
     if tube.kind == "sampled":
         r = tube.certificate.get("discards", 0)
@@ -365,7 +366,9 @@ def tube_line(tube, noise_scale: float | None = None, prefix: str = "tube") -> s
                + f", confidence {tube.certificate['confidence']:.3g}, the whole run")
     else:
         how = "linear, per sample"
-    head = f"{prefix} (p = {tube.probability:g}, {how}" + (f", noise x{noise_scale:g}" if noise_scale is not None else "") + ")"
+    head = (f"{prefix} (p = {tube.probability:g}, {how}"
+            + (f", noise x{noise_scale:g}" if noise_scale is not None else "")
+            + (", process disturbance per metre travelled" if per_metre else "") + ")")
     if tube.certified_clearance is None:
         return (f"{head}: clearance not certified (a robot of several bodies); reach up to "
                 f"{float(tube.reach.max()):.2f} m")

@@ -470,8 +470,10 @@ def propagate(model: Model, t: np.ndarray, x0: np.ndarray, u_ff: np.ndarray, K: 
 
     t (S,), x0 (S, n): the reference at the samples; u_ff (S - 1, m), K (S - 1, m, n): the feedforward
     and the gains of each control step; period T and substeps of the plant; initial_cov (n, n);
-    sensor_std (n,); process_std (n,) per period (the intensity times sqrt(T)); jumps (S - 1, n): the
-    impulses added after each step (default none). ``loop`` uses the plain per-step recursion."""
+    sensor_std (n,); process_std (n,) per period (the intensity times sqrt(T)), or (S - 1, n) per step (a
+    disturbance per metre travelled: the intensity times sqrt of the nominal's move in the step); jumps
+    (S - 1, n): the impulses added after each step (default none). ``loop`` uses the plain per-step
+    recursion."""
     x0 = np.asarray(x0, dtype=float)
     S, n = x0.shape
     if S < 2:
@@ -507,10 +509,12 @@ def propagate(model: Model, t: np.ndarray, x0: np.ndarray, u_ff: np.ndarray, K: 
             GG = G[I] * G[J]
             GG *= R[:, None]
             M = GG.sum(axis=1)
-            M[:n] += Q[:, None]
+            M[:n] += Q[:, None] if Q.ndim == 1 else Q.T
             xs, mean = _banded_scan(At, M.T, drift, S0, m0)
         else:
-            M = (Gt * R) @ transposed(Gt) + np.diag(Q)[None]
+            M = (Gt * R) @ transposed(Gt)
+            diag = np.arange(n)
+            M[:, diag, diag] += Q
             cov, mean = (_loop if loop else _block_scan)(At, M, drift, S0, m0)
             xs = cov[:, I, J]
     # unbounded: not finite, or DIVERGENCE_RATIO times the largest variance the noise injects (at least 1):

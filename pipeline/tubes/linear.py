@@ -44,9 +44,22 @@ import math
 import numpy as np
 from scipy.special import ndtri
 
+from ..execution.config import distance_factor, position_states
 from ..geometry import Footprint
 from .base import SampleSchedule, Tube, certified_clearance, initial_covariance, pose_indices, run_schedule
 from .covariance import CovariancePropagation, propagate, saturation
+
+
+def process_step_stds(noise, names, x0: np.ndarray, period: float) -> np.ndarray:
+    """The process increment's std per state: (n,) per second; per metre (S - 1, n), the intensity times
+    sqrt of the distance the nominal ``x0`` (S, n) moves in each step (the linearisation's: the rollouts'
+    own moves differ from it by the tracking error's)."""
+    std = noise.process_step_std(names, period)
+    if not noise.per_metre:
+        return std
+    ix, iy = position_states(names)
+    d = np.diff(np.asarray(x0, dtype=float)[:, [ix, iy]], axis=0)
+    return distance_factor(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])[:, None] * std[None, :]
 
 
 def _linear_tube(law, noise, footprint, world, rate_hz, substeps, model, probability, initial_cov, t_end,
@@ -56,7 +69,7 @@ def _linear_tube(law, noise, footprint, world, rate_hz, substeps, model, probabi
     sched = run_schedule(law, T, t_end, noise.impulse_list(names) if impulses else ())
     S0 = initial_covariance(noise, names) if initial_cov is None else np.asarray(initial_cov, dtype=float)
     prop = propagate(model, sched.t, sched.x0, sched.u_ff, sched.K, T, substeps, S0,
-                     noise.vector("sensor", names), noise.vector("process", names) * math.sqrt(T), sched.jumps)
+                     noise.vector("sensor", names), process_step_stds(noise, names, sched.x0, T), sched.jumps)
     sat = saturation(prop, sched.K, model.input_limits())
     return _spatial(prop, sched, sat, model, footprint, world, probability)
 

@@ -122,8 +122,10 @@ def test_plan_print_config_fills_every_default_as_the_plan_uses_it(tmp_path):
     assert rec["headroom"] == doc["headroom"] and rec["tube_model"]["rate_hz"] == doc["rate_hz"]
     noise = rec["tube_model"]["noise"]
     assert noise["scale"] == doc["noise"]["scale"] == 2.0
+    assert doc["noise"]["process"]["per"] == noise["process_per"] == "second"
     for kind in ("sensor", "process"):
-        assert {s: v * 2.0 for s, v in doc["noise"][kind].items()} == pytest.approx(noise[f"{kind}_by_state"])
+        levels = {s: v for s, v in doc["noise"][kind].items() if s != "per"}
+        assert {s: v * 2.0 for s, v in levels.items()} == pytest.approx(noise[f"{kind}_by_state"])
 
 
 def test_plan_print_config_checks_what_the_plan_checks():

@@ -141,6 +141,8 @@ def test_noise_levels_by_state_name_are_validated():
     ("rate_hz: 0\n", "rate_hz"),
     ("noise: {sensor: {x: -0.1}}\n", "noise.sensor.x"),
     ("noise: {sensor: {x: 0.1, q: 1}}\n", "noise.sensor.q"),
+    ("noise: {process: {per: hour}}\n", "noise.process.per"),
+    ("noise: {process: {per: [metre]}}\n", "noise.process.per"),
     ("sensor: {range_m: 0}\n", "sensor.range_m"),
     ("sensor: {fov: 90}\n", "sensor.fov"),
     ("replan: {max_attempts: 0}\n", "replan.max_attempts"),
@@ -160,12 +162,15 @@ def test_a_bad_run_config_names_the_key(tmp_path, text, key):
 def test_run_config_round_trip_and_command_line_override(tmp_path):
     f = tmp_path / "run.yaml"
     f.write_text("map: maps/x.yaml\nseed: 7\ncontroller: {kind: tvlqr, q: [1, 2, 3]}\n"
-                 "noise: {scale: 0.5, initial: {distribution: uniform, x: 0.2}, impulses: [{time: 2.0, y: 0.3}]}\n"
+                 "noise: {scale: 0.5, initial: {distribution: uniform, x: 0.2}, impulses: [{time: 2.0, y: 0.3}],\n"
+                 "        process: {per: metre, y: 0.03}}\n"
                  "sensor: {fov_deg: 180}\n")
     extra, opts = load_run_config(f)
     assert extra["map"] == tmp_path / "maps/x.yaml"
     assert opts.seed == 7 and opts.controller.kind == "tvlqr" and opts.controller.q == (1, 2, 3)
     assert opts.noise.distribution == "uniform" and opts.noise.impulses == ((2.0, {"y": 0.3}),)
+    assert opts.noise.process_per == "metre" and opts.noise.process == {"y": 0.03}
+    assert NoiseOptions().process_per == "second"
     assert opts.sensor.fov_rad == pytest.approx(math.pi)
     merged = merge(opts, seed=9, controller__kind="gramian", planning__margin=None)
     assert merged.seed == 9 and merged.controller.kind == "gramian" and merged.controller.q == (1, 2, 3)

@@ -309,13 +309,15 @@ def test_covariance_agrees_with_monte_carlo_of_the_discrete_linear_system(hilare
         e = e @ prop.A[k].T - n @ prop.G[k].T + prop.drift[k] + w
 
 
-def test_tube_matches_the_nonlinear_closed_loop_at_small_noise(hilare):
+@pytest.mark.parametrize("per", ["second", "metre"])
+def test_tube_matches_the_nonlinear_closed_loop_at_small_noise(hilare, per):
     """The run loop itself (simulate_shared, 2000 trials, x0.1 noise, Hilare sinusoid): per state, the
     RMS over time of the observed std is within 4 % of the predicted one (sampling error of a std from
     2000 trials: 1.6 %), and the fraction of samples inside the 0.997 state ellipsoid is within 0.2
     percentage points of 0.997. (At x0.5 the Hilare's loop is visibly nonlinear around t = 2 s: 0.992;
-    results/tubes/ measures the map plans.)"""
-    noise = NoiseOptions(scale=0.1)
+    results/tubes/ measures the map plans.) Per metre, the tube's increments follow the nominal's moves
+    and the loop's its own."""
+    noise = NoiseOptions(scale=0.1, process_per=per)
     tube = predict_tube(hilare, noise, Footprint.disc(0.3), None)
     sim = simulate_shared(hilare, list(range(2000)), noise)
     obs = np.std(sim.e, axis=0)
