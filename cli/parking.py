@@ -123,8 +123,11 @@ def _numbers(option: str, text: str, what: str) -> list[float]:
 @click.option("--process-per", type=click.Choice(["second", "metre"]), default="second", show_default=True,
               help="The process disturbance acts per second (at rest too) or per metre the car travels (none at "
                    "rest), as nhstab run --process-per: for the plans, their tubes and every trial.")
+@click.option("--gains", type=click.Choice(["default", "auto"]), default="default", show_default=True,
+              help="The gramian law's gains: the car's defaults, or auto: per plan, as nhstab run --gains auto "
+                   "(alpha, delta, gamma from a grid by the plan's linear tube).")
 def study(out_dir, trials, mc_factor, maps, noise, controllers, root_seed, plan_seed, workers, fit, figure_maps,
-          process_per):
+          process_per, gains):
     """The parking study: per suite map one plan (the first of `nhstab run example:NAME --seed PLAN_SEED --fit`);
     per controller and noise level its error tube and verdict, trials of the run loop (collisions,
     goal reached) and the tube held to an independent Monte Carlo (coverage, conservatism). Writes
@@ -155,9 +158,10 @@ def study(out_dir, trials, mc_factor, maps, noise, controllers, root_seed, plan_
     figs = [s.strip() for s in figure_maps.split(",") if s.strip()]
     if figs not in (["all"], ["none"]):
         check_maps(figs, "--figures")
-    from nhstab.execution.config import NoiseOptions, PlanningOptions, RunOptions
+    from nhstab.execution.config import ControllerOptions, NoiseOptions, PlanningOptions, RunOptions
 
-    options = RunOptions(planning=PlanningOptions(fit=fit), noise=NoiseOptions(process_per=process_per))
+    options = RunOptions(planning=PlanningOptions(fit=fit), noise=NoiseOptions(process_per=process_per),
+                         controller=ControllerOptions(gains=gains))
     result, curves = run_parking_study(trials, mc_factor, names, levels, ctrls, root_seed, plan_seed, options=options,
                                        workers=workers, progress=lambda s: click.echo(s, err=True))
     # the numbers first: a figure that fails must not lose an hour's study

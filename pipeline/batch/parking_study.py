@@ -586,7 +586,7 @@ def study_map(row: dict, settings: dict, progress=None) -> tuple[dict, dict]:
     brief = []
     for a in attempts:
         b = {k: a.get(k) for k in ("seed", "margin", "status", "message", "latency_s")}
-        for k in ("fit", "margin_auto"):
+        for k in ("fit", "margin_auto", "gains_auto"):
             if isinstance(a.get(k), dict) and a[k].get("message"):
                 b[f"{k}_message"] = a[k]["message"]
         brief.append(b)
@@ -727,7 +727,8 @@ def run_parking_study(trials: int = TRIALS, mc_factor: int = MC_FACTOR, maps=Non
            "tolerance": {"position_m": opts.tolerance.position_m, "heading_rad": opts.tolerance.heading_rad},
            "planning": {"margin": opts.planning.margin, "fit": opts.planning.fit, "headroom": opts.headroom,
                         "planner": opts.planning.planner,
-                        "time_limit_s": opts.planning.time_limit_s, "controller": opts.controller.kind},
+                        "time_limit_s": opts.planning.time_limit_s, "controller": opts.controller.kind,
+                        "gains": opts.controller.gains},
            "criteria": {"conservatism_max": CONSERVATISM_MAX, "quantile_floor_m": QUANTILE_FLOOR_M,
                         "quantile_ci": QUANTILE_CI, "target_full": TARGET_FULL, "target_tight": TARGET_TIGHT,
                         "full_factor": FULL_FACTOR, "target_noise": TARGET_NOISE},
@@ -944,7 +945,9 @@ def study_markdown(result: dict) -> str:
         f"first plan of `nhstab run example:NAME --seed {result['plan_seed']}"
         + (" --fit" if pl.get("fit") else "") + "` (margin "
         + ("the map robot's" if pl["margin"] is None else str(pl["margin"]))
-        + f", headroom {pl['headroom']:g}, {pl['planner']} with {pl['time_limit_s']:g} s). Per controller "
+        + f", headroom {pl['headroom']:g}, {pl['planner']} with {pl['time_limit_s']:g} s"
+        + ("; the gramian law's gains chosen per plan, `--gains auto`" if pl.get("gains") == "auto" else "")
+        + "). Per controller "
         f"and noise level (a cell): the {p:g}-tube (`predict_tube`, kind auto: linear where it holds, else sampled "
         f"with N = {result['rollouts']} rollouts, the {result.get('discards', 0)} most extreme left out, confidence "
         f"{result['confidence']:g}); {result['trials']} trials of "

@@ -331,6 +331,7 @@ def test_report_numbers_are_the_json_numbers(study):
     (["--root-seed", "-3"], "--root-seed"),
     (["--workers", "0"], "--workers"),
     (["--process-per", "hour"], "--process-per"),
+    (["--gains", "best"], "--gains"),
 ])
 def test_bad_options_are_refused_in_one_line(tmp_path, args, needle):
     out = tmp_path / "out"
