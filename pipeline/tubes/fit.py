@@ -165,8 +165,9 @@ def fit_plan(plan_at, tube_of, world, fp: Footprint, *, margin: float, cap: floa
        again.
 
     Each try is judged by its own tube. Two other remedies are not tried: slowing the nominal near
-    obstacles and before cusps (process noise grows per second while a car corrects a lateral error
-    per metre driven, so a slower car collides more often) and other gain settings (gamma 2, delta 3 s
+    obstacles and before cusps (process noise per second grows per second while a car corrects a lateral
+    error per metre driven, so a slower car collides more often; per metre travelled it brings no more
+    disturbance per metre) and other gain settings (gamma 2, delta 3 s
     or alpha x 3 are worse on parking plans, or singular). ``plan_at(margin, k)`` -> (PlanResult, FeedbackLaw or None);
     ``tube_of(law)`` -> a Tube with its verdict, or None; ``first`` = (result, law, tube) at ``margin``.
     Returns (result, law, tube, margin, record); the record lists every try."""
