@@ -150,8 +150,9 @@ def position_states(state_names) -> tuple[int, int]:
 
 def distance_factor(d2):
     """sqrt of the distance moved in a control period (by :func:`position_states`), from its squared length
-    d2 (a float or an array): sqrt(sqrt(d2)), the factor of a per-metre process increment. The run loop and the vectorised engine
-    both compute d2 = dx * dx + dy * dy and this, so their increments are equal bit for bit."""
+    d2 (a float or an array): sqrt(sqrt(d2)), the factor of a per-metre process increment. The run loop
+    and the vectorised engine both compute d2 = dx * dx + dy * dy and this, so their increments are
+    equal bit for bit."""
     return np.sqrt(np.sqrt(d2))
 
 

@@ -252,7 +252,8 @@ class CompositeRun:
         self.rng_process = np.random.default_rng(seed_for(opts.seed, "process"))
         self.sigma_sensor = opts.noise.vector("sensor", model.state_names)
         self.sigma_process = opts.noise.process_step_std(model.state_names, self.T)
-        self.process_per_metre = opts.noise.per_metre
+        # per metre travelled: the states whose move scales each increment (None: per second)
+        self.process_xy = position_states(model.state_names) if opts.noise.per_metre else None
         self.impulses = opts.noise.impulse_list(model.state_names)
         lim = model.input_limits()
         self.u_lo, self.u_hi = lim[:, 0], lim[:, 1]
@@ -430,8 +431,8 @@ class CompositeRun:
         """The true state one period later: plant, disturbance, impulses; collision check."""
         x_new = self.plant.step(x, u)
         w = self.sigma_process * self.rng_process.standard_normal(self.model.n)
-        if self.process_per_metre:      # std intensity * sqrt(distance the position moved this period)
-            ix, iy = position_states(self.model.state_names)
+        if self.process_xy is not None:      # std intensity * sqrt(distance the position moved this period)
+            ix, iy = self.process_xy
             dx, dy = x_new[ix] - x[ix], x_new[iy] - x[iy]
             w = w * distance_factor(dx * dx + dy * dy)
         x = x_new + w
