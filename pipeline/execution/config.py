@@ -175,7 +175,8 @@ class NoiseOptions:
         if self.distribution not in DISTRIBUTIONS:
             raise InputError("noise.initial.distribution", "one of " + ", ".join(DISTRIBUTIONS), self.distribution)
         if self.process_per not in PROCESS_PER:
-            raise InputError("noise.process.per", "one of " + ", ".join(PROCESS_PER), self.process_per)
+            raise InputError("noise.process.per", "one of " + ", ".join(PROCESS_PER),
+                             "null" if self.process_per is None else self.process_per)
         for kind in ("initial", "sensor", "process"):
             for name, v in getattr(self, kind).items():
                 if name not in state_names:

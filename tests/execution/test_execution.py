@@ -143,6 +143,7 @@ def test_noise_levels_by_state_name_are_validated():
     ("noise: {sensor: {x: 0.1, q: 1}}\n", "noise.sensor.q"),
     ("noise: {process: {per: hour}}\n", "noise.process.per"),
     ("noise: {process: {per: [metre]}}\n", "noise.process.per"),
+    ("noise: {process: {per: null}}\n", "got 'null'"),
     ("sensor: {range_m: 0}\n", "sensor.range_m"),
     ("sensor: {fov: 90}\n", "sensor.fov"),
     ("replan: {max_attempts: 0}\n", "replan.max_attempts"),
