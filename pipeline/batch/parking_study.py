@@ -95,10 +95,12 @@ from ..report import subplots
 from ..robot import resolve_robot
 from ..tubes.base import (
     DEFAULT_DISCARDS,
+    REST_NOTE_S,
     displacement,
     hull_vertices,
     order_statistic_beta,
     pose_indices,
+    rest_drift,
     rollouts_needed,
     verdict,
 )
@@ -219,10 +221,12 @@ def cell_law(run, result, plan_law, controller: str):
 
 # ---- a cell's parts -------------------------------------------------------------------------------------
 
-def tube_record(tube, v: dict, c_start: float, c_goal: float) -> dict:
+def tube_record(tube, v: dict, c_start: float, c_goal: float, noise=None) -> dict:
     """The cell's tube in JSON: its verdict (:func:`nhstab.tubes.verdict`: where it is tightest, the margin
     it would need, whether that is beyond the start's or goal's own clearance) and, for a tube that is not
-    certified, the start's and goal's clearance and where the tightest sample lies."""
+    certified, the start's and goal's clearance, where the tightest sample lies, and how long the plan
+    stands still before it (with ``noise``, the cell's NoiseOptions: the 1-sigma drift a per-second
+    disturbance gives the car there, :func:`nhstab.tubes.base.rest_drift`; None per metre)."""
     rc = tube.info.get("rollout_clearance") or {}
     rec = {"kind": tube.kind, "rollouts": tube.certificate.get("rollouts"), "certified": tube.certified,
            "certified_clearance_m": tube.certified_clearance, "samples": int(len(tube.t)),
@@ -244,6 +248,11 @@ def tube_record(tube, v: dict, c_start: float, c_goal: float) -> dict:
                 where = "goal"
         rec["not_certified"] = {"start_clearance_m": c_start, "goal_clearance_m": c_goal,
                                 "cap_m": min(c_start, c_goal) - 1e-3, "tightest_where": where, "plan_duration_s": T}
+        rest = v.get("at_rest")
+        if rest is not None:
+            drift = rest_drift(noise, tube.state_names, rest["before_tightest_s"])
+            rec["not_certified"]["at_rest"] = {**rest, "drift_position_m": None if drift is None else drift[0],
+                                               "drift_heading_rad": None if drift is None else drift[1]}
     return rec
 
 
@@ -630,7 +639,7 @@ def study_map(row: dict, settings: dict, progress=None) -> tuple[dict, dict]:
                     law, noise, run.fp, run.known, rate_hz=run.opts.rate_hz, substeps=run.opts.substeps,
                     model=run.model, probability=p, kind="auto", confidence=conf)
                 vd = verdict(tube, run.known, run.fp, margin, cap=min(c_start, c_goal) - 1e-3)
-                cell["tube"] = tube_record(tube, vd, c_start, c_goal)
+                cell["tube"] = tube_record(tube, vd, c_start, c_goal, noise)
                 cell["tube"]["from_plan"] = bool(reuse)
             except NumericalError as exc:
                 cell["tube"] = {"error": " ".join(str(exc).split())}
@@ -895,6 +904,11 @@ def not_certified_text(tb: dict) -> str:
             parts.append(f"more than {own}: no plan between them keeps it at this noise")
         elif tb.get("needed_margin_m") is not None:
             parts.append(f"not more than {own}: a plan keeping that margin there could certify it")
+        rest = nc.get("at_rest") or {}
+        if rest.get("drift_position_m") is not None and rest["before_tightest_s"] >= REST_NOTE_S:
+            parts.append(f"the plan stands still {rest['before_tightest_s']:.1f} s before then, where the per-second "
+                         f"disturbance drifts the car {rest['drift_position_m']:.3f} m and {rest['drift_heading_rad']:.3f} "
+                         "rad (1 sigma) uncorrected")
     return "; ".join(parts)
 
 

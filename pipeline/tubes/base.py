@@ -18,6 +18,12 @@ from ..limits import MAX_ROLLOUTS, check_probability
 #: the default probability of the tube
 DEFAULT_PROBABILITY = 0.997
 
+#: a nominal's pose that moves less than this between samples (m, rad) stands (:func:`standing_steps`)
+STANDING_TOL = 1e-7
+
+#: the time standing before the tightest point from which an uncertified tube's line names its drift [s]
+REST_NOTE_S = 2.0
+
 
 #: a linear tube's line mentions saturation above this bound
 LINEAR_SATURATION_NOTE = 0.01
@@ -348,16 +354,47 @@ def verdict(tube, world, fp: Footprint, margin: float | None = None, cap: float 
         if cap is not None and "needed_margin_m" in out and out["needed_margin_m"] > cap:
             out["beyond_start_or_goal"] = {"clearance_m": float(cap), "note": "the margin it needs is more than the "
                                            "start's or goal's own clearance: no plan between them keeps it"}
+        if tube.certified_clearance < 0:
+            still = standing_steps(tube.poses)
+            dt = np.diff(tube.t)
+            out["at_rest"] = {"before_tightest_s": float(dt[:k][still[:k]].sum()), "total_s": float(dt[still].sum()),
+                              "duration_s": float(tube.t[-1] - tube.t[0])}
     if tube.certificate.get("bodies"):
         out.update(bodies=tube.certificate["bodies"], jackknifes=tube.certificate["jackknifes"])
     tube.info["verdict"] = out
     return out
 
 
-def tube_line(tube, noise_scale: float | None = None, prefix: str = "tube", per_metre: bool = False) -> str:
+def standing_steps(poses: np.ndarray, tol: float = STANDING_TOL) -> np.ndarray:
+    """Per step k -> k + 1 of a nominal's poses (S, 3): whether its pose stays put (position and heading
+    within ``tol``): the robot stands (a car steering in place, a stop at a cusp)."""
+    poses = np.asarray(poses, dtype=float)
+    if len(poses) < 2:
+        return np.zeros(0, dtype=bool)
+    d = np.diff(poses[:, :3], axis=0)
+    d[:, 2] = np.abs(np.angle(np.exp(1j * d[:, 2])))
+    return (np.hypot(d[:, 0], d[:, 1]) <= tol) & (d[:, 2] <= tol)
+
+
+def rest_drift(noise, state_names, seconds: float) -> tuple[float, float] | None:
+    """The 1-sigma drift a per-second process disturbance (``noise``, a NoiseOptions) gives a robot
+    standing for ``seconds``: (position [m]: the larger of x's and y's, heading [rad]); None when it acts
+    per metre travelled (not at rest) or the robot has no x, y, theta."""
+    if noise is None or noise.per_metre or not {"x", "y", "theta"} <= set(state_names):
+        return None
+    lv = dict(zip(state_names, noise.vector("process", list(state_names))))
+    root = math.sqrt(max(seconds, 0.0))
+    return max(lv["x"], lv["y"]) * root, lv["theta"] * root
+
+
+def tube_line(tube, noise_scale: float | None = None, prefix: str = "tube", per_metre: bool = False,
+              noise=None) -> str:
     """One line for a user: certified or not, at which probability, which tube, where it is tightest and
     what would certify it (from :func:`verdict`, which must have run). ``per_metre``: the noise's process
-    disturbance acts per metre travelled (the line says so)."""
+    disturbance acts per metre travelled (the line says so). ``noise`` (the tube's NoiseOptions): where
+    a tube is not certified and the plan stands still for at least :data:`REST_NOTE_S` before its
+    tightest point under a per-second disturbance, the line says how far that moves the robot there
+    (:func:`rest_drift`)."""
     v = tube.info.get("verdict") or {}
     if tube.kind == "sampled":
         r = tube.certificate.get("discards", 0)
@@ -389,6 +426,13 @@ def tube_line(tube, noise_scale: float | None = None, prefix: str = "tube", per_
             if "beyond_start_or_goal" in v:
                 text += (f", more than the start's or goal's own clearance ({v['beyond_start_or_goal']['clearance_m']:.2f} m): "
                          "no plan between them keeps it at this noise")
+        rest = v.get("at_rest")
+        drift = rest_drift(noise, tube.state_names, rest["before_tightest_s"]) if rest else None
+        if drift is not None and rest["before_tightest_s"] >= REST_NOTE_S:
+            text += (f"; before then the plan stands still for {rest['before_tightest_s']:.1f} s (steering in place, "
+                     f"stops at cusps), where a per-second process disturbance drifts the robot by {drift[0]:.3f} m "
+                     f"and {drift[1]:.3f} rad (1 sigma), which no feedback corrects while it stands (per metre "
+                     "travelled, --process-per metre, it does not act at rest)")
     if tube.kind == "sampled":
         frac = tube.saturation["observed_fraction"]
         if frac > 0:

@@ -117,3 +117,69 @@ def test_cusp_replanning_triggers_exactly_where_the_rest_is_not_certified(name):
             assert rec.trigger == "cusp" and rec.tube is not None
     else:
         assert all(c["certified"] for _, c in checks) and len(r.plans) == 1
+
+
+# ---- the time a plan stands still, and what a per-second disturbance does there ----------------------
+
+def test_standing_steps_and_the_drift_at_rest_in_closed_form():
+    """A pose that does not move between samples stands (a turn through +-pi by a hair is motion); a
+    per-second disturbance of intensity s drifts a robot standing t seconds by s sqrt(t) (1 sigma), the
+    position's the larger of x's and y's; per metre travelled it does not act at rest (None)."""
+    from nhstab.execution.config import NoiseOptions
+    from nhstab.tubes.base import rest_drift, standing_steps
+
+    poses = np.array([[0, 0, 0], [0, 0, 0], [0.1, 0, 0], [0.1, 0, 0], [0.1, 0, np.pi - 1e-4],
+                      [0.1, 0, -np.pi + 1e-4], [0.1, 0, -np.pi + 1e-4]], dtype=float)
+    assert standing_steps(poses).tolist() == [True, False, True, False, False, True]
+    assert standing_steps(poses[:1]).shape == (0,)
+    names = ("x", "y", "theta", "phi")
+    noise = NoiseOptions(scale=2.0, process={"x": 0.01, "y": 0.03, "theta": 0.005})
+    pos, head = rest_drift(noise, names, 16.0)
+    assert pos == pytest.approx(2.0 * 0.03 * 4.0, rel=1e-12) and head == pytest.approx(2.0 * 0.005 * 4.0, rel=1e-12)
+    assert rest_drift(dataclasses.replace(noise, process_per="metre"), names, 16.0) is None
+    assert rest_drift(noise, ("x", "y"), 16.0) is None and rest_drift(None, names, 16.0) is None
+
+
+@pytest.mark.parametrize("per", ["second", "metre"])
+def test_an_uncertified_tube_says_how_long_the_plan_stands_before_its_tightest_point(per):
+    """The van in the 0.9 x L1 parallel slot (it steers in place at its cusps): the verdict's time at rest is
+    the nominal's, measured independently from the model's speed (nhstab.tubes.sampled.interior_stops,
+    to within a control period per stop), and the line a user reads names the drift a per-second
+    disturbance gives there (0.02 m/sqrt(s) sqrt(t)); per metre it does not."""
+    from nhstab.tubes.sampled import interior_stops
+
+    m = load_map("example:parallel_van_090")
+    lines = []
+    from nhstab.execution.config import NoiseOptions
+    from nhstab.maps import resolve_poses
+    from nhstab.robot import resolve_robot
+
+    robot = resolve_robot(None, m.robot)
+    start, goal = resolve_poses(m, None, None)
+    r = execute(m, robot, start, goal, RunOptions(seed=0, noise=NoiseOptions(process_per=per),
+                                                  tube=TubeOptions(require_certified=True)), notify=lines.append)
+    assert r.status == "not_certified"
+    plan = r.plans[0]
+    v = plan.tube.info["verdict"]
+    nominal = plan.law.nominal
+    T = 1.0 / r.options.rate_hz
+    t_tight = v["tightest"]["time_s"]
+    # the nominal's own grid: a step stands where the model's speed is zero at both of its ends
+    xd = nominal.model.rhs(nominal.x, nominal.u)
+    speed = np.hypot(xd[:, 0], xd[:, 1])
+    rest = speed <= 1e-6 * speed.max()
+    step_rest = rest[:-1] & rest[1:] & (nominal.t[1:] <= t_tight)
+    independent = float(np.diff(nominal.t)[step_rest].sum())
+    stops = [s for s in interior_stops(nominal, (0, 1, 2)) if s[0] < t_tight]
+    assert len(stops) >= 2
+    assert abs(v["at_rest"]["before_tightest_s"] - independent) <= (len(stops) + 2) * T + 1e-9
+    assert v["at_rest"]["before_tightest_s"] <= v["at_rest"]["total_s"] <= v["at_rest"]["duration_s"]
+    tube_lines = [ln for ln in lines if ln.startswith("plan 0 tube")]
+    assert len(tube_lines) == 1, lines
+    line = tube_lines[0]
+    if per == "second":
+        sigma = 0.02 * np.sqrt(v["at_rest"]["before_tightest_s"])
+        assert f"stands still for {v['at_rest']['before_tightest_s']:.1f} s" in line
+        assert f"drifts the robot by {sigma:.3f} m" in line
+    else:
+        assert "stands still" not in line and "per metre travelled" in line
