@@ -135,15 +135,16 @@ def effective_yaml(header: str, doc: dict) -> str:
     return f"# {header}\n" + yaml.safe_dump(doc, sort_keys=False)
 
 
-def echo_suite_write(result: dict, out_dir, check: bool, command: str) -> int:
+def echo_suite_write(result: dict, out_dir, check: bool, command: str, full: str | None = None) -> int:
     """Print what a suite's ``write_suite`` did (``nhstab parking suite``, ``nhstab trailer suite``): the files
-    written, or with ``check`` whether the folder is what the command writes; the exit code."""
+    written, or with ``check`` whether the folder is what the command (``full``, else ``nhstab COMMAND
+    suite --out OUT``) writes; the exit code."""
     if check:
         bad = {k: v for k, v in result.items() if v}
         if bad:
             for key, names in bad.items():
                 click.echo(f"{key}: {', '.join(names)}")
-            click.echo(f"{out_dir} is not what `nhstab {command} suite --out {out_dir}` writes", err=True)
+            click.echo(f"{out_dir} is not what `{full or f'nhstab {command} suite --out {out_dir}'}` writes", err=True)
             return 1
         click.echo(f"{out_dir} is up to date")
         return 0

@@ -15,17 +15,39 @@ def parking():
 
 
 @parking.command("suite")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("maps/parking"),
-              show_default=True, help="Folder for the maps, suite.csv and SOURCE.md.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Folder for the maps, suite.csv and SOURCE.md (default: maps/parking; required with "
+                   "--robot-config).")
 @click.option("--check", is_flag=True,
               help="Write nothing: compare the folder with what would be written (exit code 1 if they differ).")
-def suite(out_dir, check):
+@click.option("--robot-config", "robot_config", type=click.Path(path_type=Path), default=None,
+              help="The suite of one's own car: a robot description (YAML, as a map's robot: block) of an "
+                   "rwd_car with a rectangular footprint; its margin, else 0.1 m.")
+@click.option("--name", "car_name", default=None,
+              help="With --robot-config: the car's name in the map names (default: the file's name key).")
+def suite(out_dir, check, robot_config, car_name):
     """Write the parking suite: one nhstab YAML map per case (parallel slots at 0.9-1.4 x L1,
     perpendicular bays at four aisle widths, 45 and 60 degree bays), for the default rwd_car and a
-    long van, with suite.csv and SOURCE.md (the formulas and the table)."""
-    from nhstab.parking import write_suite
+    long van, with suite.csv and SOURCE.md (the formulas and the table). With --robot-config, the same
+    cases sized for that car (study them with `nhstab parking study --suite OUT`)."""
+    from nhstab.errors import InputError
+    from nhstab.parking import own_car, write_suite
+    from nhstab.safe_io import load_yaml_file
 
-    return echo_suite_write(write_suite(out_dir, check=check), out_dir, check, "parking")
+    if robot_config is None:
+        if car_name is not None:
+            raise InputError("--name", "given with --robot-config (the name of one's own car)", car_name)
+        out = out_dir if out_dir is not None else Path("maps/parking")
+        return echo_suite_write(write_suite(out, check=check), out, check, "parking")
+    if out_dir is None:
+        raise InputError("--out", "a folder for the suite of one's own car (with --robot-config; the bundled "
+                         "suite's maps/parking is not overwritten)", "nothing")
+    spec = load_yaml_file(robot_config, "--robot-config", "robot description (YAML)")
+    specs = own_car(spec, f"--robot-config {robot_config}", car_name)
+    command = (f"nhstab parking suite --robot-config {robot_config}" + (f" --name {car_name}" if car_name else "")
+               + f" --out {out_dir}")
+    return echo_suite_write(write_suite(out_dir, check=check, specs=specs, command=command), out_dir, check,
+                            "parking", command)
 
 
 @parking.command("table")
@@ -100,14 +122,18 @@ def _numbers(option: str, text: str, what: str) -> list[float]:
 
 
 @parking.command("study")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("results/parking/study"), show_default=True)
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Folder for study.json, study.md and the figures (default: results/parking/study; with "
+                   "--suite, SUITE/study).")
+@click.option("--suite", "suite_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="A suite of one's own car (a folder written by nhstab parking suite --robot-config) instead "
+                   "of the bundled one.")
 @click.option("--trials", type=int, default=50, show_default=True, help="Trials per cell (1 to 5,000).")
 @click.option("--mc-factor", type=int, default=10, show_default=True,
               help="The tube check's Monte Carlo: this many times the sampled tube's N rollouts per cell (with 1 "
                    "no tube can be rebuilt from the runs, and the check's 'below' part is undetermined).")
 @click.option("--maps", "maps", multiple=True, metavar="NAME",
-              help="Maps of the suite (repeat, or a comma list; default: all 28).")
+              help="Maps of the suite (repeat, or a comma list; default: all, 28 in the bundled suite).")
 @click.option("--noise", default="0.5,1,2", show_default=True, help="Noise scales (comma list).")
 @click.option("--controllers", default="gramian,tvlqr", show_default=True, help="Feedback laws (comma list).")
 @click.option("--root-seed", type=int, default=2026, show_default=True,
@@ -126,8 +152,8 @@ def _numbers(option: str, text: str, what: str) -> list[float]:
 @click.option("--gains", type=click.Choice(["default", "auto"]), default="default", show_default=True,
               help="The gramian law's gains: the car's defaults, or auto: per plan, as nhstab run --gains auto "
                    "(alpha, delta, gamma from a grid by the plan's linear tube).")
-def study(out_dir, trials, mc_factor, maps, noise, controllers, root_seed, plan_seed, workers, fit, figure_maps,
-          process_per, gains):
+def study(out_dir, suite_dir, trials, mc_factor, maps, noise, controllers, root_seed, plan_seed, workers, fit,
+          figure_maps, process_per, gains):
     """The parking study: per suite map one plan (the first of `nhstab run example:NAME --seed PLAN_SEED --fit`);
     per controller and noise level its error tube and verdict, trials of the run loop (collisions,
     goal reached) and the tube held to an independent Monte Carlo (coverage, conservatism). Writes
@@ -152,18 +178,23 @@ def study(out_dir, trials, mc_factor, maps, noise, controllers, root_seed, plan_
     check_int("--plan-seed", plan_seed, 0, MAX_SEED, "a seed")
     check_int("--workers", workers, 1, 64, "a number of worker processes")
     names = [s.strip() for m in maps for s in m.split(",") if s.strip()]
-    check_maps(names, "--maps")
+    rows = check_maps(names, "--maps", suite_dir)
+    if out_dir is None:
+        out_dir = Path("results/parking/study") if suite_dir is None else suite_dir / "study"
     levels = check_levels(_numbers("--noise", noise, "noise scales separated by commas, e.g. 0.5,1,2"), "--noise")
     ctrls = check_controllers([s.strip() for s in controllers.split(",") if s.strip()], "--controllers")
     figs = [s.strip() for s in figure_maps.split(",") if s.strip()]
-    if figs not in (["all"], ["none"]):
-        check_maps(figs, "--figures")
+    if suite_dir is not None and figure_maps == ",".join(FIGURE_MAPS):
+        # one's own car: the figures of its two tightest parallel slots among the maps studied
+        figs = [r["name"] for r in rows if r["kind"] == "parallel" and r["factor"] <= 1.0] or ["none"]
+    elif figs not in (["all"], ["none"]):
+        check_maps(figs, "--figures", suite_dir)
     from nhstab.execution.config import ControllerOptions, NoiseOptions, PlanningOptions, RunOptions
 
     options = RunOptions(planning=PlanningOptions(fit=fit), noise=NoiseOptions(process_per=process_per),
                          controller=ControllerOptions(gains=gains))
     result, curves = run_parking_study(trials, mc_factor, names, levels, ctrls, root_seed, plan_seed, options=options,
-                                       workers=workers, progress=lambda s: click.echo(s, err=True))
+                                       workers=workers, progress=lambda s: click.echo(s, err=True), suite=suite_dir)
     # the numbers first: a figure that fails must not lose an hour's study
     # study.json compact (about 1 MB for the whole suite; 2 MB indented): results/ stays small
     files = [write_text(out_dir / "study.json", json.dumps(to_jsonable(result), separators=(",", ":")) + "\n"),

@@ -73,10 +73,12 @@ thread each); the result does not depend on it.
 
 from __future__ import annotations
 
+import csv
 import math
 import os
 import sys
 import time
+from pathlib import Path
 from dataclasses import replace
 
 import numpy as np
@@ -140,15 +142,38 @@ BELOW_LEVEL = 0.001
 
 # ---- the suite and the plans -------------------------------------------------------------------------
 
-def suite_rows() -> list[dict]:
-    """The parking suite's cases (maps/parking/suite.csv), in its order."""
-    return read_suite_csv(data_root() / "parking" / "suite.csv")
+def suite_rows(suite=None) -> list[dict]:
+    """The parking suite's cases (maps/parking/suite.csv), in its order; with ``suite``, those of a folder
+    written by ``nhstab parking suite --robot-config CAR --out FOLDER`` (its suite.csv; an InputError
+    naming --suite when it is not such a folder)."""
+    if suite is None:
+        return read_suite_csv(data_root() / "parking" / "suite.csv")
+    path = Path(suite) / "suite.csv"
+    want = "a folder written by nhstab parking suite (with its suite.csv)"
+    if not path.is_file():
+        raise InputError("--suite", want, str(suite), detail="no suite.csv in it")
+    try:
+        rows = read_suite_csv(path)
+    except (KeyError, ValueError, TypeError, UnicodeDecodeError, csv.Error) as exc:
+        raise InputError("--suite", want, str(suite), detail=f"suite.csv unreadable: {exc}") from None
+    if not rows:
+        raise InputError("--suite", want, str(suite), detail="suite.csv lists no case")
+    for r in rows:
+        if not (Path(suite) / f"{r['name']}.yaml").is_file():
+            raise InputError("--suite", want, str(suite), detail=f"its map {r['name']}.yaml is missing")
+    return rows
 
 
-def check_maps(names, key: str = "maps") -> list[dict]:
+def map_ref(name: str, suite=None) -> str:
+    """How ``nhstab run`` names a map of the study: ``example:NAME``, or the file in ``suite``."""
+    return f"example:{name}" if suite is None else str(Path(suite) / f"{name}.yaml")
+
+
+def check_maps(names, key: str = "maps", suite=None) -> list[dict]:
     """The suite rows of ``names`` (suite names, ``example:`` optional), in the order given; all when
-    ``names`` is empty or None. An unknown or repeated name is an InputError naming ``key``."""
-    rows = suite_rows()
+    ``names`` is empty or None. An unknown or repeated name is an InputError naming ``key``. ``suite``:
+    a folder of one's own car's suite (:func:`suite_rows`) instead of the bundled one."""
+    rows = suite_rows(suite)
     if not names:
         return rows
     by_name = {r["name"]: r for r in rows}
@@ -190,14 +215,14 @@ def check_controllers(names, key: str = "controllers") -> list[str]:
     return out
 
 
-def first_plan(map_name: str, options=None):
+def first_plan(map_name: str, options=None, suite=None):
     """The first plan of ``nhstab run example:MAP`` with ``options`` (a RunOptions; default
     ``RunOptions(seed=PLAN_SEED)``): the map's robot, start and goal, the run's first planning call
     retried as ``CompositeRun.run`` retries it (a new seed, then a larger budget, at most
     ``replan.max_attempts`` calls). Returns (run, attempts, result, law, margin, tube); law None when
     no call found a plan (the attempts say why)."""
     opts = options if options is not None else RunOptions(seed=PLAN_SEED)
-    m = load_map(f"example:{map_name}")
+    m = load_map(map_ref(map_name, suite))
     robot = resolve_robot(opts.robot, m.robot)
     start, goal = resolve_poses(m, opts.start, opts.goal)
     run = CompositeRun(m, robot, start, goal, opts)
@@ -585,7 +610,7 @@ def study_map(row: dict, settings: dict, progress=None) -> tuple[dict, dict]:
     case["map"] = case.pop("name")
     started = time.perf_counter()
     try:
-        run, attempts, result, law0, margin, tube0 = first_plan(case["map"], opts)
+        run, attempts, result, law0, margin, tube0 = first_plan(case["map"], opts, settings.get("suite"))
     except PipelineError as exc:
         case.update(plan={"found": False, "reason": " ".join(str(exc).split())}, plan_wall_s=time.perf_counter() - started,
                     cells=[])
@@ -709,16 +734,17 @@ def _map_task(args):
 def run_parking_study(trials: int = TRIALS, mc_factor: int = MC_FACTOR, maps=None, noise_levels=NOISE_LEVELS,
                       controllers=CONTROLLERS, root_seed: int = ROOT_SEED, plan_seed: int = PLAN_SEED,
                       options=None, probability: float = PROBABILITY, confidence: float = CONFIDENCE,
-                      workers: int = 1, progress=None) -> tuple[dict, dict]:
+                      workers: int = 1, progress=None, suite=None) -> tuple[dict, dict]:
     """The parking study (see the module docstring); returns (JSON-ready result, curves by (map,
     controller, noise) for the figures). ``options``: the RunOptions of the plans (default
     ``RunOptions(seed=plan_seed)``; with options given, its seed is replaced by ``plan_seed``).
-    ``progress``: called with one line per plan and per cell."""
+    ``progress``: called with one line per plan and per cell. ``suite``: the folder of a suite of one's
+    own car (``nhstab parking suite --robot-config``) instead of the bundled suite."""
     trials = check_int("trials", trials, 1, MAX_STUDY_TRIALS, "a number of trials per cell")
     root_seed = check_int("root_seed", root_seed, 0, MAX_SEED - 1, "a seed")
     plan_seed = check_int("plan_seed", plan_seed, 0, MAX_SEED, "a seed")
     workers = check_int("workers", workers, 1, 64, "a number of worker processes")
-    rows = check_maps(maps)
+    rows = check_maps(maps, "maps", suite)
     levels = check_levels(noise_levels)
     ctrls = check_controllers(controllers)
     N = rollouts_needed(probability, confidence, DEFAULT_DISCARDS)
@@ -727,7 +753,7 @@ def run_parking_study(trials: int = TRIALS, mc_factor: int = MC_FACTOR, maps=Non
     opts = replace(options, seed=plan_seed) if options is not None else RunOptions(seed=plan_seed)
     settings = {"options": opts, "trials": trials, "root_seed": root_seed, "controllers": ctrls,
                 "noise_levels": levels, "probability": probability, "confidence": confidence,
-                "rollouts": N, "mc_factor": mc_factor}
+                "rollouts": N, "mc_factor": mc_factor, "suite": None if suite is None else str(suite)}
     started = time.perf_counter()
     out = {"study": "parking", "probability": probability, "confidence": confidence, "rollouts": N,
            "discards": DEFAULT_DISCARDS, "mc_factor": mc_factor, "mc_runs": mc_factor * N, "trials": trials, "root_seed": root_seed,
@@ -742,6 +768,8 @@ def run_parking_study(trials: int = TRIALS, mc_factor: int = MC_FACTOR, maps=Non
                         "quantile_ci": QUANTILE_CI, "target_full": TARGET_FULL, "target_tight": TARGET_TIGHT,
                         "full_factor": FULL_FACTOR, "target_noise": TARGET_NOISE},
            "workers": workers, "cases": []}
+    if suite is not None:
+        out["suite"] = str(suite)
     curves = {}
     if workers == 1 or len(rows) == 1:
         for row in rows:
@@ -955,8 +983,9 @@ def study_markdown(result: dict) -> str:
     pl = result["planning"]
     lines = [
         "# The parking study: the suite's plans under the feedback laws, and their error tubes", "",
-        f"Produced by `nhstab parking study` (nhstab.batch.parking_study). Per map of the parking suite, one plan: the "
-        f"first plan of `nhstab run example:NAME --seed {result['plan_seed']}"
+        f"Produced by `nhstab parking study` (nhstab.batch.parking_study). Per map of the parking suite"
+        + (f" in `{result['suite']}` (one's own car)" if result.get("suite") else "") + ", one plan: the "
+        f"first plan of `nhstab run {map_ref('NAME', result.get('suite'))} --seed {result['plan_seed']}"
         + (" --fit" if pl.get("fit") else "") + "` (margin "
         + ("the map robot's" if pl["margin"] is None else str(pl["margin"]))
         + f", headroom {pl['headroom']:g}, {pl['planner']} with {pl['time_limit_s']:g} s"
