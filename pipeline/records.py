@@ -12,6 +12,7 @@ import numpy as np
 
 from . import __version__
 from .errors import InputError
+from .limits import MAX_FILE_BYTES
 
 
 def to_jsonable(obj):
@@ -66,6 +67,68 @@ def write_json(path, obj) -> Path:
 
 def write_text(path, text: str) -> Path:
     return _atomic_write(Path(path), lambda fh: fh.write(text.encode()))
+
+
+#: the suffix of a gzip-compressed record (``study.json.gz``; see :func:`write_json_gz`)
+GZ = ".gz"
+
+
+def write_json_gz(path, obj, indent: int | None = None) -> Path:
+    """Write ``obj`` as JSON compressed with gzip, for the large records that commands leave in
+    ``results/`` (a study's or sweep's cells compress six- to twenty-fold). ``path`` ends in
+    ``.json.gz``; ``zcat``, Python's :mod:`gzip` and :func:`read_json` read it. The JSON text is
+    ``json.dumps(obj, indent=indent)`` (compact, without spaces, when ``indent`` is None) plus a newline,
+    every number as :func:`write_json` writes it; the gzip header holds no time stamp or file name, so
+    one record always gives the same bytes. An uncompressed copy of the record (``path`` without
+    ``.gz``, as an earlier nhstab wrote it) is removed once the new file is in place, so that a folder
+    holds one form of each record."""
+    import gzip
+
+    path = Path(path)
+    if not path.name.endswith(".json" + GZ):
+        raise ValueError(f"a gzip-compressed JSON record is named *.json.gz: {path}")
+    separators = (",", ":") if indent is None else None
+    data = (json.dumps(to_jsonable(obj), indent=indent, separators=separators) + "\n").encode()
+
+    def write(fh):
+        with gzip.GzipFile(filename="", mode="wb", fileobj=fh, compresslevel=9, mtime=0) as gz:
+            gz.write(data)
+
+    written = _atomic_write(path, write)
+    plain = path.with_name(path.name[:-len(GZ)])
+    if plain.is_file() or plain.is_symlink():
+        plain.unlink()
+    return written
+
+
+def record_file(folder, name: str) -> Path:
+    """Where the record ``name`` (e.g. ``"study.json"``) of ``folder`` is: ``name.gz`` (what the
+    commands write, :func:`write_json_gz`) when it exists, else ``name`` (a record written
+    uncompressed, by an earlier nhstab or by hand) when that exists, else ``name.gz``."""
+    folder = Path(folder)
+    gz, plain = folder / (name + GZ), folder / name
+    return plain if not gz.exists() and plain.exists() else gz
+
+
+def read_json(path):
+    """The JSON value in ``path``, gzip-compressed (a name ending in ``.gz``, as :func:`write_json_gz`
+    writes) or plain. Raises OSError (unreadable; gzip.BadGzipFile: not gzip) or ValueError (a gzip
+    stream cut short, damaged or expanding past :data:`~nhstab.limits.MAX_FILE_BYTES`, text that is
+    not UTF-8 or not JSON)."""
+    path = Path(path)
+    if path.name.endswith(GZ):
+        import gzip
+        import zlib
+
+        try:
+            with gzip.open(path, "rb") as fh:
+                data = fh.read(MAX_FILE_BYTES + 1)                 # a bound on what it expands to
+        except (EOFError, zlib.error) as exc:                     # cut short, or damaged
+            raise ValueError(f"not a whole gzip stream: {exc}") from None
+        if len(data) > MAX_FILE_BYTES:
+            raise ValueError(f"it expands to more than {MAX_FILE_BYTES} bytes")
+        return json.loads(data.decode("utf-8"))
+    return json.loads(path.read_text(encoding="utf-8"))
 
 
 def write_generated(out, files: dict[str, str], check: bool = False, pattern: str = "*.yaml") -> dict:

@@ -49,7 +49,7 @@ from ..limits import MAX_STUDY_TRIALS, check_int
 from ..maps import load_map
 from ..models import make_model
 from ..planning import pose_columns
-from ..records import save_figure, write_json, write_text
+from ..records import read_json, record_file, save_figure, write_json, write_text
 from ..report import subplots
 from ..report.plans import plan_figure
 from ..robot import default_robot
@@ -455,18 +455,17 @@ def redraw_study(out_dir, progress=None) -> tuple[list, list]:
     may differ on the way). The std and coverage figures need the trials' series, which study.json does
     not keep (``nhstab tubes study`` draws them). Returns (files written, one line per figure left and
     why)."""
-    import json
     from pathlib import Path
 
     out_dir = Path(out_dir)
-    src = out_dir / "study.json"
+    src = record_file(out_dir, "study.json")                 # study.json.gz, or an uncompressed study.json
     try:
-        result = json.loads(src.read_text())
+        result = read_json(src)
         cases = result["cases"]
         seed = int(result["plan_seed"])
         study_markdown(result, result.get("gains"))
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InputError("DIR", "a folder with the study.json nhstab tubes study writes", str(out_dir),
+        raise InputError("DIR", "a folder with the study.json.gz nhstab tubes study writes", str(out_dir),
                          detail=f"{type(exc).__name__}: {exc}") from None
     written, left = [], []
     for case in cases:
@@ -480,7 +479,7 @@ def redraw_study(out_dir, progress=None) -> tuple[list, list]:
                 "certified_clearance_m": (case.get("margin_auto") or {}).get("certified_clearance_m")}
         off = [k for k in now if then[k] is None or not np.isclose(now[k], then[k], rtol=REDRAW_RTOL, atol=0.0)]
         if off:
-            left.append(f"{name} left: planned again, " + ", ".join(f"{k} {now[k]:.6g} (study.json: {then[k]:.6g})"
+            left.append(f"{name} left: planned again, " + ", ".join(f"{k} {now[k]:.6g} ({src.name}: {then[k]:.6g})"
                                                                     for k in off))
             continue
         if progress:

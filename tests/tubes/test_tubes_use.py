@@ -300,10 +300,11 @@ def test_tubes_redraw_draws_the_recorded_plans_and_leaves_the_others(tmp_path):
     from pathlib import Path
 
     from nhstab.batch.tube_study import study_markdown
+    from nhstab.records import read_json, record_file
     from PIL import Image
 
     root = Path(__file__).resolve().parents[2]
-    doc = json.loads((root / "results/tubes/study.json").read_text())
+    doc = read_json(record_file(root / "results/tubes", "study.json"))
     doc["cases"] = [c for c in doc["cases"] if c["map"] == "warehouse_aisle_a2"]
     doc.pop("gains")
     wrong = json.loads(json.dumps(doc))
