@@ -170,13 +170,16 @@ def save_figure(fig, path, dpi: int = 110, fast_palette: bool = False) -> Path:
     flat fills, lines and text such as the plan figure (on it every channel within 16 levels of the
     drawing, about one level on average; the octree bands smooth colour maps, median cut much less).
     An Agg figure is drawn once and its pixels go straight to the palette step (no PNG encoded by
-    matplotlib and decoded again)."""
+    matplotlib and decoded again). The PNG is deflated at zlib's level 9 (PIL's ``optimize``): the
+    same pixels in 10 % fewer bytes than at PIL's default level 6 (the committed figures of results/:
+    3.39 MB against 3.06 MB), for about 30 ms more on an 800 x 500 figure and 0.3 s on the largest
+    (1440 x 1674)."""
     image = _figure_pixels(fig, dpi)
     from PIL import Image
 
     method = Image.Quantize.FASTOCTREE if fast_palette else Image.Quantize.MEDIANCUT
     image = image.quantize(colors=256, method=method, dither=Image.Dither.NONE)
-    return _atomic_write(Path(path), lambda fh: image.save(fh, format="PNG"))
+    return _atomic_write(Path(path), lambda fh: image.save(fh, format="PNG", optimize=True))
 
 
 def _figure_pixels(fig, dpi: int):
