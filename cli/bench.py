@@ -18,10 +18,12 @@ def _emit(result: dict, out: Path):
 
 @click.group(invoke_without_command=True)
 @click.option("--out-dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results/bench"),
-              show_default=True, help="Folder for bench.json and summary.md (when run without a subcommand).")
+              show_default=True, help="Folder for bench.json.gz (gzip-compressed JSON) and summary.md (when run "
+                                       "without a subcommand).")
 @click.option("--only", default=None, metavar="NAME[,NAME...]",
-              help="Run only these benchmarks and merge their results into OUT_DIR/bench.json (the others "
-                   "kept as they were), then rewrite summary.md from the merged file.")
+              help="Run only these benchmarks and merge their results into OUT_DIR/bench.json.gz (the others "
+                   "kept as they were; an uncompressed bench.json of an earlier nhstab is read and replaced), then "
+                   "rewrite summary.md from the merged file.")
 @click.pass_context
 def bench(ctx, out_dir, only):
     """Run every benchmark (no subcommand) or one of them. Writes JSON."""
@@ -33,7 +35,7 @@ def bench(ctx, out_dir, only):
                              f"--only {only} with {ctx.invoked_subcommand}")
         return 0
     from nhstab.bench import BENCHMARKS, previous_results, select_benchmarks, summary_markdown
-    from nhstab.records import write_json, write_text
+    from nhstab.records import write_json_gz, write_text
 
     names = select_benchmarks(only)
     results = {} if only is None else previous_results(out_dir)
@@ -41,10 +43,10 @@ def bench(ctx, out_dir, only):
         fn = BENCHMARKS[name]
         click.echo(f"running {name} ...", err=True)
         results[name] = fn()
-        write_json(out_dir / "bench.json", results)      # keep what is done if a later one fails
+        write_json_gz(out_dir / "bench.json.gz", results, indent=2)      # keep what is done if a later one fails
     write_text(out_dir / "summary.md", summary_markdown(results))
     click.echo(summary_markdown(results))
-    click.echo(f"wrote {out_dir / 'bench.json'} and {out_dir / 'summary.md'}", err=True)
+    click.echo(f"wrote {out_dir / 'bench.json.gz'} and {out_dir / 'summary.md'}", err=True)
     return 0
 
 

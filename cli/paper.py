@@ -11,7 +11,7 @@ from .options import collect, stabilizer_options
 
 @click.command()
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("results/paper"),
-              show_default=True, help="Folder for the figures, summary.json and summary.md.")
+              show_default=True, help="Folder for the figures, summary.json.gz and summary.md.")
 @click.option("--case", "cases", multiple=True, metavar="NAME",
               help="Run only this case (repeatable). Default: all. See --list.")
 @click.option("--list", "list_cases", is_flag=True, help="List the cases and exit.")
@@ -38,5 +38,5 @@ def paper(out_dir, cases, list_cases, alpha, delta, gamma, window, end_strategy)
         ratio = s.get("final_to_initial_ratio")
         extra = f"||e(T)||/||e(0)|| = {ratio:.3g}" if ratio is not None else s.get("message", "")
         click.echo(f"{s['case']:24s} {s['status']:17s} {extra}")
-    click.echo(f"wrote {out_dir / 'summary.json'}, {out_dir / 'summary.md'} and the figures in {out_dir}/")
+    click.echo(f"wrote {out_dir / 'summary.json.gz'}, {out_dir / 'summary.md'} and the figures in {out_dir}/")
     return 0

@@ -155,23 +155,22 @@ def figure(case, seed, budget, out_file):
 @trailer.command("sweep")
 @click.argument("config", type=click.Path(dir_okay=False, exists=True, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
-              help="Folder for sweep.json and sweep.md.")
+              help="Folder for sweep.json.gz and sweep.md.")
 @click.option("--workers", type=int, default=1, show_default=True,
               help="Processes over the cases (one BLAS thread each); the result does not depend on it.")
 def sweep(config, out_dir, workers):
     """Sweep the gramian law (alpha, delta, gamma, end strategy) against TVLQR on the suite's cases
     that plan, under noise, as CONFIG says (YAML; see the trailer guide): jackknifes, collisions and
-    docked trials per law and noise level. Writes sweep.json and sweep.md into OUT."""
-    import json
-
+    docked trials per law and noise level. Writes sweep.json.gz (the record: compact JSON, gzip-compressed)
+    and sweep.md into OUT."""
     from nhstab.batch.trailer_study import load_sweep_config, run_sweep, sweep_markdown
     from nhstab.limits import check_int
-    from nhstab.records import to_jsonable, write_text
+    from nhstab.records import write_json_gz, write_text
 
     check_int("--workers", workers, 1, 64, "a number of worker processes")
     settings = load_sweep_config(config)
     result = run_sweep(settings, progress=lambda s: click.echo(s, err=True), workers=workers)
-    files = [write_text(out_dir / "sweep.json", json.dumps(to_jsonable(result), separators=(",", ":")) + "\n"),
+    files = [write_json_gz(out_dir / "sweep.json.gz", result),
              write_text(out_dir / "sweep.md", sweep_markdown(result))]
     click.echo(f"{result['cases_planned']} of {len(result['cases'])} cases planned; wrote "
                + ", ".join(str(f) for f in files) + f" in {result['wall_s']:.0f} s")

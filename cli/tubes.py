@@ -20,14 +20,15 @@ def tubes():
 @click.option("--gains/--no-gains", default=True, show_default=True, help="Also the --gains auto grid and its check.")
 def study(out_dir, trials, root_seed, gains):
     """The tube study: unicycle and rwd_car on two bundled maps each, gramian and TVLQR, noise x0.5, x1,
-    x2; writes study.json, study.md and figures into OUT (see nhstab.batch.tube_study)."""
+    x2; writes study.json.gz (the record, gzip-compressed), study.md and figures into OUT (see
+    nhstab.batch.tube_study)."""
     from nhstab.batch.tube_study import write_study
     from nhstab.limits import MAX_SEED, MAX_STUDY_TRIALS, check_int
 
     check_int("--trials", trials, 2, MAX_STUDY_TRIALS, "a number of trials per cell")
     check_int("--seed", root_seed, 0, MAX_SEED, "a seed")
     files = write_study(out_dir, trials, root_seed, gains=gains, progress=lambda s: click.echo(s, err=True))
-    click.echo(f"wrote {len(files)} files into {out_dir} (study.md, study.json, figures)")
+    click.echo(f"wrote {len(files)} files into {out_dir} (study.md, study.json.gz, figures)")
     return 0
 
 
@@ -35,9 +36,9 @@ def study(out_dir, trials, root_seed, gains):
 @click.argument("out_dir", metavar="DIR", type=click.Path(file_okay=False, exists=True, path_type=Path),
                 default=Path("results/tubes"))
 def redraw(out_dir):
-    """Redraw a study's report without rerunning its trials: study.md from DIR/study.json (default
-    results/tubes), and each case's plan figure (plan_ROBOT_MAP.png) from its first plan and tube made
-    again, drawn only when they are those study.json records (same cusps; length, duration, clearance and
+    """Redraw a study's report without rerunning its trials: study.md from DIR/study.json.gz (or an
+    uncompressed DIR/study.json; default results/tubes), and each case's plan figure (plan_ROBOT_MAP.png)
+    from its first plan and tube made again, drawn only when they are those the study records (same cusps; length, duration, clearance and
     tube clearance equal); one line says why each other figure is left as it is. The std and coverage
     figures need the trials' series: nhstab tubes study draws them. Exit code 1 when a figure is left."""
     from nhstab.batch.tube_study import redraw_study

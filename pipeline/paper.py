@@ -34,7 +34,7 @@ from .errors import InputError, NotStabilizingWarning, PipelineError, SingularGr
 from .limits import MAX_NOMINAL_SAMPLES, MAX_PAPER_DELTA_S
 from .models import make_model
 from .nominal import Nominal
-from .records import save_figure, write_json, write_text
+from .records import save_figure, write_json_gz, write_text
 from .report import subplots
 from .report.tracking import (
     error_norm_comparison_figure,
@@ -613,7 +613,8 @@ def summary_markdown(summaries: list[dict], remark2: dict | None = None, frozen:
 
 def run_paper(out_dir, case_names: list[str] | None = None, overrides: dict | None = None,
               progress: Callable[[str], None] | None = None) -> list[dict]:
-    """Run the selected cases (all by default), write figures, summary.json and summary.md."""
+    """Run the selected cases (all by default), write figures, summary.json.gz (the record,
+    gzip-compressed) and summary.md."""
     names = list(case_names) if case_names else list(CASES)
     for name in names:
         if name not in CASES:
@@ -632,7 +633,7 @@ def run_paper(out_dir, case_names: list[str] | None = None, overrides: dict | No
 
     def save():
         # written after every step, so nothing computed is lost if a later one fails
-        write_json(out / "summary.json", {k: v for k, v in doc.items()})
+        write_json_gz(out / "summary.json.gz", {k: v for k, v in doc.items()}, indent=2)
 
     for name in names:
         if progress:

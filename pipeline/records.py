@@ -12,6 +12,7 @@ import numpy as np
 
 from . import __version__
 from .errors import InputError
+from .limits import MAX_FILE_BYTES
 
 
 def to_jsonable(obj):
@@ -68,6 +69,68 @@ def write_text(path, text: str) -> Path:
     return _atomic_write(Path(path), lambda fh: fh.write(text.encode()))
 
 
+#: the suffix of a gzip-compressed record (``study.json.gz``; see :func:`write_json_gz`)
+GZ = ".gz"
+
+
+def write_json_gz(path, obj, indent: int | None = None) -> Path:
+    """Write ``obj`` as JSON compressed with gzip, for the large records that commands leave in
+    ``results/`` (a study's or sweep's cells compress six- to twenty-fold). ``path`` ends in
+    ``.json.gz``; ``zcat``, Python's :mod:`gzip` and :func:`read_json` read it. The JSON text is
+    ``json.dumps(obj, indent=indent)`` (compact, without spaces, when ``indent`` is None) plus a newline,
+    every number as :func:`write_json` writes it; the gzip header holds no time stamp or file name, so
+    one record always gives the same bytes. An uncompressed copy of the record (``path`` without
+    ``.gz``, as an earlier nhstab wrote it) is removed once the new file is in place, so that a folder
+    holds one form of each record."""
+    import gzip
+
+    path = Path(path)
+    if not path.name.endswith(".json" + GZ):
+        raise ValueError(f"a gzip-compressed JSON record is named *.json.gz: {path}")
+    separators = (",", ":") if indent is None else None
+    data = (json.dumps(to_jsonable(obj), indent=indent, separators=separators) + "\n").encode()
+
+    def write(fh):
+        with gzip.GzipFile(filename="", mode="wb", fileobj=fh, compresslevel=9, mtime=0) as gz:
+            gz.write(data)
+
+    written = _atomic_write(path, write)
+    plain = path.with_name(path.name[:-len(GZ)])
+    if plain.is_file() or plain.is_symlink():
+        plain.unlink()
+    return written
+
+
+def record_file(folder, name: str) -> Path:
+    """Where the record ``name`` (e.g. ``"study.json"``) of ``folder`` is: ``name.gz`` (what the
+    commands write, :func:`write_json_gz`) when it exists, else ``name`` (a record written
+    uncompressed, by an earlier nhstab or by hand) when that exists, else ``name.gz``."""
+    folder = Path(folder)
+    gz, plain = folder / (name + GZ), folder / name
+    return plain if not gz.exists() and plain.exists() else gz
+
+
+def read_json(path):
+    """The JSON value in ``path``, gzip-compressed (a name ending in ``.gz``, as :func:`write_json_gz`
+    writes) or plain. Raises OSError (unreadable; gzip.BadGzipFile: not gzip) or ValueError (a gzip
+    stream cut short, damaged or expanding past :data:`~nhstab.limits.MAX_FILE_BYTES`, text that is
+    not UTF-8 or not JSON)."""
+    path = Path(path)
+    if path.name.endswith(GZ):
+        import gzip
+        import zlib
+
+        try:
+            with gzip.open(path, "rb") as fh:
+                data = fh.read(MAX_FILE_BYTES + 1)                 # a bound on what it expands to
+        except (EOFError, zlib.error) as exc:                     # cut short, or damaged
+            raise ValueError(f"not a whole gzip stream: {exc}") from None
+        if len(data) > MAX_FILE_BYTES:
+            raise ValueError(f"it expands to more than {MAX_FILE_BYTES} bytes")
+        return json.loads(data.decode("utf-8"))
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
 def write_generated(out, files: dict[str, str], check: bool = False, pattern: str = "*.yaml") -> dict:
     """Write the generated ``files`` (name -> text) into the folder ``out``, file by file and atomically,
     or with ``check`` only compare: returns {"written": [...], "folder": ...} or {"differ": [...],
@@ -107,13 +170,16 @@ def save_figure(fig, path, dpi: int = 110, fast_palette: bool = False) -> Path:
     flat fills, lines and text such as the plan figure (on it every channel within 16 levels of the
     drawing, about one level on average; the octree bands smooth colour maps, median cut much less).
     An Agg figure is drawn once and its pixels go straight to the palette step (no PNG encoded by
-    matplotlib and decoded again)."""
+    matplotlib and decoded again). The PNG is deflated at zlib's level 9 (PIL's ``optimize``): the
+    same pixels in 10 % fewer bytes than at PIL's default level 6 (the committed figures of results/:
+    3.39 MB against 3.06 MB), for about 30 ms more on an 800 x 500 figure and 0.3 s on the largest
+    (1440 x 1674)."""
     image = _figure_pixels(fig, dpi)
     from PIL import Image
 
     method = Image.Quantize.FASTOCTREE if fast_palette else Image.Quantize.MEDIANCUT
     image = image.quantize(colors=256, method=method, dither=Image.Dither.NONE)
-    return _atomic_write(Path(path), lambda fh: image.save(fh, format="PNG"))
+    return _atomic_write(Path(path), lambda fh: image.save(fh, format="PNG", optimize=True))
 
 
 def _figure_pixels(fig, dpi: int):

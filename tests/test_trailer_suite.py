@@ -17,6 +17,7 @@ from nhstab.cli.main import cli
 from nhstab.errors import InputError
 from nhstab.examples import list_examples
 from nhstab.maps import load_map
+from nhstab.records import read_json
 from nhstab.robot import robot_from_spec
 
 shapely = pytest.importorskip("shapely")
@@ -384,12 +385,12 @@ def test_a_plan_record_and_figure_on_a_map_that_plans_today(tmp_path):
 
 
 def _sweep(tmp_path, config: str) -> tuple[dict, str]:
-    """`nhstab trailer sweep` on the config text, into tmp_path/out: (sweep.json, sweep.md)."""
+    """`nhstab trailer sweep` on the config text, into tmp_path/out: (sweep.json.gz, sweep.md)."""
     cfg = tmp_path / "sweep.yaml"
     cfg.write_text(config)
     res = CliRunner().invoke(cli, ["trailer", "sweep", str(cfg), "--out", str(tmp_path / "out")])
     assert res.exit_code == 0, res.output
-    return json.loads((tmp_path / "out" / "sweep.json").read_text()), (tmp_path / "out" / "sweep.md").read_text()
+    return read_json(tmp_path / "out" / "sweep.json.gz"), (tmp_path / "out" / "sweep.md").read_text()
 
 
 @pytest.mark.slow

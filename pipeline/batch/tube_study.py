@@ -49,7 +49,7 @@ from ..limits import MAX_STUDY_TRIALS, check_int
 from ..maps import load_map
 from ..models import make_model
 from ..planning import pose_columns
-from ..records import save_figure, write_json, write_text
+from ..records import read_json, record_file, save_figure, write_json_gz, write_text
 from ..report import subplots
 from ..report.plans import plan_figure
 from ..robot import default_robot
@@ -442,31 +442,30 @@ def case_plan_figure(case: dict, run, res, tube):
                        title=title, tube=tube)
 
 
-#: how closely a first plan made again must match the one study.json records (relative, on its length,
+#: how closely a first plan made again must match the one the study records (relative, on its length,
 #: duration, clearance and tube clearance) for :func:`redraw_study` to draw it
 REDRAW_RTOL = 1e-9
 
 
 def redraw_study(out_dir, progress=None) -> tuple[list, list]:
-    """Redraw what a study's folder allows without its trials: study.md from study.json, and per case
-    the plan figure from the case's first plan made again with its tube (:func:`first_plan`, deterministic),
-    drawn only when they are the ones study.json records: the same cusps, and length, duration, nominal
-    clearance and the tube's certified clearance equal to :data:`REDRAW_RTOL` (the margin auto's rounds
-    may differ on the way). The std and coverage figures need the trials' series, which study.json does
-    not keep (``nhstab tubes study`` draws them). Returns (files written, one line per figure left and
+    """Redraw what a study's folder allows without its trials: study.md from study.json.gz (or an
+    uncompressed study.json, as an earlier nhstab wrote it), and per case the plan figure from the
+    case's first plan made again with its tube (:func:`first_plan`, deterministic), drawn only when
+    they are the ones the record holds: the same cusps, and length, duration, nominal clearance and the
+    tube's certified clearance equal to :data:`REDRAW_RTOL` (the margin auto's rounds may differ on the
+    way). The std and coverage figures need the trials' series, which the record does not keep (``nhstab tubes study`` draws them). Returns (files written, one line per figure left and
     why)."""
-    import json
     from pathlib import Path
 
     out_dir = Path(out_dir)
-    src = out_dir / "study.json"
+    src = record_file(out_dir, "study.json")                 # study.json.gz, or an uncompressed study.json
     try:
-        result = json.loads(src.read_text())
+        result = read_json(src)
         cases = result["cases"]
         seed = int(result["plan_seed"])
         study_markdown(result, result.get("gains"))
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InputError("DIR", "a folder with the study.json nhstab tubes study writes", str(out_dir),
+        raise InputError("DIR", "a folder with the study.json.gz nhstab tubes study writes", str(out_dir),
                          detail=f"{type(exc).__name__}: {exc}") from None
     written, left = [], []
     for case in cases:
@@ -480,11 +479,11 @@ def redraw_study(out_dir, progress=None) -> tuple[list, list]:
                 "certified_clearance_m": (case.get("margin_auto") or {}).get("certified_clearance_m")}
         off = [k for k in now if then[k] is None or not np.isclose(now[k], then[k], rtol=REDRAW_RTOL, atol=0.0)]
         if off:
-            left.append(f"{name} left: planned again, " + ", ".join(f"{k} {now[k]:.6g} (study.json: {then[k]:.6g})"
+            left.append(f"{name} left: planned again, " + ", ".join(f"{k} {now[k]:.6g} ({src.name}: {then[k]:.6g})"
                                                                     for k in off))
             continue
         if progress:
-            progress(f"{robot} {map_name}: the plan and tube study.json records ({rec['length_m']:.1f} m, "
+            progress(f"{robot} {map_name}: the plan and tube {src.name} records ({rec['length_m']:.1f} m, "
                      f"{rec['cusps']} cusp(s), certified clearance {tube.certified_clearance:+.3f} m)")
         written.append(save_figure(case_plan_figure(case, run, res, tube), out_dir / name, dpi=80))
     written.append(write_text(out_dir / "study.md", study_markdown(result, result.get("gains"))))
@@ -493,7 +492,8 @@ def redraw_study(out_dir, progress=None) -> tuple[list, list]:
 
 def write_study(out_dir, trials: int = TRIALS, root_seed: int = ROOT_SEED, gains: bool = True, progress=None,
                 cases=CASES) -> list:
-    """Run the study (and the gains part) and write study.json, study.md and the figures."""
+    """Run the study (and the gains part) and write study.json.gz (the record, gzip-compressed), study.md
+    and the figures."""
     from pathlib import Path
 
 
@@ -515,6 +515,6 @@ def write_study(out_dir, trials: int = TRIALS, root_seed: int = ROOT_SEED, gains
                                    dpi=80))
     if g is not None:
         result["gains"] = g
-    written.append(write_json(out_dir / "study.json", result))
+    written.append(write_json_gz(out_dir / "study.json.gz", result, indent=2))
     written.append(write_text(out_dir / "study.md", study_markdown(result, g)))
     return written

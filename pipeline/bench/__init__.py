@@ -8,11 +8,10 @@ gives ``bench_<name>()`` and ``summary_lines(result)`` (rows of the summary tabl
 
 from __future__ import annotations
 
-import json
 from importlib import import_module
-from pathlib import Path
 
 from ..errors import InputError
+from ..records import read_json, record_file
 from .gains import hilare_sinusoid  # noqa: F401  (used by tests and the batch benchmark)
 
 #: benchmark name -> module (in the order ``nhstab bench`` runs them)
@@ -53,17 +52,18 @@ def select_benchmarks(only: str | None) -> list[str]:
 
 
 def previous_results(out_dir) -> dict:
-    """The results a partial run (``--only``) merges into: ``out_dir/bench.json``'s benchmarks that
-    still exist (an empty dict when the file is absent). A file that is not readable JSON holding an
-    object raises :class:`InputError` naming ``--out-dir``."""
-    previous = Path(out_dir) / "bench.json"
+    """The results a partial run (``--only``) merges into: ``out_dir/bench.json.gz``'s benchmarks (or
+    an uncompressed ``bench.json``'s, as an earlier nhstab wrote it) that still exist (an empty dict
+    when there is neither). A file that is not readable JSON holding an object raises
+    :class:`InputError` naming ``--out-dir``."""
+    previous = record_file(out_dir, "bench.json")
     results = {}
     if previous.is_file():
         try:
-            results = json.loads(previous.read_text())
+            results = read_json(previous)
         except (OSError, ValueError) as exc:
-            raise InputError("--out-dir", "a folder whose bench.json is readable JSON (to merge into)",
+            raise InputError("--out-dir", f"a folder whose {previous.name} is readable JSON (to merge into)",
                              f"{previous}: {exc}") from None
         if not isinstance(results, dict):
-            raise InputError("--out-dir", "a bench.json holding an object", str(previous))
+            raise InputError("--out-dir", f"a {previous.name} holding an object", str(previous))
     return {k: v for k, v in results.items() if k in BENCHMARKS}

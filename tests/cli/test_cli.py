@@ -8,6 +8,7 @@ from click.testing import CliRunner
 from nhstab.cli.main import cli
 from nhstab.control import StabilizerOptions, compute_schedule
 from nhstab.nominal import Nominal
+from nhstab.records import read_json
 from nhstab.trajectory_io import write_trajectory
 from nominals import hilare_sinusoid
 
@@ -30,7 +31,7 @@ def _one_line_error(result, *needles):
 def test_paper_single_case(runner, tmp_path):
     res = runner.invoke(cli, ["paper", "--case", "hilare-circle", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output
-    summary = json.loads((tmp_path / "summary.json").read_text())
+    summary = read_json(tmp_path / "summary.json.gz")
     (case,) = summary["cases"]
     assert case["case"] == "hilare-circle" and case["status"] == "converged"
     assert case["final_error_norm"] < 1e-3 * case["initial_error_norm"]
@@ -42,7 +43,7 @@ def test_paper_single_case(runner, tmp_path):
 def test_paper_override_is_recorded(runner, tmp_path):
     res = runner.invoke(cli, ["paper", "--case", "hilare-circle", "--alpha", "0.3", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output
-    assert json.loads((tmp_path / "summary.json").read_text())["cases"][0]["alpha"] == 0.3
+    assert read_json(tmp_path / "summary.json.gz")["cases"][0]["alpha"] == 0.3
 
 
 @pytest.mark.parametrize("args,needles", [
@@ -57,7 +58,7 @@ def test_paper_override_is_recorded(runner, tmp_path):
 ])
 def test_paper_bad_input(runner, tmp_path, args, needles):
     _one_line_error(runner.invoke(cli, ["paper", "--out", str(tmp_path), *args]), *needles)
-    assert not (tmp_path / "summary.json").exists()
+    assert not (tmp_path / "summary.json.gz").exists()
 
 
 @pytest.fixture
@@ -146,7 +147,9 @@ def test_every_benchmark_has_a_subcommand():
 
 def test_bench_only_merges_into_the_existing_results(runner, tmp_path, monkeypatch):
     """`nhstab bench --only a,b` runs those benchmarks, keeps the others' stored results, and rewrites
-    summary.md from the merged file; an unknown name is one line naming --only (exit code 2)."""
+    summary.md from the merged file; an unknown name is one line naming --only (exit code 2). The stored
+    results of an earlier nhstab, an uncompressed bench.json, are merged into bench.json.gz, which
+    replaces it."""
     import nhstab.bench as bench_pkg
 
     calls = []
@@ -157,12 +160,12 @@ def test_bench_only_merges_into_the_existing_results(runner, tmp_path, monkeypat
     res = runner.invoke(cli, ["bench", "--out-dir", str(tmp_path), "--only", "gains"])
     assert res.exit_code == 0, res.output
     assert calls == ["gains"]
-    merged = json.loads((tmp_path / "bench.json").read_text())
-    assert merged == {"gains": {"new": 1}, "collision": {"kept": True}}
+    merged = read_json(tmp_path / "bench.json.gz")
+    assert merged == {"gains": {"new": 1}, "collision": {"kept": True}} and not (tmp_path / "bench.json").exists()
     assert json.loads((tmp_path / "summary.md").read_text().split("\n", 1)[1]) == merged
     res = runner.invoke(cli, ["bench", "--out-dir", str(tmp_path), "--only", "gains,nope"])
     _one_line_error(res, "--only", "nope")
-    assert json.loads((tmp_path / "bench.json").read_text()) == merged
+    assert read_json(tmp_path / "bench.json.gz") == merged
     calls.clear()
     assert runner.invoke(cli, ["bench", "--out-dir", str(tmp_path), "--only", "gains, gains,"]).exit_code == 0
     assert calls == ["gains"]                          # each benchmark once

@@ -1,11 +1,11 @@
 """The paper's simulations reproduced (docs/theory/control-law.md), and the simulator itself."""
 
-import json
 
 import numpy as np
 import pytest
 from nhstab.control import StabilizerOptions, compute_schedule
 from nhstab.paper import CASES, eigenvalue_distance, remark2_eigenvalues, remark2_library_eigenvalues, run_paper
+from nhstab.records import read_json
 from nhstab.simulation import fit_decay_rate, simulate_tracking
 from nominals import hilare_sinusoid
 
@@ -14,7 +14,7 @@ from nominals import hilare_sinusoid
 def paper(tmp_path_factory):
     out = tmp_path_factory.mktemp("paper")
     run_paper(out)
-    return out, {c["case"]: c for c in json.loads((out / "summary.json").read_text())["cases"]}
+    return out, {c["case"]: c for c in read_json(out / "summary.json.gz")["cases"]}
 
 
 REQUIRED = ["model", "window", "alpha", "delta", "gamma", "initial_error_norm", "final_error_norm", "decay_rate_fit",
@@ -193,7 +193,7 @@ def test_remark2_cases_and_study_in_the_summary(paper):
     assert cases["remark2-line-frozen-time"]["status"] == "converged"
     past = cases["remark2-line-past"]
     assert past["status"] == "diverged" and past["window"] == "past" and past["rate_bound"] is None
-    summary = json.loads((out / "summary.json").read_text())
+    summary = read_json(out / "summary.json.gz")
     study = summary["remark2"]
     assert study["by_window"]["past"]["unstable"] == study["by_window"]["past"]["settings"] == 96
     assert study["by_window"]["future"]["unstable"] == 0 and study["by_window"]["frozen-time"]["unstable"] == 0
@@ -206,7 +206,7 @@ def test_remark2_cases_and_study_in_the_summary(paper):
 @pytest.mark.slow
 def test_frozen_time_law_on_the_paper_cases_is_in_the_summary(paper):
     out, _ = paper
-    frozen = {f["case"]: f for f in json.loads((out / "summary.json").read_text())["frozen_time_law"]}
+    frozen = {f["case"]: f for f in read_json(out / "summary.json.gz")["frozen_time_law"]}
     assert frozen["hilare-circle"]["status"] == "converged"
     assert frozen["hilare-sinusoid"]["status"] == "converged"
     assert frozen["heisenberg-line"]["status"] == "not_stabilizable"      # the frozen pair is never controllable

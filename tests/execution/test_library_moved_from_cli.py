@@ -4,6 +4,7 @@ bench.json merge of ``nhstab bench --only``."""
 
 from __future__ import annotations
 
+import gzip
 import json
 
 import numpy as np
@@ -12,6 +13,7 @@ from nhstab.bench import BENCHMARKS, previous_results, select_benchmarks
 from nhstab.errors import InputError
 from nhstab.execution.config import DEFAULT_NOISE, NoiseOptions
 from nhstab.planning import PLANNABLE, check_plannable
+from nhstab.records import write_json_gz
 from nhstab.robot import default_robot
 
 
@@ -51,3 +53,11 @@ def test_benchmark_selection_and_the_merge_base(tmp_path):
         with pytest.raises(InputError) as err:
             previous_results(tmp_path)
         assert err.value.argument == "--out-dir"
+    # what nhstab bench writes now, bench.json.gz, comes before an uncompressed bench.json
+    write_json_gz(tmp_path / "bench.json.gz", {"run": {"c": 3}, "gone": {}})
+    assert previous_results(tmp_path) == {"run": {"c": 3}} and not (tmp_path / "bench.json").exists()
+    for data in (b"not gzip", gzip.compress(b"[1, 2]"), gzip.compress(b'{"run": {}}')[:-6]):
+        (tmp_path / "bench.json.gz").write_bytes(data)
+        with pytest.raises(InputError) as err:
+            previous_results(tmp_path)
+        assert err.value.argument == "--out-dir" and "bench.json.gz" in str(err.value)

@@ -217,3 +217,23 @@ def test_a_figure_with_a_colour_map_keeps_median_cut_quality(tmp_path):
         with Image.open(tmp_path / "g.png") as im:
             errors.append(np.abs(np.asarray(im.convert("RGB")).astype(int) - drawn).mean())
     assert errors[0] < 1.0 and errors[0] < errors[1]
+
+
+def test_a_figure_is_stored_at_zlib_level_9(tmp_path):
+    """save_figure deflates at PIL's best (optimize): its PNG, decoded and stored again that way, is the
+    same bytes, and smaller than the same palette image at PIL's default level."""
+    import io
+
+    from nhstab.records import save_figure
+    from nhstab.report import subplots
+
+    fig, ax = subplots(figsize=(5, 4))
+    ax.plot(np.linspace(0, 1, 50), np.sin(np.linspace(0, 6, 50)), label="a line")
+    ax.legend()
+    data = save_figure(fig, tmp_path / "f.png").read_bytes()
+    with Image.open(io.BytesIO(data)) as im:
+        im.load()
+        again, default = io.BytesIO(), io.BytesIO()
+        im.save(again, format="PNG", optimize=True)
+        im.save(default, format="PNG")
+    assert again.getvalue() == data and len(data) < len(default.getvalue())

@@ -336,11 +336,10 @@ def test_the_committed_parking_study_covers_the_suite_with_both_laws_at_the_targ
     where the targets are judged), 50 trials and a tube check of 10 x N runs per cell; its targets
     recomputed from its cells agree with what it says. Per metre with --gains auto every cell meets its
     success target, as docs/guide/tubes.md says; per second not."""
-    import json
-
     from nhstab.batch.parking_study import targets
+    from nhstab.records import read_json, record_file
 
-    result = json.loads((ROOT / "results" / "parking" / folder / "study.json").read_text())
+    result = read_json(record_file(ROOT / "results" / "parking" / folder, "study.json"))
     assert result.get("process_per", "second") == per and result["planning"].get("gains", "default") == gains
     assert result["targets"]["success"]["met"] == (folder == "study_per_metre_auto")
     rows = {r["name"]: r for r in P.read_suite_csv(FOLDER / "suite.csv")}

@@ -1,7 +1,6 @@
 """``nhstab parking study`` (nhstab.batch.parking_study): its numbers recomputed independently from the run
 loop and FCL, its tube check against brute-force numpy, its report against its JSON, and its refusals."""
 
-import json
 import math
 
 import numpy as np
@@ -9,6 +8,7 @@ import pytest
 from click.testing import CliRunner
 from nhstab.batch.parking_study import below_chance, probability_beta
 from nhstab.cli.main import cli
+from nhstab.records import read_json
 from scipy.integrate import quad
 from scipy.stats import beta as beta_dist
 from scipy.stats import binom
@@ -29,7 +29,8 @@ def study(tmp_path_factory):
                                    "--noise", "1", "--trials", str(TRIALS), "--mc-factor", str(MC_FACTOR),
                                    "--root-seed", str(ROOT_SEED), "--no-fit", "--figures", MAP])
     assert res.exit_code == 0, res.output
-    result = json.loads((out / "study.json").read_text())
+    assert not (out / "study.json").exists()                  # the record is gzip-compressed, in one form
+    result = read_json(out / "study.json.gz")
     return out, result
 
 

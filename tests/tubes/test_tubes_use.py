@@ -18,6 +18,7 @@ from nhstab.execution import ControllerOptions, RunOptions, execute, summary
 from nhstab.execution.config import NoiseOptions, PlanningOptions, options_from_mapping
 from nhstab.maps import load_map
 from nhstab.planning import PathOptions, TimingOptions
+from nhstab.records import read_json
 from nhstab.robot import default_robot
 from nhstab.tubes.fit import plan_and_tube
 
@@ -214,7 +215,7 @@ def test_tube_study_machinery_on_one_case(tmp_path):
     from nhstab.batch.tube_study import write_study
 
     files = write_study(tmp_path, trials=30, root_seed=5, gains=False, cases=(("unicycle", "cluttered_room"),))
-    doc = json.loads((tmp_path / "study.json").read_text())
+    doc = read_json(tmp_path / "study.json.gz")
     cells = doc["cases"][0]["cells"]
     assert len(cells) == 6 and {c["controller"] for c in cells} == {"gramian", "tvlqr"}
     for c in cells:
@@ -295,23 +296,25 @@ def test_batch_report_tube_figure_mixes_robots():
 
 def test_tubes_redraw_draws_the_recorded_plans_and_leaves_the_others(tmp_path):
     """``nhstab tubes redraw``: the committed study's warehouse case planned again is the plan and tube
-    study.json records (to 1e-9), so its plan figure is drawn and study.md is rendered from study.json; the
-    same case recorded 1 m longer is left, with a line naming the figure and the length, and not drawn."""
+    study.json.gz records (to 1e-9), so its plan figure is drawn and study.md is rendered from the record; the
+    same case recorded 1 m longer (in an uncompressed study.json, as an earlier nhstab wrote it) is left, with a
+    line naming the figure, the length and the file, and not drawn."""
     from pathlib import Path
 
     from nhstab.batch.tube_study import study_markdown
+    from nhstab.records import read_json, record_file, write_json_gz
     from PIL import Image
 
     root = Path(__file__).resolve().parents[2]
-    doc = json.loads((root / "results/tubes/study.json").read_text())
+    doc = read_json(record_file(root / "results/tubes", "study.json"))
     doc["cases"] = [c for c in doc["cases"] if c["map"] == "warehouse_aisle_a2"]
     doc.pop("gains")
     wrong = json.loads(json.dumps(doc))
     wrong["cases"][0]["plan"]["length_m"] += 1.0
     name = "plan_rwd_car_warehouse_aisle_a2.png"
-    for folder, d in (("same", doc), ("wrong", wrong)):
-        (tmp_path / folder).mkdir()
-        (tmp_path / folder / "study.json").write_text(json.dumps(d))
+    write_json_gz(tmp_path / "same" / "study.json.gz", doc, indent=2)                 # as nhstab tubes study writes
+    (tmp_path / "wrong").mkdir()
+    (tmp_path / "wrong" / "study.json").write_text(json.dumps(wrong))                 # uncompressed: read too
     res = CliRunner().invoke(cli, ["tubes", "redraw", str(tmp_path / "same")])
     assert res.exit_code == 0, res.output
     with Image.open(tmp_path / "same" / name) as img, Image.open(root / "results/tubes" / name) as committed:
@@ -320,5 +323,5 @@ def test_tubes_redraw_draws_the_recorded_plans_and_leaves_the_others(tmp_path):
     res = CliRunner().invoke(cli, ["tubes", "redraw", str(tmp_path / "wrong")])
     assert res.exit_code == 1, res.output
     left = [ln for ln in res.stderr.splitlines() if " left: " in ln]
-    assert len(left) == 1 and left[0].startswith(name) and "length_m" in left[0]
+    assert len(left) == 1 and left[0].startswith(name) and "length_m" in left[0] and "(study.json: " in left[0]
     assert not (tmp_path / "wrong" / name).exists() and (tmp_path / "wrong" / "study.md").exists()
