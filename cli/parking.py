@@ -123,7 +123,7 @@ def _numbers(option: str, text: str, what: str) -> list[float]:
 
 @parking.command("study")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Folder for study.json, study.md and the figures (default: results/parking/study; with "
+              help="Folder for study.json.gz, study.md and the figures (default: results/parking/study; with "
                    "--suite, SUITE/study).")
 @click.option("--suite", "suite_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="A suite of one's own car (a folder written by nhstab parking suite --robot-config) instead "

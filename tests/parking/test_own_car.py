@@ -5,7 +5,6 @@ the folder will not do."""
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -17,6 +16,7 @@ from nhstab import parking as P
 from nhstab.cli.main import cli
 from nhstab.errors import InputError
 from nhstab.maps import load_map
+from nhstab.records import read_json
 
 ROOT = Path(__file__).resolve().parents[2]
 BUNDLED = ROOT / "maps" / "parking"
@@ -122,7 +122,7 @@ def test_the_suite_command_refuses_in_one_line_and_writes_nothing(tmp_path, args
 
 
 def test_the_study_of_ones_own_suite(tmp_path):
-    """nhstab parking study --suite: the maps of the folder, planned from their files (study.json records the
+    """nhstab parking study --suite: the maps of the folder, planned from their files (study.json.gz records the
     folder; study.md names `nhstab run FOLDER/NAME.yaml`), written into FOLDER/study by default."""
     cfg = _write(tmp_path, COMPACT)
     suite = tmp_path / "suite"
@@ -131,7 +131,7 @@ def test_the_study_of_ones_own_suite(tmp_path):
                                    "--noise", "1", "--controllers", "tvlqr", "--trials", "3", "--mc-factor", "1",
                                    "--workers", "1"])
     assert res.exit_code == 0, res.output + res.stderr
-    doc = json.loads((suite / "study" / "study.json").read_text())
+    doc = read_json(suite / "study" / "study.json.gz")
     assert doc["suite"] == str(suite) and [c["map"] for c in doc["cases"]] == ["parallel_compact_140"]
     case = doc["cases"][0]
     assert case["car"] == "compact" and case["plan"]["found"] and case["cells"][0]["trials"]["trials"] == 3
