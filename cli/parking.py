@@ -43,11 +43,15 @@ def suite(out_dir, check, robot_config, car_name):
         raise InputError("--out", "a folder for the suite of one's own car (with --robot-config; the bundled "
                          "suite's maps/parking is not overwritten)", "nothing")
     spec = load_yaml_file(robot_config, "--robot-config", "robot description (YAML)")
-    specs = own_car(spec, f"--robot-config {robot_config}", car_name)
+    specs = own_car(spec, f"{Path(robot_config).name}: robot", car_name)
     command = (f"nhstab parking suite --robot-config {robot_config}" + (f" --name {car_name}" if car_name else "")
                + f" --out {out_dir}")
-    return echo_suite_write(write_suite(out_dir, check=check, specs=specs, command=command), out_dir, check,
-                            "parking", command)
+    try:
+        result = write_suite(out_dir, check=check, specs=specs, command=command)
+    except InputError as exc:        # a layout that cannot be made for this car: say it of the car given
+        raise InputError(f"{Path(robot_config).name}: robot", "a car the suite's layouts can be sized for",
+                         next(iter(specs)), detail=" ".join(str(exc).split())) from None
+    return echo_suite_write(result, out_dir, check, "parking", command)
 
 
 @parking.command("table")

@@ -696,13 +696,22 @@ def own_car(spec, where: str = "--robot-config", name: str | None = None) -> dic
         raise InputError(where, "a robot description (a mapping with model: rwd_car, its parameters and a "
                          "rectangular footprint)", type(spec).__name__)
     if spec.get("model") != "rwd_car":
-        raise InputError(f"{where}: model", "rwd_car (the parking suite's formulas take the rear axle as the "
+        raise InputError(f"{where}.model", "rwd_car (the parking suite's formulas take the rear axle as the "
                          "reference point)", spec.get("model", "missing"))
     robot = robot_from_spec(spec, where)
-    CarGeometry.from_robot(robot)
+    try:
+        geo = CarGeometry.from_robot(robot)
+    except InputError as exc:
+        raise exc.renamed(f"{where}.footprint") from None
+    bay_side = geo.width / 2 + BAY_EXTRA_WIDTH          # the bays' neighbour, from the bay's centre line
+    if geo.min_turning_radius < bay_side:
+        raise InputError(f"{where}.max_steer", "a turning radius wheelbase / tan(max_steer) of at least half the "
+                         f"car's width + {BAY_EXTRA_WIDTH:g} m = {bay_side:.3g} m (the suite's bays are sized for "
+                         "a car that turns wider than its bay)", float(robot.model.max_steer),
+                         detail=f"radius {geo.min_turning_radius:.3g} m")
     car_name = name if name is not None else spec.get("name")
     if not isinstance(car_name, str) or not _CAR_NAME.fullmatch(car_name):
-        raise InputError("--name" if name is not None else f"{where}: name",
+        raise InputError("--name" if name is not None else f"{where}.name",
                          "a car name of letters, digits and _ (at most 40, starting with a letter: it goes into "
                          "the map names)", "missing" if car_name is None else car_name)
     out = dict(spec)

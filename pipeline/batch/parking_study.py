@@ -76,6 +76,7 @@ from __future__ import annotations
 import csv
 import math
 import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -159,6 +160,8 @@ def suite_rows(suite=None) -> list[dict]:
     if not rows:
         raise InputError("--suite", want, str(suite), detail="suite.csv lists no case")
     for r in rows:
+        if not re.fullmatch(r"[A-Za-z0-9_]{1,100}", str(r.get("name"))):
+            raise InputError("--suite", want, str(suite), detail=f"suite.csv names {r.get('name')!r}, not a map name")
         if not (Path(suite) / f"{r['name']}.yaml").is_file():
             raise InputError("--suite", want, str(suite), detail=f"its map {r['name']}.yaml is missing")
     return rows

@@ -98,6 +98,8 @@ def test_a_car_of_its_own_is_sized_by_the_closed_forms(tmp_path):
     (COMPACT, "my car", "--name"),
     (COMPACT, "9lives", "--name"),
     ({**COMPACT, "name": "a" * 41}, None, "name"),
+    ({**COMPACT, "wheelbase": 0.01}, None, "max_steer"),
+    ({**COMPACT, "footprint": {"rectangle": {"length": 2.0, "width": 1.7, "rear_overhang": 0.5}}}, None, "footprint"),
 ])
 def test_cars_that_will_not_do_are_refused_by_name(spec, name, needle):
     with pytest.raises(InputError, match=needle):
@@ -109,10 +111,15 @@ def test_cars_that_will_not_do_are_refused_by_name(spec, name, needle):
     (["--name", "x", "--out", "{out}"], "--name"),
     (["--robot-config", "{cfg}", "--name", "two words", "--out", "{out}"], "--name"),
     (["--robot-config", "{missing}", "--out", "{out}"], "--robot-config"),
+    (["--robot-config", "{giant}", "--out", "{out}"], "giant.yaml: robot"),
 ])
 def test_the_suite_command_refuses_in_one_line_and_writes_nothing(tmp_path, args, needle):
     cfg, out = _write(tmp_path, COMPACT), tmp_path / "out"
-    args = [a.format(cfg=cfg, out=out, missing=tmp_path / "nope.yaml") for a in args]
+    # a car so large that the angled bays' one-arc exit cannot be laid out
+    giant = _write(tmp_path, {**COMPACT, "name": "giant", "wheelbase": 100.0,
+                              "footprint": {"rectangle": {"length": 130.0, "width": 20.0, "rear_overhang": 15.0}}},
+                   "giant.yaml")
+    args = [a.format(cfg=cfg, out=out, missing=tmp_path / "nope.yaml", giant=giant) for a in args]
     res = CliRunner().invoke(cli, ["parking", "suite", *args])
     assert res.exit_code == 2, res.output
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
@@ -143,6 +150,10 @@ def test_the_study_of_ones_own_suite(tmp_path):
 @pytest.mark.parametrize("make,needle", [
     (lambda d: d.mkdir(), "no suite.csv"),
     (lambda d: (d.mkdir(), (d / "suite.csv").write_text("name,car\nx,y\n")), "suite.csv unreadable"),
+    (lambda d: (d.mkdir(), (d / "suite.csv").write_text(",".join(P.CSV_COLUMNS) + "\n../../etc/passwd,c,parallel"
+                                                        + ",1" * 9 + ",x\n")), "not a map name"),
+    (lambda d: (d.mkdir(), (d / "suite.csv").write_text(",".join(P.CSV_COLUMNS) + "\nparallel_c_090,c,parallel"
+                                                        + ",1" * 9 + ",x\n")), "parallel_c_090.yaml is missing"),
 ])
 def test_the_study_refuses_a_folder_that_is_not_a_suite(tmp_path, make, needle):
     d = tmp_path / "notasuite"
