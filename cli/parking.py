@@ -42,6 +42,10 @@ def suite(out_dir, check, robot_config, car_name):
     if out_dir is None:
         raise InputError("--out", "a folder for the suite of one's own car (with --robot-config; the bundled "
                          "suite's maps/parking is not overwritten)", "nothing")
+    from nhstab.examples import data_root
+
+    if Path(out_dir).resolve() == (data_root() / "parking").resolve():
+        raise InputError("--out", "a folder other than the bundled suite's (with --robot-config)", str(out_dir))
     spec = load_yaml_file(robot_config, "--robot-config", "robot description (YAML)")
     specs = own_car(spec, f"{Path(robot_config).name}: robot", car_name)
     command = (f"nhstab parking suite --robot-config {robot_config}" + (f" --name {car_name}" if car_name else "")

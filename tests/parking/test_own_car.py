@@ -112,6 +112,7 @@ def test_cars_that_will_not_do_are_refused_by_name(spec, name, needle):
     (["--robot-config", "{cfg}", "--name", "two words", "--out", "{out}"], "--name"),
     (["--robot-config", "{missing}", "--out", "{out}"], "--robot-config"),
     (["--robot-config", "{giant}", "--out", "{out}"], "giant.yaml: robot"),
+    (["--robot-config", "{cfg}", "--out", str(BUNDLED)], "--out"),
 ])
 def test_the_suite_command_refuses_in_one_line_and_writes_nothing(tmp_path, args, needle):
     cfg, out = _write(tmp_path, COMPACT), tmp_path / "out"
