@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 from pathlib import Path
 
 import click
@@ -43,11 +44,21 @@ def suite(out_dir, check, robot_config, car_name):
         raise InputError("--out", "a folder for the suite of one's own car (with --robot-config; the bundled "
                          "suite's maps/parking is not overwritten)", "nothing")
     from nhstab.examples import data_root
+    from nhstab.parking import read_suite_csv
 
     if Path(out_dir).resolve() == (data_root() / "parking").resolve():
         raise InputError("--out", "a folder other than the bundled suite's (with --robot-config)", str(out_dir))
     spec = load_yaml_file(robot_config, "--robot-config", "robot description (YAML)")
     specs = own_car(spec, f"{Path(robot_config).name}: robot", car_name)
+    existing = Path(out_dir) / "suite.csv"
+    if existing.is_file():             # never write over another car's suite (the bundled one, say)
+        try:
+            others = sorted({r["car"] for r in read_suite_csv(existing)} - set(specs))
+        except (KeyError, ValueError, TypeError, UnicodeDecodeError, csv.Error):
+            others = ["(a suite.csv this command did not write)"]
+        if others:
+            raise InputError("--out", "a new folder or one holding this car's suite", str(out_dir),
+                             detail="it holds the suite of " + ", ".join(others))
     command = (f"nhstab parking suite --robot-config {robot_config}" + (f" --name {car_name}" if car_name else "")
                + f" --out {out_dir}")
     try:
