@@ -54,11 +54,11 @@ def suite(out_dir, check, robot_config, car_name):
     if existing.is_file():             # never write over another car's suite (the bundled one, say)
         try:
             others = sorted({r["car"] for r in read_suite_csv(existing)} - set(specs))
+            held = "it holds the suite of " + ", ".join(others)
         except (KeyError, ValueError, TypeError, UnicodeDecodeError, csv.Error):
-            others = ["(a suite.csv this command did not write)"]
+            others, held = [existing.name], "it holds a suite.csv that is not a parking suite's"
         if others:
-            raise InputError("--out", "a new folder or one holding this car's suite", str(out_dir),
-                             detail="it holds the suite of " + ", ".join(others))
+            raise InputError("--out", "a new folder or one holding this car's suite", str(out_dir), detail=held)
     command = (f"nhstab parking suite --robot-config {robot_config}" + (f" --name {car_name}" if car_name else "")
                + f" --out {out_dir}")
     try:

@@ -232,3 +232,17 @@ def test_the_one_collision_in_a_certified_held_out_cell_is_within_its_certificat
     assert binom.cdf(2, 2000, 1 - big["probability"]) > 0.05
     _, lo, hi = wilson(2, 2000)
     assert lo < 1 - big["probability"] < hi
+
+
+@pytest.mark.parametrize("text, needle", [("name,car\nparallel_van_090,van\n", "the suite of van"),
+                                          ('garbage\n"unterminated', "not a parking suite's")])
+def test_the_suite_command_does_not_write_over_another_suite(tmp_path, text, needle):
+    """An --out folder that holds another car's suite (or a suite.csv nhstab cannot read) is refused, and
+    left as it was."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "suite.csv").write_text(text)
+    res = CliRunner().invoke(cli, ["parking", "suite", "--robot-config", str(_write(tmp_path, COMPACT)),
+                                   "--out", str(out)])
+    assert res.exit_code == 2 and "--out" in res.stderr and needle in res.stderr, res.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["suite.csv"] and (out / "suite.csv").read_text() == text
