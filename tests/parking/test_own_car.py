@@ -234,7 +234,7 @@ def test_the_one_collision_in_a_certified_held_out_cell_is_within_its_certificat
     assert lo < 1 - big["probability"] < hi
 
 
-@pytest.mark.parametrize("text, needle", [("name,car\nparallel_van_090,van\n", "the suite of van"),
+@pytest.mark.parametrize("text, needle", [((BUNDLED / "suite.csv").read_text(), "the suite of rwd_car, van"),
                                           ('garbage\n"unterminated', "not a parking suite's")])
 def test_the_suite_command_does_not_write_over_another_suite(tmp_path, text, needle):
     """An --out folder that holds another car's suite (or a suite.csv nhstab cannot read) is refused, and
