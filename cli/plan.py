@@ -188,8 +188,7 @@ def plan(map_file, robot, robot_config, start, goal, problem, planner, space, tu
         click.echo(f"wrote {out_dir}/trajectory.csv, trajectory.npz, plan.json" + (", plan.png" if figure else ""))
         click.echo(f"nhstab: no tube: {extra.get('tube_error', 'not predicted')}", err=True)
         return EXIT_FAILURE
-    click.echo(tube_line(tube, noise_scale, per_metre=process_per == "metre",
-                         noise=tube_noise))
+    click.echo(tube_line(tube, noise_scale, noise=tube_noise))
     if headroom > DEFAULT_HEADROOM and tube.kind != "sampled" and tube.saturation["run_bound"] > 0.01:
         click.echo(f"note: planned with --headroom {headroom:g}, the nominal leaves the feedback little of the input "
                    f"limits: {saturation_text(tube.saturation['run_bound'])}; --headroom {DEFAULT_HEADROOM:g} (the "

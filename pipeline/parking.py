@@ -553,9 +553,8 @@ def source_md(cases: list[Case]) -> str:
              "geometry in `pipeline/parking.py` (`nhstab.parking`); do not edit by hand. Original to nhstab,",
              "same licence as nhstab (BSD-3-Clause). nhstab YAML maps: metres, radians, x right, y up.", "",
              "## The cars", "",
-             "| car | body (m) | wheelbase L | rear overhang b | front overhang f | max_steer | R = L / tan(max_steer) "
-             "| L1 | A90 (bay) | margin |", "|---|---|---|---|---|---|---|---|---|---|"]
-    lines += _car_rows(specs)
+]
+    lines += _car_table(specs)
     lines += ["", "`rwd_car` is nhstab's built-in rwd_car; `van` is a long panel van (about a Mercedes Sprinter with",
               "the standard wheelbase: turning circle about 13.5 m kerb to kerb). Each map carries its car as its",
               "`robot:` block (footprint, wheelbase, limits) with a planning margin of "
@@ -642,9 +641,10 @@ def source_md(cases: list[Case]) -> str:
     return "\n".join(lines)
 
 
-def _car_rows(specs: dict) -> list[str]:
-    """The rows of SOURCE.md's table of the cars (body, wheelbase, overhangs, steering, R, L1, A90, margin)."""
-    rows = []
+def _car_table(specs: dict) -> list[str]:
+    """SOURCE.md's table of the cars (body, wheelbase, overhangs, steering, R, L1, A90, margin): its lines."""
+    rows = ["| car | body (m) | wheelbase L | rear overhang b | front overhang f | max_steer | R = L / tan(max_steer) "
+            "| L1 | A90 (bay) | margin |", "|---|---|---|---|---|---|---|---|---|---|"]
     for name, spec in specs.items():
         g = _geometry(spec)
         W = g.width + BAY_EXTRA_WIDTH
@@ -728,9 +728,8 @@ def own_source_md(cases: list[Case], specs: dict, command: str) -> str:
              "sized from the geometry of the car below. Do not edit by hand: regenerate with that command.",
              "nhstab YAML maps: metres, radians, x right, y up. Each map carries the car as its `robot:` block.", "",
              "## The car", "",
-             "| car | body (m) | wheelbase L | rear overhang b | front overhang f | max_steer | R = L / tan(max_steer) "
-             "| L1 | A90 (bay) | margin |", "|---|---|---|---|---|---|---|---|---|---|"]
-    lines += _car_rows(specs)
+]
+    lines += _car_table(specs)
     lines += ["", "L1 = b + sqrt(2 R w + (L + f)^2) is the single-maneuver minimum parallel slot (bumper to bumper);",
               "A90 = sqrt((R + w/2)^2 + (L + f)^2) - sqrt((R - w/2)^2 - (R - c)^2) the swept-path aisle of a",
               "reverse-in perpendicular bay (c = bay width - w/2); angled aisles are multiples of a numeric",

@@ -716,8 +716,7 @@ class CompositeRun:
         if tube is None:
             line = f"plan {rec.id}: no error tube (the closed loop diverges under the law): NOT certified"
         else:
-            line = tube_line(tube, self.opts.noise.scale, prefix=f"plan {rec.id} tube",
-                             per_metre=self.opts.noise.per_metre, noise=self.opts.noise)
+            line = tube_line(tube, self.opts.noise.scale, prefix=f"plan {rec.id} tube", noise=self.opts.noise)
         rec.verdict_line = line
         if self.notify is not None:
             self.notify(line)
