@@ -28,7 +28,7 @@ from .control import END_STRATEGIES, WINDOWS
 from .control.frozen import MAX_GAIN
 from .control.gramian import CUSP_HANDLING
 from .execution.config import DISTRIBUTIONS, PROCESS_PER, RunOptions
-from .execution.controllers import CONTROLLERS, GAINS
+from .execution.controllers import CONTROLLERS, GAINS, Q_FOOTPRINT
 from .limits import (
     MAX_BATCH_TRIALS,
     MAX_COORD_M,
@@ -302,7 +302,8 @@ _RUN_TEXT = {
         "gamma": "gramian law: gain factor (default: the robot's)",
         "max_gain": f"frozen-time law: the gain norm above which it holds its last admissible gramian "
                     f"(default {MAX_GAIN:g})",
-        "q": "TVLQR: the diagonal of Q, one positive number per state (default: identity)",
+        "q": "TVLQR: the diagonal of Q, one positive number per state (default: identity), or footprint: Q from "
+             "how far a state error moves the robot's outline",
         "r": "TVLQR: the diagonal of R, one positive number per input (default: identity)",
         "gains": "auto (gramian only): alpha, delta and gamma chosen per plan by the error tube",
     },
@@ -408,6 +409,9 @@ def _field_schema(section: str, name: str, type_text: str, default) -> dict:
         out = {"type": types[0] if len(types) == 1 else types}
         if "array" in types and "items" not in extra and "prefixItems" not in extra:
             out["items"] = {"type": "number"}
+    if name == "q" and section == "controller":
+        out = {"oneOf": [{"type": "array", **extra}, {"const": Q_FOOTPRINT}, {"type": "null"}]}
+        extra = {}
     if name == "margin" and section == "planning":
         out = {"oneOf": [{"type": "number", "minimum": 0, "maximum": MAX_COORD_M}, {"const": "auto"},
                          {"type": "null"}]}

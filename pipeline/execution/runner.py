@@ -368,7 +368,8 @@ class CompositeRun:
             attempt["gains_auto"] = record
         else:
             with user_keys(self.opts.controller.stabilizer_keys(self.robot)):
-                law = build_law(result.nominal, self.opts.controller, self.stab_defaults, result.schedule)
+                law = build_law(result.nominal, self.opts.controller, self.stab_defaults, result.schedule,
+                                robot=self.robot)
         return result, law
 
     def _tube_of(self, law: FeedbackLaw, world=True, margin: float | None = None):
