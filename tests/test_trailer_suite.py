@@ -452,3 +452,59 @@ def test_a_setting_with_the_same_gains_is_run_once_and_says_so(tmp_path):
     out = TS.trial_outcomes(run, laws["extend"], trial_seeds(3, 2026), replace(run.opts.noise, scale=1.0))
     assert out["per_trial"] == by["gramian a=0.05 d=10 g=1 frozen"]["per_trial"]
     assert all(out[k] == by["gramian a=0.05 d=10 g=1 extend"][k] for k in ("docked", "jackknife", "collision"))
+
+
+@pytest.mark.slow
+def test_the_sweep_runs_tvlqr_with_q_from_the_outline(tmp_path):
+    """tvlqr_q [identity, footprint]: two TVLQR cells, labelled apart; the footprint cell's trials are those
+    of TVLQR built here with q: footprint on the rig's own outline (the Riccati solve on footprint_weights),
+    and its gains are not the identity's."""
+    data, md = _sweep(tmp_path, "cases: [trailer_turn_150]\ntrials: 3\nnoise: [1.0]\ntvlqr_q: [identity, footprint]\n"
+                                "gramian: {end_strategy: [frozen]}\n")
+    (case,) = data["cases"]
+    assert case["plan"]["found"]
+    by = {TS.law_label(c): c for c in case["cells"]}
+    assert set(by) == {"tvlqr", "tvlqr q=footprint", "gramian a=0.02 d=15 g=2 frozen"}
+    assert "| tvlqr q=footprint | x1 |" in md and "Against TVLQR with Q from the rig's outline" in md
+    from dataclasses import replace
+
+    from nhstab.batch.parking_study import first_plan
+    from nhstab.batch.tube_study import trial_seeds
+    from nhstab.execution import ControllerOptions, RunOptions, build_law
+    from nhstab.execution.config import PlanningOptions
+
+    run, _, result, _, _, _ = first_plan("trailer_turn_150", RunOptions(seed=0, planning=PlanningOptions(time_limit_s=2.0)))
+    law = build_law(result.nominal, ControllerOptions(kind="tvlqr", q="footprint"), {}, robot=run.robot)
+    assert not TS.same_gains(law, TS.build_sweep_law(run, result, {"controller": "tvlqr"}))
+    out = TS.trial_outcomes(run, law, trial_seeds(3, 2026), replace(run.opts.noise, scale=1.0))
+    assert out["per_trial"] == by["tvlqr q=footprint"]["per_trial"]
+
+
+@pytest.mark.parametrize("name", ["batch_x1_footprint", "batch_x1_per_metre_footprint"])
+def test_the_committed_footprint_batches_cover_the_suite_and_their_totals_recompute(name):
+    """Each committed batch with TVLQR's two Q: every case of the suite is a row; every case that planned has
+    the three laws at x1 with 50 trials; the totals and both verdicts recompute from the cells; the config
+    beside it is the one it records."""
+    root = Path(__file__).parents[1] / "results" / "trailer" / "suite"
+    data = read_json(root / name / "sweep.json.gz")
+    assert TS.load_sweep_config(root / f"{name}.yaml") == data["settings"]
+    assert [c["case"] for c in data["cases"]] == [r["name"] for r in TS.suite_rows()]
+    labels = {"tvlqr", "tvlqr q=footprint", "gramian a=0.02 d=15 g=2 frozen"}
+    totals = {}
+    for case in data["cases"]:
+        if not case["plan"]["found"]:
+            assert case["cells"] == []
+            continue
+        assert {TS.law_label(c) for c in case["cells"]} == labels
+        for c in case["cells"]:
+            assert c["noise"] == 1.0 and c["trials"] == 50
+            t = totals.setdefault(TS.law_label(c), dict.fromkeys(("docked", "jackknife", "collision"), 0))
+            for k in t:
+                t[k] += c[k]
+    assert data["cases_planned"] == sum(1 for c in data["cases"] if c["plan"]["found"])
+    for row in data["totals"]:
+        assert {k: row[k] for k in ("docked", "jackknife", "collision")} == totals[row["law"]]
+    for ref, key in (("tvlqr", "matches_or_beats_tvlqr"), ("tvlqr q=footprint", "matches_or_beats_tvlqr_footprint")):
+        g = totals["gramian a=0.02 d=15 g=2 frozen"]
+        want = g["jackknife"] <= totals[ref]["jackknife"] and g["collision"] <= totals[ref]["collision"]
+        assert data[key] == {"gramian a=0.02 d=15 g=2 frozen": want}

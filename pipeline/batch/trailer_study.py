@@ -45,7 +45,7 @@ from ..control import END_STRATEGIES
 from ..errors import InputError, NumericalError, PipelineError
 from ..examples import data_root
 from ..execution.config import PROCESS_PER, NoiseOptions, PlanningOptions, RunOptions, check_number
-from ..execution.controllers import ControllerOptions, build_law
+from ..execution.controllers import Q_FOOTPRINT, ControllerOptions, build_law
 from ..execution.runner import final_errors
 from ..limits import MAX_BATCH_TRIALS, MAX_GAMMA, MAX_NOISE_SCALE, MAX_SEED, MAX_STUDY_TRIALS, check_int, check_range
 from ..maps import load_map
@@ -285,12 +285,14 @@ def case_figure(name: str, seed: int = 0, budget_s: float = BUDGET_S):
 
 # ---- the sweep config --------------------------------------------------------------------------------------
 
-_TOP = ("name", "cases", "plan_seed", "root_seed", "time_limit_s", "trials", "noise", "process_per", "tvlqr", "gramian",
-        "tube")
+_TOP = ("name", "cases", "plan_seed", "root_seed", "time_limit_s", "trials", "noise", "process_per", "tvlqr", "tvlqr_q",
+        "gramian", "tube")
+#: TVLQR's Q in a sweep (``tvlqr_q``): the identity, or the robot's outline (``controller.q: footprint``)
+TVLQR_Q = ("identity", Q_FOOTPRINT)
 _GRAMIAN = ("alpha", "delta", "gamma", "end_strategy")
 #: the sweep's defaults where the config leaves a key out
 DEFAULTS = {"plan_seed": 0, "root_seed": 2026, "time_limit_s": 2.0, "trials": 50, "noise": [0.5, 1.0, 2.0],
-            "process_per": "second", "tvlqr": True, "tube": False}
+            "process_per": "second", "tvlqr": True, "tvlqr_q": ["identity"], "tube": False}
 #: a cell's tube (``tube: true``): the run's default probability, its certificate's confidence and discards
 TARGET_DOCKED = 0.95
 
@@ -312,6 +314,12 @@ def _number(lo: float, hi: float, lo_open: bool, what: str):
             raise InputError(key, what, x)
         return float(x)
     return check
+
+
+def _q_word(key, x):
+    if x not in TVLQR_Q:
+        raise InputError(key, "one of " + ", ".join(TVLQR_Q) + " (TVLQR's Q)", x)
+    return x
 
 
 def _strategy(key, x):
@@ -347,6 +355,7 @@ def check_sweep_config(data: dict) -> dict:
     tvlqr = data.get("tvlqr", DEFAULTS["tvlqr"])
     if not isinstance(tvlqr, bool):
         raise InputError("tvlqr", "true or false (TVLQR as the reference law)", tvlqr)
+    tvlqr_q = _values("tvlqr_q", data.get("tvlqr_q", DEFAULTS["tvlqr_q"]), _q_word)
     tube = data.get("tube", DEFAULTS["tube"])
     if not isinstance(tube, bool):
         raise InputError("tube", "true or false (each cell's error tube, every body certified on rollouts)", tube)
@@ -361,14 +370,15 @@ def check_sweep_config(data: dict) -> dict:
               "gamma": _number(0.5, MAX_GAMMA, False, f"a number in [1/2, {MAX_GAMMA:g}]"),
               "end_strategy": _strategy}
     gramian = {k: (None if k not in gram else _values(f"gramian.{k}", gram[k], checks[k])) for k in _GRAMIAN}
-    laws = (1 if tvlqr else 0) + math.prod(len(v) if v else 1 for v in gramian.values())
+    laws = (len(tvlqr_q) if tvlqr else 0) + math.prod(len(v) if v else 1 for v in gramian.values())
     total = len(rows) * laws * len(noise) * trials
     if total > MAX_BATCH_TRIALS:
         raise InputError("trials", f"at most {MAX_BATCH_TRIALS:,} trials in the sweep (cases x laws x noise x trials)",
                          f"{len(rows)} x {laws} x {len(noise)} x {trials} = {total:,}")
     return {"name": name, "cases": [r["name"] for r in rows], "plan_seed": plan_seed, "root_seed": root_seed,
             "time_limit_s": time_limit_s,
-            "trials": trials, "noise": noise, "process_per": process_per, "tvlqr": tvlqr, "gramian": gramian,
+            "trials": trials, "noise": noise, "process_per": process_per, "tvlqr": tvlqr, "tvlqr_q": tvlqr_q,
+            "gramian": gramian,
             "tube": tube}
 
 
@@ -382,7 +392,11 @@ def load_sweep_config(path) -> dict:
 def laws(settings: dict, defaults: dict) -> list[dict]:
     """The sweep's laws: TVLQR (if asked), then every gramian combination; values the config leaves out
     are the rig's own (``defaults``: its stabilizer)."""
-    out = [{"controller": "tvlqr"}] if settings["tvlqr"] else []
+    out = []
+    if settings["tvlqr"]:
+        # the identity's law is plain "tvlqr", as in sweeps made before tvlqr_q
+        out += [{"controller": "tvlqr", **({} if q == "identity" else {"q": q})}
+                for q in settings.get("tvlqr_q", DEFAULTS["tvlqr_q"])]
     g = settings["gramian"]
     lists = [g[k] if g[k] else [defaults[k]] for k in _GRAMIAN]
     for alpha, delta, gamma, end in itertools.product(*lists):
@@ -392,6 +406,8 @@ def laws(settings: dict, defaults: dict) -> list[dict]:
 
 
 def law_label(law: dict) -> str:
+    if law["controller"] == "tvlqr" and law.get("q"):
+        return f"tvlqr q={law['q']}"
     if law["controller"] != "gramian":
         return law["controller"]
     return f"gramian a={law['alpha']:g} d={law['delta']:g} g={law['gamma']:g} {law['end_strategy']}"
@@ -403,8 +419,8 @@ def build_sweep_law(run, result, law: dict):
         copts = replace(run.opts.controller, kind="gramian", gains="default", alpha=law["alpha"], delta=law["delta"],
                         gamma=law["gamma"])
         return build_law(result.nominal, copts, {**run.stab_defaults, "end_strategy": law["end_strategy"]}, None)
-    copts = ControllerOptions(kind=law["controller"])
-    return build_law(result.nominal, copts, run.stab_defaults, None)
+    copts = ControllerOptions(kind=law["controller"], q=law.get("q"))
+    return build_law(result.nominal, copts, run.stab_defaults, None, robot=run.robot)
 
 
 def trial_outcomes(run, law, seeds, noise) -> dict:
@@ -607,19 +623,28 @@ def run_sweep(settings: dict, progress=None, workers: int = 1) -> dict:
             for k in ("trials", "docked", "jackknife", "collision", "missed", "diverged"):
                 t[k] += c[k]
     rows = list(totals.values())
-    ref = {r["noise"]: r for r in rows if r["law"] == "tvlqr"}
+    verdicts = {label: _verdicts(rows, label) for label in ("tvlqr", f"tvlqr q={Q_FOOTPRINT}")}
+    return {"sweep": "trailer laws", "settings": settings,
+            "tolerance": {"position_m": opts.tolerance.position_m, "heading_rad": opts.tolerance.heading_rad},
+            "cases": cases, "totals": rows, "matches_or_beats_tvlqr": verdicts["tvlqr"],
+            **({"matches_or_beats_tvlqr_footprint": verdicts[f"tvlqr q={Q_FOOTPRINT}"]}
+               if verdicts[f"tvlqr q={Q_FOOTPRINT}"] else {}),
+            "cases_planned": sum(1 for c in cases if c["plan"].get("found")), "workers": workers,
+            "wall_s": time.perf_counter() - started}
+
+
+def _verdicts(rows: list, reference: str) -> dict:
+    """Per gramian law: whether it has, at every noise level, no more jackknifes and no more collisions
+    than the law labelled ``reference`` (a TVLQR) over the same cases and seeds ({} without it)."""
+    ref = {r["noise"]: r for r in rows if r["law"] == reference}
     verdicts = {}
     for r in rows:
-        if r["law"] == "tvlqr" or r["noise"] not in ref:
+        if r["law"].startswith("tvlqr") or r["noise"] not in ref:
             continue
         q = ref[r["noise"]]
         v = verdicts.setdefault(r["law"], True)
         verdicts[r["law"]] = v and r["jackknife"] <= q["jackknife"] and r["collision"] <= q["collision"]
-    return {"sweep": "trailer laws", "settings": settings,
-            "tolerance": {"position_m": opts.tolerance.position_m, "heading_rad": opts.tolerance.heading_rad},
-            "cases": cases, "totals": rows, "matches_or_beats_tvlqr": verdicts,
-            "cases_planned": sum(1 for c in cases if c["plan"].get("found")), "workers": workers,
-            "wall_s": time.perf_counter() - started}
+    return verdicts
 
 
 def _tube_setting(result: dict, key: str) -> str:
@@ -679,6 +704,10 @@ def sweep_markdown(result: dict) -> str:
             lines.append(f"- {law}: {'**yes**' if ok else 'no'}")
     else:
         lines.append("Not evaluated (no TVLQR cells, or no case planned).")
+    if result.get("matches_or_beats_tvlqr_footprint"):
+        lines += ["", f"Against TVLQR with Q from the rig's outline (`q: {Q_FOOTPRINT}`), the same test:", ""]
+        for law, ok in sorted(result["matches_or_beats_tvlqr_footprint"].items()):
+            lines.append(f"- {law}: {'**yes**' if ok else 'no'}")
     tubes = s.get("tube", False)
     if tubes:
         lines += ["", "## Cells whose tube is certified", "",
