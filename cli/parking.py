@@ -171,8 +171,11 @@ def _numbers(option: str, text: str, what: str) -> list[float]:
 @click.option("--gains", type=click.Choice(["default", "auto"]), default="default", show_default=True,
               help="The gramian law's gains: the car's defaults, or auto: per plan, as nhstab run --gains auto "
                    "(alpha, delta, gamma from a grid by the plan's linear tube).")
+@click.option("--tvlqr-q", type=click.Choice(["identity", "footprint"]), default="identity", show_default=True,
+              help="TVLQR's Q: the identity, or footprint: weights from how far a state error moves the car's "
+                   "outline (as a run config's controller q: footprint).")
 def study(out_dir, suite_dir, trials, mc_factor, maps, noise, controllers, root_seed, plan_seed, workers, fit,
-          figure_maps, process_per, gains):
+          figure_maps, process_per, gains, tvlqr_q):
     """The parking study: per suite map one plan (the first of `nhstab run example:NAME --seed PLAN_SEED --fit`);
     per controller and noise level its error tube and verdict, trials of the run loop (collisions,
     goal reached) and the tube held to an independent Monte Carlo (coverage, conservatism). Writes
@@ -210,7 +213,7 @@ def study(out_dir, suite_dir, trials, mc_factor, maps, noise, controllers, root_
     from nhstab.execution.config import ControllerOptions, NoiseOptions, PlanningOptions, RunOptions
 
     options = RunOptions(planning=PlanningOptions(fit=fit), noise=NoiseOptions(process_per=process_per),
-                         controller=ControllerOptions(gains=gains))
+                         controller=ControllerOptions(gains=gains, q=None if tvlqr_q == "identity" else tvlqr_q))
     result, curves = run_parking_study(trials, mc_factor, names, levels, ctrls, root_seed, plan_seed, options=options,
                                        workers=workers, progress=lambda s: click.echo(s, err=True), suite=suite_dir)
     # the numbers first: a figure that fails must not lose an hour's study

@@ -6,7 +6,7 @@ plan is made: the first plan of ``nhstab run example:NAME --seed PLAN_SEED`` (:f
 own first planning call, retried as the run retries it, with the run's options: by default the map
 robot's margin 0.1 m, headroom 0.8, the gramian law with its schedule split at cusps). A map where no
 plan is found is a row with the reason. On that fixed nominal, per controller (the gramian law of the
-plan; TVLQR with Q = I, R = I) and noise level (x0.5, x1, x2 of ``nhstab run``'s default initial error,
+plan; TVLQR with Q = I, R = I, or with ``--tvlqr-q footprint`` Q from the car's outline) and noise level (x0.5, x1, x2 of ``nhstab run``'s default initial error,
 sensor noise and process disturbance), a **cell**:
 
 1. **The tube**: :func:`nhstab.tubes.predict_tube` of the cell's law and noise against the known
@@ -244,7 +244,7 @@ def cell_law(run, result, plan_law, controller: str):
     if controller == run.opts.controller.kind:
         return plan_law
     copts = replace(run.opts.controller, kind=controller, gains="default")
-    return build_law(result.nominal, copts, run.stab_defaults, None)
+    return build_law(result.nominal, copts, run.stab_defaults, None, robot=run.robot)
 
 
 # ---- a cell's parts -------------------------------------------------------------------------------------
@@ -766,7 +766,8 @@ def run_parking_study(trials: int = TRIALS, mc_factor: int = MC_FACTOR, maps=Non
            "planning": {"margin": opts.planning.margin, "fit": opts.planning.fit, "headroom": opts.headroom,
                         "planner": opts.planning.planner,
                         "time_limit_s": opts.planning.time_limit_s, "controller": opts.controller.kind,
-                        "gains": opts.controller.gains},
+                        "gains": opts.controller.gains,
+                        **({"tvlqr_q": opts.controller.q} if opts.controller.q is not None else {})},
            "criteria": {"conservatism_max": CONSERVATISM_MAX, "quantile_floor_m": QUANTILE_FLOOR_M,
                         "quantile_ci": QUANTILE_CI, "target_full": TARGET_FULL, "target_tight": TARGET_TIGHT,
                         "full_factor": FULL_FACTOR, "target_noise": TARGET_NOISE},
@@ -993,6 +994,8 @@ def study_markdown(result: dict) -> str:
         + ("the map robot's" if pl["margin"] is None else str(pl["margin"]))
         + f", headroom {pl['headroom']:g}, {pl['planner']} with {pl['time_limit_s']:g} s"
         + ("; the gramian law's gains chosen per plan, `--gains auto`" if pl.get("gains") == "auto" else "")
+        + ("; **TVLQR's Q from the car's outline**, `--tvlqr-q footprint` (e^T Q e: the mean squared move of "
+           "its corners)" if pl.get("tvlqr_q") == "footprint" else "")
         + "). Per controller "
         f"and noise level (a cell): the {p:g}-tube (`predict_tube`, kind auto: linear where it holds, else sampled "
         f"with N = {result['rollouts']} rollouts, the {result.get('discards', 0)} most extreme left out, confidence "

@@ -329,7 +329,8 @@ def test_bench_parking_refuses_unknown_cases():
 
 
 @pytest.mark.parametrize("folder, per, gains", [("study", "second", "default"), ("study_per_metre", "metre", "default"),
-                                                ("study_per_metre_auto", "metre", "auto")])
+                                                ("study_per_metre_auto", "metre", "auto"),
+                                                ("study_tvlqr_footprint", "second", "default")])
 def test_the_committed_parking_study_covers_the_suite_with_both_laws_at_the_target_noise(folder, per, gains):
     """results/parking/study*/ (nhstab parking study; per second, per metre, per metre with --gains auto):
     every case of the suite, planned, the gramian law and TVLQR at its noise levels (which include x1,
@@ -353,6 +354,28 @@ def test_the_committed_parking_study_covers_the_suite_with_both_laws_at_the_targ
     assert result["criteria"]["target_noise"] in result["noise_levels"]
     assert result["planning"]["fit"] is True
     assert targets(result) == result["targets"]
+
+
+def test_the_study_with_tvlqr_on_the_outline_changes_tvlqr_alone():
+    """results/parking/study_tvlqr_footprint (--tvlqr-q footprint) against results/parking/study (the same
+    command without it): the same plans, and the gramian law's cells equal number for number (same seeds);
+    TVLQR's are another law's (its gains from the car's outline), recorded as such."""
+    from nhstab.records import read_json, record_file
+
+    base = read_json(record_file(ROOT / "results" / "parking" / "study", "study.json"))
+    fp = read_json(record_file(ROOT / "results" / "parking" / "study_tvlqr_footprint", "study.json"))
+    assert fp["planning"]["tvlqr_q"] == "footprint" and "tvlqr_q" not in base["planning"]
+    assert "--tvlqr-q footprint" in (ROOT / "results" / "parking" / "study_tvlqr_footprint" / "study.md").read_text()
+    differ = 0
+    for a, b in zip(base["cases"], fp["cases"], strict=True):
+        assert a["map"] == b["map"] and a["plan"]["duration_s"] == b["plan"]["duration_s"]
+        for ca, cb in zip(a["cells"], b["cells"], strict=True):
+            assert (ca["controller"], ca["noise"]) == (cb["controller"], cb["noise"])
+            if ca["controller"] == "gramian":
+                assert ca["trials"] == cb["trials"] and ca["tube"]["certified_clearance_m"] == cb["tube"]["certified_clearance_m"]
+            else:
+                differ += ca["tube"]["certified_clearance_m"] != cb["tube"]["certified_clearance_m"]
+    assert differ == len(base["cases"])
 
 
 def test_parking_figure_refuses_bad_input():
