@@ -175,3 +175,37 @@ def sweep(config, out_dir, workers):
     click.echo(f"{result['cases_planned']} of {len(result['cases'])} cases planned; wrote "
                + ", ".join(str(f) for f in files) + f" in {result['wall_s']:.0f} s")
     return 0
+
+
+@trailer.command("train")
+@click.option("--hitch-lengths", default="1.5,3", show_default=True,
+              help="The rig's hitch lengths [m], comma-separated: one per trailer (a dolly, then a trailer).")
+@click.option("--trials", type=int, default=200, show_default=True, help="Trials per direction and law.")
+@click.option("--noise", type=float, default=1.0, show_default=True, help="Noise scale of the trials.")
+@click.option("--process-per", type=click.Choice(["second", "metre"]), default="second", show_default=True,
+              help="The process disturbance per second (at rest too) or per metre travelled.")
+@click.option("--root-seed", type=int, default=2026, show_default=True, help="Root seed of the trials.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Folder for train.json.gz and train.md.")
+def train(hitch_lengths, trials, noise, process_per, root_seed, out_dir):
+    """A car with trailers (default: a dolly and a trailer) along an S-curve, forward and backing its
+    trailers along it: whether the gramian law and TVLQR (Q = I, and Q from the outline) stabilize it under
+    noise, against the same drive with one trailer. nhstab plans one trailer; this measures the laws on
+    more. Writes train.json.gz and train.md into OUT."""
+    from nhstab.batch.train_study import train_markdown, train_study
+    from nhstab.records import write_json_gz, write_text
+
+    lengths = _numbers_list("--hitch-lengths", hitch_lengths)
+    result = train_study(lengths, trials, noise, process_per, root_seed)
+    files = [write_json_gz(out_dir / "train.json.gz", result), write_text(out_dir / "train.md", train_markdown(result))]
+    click.echo(f"wrote {', '.join(str(f) for f in files)} in {result['wall_s']:.0f} s")
+    return 0
+
+
+def _numbers_list(key: str, text: str) -> list:
+    try:
+        return [float(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        from nhstab.errors import InputError
+
+        raise InputError(key, "numbers separated by commas, e.g. 1.5,3", text) from None

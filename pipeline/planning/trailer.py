@@ -1022,8 +1022,9 @@ def plan_trailer(m: Map, robot, start, goal, path_opts: PathOptions, timing_opts
     in the order the space asks for; one alone gets the whole budget: ``nhstab bench trailer``'s baseline)."""
     model = robot.model
     if model.trailers != 1:
-        raise InputError("robot", "a car_trailer with one trailer (nhstab plans N = 1; the model itself takes "
-                         "any N)", f"{model.trailers} trailers")
+        raise InputError("robot", "a car_trailer with one trailer (nhstab plans N = 1: its searches and its exact "
+                         "end are written for one; the model, the laws and the run loop take any N, and `nhstab "
+                         "trailer train` measures the laws on such a rig)", f"{model.trailers} trailers")
     world = world or CollisionWorld.from_map(m, "known")
     start_c, goal_c = robot.configuration(start, "start"), robot.configuration(goal, "goal")
     clearances = {"start": check_configuration(m, robot, start_c, "start", world),
