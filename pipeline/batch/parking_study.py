@@ -79,8 +79,8 @@ import os
 import re
 import sys
 import time
-from pathlib import Path
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
@@ -987,7 +987,7 @@ def study_markdown(result: dict) -> str:
     pl = result["planning"]
     lines = [
         "# The parking study: the suite's plans under the feedback laws, and their error tubes", "",
-        f"Produced by `nhstab parking study` (nhstab.batch.parking_study). Per map of the parking suite"
+        "Produced by `nhstab parking study` (nhstab.batch.parking_study). Per map of the parking suite"
         + (f" in `{result['suite']}` (one's own car)" if result.get("suite") else "") + ", one plan: the "
         f"first plan of `nhstab run {map_ref('NAME', result.get('suite'))} --seed {result['plan_seed']}"
         + (" --fit" if pl.get("fit") else "") + "` (margin "

@@ -212,10 +212,9 @@ def test_the_one_collision_in_a_certified_held_out_cell_is_within_its_certificat
     seeds), the same two trials are the only collisions: 2 in 2,000, which the certificate's p = 0.997
     does not contradict (at a miss rate of exactly 0.3 %, 2 or fewer in 2,000 has probability above 5 %,
     and the Wilson interval of 2/2000 reaches both sides of 0.3 %)."""
-    from scipy.stats import binom
-
-    from nhstab.records import record_file
     from nhstab.batch.report import wilson
+    from nhstab.records import record_file
+    from scipy.stats import binom
 
     small = read_json(record_file(OWN / "sedan" / "study_x1_per_metre_auto", "study.json"))
     assert small["targets"]["no_collision_when_certified"]["failing"] == [

@@ -368,8 +368,14 @@ def test_rebuilt_tubes_read_at_their_own_tightest_samples():
     """With the nominal's clearance, each rebuilt tube is also read where its own reach comes closest to
     the obstacles (argmin of clearance - reach over the samples with a quantile of at least 1 mm), as
     a tube picks its tightest sample; a failing cell's line in study.md quotes both readings."""
-    from nhstab.batch.parking_study import (QUANTILE_FLOOR_M, SUBSAMPLES, _conservatism_context,
-                                            quantile_indices, subsampled_reaches, tube_check)
+    from nhstab.batch.parking_study import (
+        QUANTILE_FLOOR_M,
+        SUBSAMPLES,
+        _conservatism_context,
+        quantile_indices,
+        subsampled_reaches,
+        tube_check,
+    )
 
     rng = np.random.default_rng(8)
     S, N, r, p = 50, 300, 2, 0.997
