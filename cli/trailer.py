@@ -185,9 +185,11 @@ def sweep(config, out_dir, workers):
 @click.option("--process-per", type=click.Choice(["second", "metre"]), default="second", show_default=True,
               help="The process disturbance per second (at rest too) or per metre travelled.")
 @click.option("--root-seed", type=int, default=2026, show_default=True, help="Root seed of the trials.")
+@click.option("--steer-rate", type=float, default=0.07, show_default=True,
+              help="The S-curve's steering-rate amplitude [rad/s]: smaller is a gentler curve.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Folder for train.json.gz and train.md.")
-def train(hitch_lengths, trials, noise, process_per, root_seed, out_dir):
+def train(hitch_lengths, trials, noise, process_per, root_seed, steer_rate, out_dir):
     """A car with trailers (default: a dolly and a trailer) along an S-curve, forward and backing its
     trailers along it: whether the gramian law and TVLQR (Q = I, and Q from the outline) stabilize it under
     noise, against the same drive with one trailer. nhstab plans one trailer; this measures the laws on
@@ -196,7 +198,7 @@ def train(hitch_lengths, trials, noise, process_per, root_seed, out_dir):
     from nhstab.records import write_json_gz, write_text
 
     lengths = _numbers_list("--hitch-lengths", hitch_lengths)
-    result = train_study(lengths, trials, noise, process_per, root_seed)
+    result = train_study(lengths, trials, noise, process_per, root_seed, steer_rate=steer_rate)
     files = [write_json_gz(out_dir / "train.json.gz", result), write_text(out_dir / "train.md", train_markdown(result))]
     click.echo(f"wrote {', '.join(str(f) for f in files)} in {result['wall_s']:.0f} s")
     return 0

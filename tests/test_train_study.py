@@ -40,6 +40,8 @@ def test_the_train_study_refuses_rigs_it_cannot_drive_and_bad_values(tmp_path):
             TR.train_study(bad, trials=1)
     with pytest.raises(InputError, match="'--noise'"):
         TR.train_study((3.0,), trials=1, noise=float("inf"))
+    with pytest.raises(InputError, match="'--steer-rate' must be a steering-rate amplitude in"):
+        TR.train_study((3.0,), trials=1, steer_rate=0.0)
     res = CliRunner().invoke(cli, ["trailer", "train", "--hitch-lengths", "1.5,x", "--out", "/tmp/never"])
     assert res.exit_code == 2 and "'--hitch-lengths' must be numbers separated by commas" in res.output
     # the planner refuses two trailers in one line that points here
@@ -52,14 +54,16 @@ def test_the_train_study_refuses_rigs_it_cannot_drive_and_bad_values(tmp_path):
 
 
 @pytest.mark.slow
-def test_the_committed_train_study_is_what_the_command_computes():
-    """results/trailer/train (nhstab trailer train --out results/trailer/train): its two-trailer rig computed
-    again here with the record's settings, every count and error is the same (the laws and the loop are deterministic for
-    the seeds); a dolly and a trailer backing up jackknife under every law in some trial, one trailer under
-    TVLQR in none."""
-    rec = read_json(Path(__file__).parents[1] / "results" / "trailer" / "train" / "train.json.gz")
+@pytest.mark.parametrize("folder", ["train", "train_gentle"])
+def test_the_committed_train_study_is_what_the_command_computes(folder):
+    """results/trailer/train and train_gentle (nhstab trailer train [--steer-rate 0.02]): the two-trailer
+    rig computed again here with the record's settings, every count and error is the same (the laws and
+    the loop are deterministic for the seeds); a dolly and a trailer backing up jackknife under every law
+    in some trial, one trailer under TVLQR in none."""
+    rec = read_json(Path(__file__).parents[1] / "results" / "trailer" / folder / "train.json.gz")
     again = TR.train_study(rec["rigs"][0]["hitch_lengths_m"], rec["trials"], rec["noise"], rec["process_per"],
-                           rec["root_seed"], reference=False)           # the two-trailer rig: half the time
+                           rec["root_seed"], reference=False,            # the two-trailer rig: half the time
+                           steer_rate=rec["nominal"]["steer_rate_amplitude_rad_s"])
     (rig,) = again["rigs"]
     assert rig == rec["rigs"][0]
     two, one = ({(c["direction"], c["law"]): c for c in rig["cells"]} for rig in rec["rigs"])

@@ -8,7 +8,7 @@ drive, forward and in reverse, and compares it with the same drive by a one-trai
 
 * **The nominal.** From a straight rest, the car drives an S-curve: speed ``SPEED`` m/s (ramped up and
   down over ``RAMP_S`` seconds at both ends), steering rate ``STEER_RATE_AMPLITUDE`` sin(2 pi t /
-  ``PERIOD_S``), for ``DURATION_S`` seconds, integrated from the model (exact). **Reversed** is the same
+  ``PERIOD_S``; another amplitude on request), for ``DURATION_S`` seconds, integrated from the model (exact). **Reversed** is the same
   motion run backwards in time (these models are driftless: the same path, the inputs negated), so the
   rig backs its trailers along it. The nominal is refused, with its numbers, when its steering angle or
   a hitch angle leaves ``FEASIBLE_FRACTION`` of the limits (other hitch lengths can make it so).
@@ -51,15 +51,15 @@ LAWS = (("gramian", ControllerOptions(kind="gramian")), ("tvlqr", ControllerOpti
         (f"tvlqr q={Q_FOOTPRINT}", ControllerOptions(kind="tvlqr", q=Q_FOOTPRINT)))
 
 
-def s_curve(model) -> tuple[Nominal, Nominal]:
-    """(forward, reversed): the module's S-curve of ``model`` from a straight rest, and the same motion
-    backwards in time."""
+def s_curve(model, steer_rate: float = STEER_RATE_AMPLITUDE) -> tuple[Nominal, Nominal]:
+    """(forward, reversed): the module's S-curve of ``model`` from a straight rest (its steering rate's
+    amplitude ``steer_rate`` [rad/s]), and the same motion backwards in time."""
     t = np.arange(0.0, DURATION_S + GRID_S / 2, GRID_S)
 
     def inputs(tt):
         tt = np.asarray(tt, dtype=float)
         ramp = np.clip(np.minimum(tt, DURATION_S - tt) / RAMP_S, 0.0, 1.0)
-        return np.stack([SPEED * ramp, STEER_RATE_AMPLITUDE * np.sin(2 * np.pi * tt / PERIOD_S)], -1)
+        return np.stack([SPEED * ramp, steer_rate * np.sin(2 * np.pi * tt / PERIOD_S)], -1)
 
     forward = Nominal.from_inputs(model, inputs, np.zeros(model.n), t)
     backward = Nominal.from_samples(model, t, forward.x[::-1].copy(), -forward.u[::-1].copy())
@@ -78,10 +78,11 @@ def check_train(hitch_lengths) -> tuple:
 
 
 def train_study(hitch_lengths=(1.5, 3.0), trials: int = 200, noise: float = 1.0, process_per: str = "second",
-                root_seed: int = 2026, reference: bool = True) -> dict:
+                root_seed: int = 2026, reference: bool = True, steer_rate: float = STEER_RATE_AMPLITUDE) -> dict:
     """The study of the module docstring for a car_trailer with these hitch lengths (the built-in rig's
     other parameters and outlines); with ``reference`` the same for the one-trailer rig (the last hitch
-    length alone). Returns a JSON-ready dict."""
+    length alone); ``steer_rate``: the S-curve's steering-rate amplitude [rad/s] (smaller: a gentler
+    curve). Returns a JSON-ready dict."""
     hitch_lengths = check_train(hitch_lengths)
     trials = check_int("--trials", trials, 1, MAX_STUDY_TRIALS, "a number of trials per cell")
     root_seed = check_int("--root-seed", root_seed, 0, MAX_SEED - 1, "a seed")
@@ -89,23 +90,25 @@ def train_study(hitch_lengths=(1.5, 3.0), trials: int = 200, noise: float = 1.0,
         raise InputError("--noise", f"a noise scale in (0, {MAX_NOISE_SCALE:g}]", noise)
     if process_per not in PROCESS_PER:
         raise InputError("--process-per", "one of " + ", ".join(PROCESS_PER), process_per)
+    if not (isinstance(steer_rate, (int, float)) and math.isfinite(steer_rate) and 0 < steer_rate <= 1.0):
+        raise InputError("--steer-rate", "a steering-rate amplitude in (0, 1] rad/s", steer_rate)
     started = time.perf_counter()
     rigs = [hitch_lengths] + ([hitch_lengths[-1:]] if reference and len(hitch_lengths) > 1 else [])
     out = {"study": "trailer train", "nominal": {"duration_s": DURATION_S, "speed_m_s": SPEED, "ramp_s": RAMP_S,
-                                                  "steer_rate_amplitude_rad_s": STEER_RATE_AMPLITUDE,
+                                                  "steer_rate_amplitude_rad_s": float(steer_rate),
                                                   "period_s": PERIOD_S, "grid_s": GRID_S},
            "trials": trials, "noise": noise, "process_per": process_per, "root_seed": root_seed, "rigs": []}
     seeds = trial_seeds(trials, root_seed)
     for lengths in rigs:
-        out["rigs"].append(_rig(lengths, seeds, noise, process_per))
+        out["rigs"].append(_rig(lengths, seeds, noise, process_per, steer_rate))
     out["wall_s"] = time.perf_counter() - started
     return out
 
 
-def _rig(lengths: tuple, seeds, scale: float, process_per: str) -> dict:
+def _rig(lengths: tuple, seeds, scale: float, process_per: str, steer_rate: float) -> dict:
     robot = robot_from_spec({"model": "car_trailer", "hitch_lengths": list(lengths)})
     model = robot.model
-    forward, backward = s_curve(model)
+    forward, backward = s_curve(model, steer_rate)
     hitch = np.abs(model.hitch_angles(forward.x)).max(axis=0)
     phi = float(np.abs(forward.x[:, model.state_names.index("phi")]).max())
     rec = {"hitch_lengths_m": list(lengths), "trailers": len(lengths), "state_names": list(model.state_names),
