@@ -6,8 +6,9 @@ plan is made: the first plan of ``nhstab run example:NAME --seed PLAN_SEED`` (:f
 own first planning call, retried as the run retries it, with the run's options: by default the map
 robot's margin 0.1 m, headroom 0.8, the gramian law with its schedule split at cusps). A map where no
 plan is found is a row with the reason. On that fixed nominal, per controller (the gramian law of the
-plan; TVLQR with Q = I, R = I, or with ``--tvlqr-q footprint`` Q from the car's outline) and noise level (x0.5, x1, x2 of ``nhstab run``'s default initial error,
-sensor noise and process disturbance), a **cell**:
+plan; TVLQR with Q = I, R = I, or with ``--tvlqr-q footprint`` Q from the car's outline) and noise
+level (x0.5, x1, x2 of ``nhstab run``'s default initial error, sensor noise and process disturbance),
+a **cell**:
 
 1. **The tube**: :func:`nhstab.tubes.predict_tube` of the cell's law and noise against the known
    obstacles, probability p = 0.997, kind "auto" (the linear tube where it holds: no saturation, no

@@ -8,7 +8,8 @@ drive, forward and in reverse, and compares it with the same drive by a one-trai
 
 * **The nominal.** From a straight rest, the car drives an S-curve: speed ``SPEED`` m/s (ramped up and
   down over ``RAMP_S`` seconds at both ends), steering rate ``STEER_RATE_AMPLITUDE`` sin(2 pi t /
-  ``PERIOD_S``; another amplitude on request), for ``DURATION_S`` seconds, integrated from the model (exact). **Reversed** is the same
+  ``PERIOD_S``; another amplitude on request), for ``DURATION_S`` seconds, integrated from the model
+  (exact). **Reversed** is the same
   motion run backwards in time (these models are driftless: the same path, the inputs negated), so the
   rig backs its trailers along it. The nominal is refused, with its numbers, when its steering angle or
   a hitch angle leaves ``FEASIBLE_FRACTION`` of the limits (other hitch lengths can make it so).
@@ -166,28 +167,32 @@ def train_markdown(result: dict) -> str:
     lines = ["# A car with trailers under the feedback laws, forward and reversed", "",
              "Produced by `nhstab trailer train` (nhstab.batch.train_study). nhstab plans a car with one trailer; "
              "the laws and the run loop take more. Here the rig drives an S-curve from a straight rest "
-             f"({n['duration_s']:g} s at {n['speed_m_s']:g} m/s, ramped over {n['ramp_s']:g} s at both ends, steering "
-             f"rate {n['steer_rate_amplitude_rad_s']:g} sin(2 pi t / {n['period_s']:g} s)), and then backs its trailers "
-             f"along the same path (the motion reversed in time). {result['trials']} trials of the run loop per "
-             f"direction and law at noise x{result['noise']:g} (the process disturbance per {result['process_per']}; "
-             f"seeds spawned from {result['root_seed']}); no obstacles. Jackknife = a hitch angle beyond the limit at "
+             f"({n['duration_s']:g} s at {n['speed_m_s']:g} m/s, ramped over {n['ramp_s']:g} s at both ends, "
+             f"steering rate {n['steer_rate_amplitude_rad_s']:g} sin(2 pi t / {n['period_s']:g} s)), and then backs "
+             f"its trailers along the same path (the motion reversed in time). {result['trials']} trials of the run "
+             f"loop per direction and law at noise x{result['noise']:g} (the process disturbance per "
+             f"{result['process_per']}; seeds spawned from {result['root_seed']}); no obstacles. Jackknife = a hitch "
+             "angle beyond the limit at "
              "some sample. Final error = the last trailer's axle from its nominal end, over the trials that did not "
              "jackknife.", ""]
     for rig in result["rigs"]:
-        lines += [f"## {rig['trailers']} trailer(s), hitch lengths {', '.join(f'{d:g}' for d in rig['hitch_lengths_m'])} m",
+        lengths = ", ".join(f"{d:g}" for d in rig["hitch_lengths_m"])
+        hitches = ", ".join(f"{h:.3f}" for h in rig["nominal_max_hitch_rad"])
+        lines += [f"## {rig['trailers']} trailer(s), hitch lengths {lengths} m",
                   "", f"The nominal: {rig['nominal_path_m']:.1f} m, steering up to {rig['nominal_max_steer_rad']:.3f} "
-                  f"of {rig['max_steer_rad']:.3f} rad, hitch angles up to "
-                  f"{', '.join(f'{h:.3f}' for h in rig['nominal_max_hitch_rad'])} of {rig['jackknife_limit_rad']:.3f} rad. "
+                  f"of {rig['max_steer_rad']:.3f} rad, hitch angles up to {hitches} of "
+                  f"{rig['jackknife_limit_rad']:.3f} rad. "
                   f"The gramian law: alpha {rig['stabilizer']['alpha']:g}, delta {rig['stabilizer']['delta']:g} s, "
                   f"gamma {rig['stabilizer']['gamma']:g}.", "",
-                  "| direction | law | jackknifes | final error median / p99 [m] | median max hitch [rad] | max gain norm "
-                  "| smallest gramian eigenvalue |", "|---|---|---|---|---|---|---|"]
+                  "| direction | law | jackknifes | final error median / p99 [m] | median max hitch [rad] "
+                  "| max gain norm | smallest gramian eigenvalue |", "|---|---|---|---|---|---|---|"]
         for c in rig["cells"]:
             if "error" in c:
                 lines.append(f"| {c['direction']} | {c['law']} | no law: {c['error']} | | | | |")
                 continue
             lines.append(f"| {c['direction']} | {c['law']} | {c['jackknifes']}/{c['trials']} | "
-                         f"{_f(c['final_last_axle_error_median_m'], '.3f')} / {_f(c['final_last_axle_error_p99_m'], '.3f')} | "
+                         f"{_f(c['final_last_axle_error_median_m'], '.3f')} / "
+                         f"{_f(c['final_last_axle_error_p99_m'], '.3f')} | "
                          f"{c['median_max_hitch_rad']:.3f} | {c['max_gain_norm']:.3g} | "
                          f"{_f(c.get('min_gramian_eigenvalue'), '.3g')} |")
         lines.append("")

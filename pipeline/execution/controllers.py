@@ -240,7 +240,8 @@ def footprint_weights(robot, states, floor: float = FOOTPRINT_FLOOR) -> np.ndarr
         cs, sn = np.cos(theta[:, b]), np.sin(theta[:, b])
         arm = np.stack([-sn * c_mean[0] - cs * c_mean[1], cs * c_mean[0] - sn * c_mean[1]], axis=1)   # R' c
         cross = np.einsum("tpi,tp,tj->tij", Jp, arm, Jt)
-        Q += np.einsum("tpi,tpj->tij", Jp, Jp) + cross + cross.transpose(0, 2, 1) + c_sq * np.einsum("ti,tj->tij", Jt, Jt)
+        Q += (np.einsum("tpi,tpj->tij", Jp, Jp) + cross + cross.transpose(0, 2, 1)
+              + c_sq * np.einsum("ti,tj->tij", Jt, Jt))
     Q /= len(robot.footprints)
     idle = np.all(np.diagonal(Q, axis1=1, axis2=2) <= 1e-12, axis=0)       # moves no corner at any state
     Q[:, idle, idle] += floor
