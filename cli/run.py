@@ -74,6 +74,9 @@ def parse_levels(name: str, text: str | None) -> dict | None:
 @click.option("--gains", default=None,
               help="default, or auto: the gramian law's alpha, delta, gamma chosen per plan (narrowest error tube "
                    "with a saturation probability under 1 %).")
+@click.option("--tvlqr-q", "tvlqr_q", type=click.Choice(["footprint"]), default=None,
+              help="With --controller tvlqr: Q from how far a state error moves the robot's outline (controller.q: "
+                   "footprint; default: the config's, else the identity).")
 @click.option("--fit", is_flag=True, default=None,
               help="When a plan's error tube is not certified clear, try the margin it needs and other maneuvers, "
                    "and follow the best (planning.fit).")
@@ -98,7 +101,7 @@ def parse_levels(name: str, text: str | None) -> dict | None:
 @map_options
 def run(map_file, config_file, robot, robot_config, start, goal, problem, controller, window, alpha, delta, gamma,
         rate_hz, noise_scale, initial_error, sensor_std, process_std, process_per, seed, planner, time_limit, guide,
-        margin, gains, fit, tube_kind, probability, confidence, require_certified, cusp_replan, max_time,
+        margin, gains, tvlqr_q, fit, tube_kind, probability, confidence, require_certified, cusp_replan, max_time,
         out_dir, animate, print_config, cell_size, unknown):
     """Run the composite controller on MAP: plan, stabilize under noise, sense, monitor with FCL, replan.
 
@@ -164,10 +167,16 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
         noise = replace(noise, process_per=process_per)
     opts = merge(base, seed=seed, rate_hz=rate_hz, max_time_s=max_time, noise=noise,
                  controller__kind=controller, controller__window=window, controller__alpha=alpha,
-                 controller__delta=delta, controller__gamma=gamma, controller__gains=gains, planning__planner=planner,
+                 controller__delta=delta, controller__gamma=gamma, controller__gains=gains, controller__q=tvlqr_q,
+                 planning__planner=planner,
                  planning__time_limit_s=time_limit, planning__margin=margin, planning__guide=guide,
                  tube__kind=tube_kind, tube__probability=probability, tube__confidence=confidence,
                  tube__require_certified=require_certified, replan__at_cusps=cusp_replan, planning__fit=fit)
+    if tvlqr_q is not None and opts.controller.kind != "tvlqr":
+        from nhstab.errors import InputError
+
+        raise InputError("--tvlqr-q", "given with the tvlqr controller (Q is TVLQR's)",
+                         f"the {opts.controller.kind} controller")
     from nhstab.maps import resolve_poses
 
     m = load(map_path, cell_size, unknown)
@@ -186,7 +195,8 @@ def run(map_file, config_file, robot, robot_config, start, goal, problem, contro
              "noise.scale": ("--noise", noise_scale), "controller": ("--controller", controller),
              "controller.window": ("--window", window), "controller.alpha": ("--alpha", alpha),
              "controller.delta": ("--delta", delta), "controller.gamma": ("--gamma", gamma),
-             "controller.gains": ("--gains", gains), "planning.planner": ("--planner", planner),
+             "controller.gains": ("--gains", gains), "controller.q": ("--tvlqr-q", tvlqr_q),
+             "planning.planner": ("--planner", planner),
              "planning.time_limit_s": ("--time-limit", time_limit), "planning.margin": ("--margin", margin),
              "tube.kind": ("--tube", tube_kind), "tube.probability": ("--probability", probability),
              "tube.confidence": ("--confidence", confidence)}

@@ -130,3 +130,18 @@ def test_the_trailer_sweep_takes_tvlqr_q():
         TS.check_sweep_config({**base, "tvlqr_q": ["identity", "diag"]})
     with pytest.raises(InputError, match="'tvlqr_q' must be each value once"):
         TS.check_sweep_config({**base, "tvlqr_q": ["footprint", "footprint"]})
+
+
+def test_nhstab_run_takes_tvlqr_q_with_the_tvlqr_controller_only():
+    """--tvlqr-q footprint sets controller.q (the effective config says so); with another controller it is
+    refused in one line, exit code 2, nothing run."""
+    from click.testing import CliRunner
+    from nhstab.cli.main import cli
+
+    res = CliRunner().invoke(cli, ["run", "example:parallel_rwd_car_100", "--controller", "tvlqr", "--tvlqr-q",
+                                   "footprint", "--print-config"])
+    assert res.exit_code == 0, res.output
+    assert "  kind: tvlqr\n" in res.output and "  q: footprint\n" in res.output
+    res = CliRunner().invoke(cli, ["run", "example:parallel_rwd_car_100", "--tvlqr-q", "footprint", "--print-config"])
+    assert res.exit_code == 2 and "'--tvlqr-q' must be given with the tvlqr controller" in res.output
+    assert "Traceback" not in res.output
