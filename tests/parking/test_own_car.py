@@ -185,7 +185,8 @@ def test_the_committed_suites_of_two_held_out_cars_are_what_the_command_writes(c
 @pytest.mark.parametrize("car", ["compact", "sedan"])
 @pytest.mark.parametrize("folder, per, gains", [("study_x1_per_second", "second", "default"),
                                                 ("study_x1_per_metre", "metre", "default"),
-                                                ("study_x1_per_metre_auto", "metre", "auto")])
+                                                ("study_x1_per_metre_auto", "metre", "auto"),
+                                                ("study_x1_per_second_tvlqr_footprint", "second", "default")])
 def test_the_committed_studies_of_the_held_out_cars(car, folder, per, gains):
     """results/parking/own_car/CAR/study_x1_*: nhstab parking study --suite on the car's six parallel
     slots at x1, both laws, 50 trials and a tube check of 10 x N runs per cell, with the model and gains
@@ -204,6 +205,13 @@ def test_the_committed_studies_of_the_held_out_cars(car, folder, per, gains):
         for c in case["cells"]:
             assert c["trials"]["trials"] == 50 and c["tube_check"]["mc_runs"] == 10 * result["rollouts"]
     assert targets(result) == result["targets"]
+    assert result["planning"].get("tvlqr_q") == ("footprint" if folder.endswith("_tvlqr_footprint") else None)
+    if folder.endswith("_tvlqr_footprint"):        # the same plans and gramian cells as the study without it
+        base = read_json(record_file(OWN / car / "study_x1_per_second", "study.json"))
+        for a, b in zip(base["cases"], result["cases"], strict=True):
+            assert a["plan"]["duration_s"] == b["plan"]["duration_s"]
+            assert [c["trials"] for c in a["cells"] if c["controller"] == "gramian"] == \
+                [c["trials"] for c in b["cells"] if c["controller"] == "gramian"]
 
 
 def test_the_one_collision_in_a_certified_held_out_cell_is_within_its_certificate():
