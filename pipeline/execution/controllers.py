@@ -215,7 +215,7 @@ def footprint_weights(robot, states, floor: float = FOOTPRINT_FLOOR) -> np.ndarr
 
     Per body with pose (p, theta) and corners c_j in its frame, a corner moves by J_p e + R'(theta) c_j
     J_theta e, where J are the body pose's derivatives by the state (central differences of
-    :meth:`~nhstab.robot.Robot.body_poses`, step 1e-6: exact to about 1e-10 for these smooth maps). Its
+    :meth:`~nhstab.robot.Robot.body_poses`, step 1e-6: good to about 1e-9 relative, rounding). Its
     mean over the corners needs only their mean c and mean squared length |c|^2:
     J_p^T J_p + 2 sym(J_p^T R'(theta) c J_theta) + |c|^2 J_theta^T J_theta."""
     x = np.atleast_2d(np.asarray(states, dtype=float))
