@@ -22,7 +22,7 @@ def _emit(result: dict, out: Path):
                                        "without a subcommand).")
 @click.option("--only", default=None, metavar="NAME[,NAME...]",
               help="Run only these benchmarks and merge their results into OUT_DIR/bench.json.gz (the others "
-                   "kept as they were; an uncompressed bench.json of an earlier nhstab is read and replaced), then "
+                   "kept as they were; an uncompressed bench.json there is read and replaced), then "
                    "rewrite summary.md from the merged file.")
 @click.pass_context
 def bench(ctx, out_dir, only):

@@ -135,6 +135,17 @@ def effective_yaml(header: str, doc: dict) -> str:
     return f"# {header}\n" + yaml.safe_dump(doc, sort_keys=False)
 
 
+def numbers(option: str, text: str, what: str) -> list[float]:
+    """The comma-separated numbers of a command-line option, else an InputError naming ``option``
+    (``what``: what it expects)."""
+    try:
+        return [float(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        from nhstab.errors import InputError
+
+        raise InputError(option, what, text) from None
+
+
 def echo_suite_write(result: dict, out_dir, check: bool, command: str, full: str | None = None) -> int:
     """Print what a suite's ``write_suite`` did (``nhstab parking suite``, ``nhstab trailer suite``): the files
     written, or with ``check`` whether the folder is what the command (``full``, else ``nhstab COMMAND

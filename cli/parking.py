@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .options import echo_suite_write
+from .options import echo_suite_write, numbers
 
 
 @click.group("parking")
@@ -43,11 +43,8 @@ def suite(out_dir, check, robot_config, car_name):
     if out_dir is None:
         raise InputError("--out", "a folder for the suite of one's own car (with --robot-config; the bundled "
                          "suite's maps/parking is not overwritten)", "nothing")
-    from nhstab.examples import data_root
     from nhstab.parking import read_suite_csv
 
-    if Path(out_dir).resolve() == (data_root() / "parking").resolve():
-        raise InputError("--out", "a folder other than the bundled suite's (with --robot-config)", str(out_dir))
     spec = load_yaml_file(robot_config, "--robot-config", "robot description (YAML)")
     specs = own_car(spec, f"{Path(robot_config).name}: robot", car_name)
     existing = Path(out_dir) / "suite.csv"
@@ -131,15 +128,6 @@ def figure(car, seeds, out_dir):
 FIGURE_MAPS = ("parallel_rwd_car_090", "parallel_rwd_car_100", "parallel_van_100", "perpendicular_van_aisle110")
 
 
-def _numbers(option: str, text: str, what: str) -> list[float]:
-    try:
-        return [float(s) for s in text.split(",") if s.strip()]
-    except ValueError:
-        from nhstab.errors import InputError
-
-        raise InputError(option, what, text) from None
-
-
 @parking.command("study")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Folder for study.json.gz, study.md and the figures (default: results/parking/study; with "
@@ -202,7 +190,7 @@ def study(out_dir, suite_dir, trials, mc_factor, maps, noise, controllers, root_
     rows = check_maps(names, "--maps", suite_dir)
     if out_dir is None:
         out_dir = Path("results/parking/study") if suite_dir is None else suite_dir / "study"
-    levels = check_levels(_numbers("--noise", noise, "noise scales separated by commas, e.g. 0.5,1,2"), "--noise")
+    levels = check_levels(numbers("--noise", noise, "noise scales separated by commas, e.g. 0.5,1,2"), "--noise")
     ctrls = check_controllers([s.strip() for s in controllers.split(",") if s.strip()], "--controllers")
     figs = [s.strip() for s in figure_maps.split(",") if s.strip()]
     if suite_dir is not None and figure_maps == ",".join(FIGURE_MAPS):
@@ -230,5 +218,6 @@ def study(out_dir, suite_dir, trials, mc_factor, maps, noise, controllers, root_
     click.echo("targets: " + "; ".join(
         f"{k} not evaluated (no cell at x{result['criteria']['target_noise']:g})" if not t.get("evaluated", True)
         else f"{k} {'met' if t['met'] else 'NOT met'} ({len(t['failing'])} failing)" for k, t in tg.items()))
-    click.echo(f"wrote {len(files)} files into {out_dir} (study.md, study.json.gz, figures) in {result['wall_s']:.0f} s")
+    click.echo(f"wrote {len(files)} files into {out_dir} (study.md, study.json.gz, figures) in "
+               f"{result['wall_s']:.0f} s")
     return 0

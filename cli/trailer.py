@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .options import echo_suite_write
+from .options import echo_suite_write, numbers
 
 
 @click.group("trailer")
@@ -197,17 +197,9 @@ def train(hitch_lengths, trials, noise, process_per, root_seed, steer_rate, out_
     from nhstab.batch.train_study import train_markdown, train_study
     from nhstab.records import write_json_gz, write_text
 
-    lengths = _numbers_list("--hitch-lengths", hitch_lengths)
+    lengths = numbers("--hitch-lengths", hitch_lengths, "numbers separated by commas, e.g. 1.5,3")
     result = train_study(lengths, trials, noise, process_per, root_seed, steer_rate=steer_rate)
     files = [write_json_gz(out_dir / "train.json.gz", result), write_text(out_dir / "train.md", train_markdown(result))]
     click.echo(f"wrote {', '.join(str(f) for f in files)} in {result['wall_s']:.0f} s")
     return 0
 
-
-def _numbers_list(key: str, text: str) -> list:
-    try:
-        return [float(s) for s in text.split(",") if s.strip()]
-    except ValueError:
-        from nhstab.errors import InputError
-
-        raise InputError(key, "numbers separated by commas, e.g. 1.5,3", text) from None

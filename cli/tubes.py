@@ -38,9 +38,10 @@ def study(out_dir, trials, root_seed, gains):
 def redraw(out_dir):
     """Redraw a study's report without rerunning its trials: study.md from DIR/study.json.gz (or an
     uncompressed DIR/study.json; default results/tubes), and each case's plan figure (plan_ROBOT_MAP.png)
-    from its first plan and tube made again, drawn only when they are those the study records (same cusps; length, duration, clearance and
-    tube clearance equal); one line says why each other figure is left as it is. The std and coverage
-    figures need the trials' series: nhstab tubes study draws them. Exit code 1 when a figure is left."""
+    from its first plan and tube made again, drawn only when they are those the study records (same
+    cusps; length, duration, clearance and tube clearance equal); one line says why each other figure is
+    left as it is. The std and coverage figures need the trials' series: nhstab tubes study draws them.
+    Exit code 1 when a figure is left."""
     from nhstab.batch.tube_study import redraw_study
 
     files, left = redraw_study(out_dir, progress=lambda s: click.echo(s, err=True))

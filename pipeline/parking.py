@@ -552,9 +552,7 @@ def source_md(cases: list[Case]) -> str:
              "Generated, with `suite.csv` and this file, by `nhstab parking suite --out maps/parking` from the",
              "geometry in `pipeline/parking.py` (`nhstab.parking`); do not edit by hand. Original to nhstab,",
              "same licence as nhstab (BSD-3-Clause). nhstab YAML maps: metres, radians, x right, y up.", "",
-             "## The cars", "",
-]
-    lines += _car_table(specs)
+             "## The cars", "", *_car_table(specs)]
     lines += ["", "`rwd_car` is nhstab's built-in rwd_car; `van` is a long panel van (about a Mercedes Sprinter with",
               "the standard wheelbase: turning circle about 13.5 m kerb to kerb). Each map carries its car as its",
               "`robot:` block (footprint, wheelbase, limits) with a planning margin of "
@@ -727,9 +725,7 @@ def own_source_md(cases: list[Case], specs: dict, command: str) -> str:
              "(`nhstab.parking`, the same as the bundled suite's: see its SOURCE.md in nhstab's `maps/parking/`)",
              "sized from the geometry of the car below. Do not edit by hand: regenerate with that command.",
              "nhstab YAML maps: metres, radians, x right, y up. Each map carries the car as its `robot:` block.", "",
-             "## The car", "",
-]
-    lines += _car_table(specs)
+             "## The car", "", *_car_table(specs)]
     lines += ["", "L1 = b + sqrt(2 R w + (L + f)^2) is the single-maneuver minimum parallel slot (bumper to bumper);",
               "A90 = sqrt((R + w/2)^2 + (L + f)^2) - sqrt((R - w/2)^2 - (R - c)^2) the swept-path aisle of a",
               "reverse-in perpendicular bay (c = bay width - w/2); angled aisles are multiples of a numeric",

@@ -80,8 +80,7 @@ def write_json_gz(path, obj, indent: int | None = None) -> Path:
     ``json.dumps(obj, indent=indent)`` (compact, without spaces, when ``indent`` is None) plus a newline,
     every number as :func:`write_json` writes it; the gzip header holds no time stamp or file name, so
     one record always gives the same bytes. An uncompressed copy of the record (``path`` without
-    ``.gz``, as an earlier nhstab wrote it) is removed once the new file is in place, so that a folder
-    holds one form of each record."""
+    ``.gz``) is removed once the new file is in place, so that a folder holds one form of each record."""
     import gzip
 
     path = Path(path)
@@ -104,7 +103,7 @@ def write_json_gz(path, obj, indent: int | None = None) -> Path:
 def record_file(folder, name: str) -> Path:
     """Where the record ``name`` (e.g. ``"study.json"``) of ``folder`` is: ``name.gz`` (what the
     commands write, :func:`write_json_gz`) when it exists, else ``name`` (a record written
-    uncompressed, by an earlier nhstab or by hand) when that exists, else ``name.gz``."""
+    uncompressed) when that exists, else ``name.gz``."""
     folder = Path(folder)
     gz, plain = folder / (name + GZ), folder / name
     return plain if not gz.exists() and plain.exists() else gz

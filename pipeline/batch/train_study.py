@@ -38,6 +38,7 @@ from ..limits import MAX_NOISE_SCALE, MAX_SEED, MAX_STUDY_TRIALS, check_int
 from ..models.car_trailer import MAX_TRAILERS
 from ..nominal import Nominal
 from ..robot import robot_from_spec
+from .trailer_study import _f
 from .tube_study import trial_seeds
 from .vector import simulate_shared
 
@@ -155,10 +156,6 @@ def _trials(law, seeds, noise, robot) -> dict:
             "final_last_axle_error_median_m": float(np.median(err)) if len(err) else None,
             "final_last_axle_error_p99_m": float(np.quantile(err, 0.99)) if len(err) else None,
             "median_max_hitch_rad": float(np.median(np.where(np.isfinite(hitch), hitch, np.pi)))}
-
-
-def _f(v, fmt: str) -> str:
-    return "-" if v is None else format(v, fmt)
 
 
 def train_markdown(result: dict) -> str:

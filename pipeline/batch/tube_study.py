@@ -449,12 +449,12 @@ REDRAW_RTOL = 1e-9
 
 def redraw_study(out_dir, progress=None) -> tuple[list, list]:
     """Redraw what a study's folder allows without its trials: study.md from study.json.gz (or an
-    uncompressed study.json, as an earlier nhstab wrote it), and per case the plan figure from the
-    case's first plan made again with its tube (:func:`first_plan`, deterministic), drawn only when
-    they are the ones the record holds: the same cusps, and length, duration, nominal clearance and the
-    tube's certified clearance equal to :data:`REDRAW_RTOL` (the margin auto's rounds may differ on the
-    way). The std and coverage figures need the trials' series, which the record does not keep (``nhstab tubes study`` draws them). Returns (files written, one line per figure left and
-    why)."""
+    uncompressed study.json), and per case the plan figure from the case's first plan made again with
+    its tube (:func:`first_plan`, deterministic), drawn only when they are the ones the record holds:
+    the same cusps, and length, duration, nominal clearance and the tube's certified clearance equal to
+    :data:`REDRAW_RTOL` (the margin auto's rounds may differ on the way). The std and coverage figures
+    need the trials' series, which the record does not keep (``nhstab tubes study`` draws them).
+    Returns (files written, one line per figure left and why)."""
     from pathlib import Path
 
     out_dir = Path(out_dir)

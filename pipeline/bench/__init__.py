@@ -53,8 +53,7 @@ def select_benchmarks(only: str | None) -> list[str]:
 
 def previous_results(out_dir) -> dict:
     """The results a partial run (``--only``) merges into: ``out_dir/bench.json.gz``'s benchmarks (or
-    an uncompressed ``bench.json``'s, as an earlier nhstab wrote it) that still exist (an empty dict
-    when there is neither). A file that is not readable JSON holding an object raises
+    an uncompressed ``bench.json``'s) that still exist (an empty dict when there is neither). A file that is not readable JSON holding an object raises
     :class:`InputError` naming ``--out-dir``."""
     previous = record_file(out_dir, "bench.json")
     results = {}

@@ -387,17 +387,15 @@ def rest_drift(noise, state_names, seconds: float) -> tuple[float, float] | None
     return max(lv["x"], lv["y"]) * root, lv["theta"] * root
 
 
-def tube_line(tube, noise_scale: float | None = None, prefix: str = "tube", per_metre: bool = False,
-              noise=None) -> str:
+def tube_line(tube, noise_scale: float | None = None, prefix: str = "tube", noise=None) -> str:
     """One line for a user: certified or not, at which probability, which tube, where it is tightest and
-    what would certify it (from :func:`verdict`, which must have run). ``per_metre``: the noise's process
-    disturbance acts per metre travelled (the line says so; with ``noise`` given, its own ``per_metre``).
-    ``noise`` (the tube's NoiseOptions): where
-    a tube is not certified and the plan stands still for at least :data:`REST_NOTE_S` before its
-    tightest point under a per-second disturbance, the line says how far that moves the robot there
+    what would certify it (from :func:`verdict`, which must have run). ``noise`` (the tube's
+    NoiseOptions): when its process disturbance acts per metre travelled the line says so; where a tube
+    is not certified and the plan stands still for at least :data:`REST_NOTE_S` before its tightest
+    point under a per-second disturbance, the line says how far that moves the robot there
     (:func:`rest_drift`)."""
     v = tube.info.get("verdict") or {}
-    per_metre = per_metre or (noise is not None and noise.per_metre)
+    per_metre = noise is not None and noise.per_metre
     if tube.kind == "sampled":
         r = tube.certificate.get("discards", 0)
         how = (f"sampled: {tube.certificate['rollouts']:,} rollouts of the run loop"
